@@ -1,0 +1,49 @@
+"""The `ngpmc` command line. Each command family lives in its own `cmd_*.py` module that
+defines `register(subparsers)`; handlers return an exit code."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from ngpm_runtime.errors import NgpmError
+
+# Command-family modules, in the order `ngpmc --help` lists them.
+COMMAND_MODULES = [
+    "ngpm_compiler.cmd_grammar",  # compile, check, sample
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ngpmc", description="Compile, train and grow neurally-guided procedural models."
+    )
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.handler(args) or 0)
+    except NgpmError as err:
+        print(f"ngpmc: error: {err}", file=sys.stderr)
+        return err.exit_code
+    except KeyboardInterrupt:
+        print("ngpmc: interrupted", file=sys.stderr)
+        return 130
+    except OSError as err:
+        print(f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
