@@ -1,0 +1,141 @@
+"""Export a trained guide (model.pt) to ONE .onnx file that ngpm_runtime.guide.Guide loads.
+
+The graph holds every site network side by side: per site an input `f_<index>` (raw feature
+rows, float32, batch dimension `n_<index>`) and an output `p_<index>` (section-5 proposal
+parameters). The graph is built op by op from `SiteNet.forward` (same op order, so torch and
+onnxruntime agree to float rounding). onnxruntime needs every graph input fed, so the runtime
+feeds empty batches for the other sites and fetches only `p_<index>`.
+
+metadata_props: ngpm_format, grammar, grammar_hash, sites (site table JSON), features (feature
+set, per-site layout, widths and selected columns), nets (per-site kind / sizes), K, training.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+from ngpm_compiler.nets import LOGIT_BOUND, LOGSD_BOUND, MEAN_BOUND, GuideModel, SiteNet
+
+ONNX_FORMAT = "ngpm-guide-onnx/1"
+OPSET = 17
+IR_VERSION = 8  # onnxruntime >= 1.16 reads it
+
+
+class _Graph:
+    """Collects nodes and constants for one ONNX graph."""
+
+    def __init__(self) -> None:
+        self.nodes: list[onnx.NodeProto] = []
+        self.inits: list[onnx.TensorProto] = []
+
+    def const(self, name: str, value: np.ndarray) -> str:
+        self.inits.append(numpy_helper.from_array(np.asarray(value), name))
+        return name
+
+    def op(self, op_type: str, inputs: list[str], output: str, **attrs: object) -> str:
+        self.nodes.append(helper.make_node(op_type, inputs, [output], name=output, **attrs))
+        return output
+
+    def bound(self, x: str, b: float, name: str) -> str:
+        """b * tanh(x * (1/b)), as nets._bound."""
+        inv = self.const(f"{name}_inv", np.array(1.0 / b, dtype=np.float32))
+        scale = self.const(f"{name}_b", np.array(b, dtype=np.float32))
+        t = self.op("Tanh", [self.op("Mul", [x, inv], f"{name}_scaled")], f"{name}_tanh")
+        return self.op("Mul", [t, scale], name)
+
+
+def _f32(t: object) -> np.ndarray:
+    return np.asarray(t.detach().cpu().numpy(), dtype=np.float32)  # type: ignore[attr-defined]
+
+
+def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
+    """Add one site's network; returns the name of its output."""
+    s, p = net.spec, f"s{index}_"
+    x = f"f_{index}"
+    if net.const is not None:
+        shape = g.op("Shape", [x], p + "shape")
+        n = g.op("Slice", [shape, g.const(p + "s0", np.array([0])), g.const(p + "s1",
+                 np.array([1]))], p + "n")
+        target = g.op("Concat", [n, g.const(p + "nout", np.array([s.n_out]))], p + "target",
+                      axis=0)
+        raw = g.op("Expand", [g.const(p + "const", _f32(net.const)[None, :]), target], p + "raw")
+    else:
+        sel = g.op("Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))],
+                   p + "sel", axis=1)
+        cen = g.op("Sub", [sel, g.const(p + "shift", _f32(net.shift))], p + "centered")
+        std = g.op("Mul", [cen, g.const(p + "scale", _f32(net.scale))], p + "std")
+        h = g.op("Gemm", [std, g.const(p + "w1", _f32(net.l1.weight)),
+                          g.const(p + "b1", _f32(net.l1.bias))], p + "h", transB=1)
+        h = g.op("Tanh", [h], p + "hidden")
+        raw = g.op("Gemm", [h, g.const(p + "w2", _f32(net.l2.weight)),
+                            g.const(p + "b2", _f32(net.l2.bias))], p + "raw", transB=1)
+    out = f"p_{index}"
+    if s.kind in ("normal", "uniform"):
+        K = s.K
+        axes = g.const(p + "axes", np.array([1]))
+        parts = []
+        for j, (name, bnd) in enumerate((("logits", LOGIT_BOUND), ("mean", MEAN_BOUND),
+                                         ("logsd", LOGSD_BOUND))):
+            piece = g.op("Slice", [raw, g.const(p + f"{name}_lo", np.array([j * K])),
+                                   g.const(p + f"{name}_hi", np.array([(j + 1) * K])), axes],
+                         p + name)
+            parts.append(g.bound(piece, bnd, p + name + "_bounded"))
+        parts[0] = g.op("LogSoftmax", [parts[0]], p + "logw", axis=1)
+        return g.op("Concat", parts, out, axis=1)
+    logits = g.bound(raw, LOGIT_BOUND, p + "logits")
+    if s.kind == "bernoulli":
+        return g.op("Sigmoid", [logits], out)
+    return g.op("Softmax", [logits], out, axis=1)
+
+
+def build_onnx(model: GuideModel) -> onnx.ModelProto:
+    """One ONNX model holding every site network of `model`, with metadata."""
+    g = _Graph()
+    inputs, outputs = [], []
+    for index in sorted(model.nets):
+        net = model.nets[index]
+        inputs.append(helper.make_tensor_value_info(
+            f"f_{index}", TensorProto.FLOAT, [f"n_{index}", net.spec.n_f]))
+        _site_graph(g, index, net)
+        outputs.append(helper.make_tensor_value_info(
+            f"p_{index}", TensorProto.FLOAT, [f"n_{index}", net.spec.n_out]))
+    graph = helper.make_graph(g.nodes, f"ngpm_guide_{model.grammar}", inputs, outputs, g.inits)
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                              producer_name="ngpmc export")
+    proto.ir_version = IR_VERSION
+    nets = {str(i): {"kind": n.spec.kind, "n_f": n.spec.n_f, "n_out": n.spec.n_out,
+                     "K": n.spec.K, "k": n.spec.k, "hidden": n.spec.hidden}
+            for i, n in sorted(model.nets.items())}
+    features = {"feature_set": model.feature_set,
+                "layouts": {str(i): v for i, v in sorted(model.layouts.items())},
+                "columns": {str(i): n.spec.cols for i, n in sorted(model.nets.items())}}
+    meta = {"ngpm_format": ONNX_FORMAT, "grammar": model.grammar,
+            "grammar_hash": model.grammar_hash, "sites": json.dumps(model.sites),
+            "features": json.dumps(features), "nets": json.dumps(nets), "K": str(model.K),
+            "training": json.dumps(model.summary)}
+    helper.set_model_props(proto, meta)
+    onnx.checker.check_model(proto, full_check=True)
+    return proto
+
+
+def write_onnx(model: GuideModel, path: str | Path) -> Path:
+    """Build, check and atomically write the guide's ONNX file."""
+    path = Path(path)
+    data = build_onnx(model).SerializeToString()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path

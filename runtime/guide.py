@@ -1,0 +1,112 @@
+"""A learned guide: the ONNX file written by `ngpmc export`, run with onnxruntime.
+
+`Guide.load(path, program)` checks that the file is an ngpm guide for this grammar (hash and
+site table); `Guide.propose` implements the Proposal protocol (docs/architecture.md section 5):
+one onnxruntime call per site per round, then sampling with distributions.proposal_sample /
+proposal_logpdf. Sites without a network (unseen in training) fall back to the prior; they are
+listed in `Guide.fallback_sites`.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+from ngpm_runtime.errors import GuideError
+from ngpm_runtime.program import Program, Site
+
+ONNX_FORMAT = "ngpm-guide-onnx/1"
+SITE_KEYS = ("id", "kind", "k")  # what must agree between the guide's and program's sites
+
+
+class Guide:
+    """Proposal that runs the per-site networks of one ONNX file."""
+
+    def __init__(self, session: ort.InferenceSession, program: Program, path: str,
+                 meta: dict[str, Any]) -> None:
+        self.session = session
+        self.program = program
+        self.path = path
+        self.meta = meta
+        self.nets: dict[int, dict[str, Any]] = {int(k): v for k, v in meta["nets"].items()}
+        self.feature_set: str = meta["features"].get("feature_set", "all")
+        self.uses_features = self.feature_set != "const"
+        self.K = int(meta["K"])
+        self.training: dict[str, Any] = meta["training"]
+        self.fallback_sites: list[int] = [s.index for s in program.sites
+                                          if s.index not in self.nets]
+        self._empty = {f"f_{i}": np.zeros((0, n["n_f"]), dtype=np.float32)
+                       for i, n in self.nets.items()}
+
+    @classmethod
+    def load(cls, path: str | Path, program: Program) -> Guide:
+        path = str(path)
+        if not Path(path).is_file():
+            raise GuideError(f"{path}: no such guide file")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            session = ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
+            props = session.get_modelmeta().custom_metadata_map
+        except Exception:  # onnxruntime raises several types for unreadable files
+            raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
+                from None
+        if props.get("ngpm_format") != ONNX_FORMAT:
+            raise GuideError(f"{path}: not an ngpm guide (written by `ngpmc export`?)")
+        try:
+            meta = {k: props[k] for k in ("grammar", "grammar_hash", "K")}
+            for key in ("sites", "features", "nets", "training"):
+                meta[key] = json.loads(props[key])
+        except (KeyError, ValueError):
+            raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
+        _check_program(path, meta, program)
+        guide = cls(session, program, path, meta)
+        names = {i.name for i in session.get_inputs()}
+        if names != set(guide._empty):
+            raise GuideError(f"{path}: guide inputs do not match its metadata")
+        return guide
+
+    def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
+        """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
+        net = self.nets[site]
+        if features is None:
+            if self.uses_features:
+                raise GuideError(f"{self.path}: site {site} needs features")
+            features = np.zeros((n or 0, net["n_f"]), dtype=np.float32)
+        x = np.ascontiguousarray(features, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != net["n_f"]:
+            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
+                             f"got shape {x.shape} (features changed since training?)")
+        feeds = dict(self._empty)
+        feeds[f"f_{site}"] = x
+        (out,) = self.session.run([f"p_{site}"], feeds)
+        return out.astype(np.float64)
+
+    def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        from ngpm_runtime import distributions as dist
+
+        if site.index not in self.nets:
+            values = dist.prior_sample(site, prior_args, rng)
+            return values, dist.prior_logpdf(site, prior_args, values)
+        params = self.params(site.index, features, n=len(prior_args))
+        values = dist.proposal_sample(site, prior_args, params, rng)
+        return values, dist.proposal_logpdf(site, prior_args, params, values)
+
+
+def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:
+    """GuideError unless the guide was trained for this grammar."""
+    if program.grammar_hash and meta["grammar_hash"] != program.grammar_hash:
+        raise GuideError(f"{path}: guide was trained for grammar {meta['grammar']!r} "
+                         f"({meta['grammar_hash'][:19]}), not {program.name!r} "
+                         f"({program.grammar_hash[:19]})")
+    theirs = [tuple(s.get(k) for k in SITE_KEYS) for s in meta["sites"]]
+    ours = [tuple(getattr(s, k) for k in SITE_KEYS) for s in program.sites]
+    if theirs != ours:
+        raise GuideError(f"{path}: guide's site table does not match grammar "
+                         f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)")

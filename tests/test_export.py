@@ -1,0 +1,117 @@
+"""Export: torch and onnxruntime agree; the ONNX file checks; Guide.load rejects bad files."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+import torch
+from ngpm_runtime.errors import GuideError
+from ngpm_runtime.guide import Guide
+from ngpm_runtime.program import Program, Site
+
+from ngpm_compiler.export import build_onnx, write_onnx
+from ngpm_compiler.nets import GuideModel, NetSpec, SiteNet, select_columns
+
+N_F = 12
+LAYOUT = {"local": slice(0, 6), "target": slice(6, 9), "partial": slice(9, 12)}
+SITES = [
+    Site(index=0, id="A/0/normal0", kind="normal"),
+    Site(index=1, id="A/0/uniform0", kind="uniform"),
+    Site(index=2, id="A/0/bernoulli0", kind="bernoulli"),
+    Site(index=3, id="A/choice", kind="categorical", k=3, probs=(0.2, 0.3, 0.5)),
+]
+
+
+def fake_program(sites: list[Site] = SITES, grammar_hash: str = "sha256:abc") -> Program:
+    return Program(name="fake", sites=sites, axiom=lambda ctx: [], productions={},
+                   grammar_hash=grammar_hash)
+
+
+def random_model(K: int, feature_set: str, seed: int = 0, skip: tuple[int, ...] = ()) -> GuideModel:
+    torch.manual_seed(seed)
+    nets = {}
+    for site in SITES:
+        if site.index in skip:
+            continue
+        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=N_F, K=K, k=site.k,
+                       cols=select_columns(LAYOUT, feature_set))
+        rng = np.random.default_rng(seed + site.index)
+        net = SiteNet(spec, mean=rng.normal(size=len(spec.cols)),
+                      std=rng.uniform(0.5, 2, size=len(spec.cols)), prior_probs=site.probs)
+        with torch.no_grad():
+            for name, p in net.named_parameters():
+                p.add_(torch.randn_like(p) * (3.0 if name == "const" else 1.0))
+        nets[site.index] = net
+    layouts = {s.index: {k: [v.start, v.stop] for k, v in LAYOUT.items()} for s in SITES}
+    return GuideModel(grammar="fake", grammar_hash="sha256:abc",
+                      sites=[s.to_json() for s in SITES], feature_set=feature_set, K=K,
+                      nets=nets, layouts=layouts, summary={"epochs": 0})
+
+
+@pytest.mark.parametrize("K", [1, 4])
+@pytest.mark.parametrize("feature_set", ["const", "local", "all"])
+def test_torch_and_onnxruntime_agree(tmp_path, K, feature_set):
+    model = random_model(K, feature_set, seed=K)
+    path = write_onnx(model, tmp_path / "g.onnx")
+    onnx.checker.check_model(onnx.load(str(path)), full_check=True)
+    guide = Guide.load(path, fake_program())
+    rng = np.random.default_rng(1)
+    for site in SITES:
+        for n in (1, 7, 300):
+            x = (rng.normal(size=(n, N_F)) * 3).astype(np.float32)
+            with torch.no_grad():
+                ref = model.nets[site.index](torch.from_numpy(x)).numpy()
+            got = guide.params(site.index, x)
+            assert got.shape == ref.shape == (n, model.nets[site.index].spec.n_out)
+            np.testing.assert_allclose(got, ref, atol=1e-5, rtol=0)
+            if site.kind in ("normal", "uniform"):  # log weights normalized
+                np.testing.assert_allclose(np.exp(got[:, :K]).sum(1), 1, atol=1e-5)
+            elif site.kind == "categorical":
+                np.testing.assert_allclose(got.sum(1), 1, atol=1e-5)
+                assert got.min() > 0
+
+
+def test_metadata(tmp_path):
+    model = random_model(4, "local+target")
+    proto = build_onnx(model)
+    props = {p.key: p.value for p in proto.metadata_props}
+    assert props["grammar_hash"] == "sha256:abc" and props["K"] == "4"
+    assert [s["id"] for s in json.loads(props["sites"])] == [s.id for s in SITES]
+    features = json.loads(props["features"])
+    assert features["feature_set"] == "local+target"
+    assert features["columns"]["0"] == list(range(9))
+    assert json.loads(props["training"]) == {"epochs": 0}
+    assert [i.name for i in proto.graph.input] == ["f_0", "f_1", "f_2", "f_3"]
+    assert [o.name for o in proto.graph.output] == ["p_0", "p_1", "p_2", "p_3"]
+
+
+def test_fallback_sites(tmp_path):
+    path = write_onnx(random_model(4, "all", skip=(1, 3)), tmp_path / "g.onnx")
+    guide = Guide.load(path, fake_program())
+    assert guide.fallback_sites == [1, 3]
+    assert guide.uses_features
+
+
+def test_rejects_other_grammar_and_bad_files(tmp_path):
+    path = write_onnx(random_model(4, "all"), tmp_path / "g.onnx")
+    with pytest.raises(GuideError, match="trained for grammar"):
+        Guide.load(path, fake_program(grammar_hash="sha256:other"))
+    other_sites = [*SITES[:3], Site(index=3, id="B/choice", kind="categorical", k=3)]
+    with pytest.raises(GuideError, match="site table"):
+        Guide.load(path, fake_program(sites=other_sites))
+    data = path.read_bytes()
+    bad = tmp_path / "truncated.onnx"
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(GuideError, match="corrupt or truncated"):
+        Guide.load(bad, fake_program())
+    bad.write_bytes(b"not an onnx file at all")
+    with pytest.raises(GuideError):
+        Guide.load(bad, fake_program())
+    with pytest.raises(GuideError, match="no such"):
+        Guide.load(tmp_path / "missing.onnx", fake_program())
+    guide = Guide.load(path, fake_program())
+    with pytest.raises(GuideError, match="expects 12 features"):
+        guide.params(0, np.zeros((3, 5), np.float32))
