@@ -1,0 +1,233 @@
+"""Batched densities and samplers for the four site kinds (architecture.md sections 4, 5).
+
+Every function works on `n` particles at once: `args` is `(n, n_args)` float64 (prior
+arguments per section 4), `params` is `(n, n_params)` (guide outputs per section 5) and
+`values` is `(n,)` float64. Log densities are float64; impossible values give -inf, never NaN.
+
+Guide parameter layouts, `K` mixture components:
+- normal: columns `[0:K]` log mixture weights (normalized here), `[K:2K]` means and
+  `[2K:3K]` log sds, in prior units: `mean = mu + sigma * m`, `sd = sigma * exp(s)`.
+- uniform on `(a, b)`: the same `(n, 3K)` layout for a normal mixture on `z`, and
+  `x = a + (b - a) * sigmoid(z)`.
+- bernoulli: `(n, 1)` probability of 1; categorical: `(n, k)` probabilities (normalized here).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.program import Site
+
+LOG_2PI = float(np.log(2.0 * np.pi))
+_TINY = 1e-300
+
+
+def _log(x: np.ndarray) -> np.ndarray:
+    """log that maps 0 to -inf without a warning."""
+    with np.errstate(divide="ignore"):
+        return np.log(x)
+
+
+def _normal_logpdf(x: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """Normal log density; sd == 0 is a point mass (log density 0 at the mean)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (x - mean) / sd
+        out = -0.5 * z * z - np.log(sd) - 0.5 * LOG_2PI
+    point = sd == 0
+    if point.any():
+        out = np.where(point, np.where(x == mean, 0.0, -np.inf), out)
+    return np.where(np.isnan(out), -np.inf, out)
+
+
+def _categorical_probs(site: Site, w: np.ndarray) -> np.ndarray:
+    """Normalize categorical weights row-wise; bad weights are the program's fault."""
+    w = np.asarray(w, dtype=np.float64)
+    total = w.sum(axis=1, keepdims=True)
+    if not np.all(np.isfinite(w)) or (w < 0).any() or (total <= 0).any():
+        raise ProgramError(
+            f"site {site.id} (line {site.line}): categorical weights must be finite, "
+            "non-negative and not all zero"
+        )
+    return w / total
+
+
+def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One draw per row of the probability matrix `p`, by inverting the cumulative sums."""
+    cum = np.cumsum(p, axis=1)
+    u = rng.random(p.shape[0]) * cum[:, -1]
+    idx = (cum <= u[:, None]).sum(axis=1)
+    # never land on a zero-probability category through rounding at the top end
+    idx = np.minimum(idx, p.shape[1] - 1)
+    return idx.astype(np.float64)
+
+
+def _categorical_logpmf(p: np.ndarray, values: np.ndarray) -> np.ndarray:
+    v = np.asarray(values)
+    ok = (v >= 0) & (v < p.shape[1]) & (v == np.floor(v))
+    k = np.where(ok, v, 0).astype(np.intp)
+    out = _log(p[np.arange(p.shape[0]), k])
+    return np.where(ok, out, -np.inf)
+
+
+def _uniform_bounds(args: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.minimum(args[:, 0], args[:, 1])
+    b = np.maximum(args[:, 0], args[:, 1])
+    return a, b
+
+
+def _check_args(site: Site, args: np.ndarray) -> np.ndarray:
+    args = np.asarray(args, dtype=np.float64)
+    if args.ndim != 2:
+        raise ValueError(f"prior args for site {site.id} must be 2-D, got shape {args.shape}")
+    if site.kind in ("normal", "uniform", "bernoulli") and not np.all(np.isfinite(args)):
+        raise ProgramError(
+            f"site {site.id} (line {site.line}): non-finite {site.kind} arguments"
+        )
+    return args
+
+
+# --------------------------------------------------------------------------- prior
+
+
+def prior_sample(site: Site, args: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Draw one value per row of `args` from the site's prior."""
+    args = _check_args(site, args)
+    n = args.shape[0]
+    kind = site.kind
+    if kind == "normal":
+        return args[:, 0] + np.abs(args[:, 1]) * rng.standard_normal(n)
+    if kind == "uniform":
+        a, b = _uniform_bounds(args)
+        return a + (b - a) * rng.random(n)
+    if kind == "bernoulli":
+        return (rng.random(n) < args[:, 0]).astype(np.float64)
+    if kind == "categorical":
+        return _categorical_sample(_categorical_probs(site, args), rng)
+    raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def prior_logpdf(site: Site, args: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Log prior density (or mass) of `values` under the site's prior, shape `(n,)`."""
+    args = _check_args(site, args)
+    x = np.asarray(values, dtype=np.float64)
+    kind = site.kind
+    if kind == "normal":
+        return _normal_logpdf(x, args[:, 0], np.abs(args[:, 1]))
+    if kind == "uniform":
+        a, b = _uniform_bounds(args)
+        width = b - a
+        inside = (x >= a) & (x <= b)
+        dens = np.where(width > 0, -_log(np.where(width > 0, width, 1.0)), 0.0)
+        point_ok = (width > 0) | (x == a)
+        return np.where(inside & point_ok, dens, -np.inf)
+    if kind == "bernoulli":
+        p = np.clip(args[:, 0], 0.0, 1.0)
+        out = np.where(x == 1.0, _log(p), _log(1.0 - p))
+        return np.where((x == 0.0) | (x == 1.0), out, -np.inf)
+    if kind == "categorical":
+        return _categorical_logpmf(_categorical_probs(site, args), x)
+    raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+# --------------------------------------------------------------------------- proposals
+
+
+def _mixture(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split `(n, 3K)` mixture params into normalized log weights, means, log sds."""
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim != 2 or params.shape[1] % 3 != 0 or params.shape[1] == 0:
+        raise ValueError(f"mixture params must be (n, 3K), got shape {params.shape}")
+    k = params.shape[1] // 3
+    logw = params[:, :k]
+    logw = logw - _logsumexp_rows(logw)[:, None]
+    return logw, params[:, k : 2 * k], params[:, 2 * k :]
+
+
+def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
+    m = np.max(a, axis=1)
+    m = np.where(np.isfinite(m), m, 0.0)
+    with np.errstate(divide="ignore"):
+        return m + np.log(np.sum(np.exp(a - m[:, None]), axis=1))
+
+
+def _mixture_sample(
+    logw: np.ndarray, mean: np.ndarray, sd: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    comp = _categorical_sample(np.exp(logw), rng).astype(np.intp)
+    rows = np.arange(logw.shape[0])
+    return mean[rows, comp] + sd[rows, comp] * rng.standard_normal(logw.shape[0])
+
+
+def _mixture_logpdf(
+    x: np.ndarray, logw: np.ndarray, mean: np.ndarray, sd: np.ndarray
+) -> np.ndarray:
+    comp = logw + _normal_logpdf(x[:, None], mean, sd)
+    return _logsumexp_rows(comp)
+
+
+def _normal_mixture(args: np.ndarray, params: np.ndarray):
+    logw, m, s = _mixture(params)
+    mu = args[:, 0:1]
+    sigma = np.abs(args[:, 1:2])
+    return logw, mu + sigma * m, sigma * np.exp(s)
+
+
+def _probs(params: np.ndarray) -> np.ndarray:
+    p = np.clip(np.asarray(params, dtype=np.float64), 0.0, None)
+    total = p.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = p / total
+    return np.where(total > 0, p, 1.0 / p.shape[1])
+
+
+def proposal_sample(
+    site: Site, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """Draw one value per row from the proposal that `params` (guide outputs) describe."""
+    args = _check_args(site, args)
+    kind = site.kind
+    n = args.shape[0]
+    if kind == "normal":
+        return _mixture_sample(*_normal_mixture(args, params), rng)
+    if kind == "uniform":
+        logw, m, s = _mixture(params)
+        z = _mixture_sample(logw, m, np.exp(s), rng)
+        a, b = _uniform_bounds(args)
+        return a + (b - a) / (1.0 + np.exp(-z))
+    if kind == "bernoulli":
+        p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
+        return (rng.random(n) < p).astype(np.float64)
+    if kind == "categorical":
+        return _categorical_sample(_probs(params), rng)
+    raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def proposal_logpdf(
+    site: Site, args: np.ndarray, params: np.ndarray, values: np.ndarray
+) -> np.ndarray:
+    """Log density of `values` under the proposal that `params` describe, shape `(n,)`."""
+    args = _check_args(site, args)
+    x = np.asarray(values, dtype=np.float64)
+    kind = site.kind
+    if kind == "normal":
+        return _mixture_logpdf(x, *_normal_mixture(args, params))
+    if kind == "uniform":
+        logw, m, s = _mixture(params)
+        a, b = _uniform_bounds(args)
+        width = b - a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = (x - a) / width
+            z = np.log(u) - np.log1p(-u)
+            # log |dx/dz| = log(width) + log(u) + log(1 - u)
+            out = _mixture_logpdf(z, logw, m, np.exp(s)) - (
+                np.log(width) + np.log(u) + np.log1p(-u)
+            )
+        ok = (width > 0) & (u > 0) & (u < 1)
+        return np.where(ok & ~np.isnan(out), out, -np.inf)
+    if kind == "bernoulli":
+        p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
+        out = np.where(x == 1.0, _log(p), _log(1.0 - p))
+        return np.where((x == 0.0) | (x == 1.0), out, -np.inf)
+    if kind == "categorical":
+        return _categorical_logpmf(_probs(params), x)
+    raise ProgramError(f"site {site.id}: unknown kind {kind!r}")

@@ -1,0 +1,78 @@
+"""Proposals that answer SMC's batched site requests (architecture.md section 5).
+
+`PriorProposal` samples each site's prior. `FixedProposal` uses one fixed set of guide-style
+parameters per site (tests and baselines); sites it does not list fall back to the prior.
+A learned `Guide` (guide.py) implements the same protocol.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol
+
+import numpy as np
+from ngpm_runtime.distributions import (
+    prior_logpdf,
+    prior_sample,
+    proposal_logpdf,
+    proposal_sample,
+)
+from ngpm_runtime.program import Site
+
+
+class Proposal(Protocol):
+    uses_features: bool
+
+    def propose(
+        self,
+        site: Site,
+        prior_args: np.ndarray,
+        features: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class PriorProposal:
+    """Sample the prior: log q equals log prior, so site weights cancel."""
+
+    uses_features = False
+
+    def propose(
+        self,
+        site: Site,
+        prior_args: np.ndarray,
+        features: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        values = prior_sample(site, prior_args, rng)
+        return values, prior_logpdf(site, prior_args, values)
+
+
+class FixedProposal:
+    """A fixed proposal per site: `params` maps a site index or id to one row of guide
+    outputs (layouts in distributions.py), used for every particle at that site."""
+
+    uses_features = False
+
+    def __init__(self, params: Mapping[int | str, np.ndarray | list[float]]) -> None:
+        self.params = {k: np.asarray(v, dtype=np.float64).reshape(1, -1) for k, v in
+                       params.items()}
+
+    def _row(self, site: Site) -> np.ndarray | None:
+        row = self.params.get(site.index)
+        return row if row is not None else self.params.get(site.id)
+
+    def propose(
+        self,
+        site: Site,
+        prior_args: np.ndarray,
+        features: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        row = self._row(site)
+        if row is None:
+            values = prior_sample(site, prior_args, rng)
+            return values, prior_logpdf(site, prior_args, values)
+        params = np.repeat(row, prior_args.shape[0], axis=0)
+        values = proposal_sample(site, prior_args, params, rng)
+        return values, proposal_logpdf(site, prior_args, params, values)

@@ -1,0 +1,333 @@
+"""Sequential Monte Carlo over a compiled program (architecture.md sections 2, 3, 5, 8).
+
+All particles advance together. In one step every live particle runs to its next drawn
+primitive; the random values it asks for on the way are drawn in rounds, one batched
+`proposal.propose` call per site per round (sites by index, particles by index). Then the
+new primitives are rasterized, the likelihood increments applied and, every step or when the
+ESS drops below `ess_threshold * N`, the particles are resampled. Weights carry
+`log prior - log q` of every site, so any proposal gives a correct answer.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver, Particle
+from ngpm_runtime.distributions import prior_logpdf
+from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
+from ngpm_runtime.program import Program
+from ngpm_runtime.proposals import PriorProposal
+from ngpm_runtime.resample import SCHEMES
+from ngpm_runtime.resample import resample as draw_ancestors
+from ngpm_runtime.turtle import cons_to_list, prim_bbox
+
+
+class SMCOptionError(NgpmError):
+    """An SMC option has a value that cannot be used."""
+
+
+@dataclass
+class FinalParticle:
+    primitives: list[tuple]
+    log_prior: float
+    log_likelihood: float
+    log_weight: float
+    trace: list[tuple[int, np.ndarray | None, float]] | None
+    status: str  # "done", "limit" (a cap was hit) or "dead" (zero weight)
+
+
+@dataclass
+class SMCResult:
+    particles: list[FinalParticle]
+    log_weights: np.ndarray
+    best: FinalParticle
+    log_evidence: float
+    ess_history: list[float]
+    steps: int
+    seconds: float
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class PrimBatch:
+    """What a likelihood sees when the run has no canvas: who drew what."""
+
+    idx: np.ndarray
+    bbox: np.ndarray
+    prims: list[tuple]
+
+
+def _logsumexp(a: np.ndarray) -> float:
+    m = float(np.max(a))
+    if not math.isfinite(m):
+        return m
+    return m + math.log(float(np.sum(np.exp(a - m))))
+
+
+def _ess(log_w: np.ndarray) -> float:
+    lse = _logsumexp(log_w)
+    if not math.isfinite(lse):
+        return 0.0
+    return float(math.exp(2.0 * lse - _logsumexp(2.0 * log_w)))
+
+
+def forward(
+    program: Program, seed: int = 0, start: tuple[float, float, float] | None = None
+) -> FinalParticle:
+    """One prior sample of the program: SMC with one particle and no likelihood."""
+    return smc(program, None, 1, seed=seed, start=start).particles[0]
+
+
+def smc(
+    program: Program,
+    likelihood: Any,
+    n_particles: int,
+    proposal: Any = None,
+    seed: int = 0,
+    resample: str = "residual",
+    ess_threshold: float | None = None,
+    record_trace: bool = False,
+    start: tuple[float, float, float] | None = None,
+    canvas_size: tuple[int, int] = (50, 50),
+    target_mask: np.ndarray | None = None,
+    max_steps: int | None = None,
+    max_primitives: int | None = None,
+) -> SMCResult:
+    """Run SMC; `likelihood=None` means no likelihood (forward sampling).
+
+    `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
+    (None: every step). `max_primitives` overrides `program.max_primitives`.
+    """
+    t0 = time.perf_counter()
+    n = int(n_particles)
+    if n < 1:
+        raise SMCOptionError(f"need at least one particle, got {n_particles}")
+    if resample not in SCHEMES:
+        raise SMCOptionError(f"unknown resampling scheme {resample!r} "
+                             f"(choose from {', '.join(SCHEMES)})")
+    if ess_threshold is not None and not 0.0 < ess_threshold <= 1.0:
+        raise SMCOptionError(f"ess_threshold must be in (0, 1], got {ess_threshold}")
+    rng = np.random.Generator(np.random.PCG64(seed))
+    proposal = PriorProposal() if proposal is None else proposal
+    is_prior = type(proposal) is PriorProposal
+    cap = program.max_primitives if max_primitives is None else int(max_primitives)
+    viewport = program.viewport
+
+    # What the run needs: features, a canvas.
+    use_features = bool(getattr(proposal, "uses_features", False))
+    need_features = use_features or record_trace
+    like_canvas = likelihood is not None and getattr(likelihood, "needs_canvas", True)
+    canvas = None
+    if need_features or like_canvas:
+        if viewport is None:
+            raise ProgramError(f"program {program.name} has no viewport: "
+                               "cannot rasterize for the likelihood or features")
+        from ngpm_runtime.raster import Canvas
+
+        canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]), viewport)
+    fmaker = None
+    if need_features:
+        from ngpm_runtime.features import FeatureMaker
+
+        fmaker = FeatureMaker(program, viewport, target_mask)
+    like_state = likelihood.start(n) if likelihood is not None else {}
+
+    x0, y0, h0 = program.start if start is None else start
+    deriver = Deriver(program)
+    advance = deriver.advance
+    parts: list[Particle] = [deriver.start((float(x0), float(y0), float(h0), 1.0))
+                             for _ in range(n)]
+    log_w = np.zeros(n)
+    log_prior = np.zeros(n)
+    log_lik = np.zeros(n)
+    log_z = 0.0
+    ess_history: list[float] = []
+    steps = 0
+    n_resample = 0
+    particle_steps = 0
+    live = list(range(n))
+
+    while live:
+        if max_steps is not None and steps >= max_steps:
+            for i in live:
+                parts[i].status = "limit"
+            break
+        steps += 1
+        particle_steps += len(live)
+        drawn: list[int] = []
+        run = live
+        while run:
+            waiting: dict[int, list[int]] = {}
+            for i in run:
+                p = parts[i]
+                code = advance(p)
+                if code == DRAWN:
+                    drawn.append(i)
+                elif code == NEED:
+                    s = p.need[0]
+                    if s in waiting:
+                        waiting[s].append(i)
+                    else:
+                        waiting[s] = [i]
+                elif code == DONE:
+                    p.status = "done"
+                else:
+                    p.status = "limit"
+            run = []
+            for s in sorted(waiting):
+                idx = waiting[s]
+                _serve_site(program, s, idx, parts, proposal, is_prior, rng, log_w,
+                            log_prior, fmaker, canvas, use_features, record_trace)
+                run.extend(idx)
+            run.sort()
+
+        if drawn:
+            drawn.sort()
+            idx = np.asarray(drawn, dtype=np.intp)
+            prims = [parts[i].last for i in drawn]
+            if canvas is not None:
+                batch = canvas.draw(idx, prims)
+                try:
+                    batch.prims = prims
+                except AttributeError:
+                    pass
+            else:
+                batch = PrimBatch(idx, np.array([prim_bbox(q) for q in prims]), prims)
+            if likelihood is not None:
+                inc = np.asarray(likelihood.increment(like_state, canvas, batch),
+                                 dtype=np.float64)
+                inc = np.where(np.isnan(inc), -np.inf, inc)
+                log_w[idx] += inc
+                log_lik[idx] += inc
+            for i in drawn:
+                p = parts[i]
+                if p.n_prims >= cap and p.stack is not None:
+                    p.status = "limit"
+
+        if (log_w == np.inf).any():
+            raise SMCFailed(f"a proposal gave zero density to its own value at step {steps} "
+                            f"(program {program.name})")
+        if not np.isfinite(log_w).any():
+            raise SMCFailed(f"every particle's weight is zero after step {steps} "
+                            f"({n} particles, program {program.name})")
+        for i in live:
+            if log_w[i] == -np.inf and parts[i].status == "live":
+                parts[i].status = "dead"
+        live = [i for i in live if parts[i].status == "live"]
+        ess = _ess(log_w)
+        ess_history.append(ess)
+        if live and n > 1 and (ess_threshold is None or ess < ess_threshold * n):
+            log_z += _logsumexp(log_w) - math.log(n)
+            anc = draw_ancestors(resample, log_w, rng)
+            parts = _take_particles(parts, anc)
+            log_prior = log_prior[anc]
+            log_lik = log_lik[anc]
+            log_w = np.zeros(n)
+            for key in like_state:
+                like_state[key] = like_state[key][anc]
+            if canvas is not None:
+                canvas.take(anc)
+            live = [i for i in range(n) if parts[i].status == "live"]
+            n_resample += 1
+
+    log_z += _logsumexp(log_w) - math.log(n)
+    finals = [
+        FinalParticle(
+            primitives=cons_to_list(p.prims),
+            log_prior=float(log_prior[i]),
+            log_likelihood=float(log_lik[i]),
+            log_weight=float(log_w[i]),
+            trace=cons_to_list(p.trace) if record_trace else None,
+            status=p.status,
+        )
+        for i, p in enumerate(parts)
+    ]
+    score = np.where(np.isfinite(log_w), log_prior + log_lik, -np.inf)
+    best = finals[int(np.argmax(score))]
+    return SMCResult(
+        particles=finals,
+        log_weights=log_w.copy(),
+        best=best,
+        log_evidence=float(log_z),
+        ess_history=ess_history,
+        steps=steps,
+        seconds=time.perf_counter() - t0,
+        info={"particle_steps": particle_steps, "resamples": n_resample},
+    )
+
+
+def _serve_site(
+    program: Program,
+    s: int,
+    idx: list[int],
+    parts: list[Particle],
+    proposal: Any,
+    is_prior: bool,
+    rng: np.random.Generator,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+    fmaker: Any,
+    canvas: Any,
+    use_features: bool,
+    record_trace: bool,
+) -> None:
+    """Draw site `s` for the waiting particles `idx` with one proposal call."""
+    if not 0 <= s < len(program.sites):
+        raise ProgramError(f"program {program.name} asked for unknown site {s}")
+    site = program.sites[s]
+    try:
+        args = np.array([parts[i].need[1] for i in idx], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
+                           "numbers of one length") from None
+    if args.ndim != 2:
+        args = args.reshape(len(idx), -1)
+    feats = None
+    if fmaker is not None:
+        feats = _features(fmaker, site, canvas, idx, parts, args)
+    values, log_q = proposal.propose(site, args, feats if use_features else None, rng)
+    values = np.asarray(values, dtype=np.float64)
+    log_q = np.asarray(log_q, dtype=np.float64)
+    log_p = log_q if is_prior else prior_logpdf(site, args, values)
+    ia = np.asarray(idx, dtype=np.intp)
+    with np.errstate(invalid="ignore"):
+        delta = log_p - log_q
+    log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
+    log_prior[ia] += log_p
+    vals = values.tolist()
+    for j, i in enumerate(idx):
+        p = parts[i]
+        p.values.append(vals[j])
+        p.sites.append(s)
+        p.need = None
+        if record_trace:
+            p.trace = ((s, feats[j], vals[j]), p.trace)
+
+
+def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[Particle],
+              args: np.ndarray) -> np.ndarray:
+    n = len(idx)
+    turtle = np.array([parts[i].turtle for i in idx], dtype=np.float64).reshape(n, 4)
+    tops = [parts[i].stack for i in idx]
+    depth = np.array([max(t[1], 0) for t in tops], dtype=np.float64)
+    try:
+        params = np.array([t[0][1:] for t in tops], dtype=np.float64).reshape(n, -1)
+    except ValueError:
+        raise ProgramError(f"site {site.id}: modules of different arity share it") from None
+    return fmaker.features(site, canvas, np.asarray(idx, dtype=np.intp), turtle, depth,
+                           params, args)
+
+
+def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
+    """Particles for the ancestor indices (ascending): duplicates are shallow copies."""
+    out: list[Particle] = []
+    prev = -1
+    for a in anc.tolist():
+        p = parts[a]
+        out.append(p.copy() if a == prev else p)
+        prev = a
+    return out

@@ -1,0 +1,120 @@
+"""The 2D turtle (architecture.md section 3) and primitive geometry.
+
+Turtle state is a plain tuple `(x, y, heading_degrees, width)`; the push-down stack and the
+open polygons are persistent cons lists `(head, rest)` / `None`, so a particle's turtle is
+shared, never copied. Primitives are the plain tuples of section 8.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ngpm_runtime.errors import ProgramError
+
+Turtle = tuple  # (x, y, heading, width)
+Prim = tuple
+
+# Symbols the turtle acts on; every other module is ignored by it.
+TURTLE_SYMBOLS = frozenset(["F", "f", "+", "-", "|", "[", "]", "!", "~l", "@O", "{", ".", "}"])
+# Control symbols handled by the derivation itself.
+CUT = "%"
+HALT = "halt"
+
+_RAD = math.pi / 180.0
+
+
+def interpret(
+    mod: tuple, turtle: Turtle, tstack: tuple | None, poly: tuple | None, angle: float
+) -> tuple[Turtle, tuple | None, tuple | None, Prim | None]:
+    """Apply one turtle symbol; returns (turtle, tstack, poly, primitive drawn or None).
+
+    `poly` is a cons list of open polygons, each a cons list of vertices (newest first).
+    """
+    name = mod[0]
+    x, y, h, w = turtle
+    if name == "F":
+        step = mod[1] if len(mod) > 1 else 1.0
+        x1 = x + step * math.cos(h * _RAD)
+        y1 = y + step * math.sin(h * _RAD)
+        return (x1, y1, h, w), tstack, poly, ("seg", x, y, x1, y1, w)
+    if name == "+":
+        return (x, y, h + (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
+    if name == "-":
+        return (x, y, h - (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
+    if name == "[":
+        return turtle, (turtle, tstack), poly, None
+    if name == "]":
+        if tstack is None:
+            raise ProgramError("turtle: ']' without a matching '['")
+        return tstack[0], tstack[1], poly, None
+    if name == "!":
+        return (x, y, h, float(mod[1]) if len(mod) > 1 else w), tstack, poly, None
+    if name == "f":
+        step = mod[1] if len(mod) > 1 else 1.0
+        return (
+            (x + step * math.cos(h * _RAD), y + step * math.sin(h * _RAD), h, w),
+            tstack, poly, None,
+        )
+    if name == "~l":
+        length = mod[1] if len(mod) > 1 else 1.0
+        width = mod[2] if len(mod) > 2 else 1.0
+        return turtle, tstack, poly, ("leaf", x, y, h, length, width)
+    if name == "@O":
+        r = mod[1] if len(mod) > 1 else 1.0
+        return turtle, tstack, poly, ("disk", x, y, r)
+    if name == "|":
+        return (x, y, h + 180.0, w), tstack, poly, None
+    if name == "{":
+        return turtle, tstack, (None, poly), None
+    if name == ".":
+        if poly is None:
+            return turtle, tstack, poly, None  # a vertex outside a polygon records nothing
+        return turtle, tstack, (((x, y), poly[0]), poly[1]), None
+    if name == "}":
+        if poly is None:
+            raise ProgramError("turtle: '}' without a matching '{'")
+        verts = []
+        node = poly[0]
+        while node is not None:
+            verts.append(node[0])
+            node = node[1]
+        verts.reverse()
+        prim = ("poly", tuple(verts)) if len(verts) >= 3 else None
+        return turtle, tstack, poly[1], prim
+    return turtle, tstack, poly, None
+
+
+def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
+    """World bounding box `(xmin, xmax, ymin, ymax)` of a primitive (viewport order)."""
+    kind = prim[0]
+    if kind == "seg":
+        _, x0, y0, x1, y1, w = prim
+        r = abs(w) / 2.0
+        return min(x0, x1) - r, max(x0, x1) + r, min(y0, y1) - r, max(y0, y1) + r
+    if kind == "disk":
+        _, x, y, r = prim
+        r = abs(r)
+        return x - r, x + r, y - r, y + r
+    if kind == "leaf":
+        _, x, y, h, length, width = prim
+        a, b = abs(length) / 2.0, abs(width) / 2.0
+        c, s = math.cos(h * _RAD), math.sin(h * _RAD)
+        cx, cy = x + length / 2.0 * c, y + length / 2.0 * s
+        ex = math.sqrt((a * c) ** 2 + (b * s) ** 2)
+        ey = math.sqrt((a * s) ** 2 + (b * c) ** 2)
+        return cx - ex, cx + ex, cy - ey, cy + ey
+    if kind == "poly":
+        xs = [v[0] for v in prim[1]]
+        ys = [v[1] for v in prim[1]]
+        return min(xs), max(xs), min(ys), max(ys)
+    raise ValueError(f"unknown primitive {kind!r}")
+
+
+def cons_to_list(node: tuple | None) -> list:
+    """A cons list `(head, rest)` (newest first) as a Python list, oldest first."""
+    out = []
+    while node is not None:
+        out.append(node[0])
+        node = node[1]
+    out.reverse()
+    return out
