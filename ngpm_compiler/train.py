@@ -1,0 +1,231 @@
+"""Train the per-site guide networks on recorded site visits (forward KL, Adam).
+
+All recorded visits of a site are batched (minibatches of visits, not one trace per step).
+Whole traces (jobs) are held out for validation; the validation NLL per trace is reported
+after every epoch, training stops early when it stops improving, and the best epoch's weights
+are kept. A checkpoint is written atomically after each epoch, so an interrupted run resumes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from ngpm_runtime.program import Site
+from tqdm import tqdm
+
+from ngpm_compiler.nets import (
+    FEATURE_SETS,
+    GuideModel,
+    NetSpec,
+    SiteNet,
+    continuous_z,
+    select_columns,
+)
+
+CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
+
+
+@dataclass
+class SiteData:
+    """Every recorded visit of one site: raw features, chosen values, prior args, job ids."""
+
+    features: np.ndarray  # (m, n_f) float32
+    values: np.ndarray  # (m,) float64
+    prior_args: np.ndarray  # (m, n_args) float64
+    jobs: np.ndarray  # (m,) int64: the trace each row belongs to
+
+
+@dataclass
+class TrainConfig:
+    feature_set: str = "all"
+    K: int = 4
+    epochs: int = 40
+    batch_size: int = 256
+    lr: float = 0.005
+    val_fraction: float = 0.1
+    patience: int = 4
+    seed: int = 0
+    threads: int = 1
+
+
+@dataclass
+class _Split:
+    x: torch.Tensor
+    target: torch.Tensor
+    jac: float  # sum of the log Jacobians (constant in the parameters)
+
+
+def atomic_torch_save(obj: Any, path: str | Path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save_model(model: GuideModel, path: str | Path) -> None:
+    atomic_torch_save(model.state(), path)
+
+
+def load_model(path: str | Path) -> GuideModel:
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    if not isinstance(state, dict):
+        raise ValueError(f"{path}: not an ngpm guide model")
+    return GuideModel.from_state(state)
+
+
+def split_jobs(jobs: np.ndarray, fraction: float, seed: int) -> np.ndarray:
+    """The held-out job ids: a seeded random `fraction` of the distinct jobs (none if < 2)."""
+    unique = np.unique(jobs)
+    n_val = int(round(fraction * len(unique))) if len(unique) >= 2 else 0
+    n_val = min(max(n_val, 1 if fraction > 0 and len(unique) >= 2 else 0), len(unique) - 1)
+    return np.sort(np.random.default_rng(seed).permutation(unique)[:n_val])
+
+
+def fingerprint(data: dict[int, SiteData]) -> str:
+    h = hashlib.sha256()
+    for i in sorted(data):
+        d = data[i]
+        for arr in (d.jobs, d.values, d.features):
+            h.update(np.ascontiguousarray(arr).tobytes())
+    return h.hexdigest()[:16]
+
+
+def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
+                data: dict[int, SiteData], config: TrainConfig, grammar: str,
+                grammar_hash: str, train_rows: dict[int, np.ndarray] | None = None
+                ) -> GuideModel:
+    """Untrained networks for every site with data; inputs standardized on training rows."""
+    if config.feature_set not in FEATURE_SETS:
+        raise ValueError(f"unknown feature set {config.feature_set!r}")
+    nets: dict[int, SiteNet] = {}
+    for site in sites:
+        d = data.get(site.index)
+        if d is None or len(d.values) == 0:
+            continue
+        cols = select_columns(layouts[site.index], config.feature_set)
+        rows = d.features if train_rows is None else d.features[train_rows[site.index]]
+        if len(rows) == 0:
+            rows = d.features
+        sel = rows[:, cols].astype(np.float64)
+        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=d.features.shape[1],
+                       cols=cols, K=config.K, k=site.k)
+        nets[site.index] = SiteNet(spec, sel.mean(0), sel.std(0), prior_probs=site.probs,
+                                   seed=config.seed + site.index)
+    json_layouts = {i: {g: [s.start, s.stop] for g, s in lay.items()}
+                    for i, lay in layouts.items()}
+    return GuideModel(grammar=grammar, grammar_hash=grammar_hash,
+                      sites=[s.to_json() for s in sites], feature_set=config.feature_set,
+                      K=config.K, nets=nets, layouts=json_layouts)
+
+
+def _splits(site: Site, d: SiteData, rows: np.ndarray) -> _Split:
+    target, jac = continuous_z(site.kind, d.values[rows], d.prior_args[rows])
+    return _Split(torch.from_numpy(np.ascontiguousarray(d.features[rows], dtype=np.float32)),
+                  torch.from_numpy(target.astype(np.float32)), float(jac.sum()))
+
+
+def _nll(net: SiteNet, split: _Split, chunk: int = 8192) -> float:
+    """Total negative log q of a split, in value units."""
+    with torch.no_grad():
+        total = sum(float(net.log_prob(split.x[i:i + chunk], split.target[i:i + chunk]).sum())
+                    for i in range(0, len(split.target), chunk))
+    return -(total + split.jac)
+
+
+def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
+                data: dict[int, SiteData], config: TrainConfig, *, grammar: str = "",
+                grammar_hash: str = "", checkpoint: str | Path | None = None,
+                progress: bool = False,
+                on_epoch: Callable[[dict[str, Any]], None] | None = None) -> GuideModel:
+    """Fit one network per visited site; returns the best epoch's model with a summary."""
+    torch.set_num_threads(max(1, config.threads))
+    start = time.perf_counter()
+    all_jobs = np.concatenate([d.jobs for d in data.values()]) if data else np.zeros(0, int)
+    val_jobs = split_jobs(all_jobs, config.val_fraction, config.seed)
+    n_jobs = len(np.unique(all_jobs))
+    train_rows, val_rows = {}, {}
+    for i, d in data.items():
+        is_val = np.isin(d.jobs, val_jobs)
+        train_rows[i], val_rows[i] = np.flatnonzero(~is_val), np.flatnonzero(is_val)
+    model = build_model(sites, layouts, data, config, grammar, grammar_hash, train_rows)
+    by_index = {s.index: s for s in sites}
+    train = {i: _splits(by_index[i], data[i], train_rows[i]) for i in model.nets}
+    val = {i: _splits(by_index[i], data[i], val_rows[i]) for i in model.nets}
+    optims = {i: torch.optim.Adam(net.parameters(), lr=config.lr) for i, net in model.nets.items()}
+    history: list[dict[str, Any]] = []
+    best: dict[str, Any] | None = None
+    key = {"config": {k: v for k, v in asdict(config).items() if k != "epochs"},
+           "data": fingerprint(data)}
+    first_epoch, bad = 0, 0
+    if checkpoint and Path(checkpoint).is_file():
+        ck = torch.load(checkpoint, map_location="cpu", weights_only=True)
+        if ck.get("format") == CHECKPOINT_FORMAT and ck.get("key") == key:
+            model = GuideModel.from_state(ck["model"])
+            optims = {i: torch.optim.Adam(net.parameters(), lr=config.lr)
+                      for i, net in model.nets.items()}
+            for i, opt in optims.items():
+                opt.load_state_dict(ck["optims"][str(i)])
+            history, best, bad = ck["history"], ck["best"], ck["bad"]
+            first_epoch = len(history)
+    n_train_jobs = max(1, n_jobs - len(val_jobs))
+    n_val_jobs = len(val_jobs)
+    bar = tqdm(range(first_epoch, config.epochs), desc="train", unit="epoch",
+               disable=not progress, initial=first_epoch, total=config.epochs)
+    for epoch in bar:
+        if bad >= config.patience:
+            break
+        for i, net in model.nets.items():
+            split, opt = train[i], optims[i]
+            m = len(split.target)
+            order = np.random.default_rng([config.seed, epoch, i]).permutation(m)
+            for b in range(0, m, config.batch_size):
+                idx = torch.from_numpy(order[b:b + config.batch_size])
+                loss = -net.log_prob(split.x[idx], split.target[idx]).mean()
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+        train_nll = sum(_nll(net, train[i]) for i, net in model.nets.items()) / n_train_jobs
+        val_nll = (sum(_nll(net, val[i]) for i, net in model.nets.items()) / n_val_jobs
+                   if n_val_jobs else train_nll)
+        row = {"epoch": epoch + 1, "train_nll": train_nll, "val_nll": val_nll,
+               "seconds": round(time.perf_counter() - start, 3)}
+        history.append(row)
+        if best is None or val_nll < best["val_nll"] - 1e-6 * abs(best["val_nll"]):
+            best, bad = {"val_nll": val_nll, "epoch": epoch + 1, "model": model.state()}, 0
+        else:
+            bad += 1
+        bar.set_postfix(val_nll=f"{val_nll:.3f}", train_nll=f"{train_nll:.3f}")
+        if on_epoch:
+            on_epoch(row)
+        if checkpoint:
+            atomic_torch_save({"format": CHECKPOINT_FORMAT, "key": key, "model": model.state(),
+                               "optims": {str(i): o.state_dict() for i, o in optims.items()},
+                               "history": history, "best": best, "bad": bad}, checkpoint)
+    bar.close()
+    if best is not None:
+        model = GuideModel.from_state(best["model"])
+    model.summary = {
+        "traces": n_jobs, "val_traces": n_val_jobs, "feature_set": config.feature_set,
+        "K": config.K, "rows": {str(i): int(len(d.values)) for i, d in sorted(data.items())},
+        "sites_trained": sorted(model.nets), "epochs_run": len(history),
+        "best_epoch": best["epoch"] if best else 0,
+        "val_nll": best["val_nll"] if best else None,
+        "history": history, "seconds": round(time.perf_counter() - start, 3),
+        "config": asdict(config),
+    }
+    return model
