@@ -1,0 +1,308 @@
+"""Rasterization of turtle primitives into per-particle binary canvases (architecture.md 7-8).
+
+A viewport `(xmin, xmax, ymin, ymax)` maps the world onto an H x W image: x right, y up,
+pixel row 0 at ymax. A pixel is covered when its center lies strictly inside the shape.
+`Canvas.draw` rasterizes one primitive per listed particle, all in one numpy pass per
+primitive kind, inside a common pixel window, and keeps a 4-level mean pyramid of every
+canvas up to date (pixels are only ever added, so each level just accumulates counts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
+N_LEVELS = 4
+_EPS = 1e-9
+
+
+@dataclass
+class DrawBatch:
+    """What one `Canvas.draw` call changed.
+
+    `new[k]` covers canvas pixels `[y0[k]:y0[k]+ky, x0[k]:x0[k]+kx]` of particle `idx[k]`
+    (windows always lie inside the image); `bbox[k]` is the primitive's world box
+    `(xmin, ymin, xmax, ymax)`.
+    """
+
+    idx: np.ndarray  # (n,) intp particle indices
+    y0: np.ndarray  # (n,) intp
+    x0: np.ndarray  # (n,) intp
+    new: np.ndarray  # (n, ky, kx) bool: newly covered pixels
+    bbox: np.ndarray  # (n, 4) float64
+
+
+def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
+    """Pyramid level sizes: (H, W), (H//2, W//2), (H//4, W//4), (H//8, W//8)."""
+    return [(height >> lv, width >> lv) for lv in range(N_LEVELS)]
+
+
+def pyramid(image: np.ndarray) -> list[np.ndarray]:
+    """4-level 2x2-mean pyramid of `image` (..., H, W), computed from scratch (float32)."""
+    img = np.asarray(image, dtype=np.float64)
+    out = [img.astype(np.float32)]
+    cur = img
+    for _ in range(1, N_LEVELS):
+        h, w = cur.shape[-2] // 2, cur.shape[-1] // 2
+        cur = cur[..., : 2 * h, : 2 * w]
+        cur = 0.25 * (cur[..., 0::2, 0::2] + cur[..., 1::2, 0::2]
+                      + cur[..., 0::2, 1::2] + cur[..., 1::2, 1::2])
+        out.append(cur.astype(np.float32))
+    return out
+
+
+# ---------------------------------------------------------------- geometry per kind
+
+
+def _params(prims: list[tuple]) -> np.ndarray:
+    return np.array([p[1:] for p in prims], dtype=np.float64)
+
+
+def _bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray | None]:
+    """World boxes (g, 4) as (xmin, ymin, xmax, ymax), plus the kind's parameter array."""
+    if kind == "poly":
+        out = np.empty((len(prims), 4))
+        for k, p in enumerate(prims):
+            v = np.asarray(p[1], dtype=np.float64).reshape(-1, 2)
+            out[k] = v[:, 0].min(), v[:, 1].min(), v[:, 0].max(), v[:, 1].max()
+        return out, None
+    P = _params(prims)
+    if kind == "seg":
+        x0, y0, x1, y1, w = P.T
+        r = np.abs(w) / 2.0
+        box = [np.minimum(x0, x1) - r, np.minimum(y0, y1) - r,
+               np.maximum(x0, x1) + r, np.maximum(y0, y1) + r]
+    elif kind == "disk":
+        x, y, r = P.T
+        r = np.abs(r)
+        box = [x - r, y - r, x + r, y + r]
+    elif kind == "leaf":
+        x, y, h, length, width = P.T
+        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
+        cx, cy = x + length / 2.0 * c, y + length / 2.0 * s
+        ex = np.sqrt((a * c) ** 2 + (b * s) ** 2)
+        ey = np.sqrt((a * s) ** 2 + (b * c) ** 2)
+        box = [cx - ex, cy - ey, cx + ex, cy + ey]
+    else:
+        raise ValueError(f"unknown primitive kind {kind!r}")
+    return np.stack(box, axis=1), P
+
+
+def _cover(kind: str, P: np.ndarray | None, prims: list[tuple],
+           px: np.ndarray, py: np.ndarray) -> np.ndarray:
+    """Coverage (g, ky, kx) of pixel centers px (g, kx), py (g, ky) by g primitives."""
+    X = px[:, None, :]
+    Y = py[:, :, None]
+    if kind == "seg":
+        ax, ay, bx, by, w = (c[:, None, None] for c in P.T)
+        ex, ey = bx - ax, by - ay
+        l2 = ex * ex + ey * ey
+        dx, dy = X - ax, Y - ay
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(l2 > 0, (dx * ex + dy * ey) / np.where(l2 > 0, l2, 1.0), 0.0)
+        t = np.clip(t, 0.0, 1.0)
+        qx, qy = dx - t * ex, dy - t * ey
+        return qx * qx + qy * qy < (w * w) / 4.0
+    if kind == "disk":
+        x, y, r = (c[:, None, None] for c in P.T)
+        dx, dy = X - x, Y - y
+        return dx * dx + dy * dy < r * r
+    if kind == "leaf":
+        x, y, h, length, width = (c[:, None, None] for c in P.T)
+        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
+        dx, dy = X - (x + length / 2.0 * c), Y - (y + length / 2.0 * s)
+        u = dx * c + dy * s
+        v = dy * c - dx * s
+        return (u * b) ** 2 + (v * a) ** 2 < (a * b) ** 2
+    if kind == "poly":
+        out = np.zeros((len(prims), py.shape[1], px.shape[1]), dtype=bool)
+        for k, p in enumerate(prims):
+            out[k] = _poly_inside(np.asarray(p[1], dtype=np.float64).reshape(-1, 2),
+                                  px[k][None, :], py[k][:, None])
+        return out
+    raise ValueError(f"unknown primitive kind {kind!r}")
+
+
+def _poly_inside(verts: np.ndarray, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Even-odd rule: pixel centers (X, Y broadcast) inside the closed polygon `verts`."""
+    inside = np.zeros(np.broadcast_shapes(X.shape, Y.shape), dtype=bool)
+    m = len(verts)
+    if m < 3:
+        return inside
+    for i in range(m):
+        xi, yi = verts[i]
+        xj, yj = verts[i - 1]
+        if yi == yj:
+            continue  # horizontal edges never cross a horizontal ray
+        crosses = (yi > Y) != (yj > Y)
+        xint = xi + (Y - yi) * (xj - xi) / (yj - yi)
+        inside ^= crosses & (X < xint)
+    return inside
+
+
+# ---------------------------------------------------------------- windows
+
+
+class _Grid:
+    """Pixel geometry of a viewport on an H x W image."""
+
+    def __init__(self, viewport: Viewport, height: int, width: int) -> None:
+        xmin, xmax, ymin, ymax = (float(v) for v in viewport)
+        if not (xmax > xmin and ymax > ymin):
+            raise ValueError(f"empty viewport {viewport!r}")
+        self.xmin, self.ymax = xmin, ymax
+        self.h, self.w = int(height), int(width)
+        self.sx = (xmax - xmin) / self.w
+        self.sy = (ymax - ymin) / self.h
+
+    def windows(self, bbox: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+        """Common window (ky, kx) and origins y0, x0 holding every box's pixel centers."""
+        h, w = self.h, self.w
+        u0 = (bbox[:, 0] - self.xmin) / self.sx - 0.5
+        u1 = (bbox[:, 2] - self.xmin) / self.sx - 0.5
+        v0 = (self.ymax - bbox[:, 3]) / self.sy - 0.5
+        v1 = (self.ymax - bbox[:, 1]) / self.sy - 0.5
+        with np.errstate(invalid="ignore"):
+            c0 = np.ceil(np.clip(u0 - _EPS, -1.0, w + 1.0))
+            c1 = np.floor(np.clip(u1 + _EPS, -1.0, w + 1.0))
+            r0 = np.ceil(np.clip(v0 - _EPS, -1.0, h + 1.0))
+            r1 = np.floor(np.clip(v1 + _EPS, -1.0, h + 1.0))
+        finite = np.isfinite(bbox).all(axis=1)
+        c0 = np.where(finite, np.maximum(c0, 0), 0).astype(np.intp)
+        r0 = np.where(finite, np.maximum(r0, 0), 0).astype(np.intp)
+        c1 = np.where(finite, np.minimum(c1, w - 1), -1).astype(np.intp)
+        r1 = np.where(finite, np.minimum(r1, h - 1), -1).astype(np.intp)
+        empty = (c1 < c0) | (r1 < r0)
+        kx = int(max(1, (c1 - c0 + 1)[~empty].max(initial=1)))
+        ky = int(max(1, (r1 - r0 + 1)[~empty].max(initial=1)))
+        kx, ky = min(kx, w), min(ky, h)
+        x0 = np.where(empty, 0, np.minimum(c0, w - kx))
+        y0 = np.where(empty, 0, np.minimum(r0, h - ky))
+        return y0, x0, ky, kx, empty
+
+    def cover(self, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Rasterize prims: y0, x0 (n,), coverage (n, ky, kx) bool, world bbox (n, 4)."""
+        n = len(prims)
+        groups: dict[str, list[int]] = {}
+        for k, p in enumerate(prims):
+            groups.setdefault(p[0], []).append(k)
+        bbox = np.empty((n, 4))
+        params: dict[str, np.ndarray | None] = {}
+        for kind, pos in groups.items():
+            bbox[pos], params[kind] = _bboxes(kind, [prims[k] for k in pos])
+        y0, x0, ky, kx, empty = self.windows(bbox)
+        cov = np.zeros((n, ky, kx), dtype=bool)
+        ax, ay = np.arange(kx) + 0.5, np.arange(ky) + 0.5
+        for kind, pos in groups.items():
+            pa = np.asarray(pos)
+            px = self.xmin + (x0[pa, None] + ax) * self.sx
+            py = self.ymax - (y0[pa, None] + ay) * self.sy
+            cov[pa] = _cover(kind, params[kind], [prims[k] for k in pos], px, py)
+        if empty.any():
+            cov[empty] = False
+        return y0, x0, cov, bbox
+
+
+def prim_mask(prim: tuple, viewport: Viewport, height: int, width: int
+              ) -> tuple[int, int, np.ndarray]:
+    """One primitive's full coverage: (y0, x0, mask (ky, kx) bool) on an H x W image."""
+    y0, x0, cov, _ = _Grid(viewport, height, width).cover([prim])
+    return int(y0[0]), int(x0[0]), cov[0]
+
+
+def rasterize(prims: list[tuple], viewport: Viewport, height: int, width: int) -> np.ndarray:
+    """The (H, W) uint8 image of all prims, one primitive at a time (scratch rendering)."""
+    img = np.zeros((height, width), dtype=np.uint8)
+    grid = _Grid(viewport, height, width)
+    for p in prims:
+        y0, x0, cov, _ = grid.cover([p])
+        ky, kx = cov.shape[1:]
+        img[y0[0]:y0[0] + ky, x0[0]:x0[0] + kx] |= cov[0]
+    return img
+
+
+# ---------------------------------------------------------------- canvas
+
+
+class Canvas:
+    """N binary canvases `(N, H, W)` uint8 with an incrementally kept 4-level pyramid.
+
+    `levels[0]` is `image` itself (uint8 0/1, no float copy); `levels[1..3]` are float32
+    means over 2x2, 4x4 and 8x8 pixel blocks (floor sizes).
+    """
+
+    def __init__(self, n: int, height: int, width: int, viewport: Viewport) -> None:
+        self.n, self.height, self.width = int(n), int(height), int(width)
+        self.viewport = tuple(float(v) for v in viewport)
+        self._grid = _Grid(self.viewport, self.height, self.width)
+        self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
+        self.levels: list[np.ndarray] = [self.image] + [
+            np.zeros((self.n, h, w), dtype=np.float32)
+            for h, w in level_shapes(self.height, self.width)[1:]
+        ]
+        rows = np.arange(self.height)[:, None] * self.width
+        self._row_off = rows  # (H, 1) flat row offsets
+
+    def draw(self, idx: np.ndarray, prims: list[tuple]) -> DrawBatch:
+        """Rasterize `prims[k]` into canvas `idx[k]` (indices distinct); returns the changes."""
+        idx = np.asarray(idx, dtype=np.intp).reshape(-1)
+        if len(prims) != len(idx):
+            raise ValueError("draw: one primitive per listed particle")
+        y0, x0, cov, bbox = self._grid.cover(prims)
+        h, w = self.height, self.width
+        ky, kx = cov.shape[1:]
+        base = idx * (h * w) + y0 * w + x0
+        off = self._row_off[:ky] + np.arange(kx)
+        flat = base[:, None, None] + off  # (n, ky, kx)
+        img = self.image.reshape(-1)
+        new = cov & (img[flat] == 0)
+        hit = flat[new]
+        img[hit] = 1
+        if hit.size:
+            p, rem = np.divmod(hit, h * w)
+            r, c = np.divmod(rem, w)
+            for lv in range(1, N_LEVELS):
+                arr = self.levels[lv]
+                hl, wl = arr.shape[1:]
+                rl, cl = r >> lv, c >> lv
+                ok = (rl < hl) & (cl < wl)
+                np.add.at(arr.reshape(-1), (p[ok] * hl + rl[ok]) * wl + cl[ok],
+                          np.float32(1.0 / 4**lv))
+        return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox)
+
+    def take(self, idx: np.ndarray) -> None:
+        """Resampling: particle k becomes old particle idx[k] (every per-particle array)."""
+        idx = np.asarray(idx, dtype=np.intp).reshape(-1)
+        self.image = self.image[idx]
+        self.levels = [self.image] + [lv[idx] for lv in self.levels[1:]]
+        self.n = len(idx)
+
+    def world_to_unit(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points as normalized image coords (u right, v down, [0, 1] inside)."""
+        xmin, xmax, ymin, ymax = self.viewport
+        return (np.asarray(x) - xmin) / (xmax - xmin), (ymax - np.asarray(y)) / (ymax - ymin)
+
+
+def viewport_of(prims: list[tuple], margin: float = 0.05) -> Viewport:
+    """A square viewport fitting every primitive, with a relative margin."""
+    if not prims:
+        return (-1.0, 1.0, -1.0, 1.0)
+    boxes = [_bboxes(p[0], [p])[0][0] for p in prims]
+    b = np.array(boxes)
+    b = b[np.isfinite(b).all(axis=1)]
+    if len(b) == 0:
+        return (-1.0, 1.0, -1.0, 1.0)
+    xmin, ymin = b[:, 0].min(), b[:, 1].min()
+    xmax, ymax = b[:, 2].max(), b[:, 3].max()
+    side = max(xmax - xmin, ymax - ymin, 1e-6) * (1.0 + 2.0 * margin)
+    cx, cy = (xmin + xmax) / 2.0, (ymin + ymax) / 2.0
+    half = side / 2.0
+    return (cx - half, cx + half, cy - half, cy + half)
+
+
+__all__ = ["Canvas", "DrawBatch", "pyramid", "level_shapes", "prim_mask", "rasterize",
+           "viewport_of", "N_LEVELS"]
