@@ -1,0 +1,517 @@
+"""Check a parsed grammar and build what codegen needs: constants, groups, sites, arities."""
+
+from __future__ import annotations
+
+import keyword
+import math
+import re
+from dataclasses import dataclass, field
+
+from ngpm_runtime.program import Site
+
+from ngpm_compiler.codegen import (
+    BUILTIN_NAMES,
+    FUNCTION_ARITY,
+    RANDOM_CALLS,
+    ExprPrinter,
+)
+from ngpm_compiler.errors import ErrorSink, GrammarError
+from ngpm_compiler.nodes import (
+    Binary,
+    Call,
+    Expr,
+    Grammar,
+    ModuleUse,
+    Node,
+    Num,
+    Rule,
+    Unary,
+    Var,
+    walk,
+)
+
+# Turtle symbols: (min args, max args, defaults of the optional ones). "angle" stands for the
+# `angle:` header's value.
+TURTLE: dict[str, tuple[int, int, tuple[float | str, ...]]] = {
+    "F": (0, 1, (1.0,)), "f": (0, 1, (1.0,)), "+": (0, 1, ("angle",)), "-": (0, 1, ("angle",)),
+    "|": (0, 0, ()), "[": (0, 0, ()), "]": (0, 0, ()), "!": (1, 1, ()),
+    "~l": (0, 2, (1.0, 1.0)), "@O": (0, 1, (1.0,)), "{": (0, 0, ()), ".": (0, 0, ()),
+    "}": (0, 0, ()), "%": (0, 0, ()), "halt": (0, 0, ()),
+}
+REWRITABLE_TURTLE = {"F", "f"}  # turtle symbols a rule may rewrite
+PROB_TOLERANCE = 1e-6
+DEFAULT_DERIVATION_LENGTH = 1_000_000
+DEFAULT_MAX_PRIMITIVES = 5000
+# Python names a generated module uses itself.
+RESERVED = {"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "float",
+            "min", "max", "abs", "round"}
+
+
+@dataclass
+class Resolved:
+    """A successor module after name splitting, with every default argument filled in."""
+
+    name: str
+    args: list[Expr]
+    use: ModuleUse
+
+
+@dataclass
+class Alt:
+    rule: Rule
+    modules: list[Resolved]
+    prob: float | None
+
+
+@dataclass
+class Group:
+    """Alternatives sharing a predecessor and a condition: one stochastic choice."""
+
+    key: str  # site id prefix, e.g. "K(w>WMIN)" or "interp:L"
+    cond: Expr | None
+    rule: Rule  # the first rule: its parameter names and condition
+    alts: list[Alt] = field(default_factory=list)
+    site: int | None = None  # the `choose` site when there are several alternatives
+
+
+@dataclass
+class RuleSet:
+    """Every rule of one predecessor in one section (one generated function)."""
+
+    pred: str
+    section: str
+    arity: int
+    params: list[str]  # Python names of the function's parameters
+    groups: list[Group] = field(default_factory=list)
+
+
+@dataclass
+class Checked:
+    grammar: Grammar
+    name: str
+    constants: list[tuple[str, float, str, int]]  # python name, value, source text, line
+    const_names: dict[str, str]  # grammar name -> python name
+    axiom: list[Resolved]
+    productions: dict[str, RuleSet]
+    interpretation: dict[str, RuleSet]
+    arity: dict[str, int]
+    sites: list[Site]
+    call_sites: dict[int, int]  # id(Call) -> site index
+    derivation_length: int
+    derivation_length_given: bool
+    angle: float
+    viewport: tuple[float, float, float, float] | None
+    start: tuple[float, float, float]
+    max_primitives: int
+
+
+def safe_name(name: str, taken: set[str], prefix: str) -> str:
+    """A Python identifier for a grammar name that shadows nothing the module uses."""
+    out = name
+    while (keyword.iskeyword(out) or out in RESERVED or out in taken or out.startswith("_")
+           or out.startswith(("produce_", "interpret_"))):
+        out = f"{prefix}_{out}"
+    return out
+
+
+def compact(text: str) -> str:
+    return re.sub(r"\s+", "", text)
+
+
+class Checker:
+    def __init__(self, grammar: Grammar, name: str) -> None:
+        self.g = grammar
+        self.name = name
+        self.sink = ErrorSink(grammar.filename, grammar.source)
+        self.const_values: dict[str, float] = {}
+        self.const_names: dict[str, str] = {}
+        self.constants: list[tuple[str, float, str, int]] = []
+        self.arity: dict[str, int] = {}
+        self.arity_origin: dict[str, str] = {}
+        self.pending_sites: list[tuple[tuple[int, int, int], dict, object]] = []
+
+    def err(self, message: str, node: Node | tuple[int, int]) -> GrammarError:
+        if isinstance(node, tuple):
+            return self.sink.error(message, *node)
+        return self.sink.error(message, node.line, node.col)
+
+    # ---- constants -------------------------------------------------------------------------
+
+    def evaluate(self, expr: Expr, what: str) -> float:
+        """Value of a constant expression (already checked to use constants only)."""
+        text = ExprPrinter(self.const_names)(expr)
+        env = {"math": math, **{self.const_names[k]: v for k, v in self.const_values.items()}}
+        try:
+            value = float(eval(text, {"__builtins__": {"float": float, "min": min, "max": max,
+                                                       "abs": abs}}, env))
+        except ZeroDivisionError:
+            raise self.err(f"division by zero in {what}", self.find_division(expr)) from None
+        except (ValueError, OverflowError) as e:
+            raise self.err(f"cannot evaluate {what}: {e}", expr) from None
+        if not math.isfinite(value):
+            raise self.err(f"{what} is not a finite number", expr)
+        return value
+
+    def find_division(self, expr: Expr) -> Node:
+        for node in walk(expr):
+            if isinstance(node, Binary) and node.op in ("/", "%"):
+                try:
+                    if self.evaluate(node.right, "divisor") == 0:
+                        return node
+                except GrammarError:
+                    return node
+        return expr
+
+    def check_constants(self) -> None:
+        taken: set[str] = set()
+        for d in self.g.defines:
+            if d.name in self.const_values:
+                raise self.err(f"constant {d.name} is defined twice", d)
+            if d.name in BUILTIN_NAMES:
+                raise self.err(f"'{d.name}' is a built-in constant", d)
+            self.check_expr(d.expr, {}, f"constant {d.name}", random_ok=False)
+            value = self.evaluate(d.expr, f"constant {d.name}")
+            py = safe_name(d.name, taken, "c")
+            taken.add(py)
+            self.const_names[d.name] = py
+            self.const_values[d.name] = value
+            self.constants.append((py, value, d.text, d.line))
+
+    # ---- expressions -----------------------------------------------------------------------
+
+    def check_expr(self, expr: Expr, params: dict[str, str], what: str, random_ok: bool,
+                   param_error: str = "") -> None:
+        for node in walk(expr):
+            if isinstance(node, Var):
+                if node.name in params:
+                    if param_error:
+                        raise self.err(f"{param_error} (uses parameter {node.name})", node)
+                elif node.name not in self.const_values and node.name not in BUILTIN_NAMES:
+                    raise self.err(f"unknown identifier '{node.name}' in {what}", node)
+            elif isinstance(node, Call):
+                self.check_call(node, what, random_ok)
+
+    def check_call(self, call: Call, what: str, random_ok: bool) -> None:
+        if call.name in RANDOM_CALLS:
+            if not random_ok:
+                raise self.err(f"random call {call.name}() is not allowed in {what}", call)
+            _, lo, hi = RANDOM_CALLS[call.name]
+        elif call.name in FUNCTION_ARITY:
+            lo, hi = FUNCTION_ARITY[call.name]
+        else:
+            raise self.err(f"unknown function '{call.name}'", call)
+        n = len(call.args)
+        if n < lo or (hi is not None and n > hi):
+            want = str(lo) if lo == hi else (f"at least {lo}" if hi is None else f"{lo} to {hi}")
+            raise self.err(f"{call.name}() takes {want} argument{'s' * (want != '1')}, got {n}",
+                           call)
+
+    def is_constant(self, expr: Expr) -> bool:
+        return all(not (isinstance(n, Var) and n.name not in self.const_values
+                        and n.name not in BUILTIN_NAMES)
+                   and not (isinstance(n, Call) and n.name in RANDOM_CALLS) for n in walk(expr))
+
+    def check_prior(self, call: Call) -> None:
+        """Reject constant prior arguments no distribution accepts."""
+        if not all(self.is_constant(a) for a in call.args):
+            return
+        vals = [self.evaluate(a, f"argument of {call.name}()") for a in call.args]
+        kind = RANDOM_CALLS[call.name][0]
+        bad = ""
+        if kind == "normal" and vals[1] <= 0:
+            bad = "the standard deviation must be > 0"
+        elif kind == "uniform" and vals[0] >= vals[1]:
+            bad = "needs a < b"
+        elif kind == "bernoulli" and not 0 <= vals[0] <= 1:
+            bad = "the probability must be in [0, 1]"
+        elif kind == "categorical" and (min(vals) < 0 or sum(vals) <= 0):
+            bad = "weights must be >= 0 with a positive sum"
+        if bad:
+            raise self.err(f"{call.name}(): {bad}", call)
+
+    # ---- modules ---------------------------------------------------------------------------
+
+    def use_arity(self, name: str, n: int, where: Node) -> None:
+        if name in TURTLE:
+            lo, hi, _ = TURTLE[name]
+            if not lo <= n <= hi:
+                want = str(lo) if lo == hi else f"{lo} to {hi}"
+                raise self.err(f"turtle symbol {name} takes {want} argument"
+                               f"{'s' * (want != '1')}, got {n}", where)
+            return
+        if name not in self.arity:
+            self.arity[name] = n
+            self.arity_origin[name] = f"line {where.line}"
+        elif self.arity[name] != n:
+            raise self.err(f"module {name} takes {self.arity[name]} argument"
+                           f"{'s' * (self.arity[name] != 1)} ({self.arity_origin[name]}), "
+                           f"got {n}", where)
+
+    def resolve(self, modules: list[ModuleUse], params: dict[str, str], what: str,
+                known: set[str]) -> list[Resolved]:
+        out: list[Resolved] = []
+        for use in modules:
+            for part in self.split(use, known):
+                self.check_symbol(part)
+                for arg in part.args:
+                    self.check_expr(arg, params, what, random_ok=True)
+                self.use_arity(part.name, len(part.args), part)
+                out.append(Resolved(part.name, part.args + self.defaults(part), part))
+        return out
+
+    def split(self, use: ModuleUse, known: set[str]) -> list[ModuleUse]:
+        """`FF` is `F F` when it is not a module itself and each letter is a known module."""
+        name = use.name
+        if (len(name) > 1 and name.isalpha() and name not in known and name not in TURTLE
+                and all(c in known for c in name)):
+            parts = [ModuleUse(use.line, use.col + i, c, []) for i, c in enumerate(name)]
+            parts[-1].args, parts[-1].explicit_args = use.args, use.explicit_args
+            return parts
+        return [use]
+
+    def check_symbol(self, use: ModuleUse) -> None:
+        if use.name[:1] == "~" and use.name != "~l":
+            raise self.err(f"unsupported symbol '{use.name}': the only surface is ~l (leaf)", use)
+        if use.name[:1] == "@" and use.name != "@O":
+            raise self.err(f"unsupported symbol '{use.name}': the only @ symbol is @O (disk)",
+                           use)
+
+    def defaults(self, use: ModuleUse) -> list[Expr]:
+        if use.name not in TURTLE:
+            return []
+        lo, hi, defaults = TURTLE[use.name]
+        fill = defaults[len(use.args) - lo:] if len(use.args) < hi else ()
+        return [Num(use.line, use.col, self.angle if d == "angle" else float(d)) for d in fill]
+
+    # ---- headers ---------------------------------------------------------------------------
+
+    def headers(self) -> None:
+        h = self.g.headers
+        values: dict[str, list[float]] = {}
+        for kind, header in h.items():
+            for v in header.values:
+                self.check_expr(v, {}, f"'{kind}:'", random_ok=False)
+            values[kind] = [self.evaluate(v, f"'{kind}:'") for v in header.values]
+        self.angle = values.get("angle", [90.0])[0]
+        self.viewport = None
+        if "viewport" in values:
+            x0, x1, y0, y1 = values["viewport"]
+            if not (x0 < x1 and y0 < y1):
+                raise self.err("viewport needs xmin < xmax and ymin < ymax", h["viewport"])
+            self.viewport = (x0, x1, y0, y1)
+        self.start = tuple(values.get("start", [0.0, 0.0, 90.0]))
+        self.derivation_length = self.integer(values, "derivation length", 0,
+                                              DEFAULT_DERIVATION_LENGTH)
+        self.max_primitives = self.integer(values, "max primitives", 1, DEFAULT_MAX_PRIMITIVES)
+
+    def integer(self, values: dict[str, list[float]], kind: str, least: int,
+                default: int) -> int:
+        if kind not in values:
+            return default
+        v = values[kind][0]
+        if v != int(v) or v < least:
+            raise self.err(f"'{kind}:' must be an integer >= {least}, got {v:g}",
+                           self.g.headers[kind].values[0])
+        return int(v)
+
+    # ---- rules -----------------------------------------------------------------------------
+
+    def declarations(self) -> None:
+        for d in self.g.decls:
+            if d.name in TURTLE:
+                raise self.err(f"{d.name} is a turtle symbol, it cannot be declared", d)
+            if len(set(d.params)) != len(d.params):
+                raise self.err(f"duplicate parameter in module {d.name}", d)
+            self.use_arity(d.name, len(d.params), d)
+
+    def rule_sets(self, section: str, known: set[str]) -> dict[str, RuleSet]:
+        sets: dict[str, RuleSet] = {}
+        by_key: dict[tuple[str, str], Group] = {}
+        for rule in (r for r in self.g.rules if r.section == section):
+            self.check_params(rule)
+            arity = len(rule.params)
+            if rule.pred in TURTLE and rule.pred not in REWRITABLE_TURTLE:
+                raise self.err(f"turtle symbol {rule.pred} cannot be rewritten", rule)
+            if rule.pred in TURTLE:
+                self.use_arity(rule.pred, arity, rule)
+                arity = TURTLE[rule.pred][1]
+            else:
+                self.use_arity(rule.pred, arity, rule)
+            params = {p: p for p in rule.params}
+            if rule.pred not in sets:
+                taken = set(self.const_names.values())
+                py = [safe_name(p, taken, "p") for p in rule.params]
+                py += [f"arg{i}" for i in range(len(py), arity)]
+                sets[rule.pred] = RuleSet(rule.pred, section, arity, py)
+            rs = sets[rule.pred]
+            where = f"rule for {rule.pred}"
+            if rule.cond is not None:
+                self.check_expr(rule.cond, params, f"the condition of {rule.pred}",
+                                random_ok=False)
+            canon = canonical(rule.cond, rule.params) if rule.cond is not None else ""
+            group = by_key.get((rule.pred, canon))
+            if group is None:
+                if rs.groups and rs.groups[-1].cond is None:
+                    raise self.err(f"this rule never applies: an earlier rule for {rule.pred} "
+                                   "has no condition", rule)
+                prefix = ("interp:" if section == "interpretation" else "") + rule.pred
+                if rule.cond is not None:
+                    prefix += f"({compact(rule.cond_text)})"
+                group = Group(prefix, rule.cond, rule)
+                by_key[(rule.pred, canon)] = group
+                rs.groups.append(group)
+            prob = None
+            if rule.prob is not None:
+                self.check_expr(rule.prob, params, f"the probability of {rule.pred}",
+                                random_ok=False,
+                                param_error="a probability must be a constant expression")
+                prob = self.evaluate(rule.prob, "probability")
+                if not 0 <= prob <= 1:
+                    raise self.err(f"probability {prob:g} is not in [0, 1]", rule.prob)
+            mods = self.resolve(rule.successor.modules, params, where, known)
+            group.alts.append(Alt(rule, mods, prob))
+        return sets
+
+    def check_params(self, rule: Rule) -> None:
+        seen: set[str] = set()
+        for p, where in zip(rule.params, rule.param_pos, strict=True):
+            if p in seen:
+                raise self.err(f"duplicate parameter '{p}' in {rule.pred}", where)
+            seen.add(p)
+
+    def check_groups(self, sets: dict[str, RuleSet]) -> None:
+        for rs in sets.values():
+            for group in rs.groups:
+                alts = group.alts
+                probs = [a.prob for a in alts]
+                if len(alts) > 1 and any(p is None for p in probs):
+                    bad = next(a for a in alts if a.prob is None).rule
+                    cond = f" with condition {group.rule.cond_text}" if group.cond else ""
+                    raise self.err(f"{rs.pred}{cond} has {len(alts)} alternatives: each needs a "
+                                   "probability (': p')", bad)
+                if any(p is not None for p in probs):
+                    total = sum(p for p in probs if p is not None)
+                    if abs(total - 1.0) > PROB_TOLERANCE:
+                        raise self.err(f"the probabilities of {group.key} sum to {total:g}, "
+                                       "not 1", alts[0].rule.prob or alts[0].rule)
+
+    def check_recursion(self, sets: dict[str, RuleSet]) -> None:
+        if "derivation length" in self.g.headers:
+            return
+        edges = {p: {m.name for g in rs.groups for a in g.alts for m in a.modules
+                     if m.name in sets} for p, rs in sets.items()}
+        state: dict[str, int] = {}
+        path: list[str] = []
+
+        def visit(node: str) -> list[str] | None:
+            state[node] = 1
+            path.append(node)
+            for nxt in sorted(edges[node]):
+                if state.get(nxt) == 1:
+                    return path[path.index(nxt):] + [nxt]
+                if nxt not in state:
+                    found = visit(nxt)
+                    if found:
+                        return found
+            path.pop()
+            state[node] = 2
+            return None
+
+        for pred in sets:
+            if pred not in state:
+                cycle = visit(pred)
+                if cycle:
+                    first = sets[cycle[0]].groups[0].rule
+                    raise self.err("recursive rules (" + " -> ".join(cycle) + ") need a "
+                                   "'derivation length:' line", first)
+
+    # ---- sites -----------------------------------------------------------------------------
+
+    def collect_sites(self, axiom: list[Resolved], sets: list[dict[str, RuleSet]]) -> None:
+        """Number every random call and every stochastic group, in source order."""
+        found: list[tuple[tuple[int, int, int], dict, Call | None]] = []
+        self.add_calls(found, "axiom", "axiom", 0, axiom)
+        for section in sets:
+            for rs in section.values():
+                for group in rs.groups:
+                    if len(group.alts) > 1:
+                        r = group.rule
+                        texts = list(dict.fromkeys(a.rule.text for a in group.alts))
+                        source = texts[0] + (" ..." if len(texts) > 1 else "")
+                        found.append(((r.line, r.col, 0), dict(
+                            id=f"{group.key}/choice", kind="categorical", k=len(group.alts),
+                            probs=tuple(a.prob for a in group.alts),
+                            name=f"choice of {rs.pred}", module=rs.pred, arity=rs.arity,
+                            line=r.line, col=r.col, source=source), group))
+                    for i, alt in enumerate(group.alts):
+                        self.add_calls(found, f"{group.key}/{i}", rs.pred, rs.arity,
+                                       alt.modules)
+        found.sort(key=lambda f: f[0])
+        self.sites: list[Site] = []
+        self.call_sites: dict[int, int] = {}
+        for index, (_, fields, owner) in enumerate(found):
+            self.sites.append(Site(index=index, **fields))
+            if isinstance(owner, Call):
+                self.call_sites[id(owner)] = index
+            elif isinstance(owner, Group):
+                owner.site = index
+
+    def add_calls(self, found: list, prefix: str, module: str, arity: int,
+                  mods: list[Resolved]) -> None:
+        counts: dict[str, int] = {}
+        for m in mods:
+            for arg in m.args:
+                for node in walk(arg):
+                    if isinstance(node, Call) and node.name in RANDOM_CALLS:
+                        self.check_prior(node)
+                        kind = RANDOM_CALLS[node.name][0]
+                        n = counts.get(kind, 0)
+                        counts[kind] = n + 1
+                        found.append(((node.line, node.col, 1), dict(
+                            id=f"{prefix}/{kind}{n}", kind=kind,
+                            k=len(node.args) if kind == "categorical" else 2,
+                            name=f"{node.text} in {module}", module=module, arity=arity,
+                            line=node.line, col=node.col, source=node.text), node))
+
+    # ---- all -------------------------------------------------------------------------------
+
+    def run(self) -> Checked:
+        self.check_constants()
+        self.headers()
+        self.declarations()
+        known = ({d.name for d in self.g.decls} | {r.pred for r in self.g.rules}
+                 | REWRITABLE_TURTLE)
+        if self.g.axiom is None:
+            raise self.err("the grammar has no 'Axiom:' line", (1, 1))
+        axiom = self.resolve(self.g.axiom.modules, {}, "the axiom", known)
+        productions = self.rule_sets("production", known)
+        interpretation = self.rule_sets("interpretation", known)
+        self.check_groups(productions)
+        self.check_groups(interpretation)
+        self.check_recursion(productions)
+        self.collect_sites(axiom, [productions, interpretation])
+        return Checked(
+            self.g, self.name, self.constants, self.const_names, axiom, productions,
+            interpretation, dict(self.arity), self.sites, self.call_sites,
+            self.derivation_length, "derivation length" in self.g.headers, self.angle,
+            self.viewport, self.start, self.max_primitives,
+        )
+
+
+def canonical(expr: Expr, params: list[str]) -> str:
+    """A condition's structure with parameters numbered, so `x > 1` in A(x) and `y > 1` in
+    A(y) are the same condition."""
+    if isinstance(expr, Num):
+        return repr(expr.value)
+    if isinstance(expr, Var):
+        return f"${params.index(expr.name)}" if expr.name in params else expr.name
+    if isinstance(expr, Unary):
+        return f"({expr.op} {canonical(expr.operand, params)})"
+    if isinstance(expr, Binary):
+        return f"({canonical(expr.left, params)} {expr.op} {canonical(expr.right, params)})"
+    return f"{expr.name}(" + ", ".join(canonical(a, params) for a in expr.args) + ")"
+
+
+def check(grammar: Grammar, name: str) -> Checked:
+    """Check a parsed grammar; raise GrammarError at the first problem."""
+    return Checker(grammar, name).run()

@@ -1,0 +1,100 @@
+"""`compile_grammar`: .lsys text -> generated sampler source, site table and Program."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import types
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ngpm_runtime.program import Program, Site
+
+from ngpm_compiler.checker import Checked, check
+from ngpm_compiler.codegen import generate
+from ngpm_compiler.errors import GrammarError
+from ngpm_compiler.parser import parse
+
+
+@dataclass
+class CompiledGrammar:
+    name: str
+    filename: str
+    source_text: str
+    source_code: str
+    sites: list[Site]
+    grammar_hash: str
+    checked: Checked
+
+    def sites_json(self) -> dict[str, Any]:
+        return {"grammar": self.name, "grammar_hash": self.grammar_hash,
+                "sites": [s.to_json() for s in self.sites]}
+
+    def program(self) -> Program:
+        """Execute the generated module and return its PROGRAM."""
+        modname = f"_ngpm_compiled_{self.name}_{self.grammar_hash[7:19]}"
+        module = types.ModuleType(modname)
+        module.__file__ = f"<{self.name}_sampler.py>"
+        sys.modules[modname] = module  # so worker processes can pickle its functions
+        exec(compile(self.source_code, module.__file__, "exec"), module.__dict__)
+        return module.PROGRAM
+
+
+def grammar_name(filename: str) -> str:
+    stem = Path(filename).stem if filename and not filename.startswith("<") else "grammar"
+    return "".join(c if c.isalnum() or c == "_" else "_" for c in stem) or "grammar"
+
+
+def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
+                    ) -> CompiledGrammar:
+    """Compile a grammar given as a path or as its text; raise GrammarError if malformed.
+
+    A str that names an existing file (and has no newline) is read as a path."""
+    text: str
+    if isinstance(path_or_text, os.PathLike) or (
+            isinstance(path_or_text, str) and "\n" not in path_or_text
+            and path_or_text.endswith(".lsys")):
+        path = Path(path_or_text)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise GrammarError("no such grammar file", str(path)) from None
+        except UnicodeDecodeError:
+            raise GrammarError("not a UTF-8 text file", str(path)) from None
+        filename = filename or str(path_or_text)
+    else:
+        text = str(path_or_text)
+        filename = filename or "<grammar>"
+    text = text.replace("\r\n", "\n")
+    name = grammar_name(filename)
+    checked = check(parse(text, filename), name)
+    digest = "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()
+    code = generate(checked, filename, digest)
+    return CompiledGrammar(name, filename, text, code, checked.sites, digest, checked)
+
+
+def atomic_write(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike) -> tuple[Path, Path]:
+    """Write `<name>_sampler.py` and `<name>_sites.json` into out_dir (atomically)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sampler = out / f"{compiled.name}_sampler.py"
+    sites = out / f"{compiled.name}_sites.json"
+    atomic_write(sampler, compiled.source_code)
+    atomic_write(sites, json.dumps(compiled.sites_json(), indent=2) + "\n")
+    return sampler, sites
