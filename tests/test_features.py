@@ -1,0 +1,96 @@
+"""FeatureMaker against a slow, direct computation of section 6's features."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from ngpm_runtime.features import FeatureMaker
+from ngpm_runtime.program import Program, Site
+from ngpm_runtime.raster import Canvas
+
+VP = (-12.0, 12.0, -22.0, 2.0)
+
+
+def _program() -> Program:
+    sites = [Site(index=0, id="B/0/normal0", kind="normal", arity=1),
+             Site(index=1, id="L/choice", kind="categorical", k=3, arity=0)]
+    return Program(name="t", sites=sites, axiom=lambda ctx: [("S",)], productions={},
+                   derivation_length=40)
+
+
+def _slow_level(img: np.ndarray, lv: int) -> np.ndarray:
+    s = 2**lv
+    h, w = img.shape[0] // s, img.shape[1] // s
+    out = np.zeros((h, w))
+    for r in range(h):
+        for c in range(w):
+            out[r, c] = img[r * s:(r + 1) * s, c * s:(c + 1) * s].mean()
+    return out
+
+
+def _slow_windows(img: np.ndarray, x: float, y: float) -> list[float]:
+    u = (x - VP[0]) / (VP[1] - VP[0])
+    v = (VP[3] - y) / (VP[3] - VP[2])
+    vals = []
+    for lv in range(4):
+        lev = _slow_level(img.astype(float), lv)
+        h, w = lev.shape
+        r0, c0 = math.floor(v * h), math.floor(u * w)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                r, c = r0 + dr, c0 + dc
+                vals.append(lev[r, c] if 0 <= r < h and 0 <= c < w else -1.0)
+    return vals
+
+
+def _slow_row(site: Site, img, target, turtle, depth, params, args) -> list[float]:
+    x, y, h, w = turtle
+    local = [2 * (x + 12) / 24 - 1, 2 * (y + 22) / 24 - 1, (h % 360) / 180 - 1,
+             math.sin(math.radians(h)), math.cos(math.radians(h)), w, depth / 40]
+    local += list(params) + list(args)
+    tf = _slow_windows(target, x, y) if target is not None else [0.0] * 36
+    return local + tf + _slow_windows(img, x, y)
+
+
+def test_features_match_slow_computation() -> None:
+    rng = np.random.default_rng(0)
+    prog = _program()
+    target = np.zeros((50, 50), dtype=bool)
+    target[10:45, 20:30] = True
+    n = 7
+    canvas = Canvas(n, 50, 50, VP)
+    for _ in range(15):
+        prims = [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
+                 for _ in range(n)]
+        canvas.draw(np.arange(n), prims)
+    # positions inside, on the border and outside the viewport
+    xs = np.array([0.0, -11.9, 11.99, -13.0, 5.0, 0.3, 30.0])
+    ys = np.array([-10.0, 1.9, -21.95, -10.0, 2.5, -0.1, 0.0])
+    turtle = np.stack([xs, ys, rng.uniform(-400, 400, n), rng.uniform(0.1, 1, n)], axis=1)
+    depth = rng.integers(0, 40, n).astype(float)
+    idx = np.array([6, 0, 3, 2, 2, 5, 1])
+    for tmask in (target, None):
+        fm = FeatureMaker(prog, VP, tmask)
+        for site, params, args in ((prog.sites[0], rng.normal(size=(n, 1)),
+                                    rng.normal(size=(n, 2))),
+                                   (prog.sites[1], np.zeros((n, 0)),
+                                    np.tile([0.2, 0.3, 0.5], (n, 1)))):
+            got = fm.features(site, canvas, idx, turtle, depth, params, args)
+            assert got.dtype == np.float32
+            assert got.shape == (n, fm.n_features(site))
+            for k in range(n):
+                want = _slow_row(site, canvas.image[idx[k]], tmask, turtle[k], depth[k],
+                                 params[k], args[k])
+                np.testing.assert_allclose(got[k], want, rtol=1e-5, atol=1e-6)
+
+
+def test_layout_slices() -> None:
+    prog = _program()
+    fm = FeatureMaker(prog, VP, None)
+    lay = fm.layout(prog.sites[0])
+    assert lay["local"] == slice(0, 10)
+    assert lay["target"] == slice(10, 46)
+    assert lay["partial"] == slice(46, 82)
+    assert fm.layout(prog.sites[1])["local"] == slice(0, 10)
+    assert fm.n_features(prog.sites[1]) == 82
