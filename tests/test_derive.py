@@ -1,0 +1,243 @@
+"""Derivation semantics: turtle, expansion order, depth, interpretation, cut, halt, caps,
+replay and error reporting."""
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from fixtures.tiny_programs import make_program  # noqa: E402
+from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
+from ngpm_runtime.errors import ProgramError  # noqa: E402
+from ngpm_runtime.program import Site, load_program  # noqa: E402
+from ngpm_runtime.smc import forward, smc  # noqa: E402
+from ngpm_runtime.turtle import prim_bbox  # noqa: E402
+
+VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
+
+
+def prims_of(program, **kw):
+    return forward(program, **kw).primitives
+
+
+def approx(a, b):
+    assert len(a) == len(b), (a, b)
+    for p, q in zip(a, b, strict=True):
+        assert p[0] == q[0]
+        if p[0] == "poly":
+            np.testing.assert_allclose(np.array(p[1]), np.array(q[1]), atol=1e-12)
+        else:
+            np.testing.assert_allclose(p[1:], q[1:], atol=1e-12)
+
+
+def test_turtle_symbols() -> None:
+    prog = make_program({}, axiom=[
+        ("F", 2.0), ("+", 90.0), ("!", 0.5), ("F", 1.0), ("-", 45.0), ("|",), ("f", 1.0),
+        ("[",), ("+", 90.0), ("F", 1.0), ("]",), ("~l", 2.0, 0.4), ("@O", 0.3),
+        ("{",), (".",), ("f", 1.0), (".",), ("+", 90.0), ("f", 1.0), (".",), ("}",),
+        ("Q", 7.0),
+    ])
+    s = math.sqrt(0.5)
+    # after F(2) +90 F(1): at (2, 1), heading 90; -45 | -> heading 225; f(1) -> (2-s, 1-s)
+    x, y = 2 - s, 1 - s
+    want = [
+        ("seg", 0.0, 0.0, 2.0, 0.0, 1.0),
+        ("seg", 2.0, 0.0, 2.0, 1.0, 0.5),
+        ("seg", x, y, x + math.cos(math.radians(315)), y + math.sin(math.radians(315)), 0.5),
+        ("leaf", x, y, 225.0, 2.0, 0.4),
+        ("disk", x, y, 0.3),
+        ("poly", ((x, y), (x - s, y - s), (x - s + s, y - s - s))),
+    ]
+    approx(prims_of(prog), want)
+
+
+def test_default_turn_angle_and_start_argument() -> None:
+    prog = make_program({}, axiom=[("+",), ("F", 1.0), ("-",), ("-",), ("F", 1.0)], angle=60.0)
+    got = prims_of(prog, start=(1.0, 2.0, 30.0))
+    approx(got, [("seg", 1.0, 2.0, 1.0, 3.0, 1.0),
+                 ("seg", 1.0, 3.0, 1.0 + math.cos(math.radians(-30)),
+                  3.0 + math.sin(math.radians(-30)), 1.0)])
+
+
+def test_program_start_used_by_default() -> None:
+    prog = make_program({}, axiom=[("F", 1.0)], start=(3.0, -1.0, 90.0))
+    approx(prims_of(prog), [("seg", 3.0, -1.0, 3.0, 0.0, 1.0)])
+
+
+def test_expansion_is_leftmost_depth_first_and_depth_limited() -> None:
+    # A(i) --> F(i) A(i + 1): axiom depth 0, so derivation_length 3 expands A three times
+    prog = make_program({"A": lambda ctx, i: [("F", i), ("A", i + 1.0)]},
+                        axiom=[("A", 1.0)], derivation_length=3)
+    got = prims_of(prog)
+    assert [p[3] for p in got] == [1.0, 3.0, 6.0]
+
+
+def test_successor_order() -> None:
+    # A --> B C, B --> F(1), C --> F(2): B's successor is drawn before C's
+    prog = make_program({"A": lambda ctx: [("B",), ("C",)], "B": lambda ctx: [("F", 1.0)],
+                         "C": lambda ctx: [("F", 2.0)]})
+    assert [p[3] for p in prims_of(prog)] == [1.0, 3.0]
+
+
+def test_production_returning_none_leaves_module_for_the_turtle() -> None:
+    prog = make_program({"F": lambda ctx, n: None if n < 2 else [("F", n / 2), ("F", n / 2)]},
+                        axiom=[("F", 4.0)])
+    assert [p[3] - p[1] for p in prims_of(prog)] == [1.0, 1.0, 1.0, 1.0]
+
+
+def test_empty_successor_deletes() -> None:
+    prog = make_program({"A": lambda ctx: []}, axiom=[("A",), ("F", 1.0)])
+    assert len(prims_of(prog)) == 1
+
+
+def test_cut_discards_rest_of_branch_only() -> None:
+    prog = make_program({}, axiom=[
+        ("[",), ("F", 1.0), ("[",), ("F", 5.0), ("]",), ("%",), ("F", 7.0), ("[",), ("F", 9.0),
+        ("]",), ("]",), ("F", 2.0), ("%",), ("F", 3.0)])
+    got = prims_of(prog)
+    assert [p[3] - p[1] for p in got] == [1.0, 5.0, 2.0]
+    assert got[2][1] == 0.0  # the branch's ] restored the pose
+
+
+def test_halt_discards_everything() -> None:
+    prog = make_program({"A": lambda ctx: [("F", 1.0), ("halt",), ("F", 2.0)]},
+                        axiom=[("[",), ("A",), ("]",), ("F", 3.0)])
+    assert len(prims_of(prog)) == 1
+
+
+def test_interpretation_rules() -> None:
+    # L is interpreted as a disk; interpretation output is interpreted recursively, never
+    # expanded by productions (M has a production that would draw a segment)
+    prog = make_program(
+        {"M": lambda ctx: [("F", 9.0)]},
+        axiom=[("L", 0.5), ("F", 1.0)],
+        interpretation={"L": lambda ctx, r: [("N", r)], "N": lambda ctx, r: [("@O", r), ("M",)]},
+    )
+    approx(prims_of(prog), [("disk", 0.0, 0.0, 0.5), ("seg", 0.0, 0.0, 1.0, 0.0, 1.0)])
+
+
+def test_interpretation_rule_with_random_site() -> None:
+    sites = [Site(index=0, id="interp:L/0/normal0", kind="normal", module="L")]
+    prog = make_program({}, axiom=[("L",)], sites=sites,
+                        interpretation={"L": lambda ctx: [("F", ctx.normal(0, 5.0, 0.0))]})
+    approx(prims_of(prog), [("seg", 0.0, 0.0, 5.0, 0.0, 1.0)])
+
+
+def test_module_with_production_past_derivation_length_gets_interpreted() -> None:
+    prog = make_program({"A": lambda ctx: [("A",), ("A",)]}, axiom=[("A",)],
+                        derivation_length=2, interpretation={"A": lambda ctx: [("F", 1.0)]})
+    assert len(prims_of(prog)) == 4
+
+
+def test_runaway_interpretation_recursion_raises() -> None:
+    prog = make_program({}, axiom=[("A",)], interpretation={"A": lambda ctx: [("A",)]})
+    with pytest.raises(ProgramError, match="64"):
+        forward(prog)
+
+
+def test_errors_in_generated_code_name_module_and_line() -> None:
+    def produce_a(ctx, w):
+        """A(w) --> F(1 / w)   (tiny.lsys:7)"""
+        return [("F", 1.0 / w)]
+
+    prog = make_program({"A": produce_a}, axiom=[("A", 0.0)])
+    with pytest.raises(ProgramError, match=r"tiny\.lsys:7: production A.*ZeroDivisionError"):
+        forward(prog)
+
+    def produce_b(ctx):
+        """B --> F(sqrt(-1))   (tiny.lsys:9-10)"""
+        return [("F", math.sqrt(-1.0))]
+
+    prog = make_program({"B": produce_b}, axiom=[("B",)])
+    with pytest.raises(ProgramError, match=r"tiny\.lsys:9: production B.*math domain"):
+        forward(prog)
+
+
+def test_bad_successor_and_turtle_arguments_raise() -> None:
+    with pytest.raises(ProgramError, match="not a module tuple"):
+        forward(make_program({"A": lambda ctx: ["F"]}))
+    with pytest.raises(ProgramError, match="turtle"):
+        forward(make_program({}, axiom=[("F", "x")]))
+    with pytest.raises(ProgramError, match="without a matching"):
+        forward(make_program({}, axiom=[("]",)]))
+
+
+def test_impure_production_is_detected() -> None:
+    sites = [Site(index=0, id="a", kind="normal"), Site(index=1, id="b", kind="normal")]
+    calls = []
+
+    def impure(ctx):
+        calls.append(1)
+        return [("F", ctx.normal(len(calls) % 2, 0.0, 1.0))]
+
+    with pytest.raises(ProgramError, match="not pure"):
+        forward(make_program({"A": impure}, sites=sites))
+
+
+def test_replay_asks_sites_one_at_a_time() -> None:
+    sites = [Site(index=0, id="a", kind="normal"), Site(index=1, id="b", kind="normal")]
+    prog = make_program({"A": lambda ctx: [("F", ctx.normal(0, 0, 1)), ("F", ctx.normal(1, 5, 2))]},
+                        sites=sites)
+    d = Deriver(prog)
+    p = d.start((0.0, 0.0, 0.0, 1.0))
+    assert d.advance(p) == NEED and p.need == (0, (0, 1))
+    p.values.append(2.0)
+    p.sites.append(0)
+    assert d.advance(p) == NEED and p.need == (1, (5, 2))
+    p.values.append(3.0)
+    p.sites.append(1)
+    assert d.advance(p) == DRAWN and p.last[3] == 2.0
+    q = p.copy()
+    assert d.advance(p) == DRAWN and p.last[3] == 5.0
+    assert d.advance(p) == DONE
+    # the copy is independent of the original
+    assert d.advance(q) == DRAWN and q.last[3] == 5.0 and q.n_prims == 2
+
+
+def test_axiom_may_draw_random_values() -> None:
+    sites = [Site(index=0, id="axiom/normal0", kind="normal")]
+    prog = make_program({}, axiom=lambda ctx: [("F", ctx.normal(0, 2.0, 0.0))], sites=sites)
+    approx(prims_of(prog), [("seg", 0.0, 0.0, 2.0, 0.0, 1.0)])
+
+
+def test_primitive_cap_gives_limit_status() -> None:
+    prog = make_program({"A": lambda ctx: [("F", 1.0), ("A",)]}, max_primitives=5)
+    f = forward(prog)
+    assert f.status == "limit" and len(f.primitives) == 5
+    r = smc(prog, None, 3, max_primitives=2)
+    assert all(p.status == "limit" and len(p.primitives) == 2 for p in r.particles)
+    r = smc(prog, None, 3, max_steps=4)
+    assert all(p.status == "limit" and len(p.primitives) == 4 for p in r.particles)
+
+
+def test_work_cap_without_drawing_gives_limit() -> None:
+    prog = make_program({"A": lambda ctx: [("A",), ("A",)]}, derivation_length=40)
+    d = Deriver(prog, max_ops=10_000)
+    p = d.start((0.0, 0.0, 0.0, 1.0))
+    assert d.advance(p) not in (DONE, DRAWN, NEED)
+
+
+def test_prim_bbox() -> None:
+    assert prim_bbox(("seg", 0, 0, 2, 1, 0.5)) == (-0.25, 2.25, -0.25, 1.25)
+    assert prim_bbox(("disk", 1, 1, 0.5)) == (0.5, 1.5, 0.5, 1.5)
+    np.testing.assert_allclose(prim_bbox(("leaf", 0, 0, 90.0, 2.0, 1.0)), (-0.5, 0.5, 0, 2))
+    assert prim_bbox(("poly", ((0, 0), (2, 0), (1, 3)))) == (0, 2, 0, 3)
+
+
+def test_vines_fixture_forward() -> None:
+    prog = load_program(VINES)
+    lengths = []
+    for seed in range(30):
+        f = forward(prog, seed=seed)
+        assert f.status == "done"
+        first = f.primitives[0]
+        assert first[0] == "seg" and first[1:3] == (0.0, 0.0) and first[5] == 0.75
+        assert all(p[0] in ("seg", "leaf", "disk") for p in f.primitives)
+        assert np.isfinite(f.log_prior) and f.log_likelihood == 0.0
+        lengths.append(len(f.primitives))
+    assert max(lengths) > 3
+    assert forward(prog, seed=7).primitives == forward(prog, seed=7).primitives

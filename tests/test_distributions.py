@@ -1,0 +1,140 @@
+"""Batched prior and proposal densities: normalization, sampling moments, edge cases."""
+
+import numpy as np
+import pytest
+from ngpm_runtime.distributions import (
+    prior_logpdf,
+    prior_sample,
+    proposal_logpdf,
+    proposal_sample,
+)
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.program import Site
+
+NORMAL = Site(index=0, id="n", kind="normal")
+UNIFORM = Site(index=1, id="u", kind="uniform")
+BERN = Site(index=2, id="b", kind="bernoulli")
+CAT = Site(index=3, id="c", kind="categorical", k=3)
+
+
+def rng(seed: int = 0) -> np.random.Generator:
+    return np.random.Generator(np.random.PCG64(seed))
+
+
+def test_normal_prior_logpdf_matches_formula() -> None:
+    args = np.array([[1.0, 2.0], [0.0, 0.5]])
+    x = np.array([2.0, -1.0])
+    want = -0.5 * ((x - args[:, 0]) / args[:, 1]) ** 2 - np.log(args[:, 1] * np.sqrt(2 * np.pi))
+    np.testing.assert_allclose(prior_logpdf(NORMAL, args, x), want)
+
+
+def test_normal_prior_sample_moments() -> None:
+    args = np.tile([3.0, 0.5], (40000, 1))
+    v = prior_sample(NORMAL, args, rng())
+    assert abs(v.mean() - 3.0) < 0.01 and abs(v.std() - 0.5) < 0.01
+
+
+def test_zero_sigma_is_a_point_mass() -> None:
+    args = np.array([[2.0, 0.0], [2.0, 0.0]])
+    v = prior_sample(NORMAL, args, rng())
+    assert np.all(v == 2.0)
+    lp = prior_logpdf(NORMAL, args, np.array([2.0, 2.5]))
+    assert lp[0] == 0.0 and lp[1] == -np.inf
+
+
+def test_uniform_prior() -> None:
+    args = np.tile([-1.0, 3.0], (5, 1))
+    v = prior_sample(UNIFORM, args, rng())
+    assert np.all((v >= -1) & (v <= 3))
+    lp = prior_logpdf(UNIFORM, args, np.array([0.0, 3.0, -1.0, 3.5, -2.0]))
+    np.testing.assert_allclose(lp[:3], -np.log(4.0))
+    assert np.all(lp[3:] == -np.inf)
+
+
+def test_bernoulli_prior() -> None:
+    args = np.tile([0.3], (50000, 1))
+    v = prior_sample(BERN, args, rng())
+    assert set(np.unique(v)) <= {0.0, 1.0}
+    assert abs(v.mean() - 0.3) < 0.01
+    lp = prior_logpdf(BERN, args[:3], np.array([1.0, 0.0, 0.5]))
+    np.testing.assert_allclose(lp[:2], np.log([0.3, 0.7]))
+    assert lp[2] == -np.inf
+
+
+def test_categorical_prior_normalizes_weights() -> None:
+    args = np.tile([1.0, 2.0, 1.0], (40000, 1))
+    v = prior_sample(CAT, args, rng())
+    freq = np.bincount(v.astype(int), minlength=3) / len(v)
+    np.testing.assert_allclose(freq, [0.25, 0.5, 0.25], atol=0.01)
+    lp = prior_logpdf(CAT, args[:4], np.array([0.0, 1.0, 3.0, 0.5]))
+    np.testing.assert_allclose(lp[:2], np.log([0.25, 0.5]))
+    assert lp[2] == -np.inf and lp[3] == -np.inf
+
+
+def test_categorical_zero_weight_never_sampled() -> None:
+    args = np.tile([1.0, 0.0, 1.0], (20000, 1))
+    v = prior_sample(CAT, args, rng(3))
+    assert not np.any(v == 1.0)
+
+
+def test_bad_categorical_weights_raise_program_error() -> None:
+    with pytest.raises(ProgramError):
+        prior_sample(CAT, np.array([[0.0, 0.0, 0.0]]), rng())
+    with pytest.raises(ProgramError):
+        prior_logpdf(CAT, np.array([[1.0, -1.0, 1.0]]), np.array([0.0]))
+
+
+def test_nonfinite_normal_args_raise_program_error() -> None:
+    with pytest.raises(ProgramError):
+        prior_sample(NORMAL, np.array([[np.nan, 1.0]]), rng())
+
+
+def _integrate(f, lo, hi, n=200001):
+    x = np.linspace(lo, hi, n)
+    return np.trapezoid(f(x), x) if hasattr(np, "trapezoid") else np.trapz(f(x), x)
+
+
+def test_normal_mixture_proposal_integrates_to_one_and_matches_samples() -> None:
+    params = np.array([[0.0, np.log(3.0), -1.0, 2.0, np.log(0.5), np.log(2.0)]])
+    args = np.array([[1.0, 2.0]])
+
+    def dens(x):
+        return np.exp(proposal_logpdf(NORMAL, np.repeat(args, len(x), 0),
+                                      np.repeat(params, len(x), 0), x))
+
+    assert abs(_integrate(dens, -40, 40) - 1.0) < 1e-6
+    n = 60000
+    v = proposal_sample(NORMAL, np.repeat(args, n, 0), np.repeat(params, n, 0), rng())
+    # mixture weights 1/4, 3/4; means mu + sigma * m = -1, 5
+    assert abs(v.mean() - (0.25 * -1.0 + 0.75 * 5.0)) < 0.05
+
+
+def test_uniform_logit_normal_proposal_integrates_to_one() -> None:
+    params = np.array([[0.0, 0.0, 0.5, -1.0, 0.0, np.log(0.7)]])
+    args = np.array([[-2.0, 3.0]])
+
+    def dens(x):
+        return np.exp(proposal_logpdf(UNIFORM, np.repeat(args, len(x), 0),
+                                      np.repeat(params, len(x), 0), x))
+
+    assert abs(_integrate(dens, -2.0, 3.0) - 1.0) < 1e-4
+    n = 20000
+    v = proposal_sample(UNIFORM, np.repeat(args, n, 0), np.repeat(params, n, 0), rng())
+    assert np.all((v > -2.0) & (v < 3.0))
+    assert np.all(np.isfinite(proposal_logpdf(UNIFORM, np.repeat(args, n, 0),
+                                              np.repeat(params, n, 0), v)))
+    assert proposal_logpdf(UNIFORM, args, params, np.array([3.5]))[0] == -np.inf
+
+
+def test_discrete_proposals() -> None:
+    args = np.tile([1.0, 1.0, 1.0], (30000, 1))
+    params = np.tile([0.1, 0.1, 0.8], (30000, 1))
+    v = proposal_sample(CAT, args, params, rng())
+    freq = np.bincount(v.astype(int), minlength=3) / len(v)
+    np.testing.assert_allclose(freq, [0.1, 0.1, 0.8], atol=0.01)
+    np.testing.assert_allclose(proposal_logpdf(CAT, args[:2], params[:2], np.array([2.0, 0.0])),
+                               np.log([0.8, 0.1]))
+    bp = np.array([[0.9], [0.9]])
+    np.testing.assert_allclose(
+        proposal_logpdf(BERN, np.array([[0.5], [0.5]]), bp, np.array([1.0, 0.0])),
+        np.log([0.9, 0.1]))
