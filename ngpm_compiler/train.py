@@ -30,18 +30,9 @@ from ngpm_compiler.nets import (
     continuous_z,
     select_columns,
 )
+from ngpm_compiler.traces import SiteData
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
-
-
-@dataclass
-class SiteData:
-    """Every recorded visit of one site: raw features, chosen values, prior args, job ids."""
-
-    features: np.ndarray  # (m, n_f) float32
-    values: np.ndarray  # (m,) float64
-    prior_args: np.ndarray  # (m, n_args) float64
-    jobs: np.ndarray  # (m,) int64: the trace each row belongs to
 
 
 @dataclass

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 import onnxruntime as ort
+from ngpm_runtime import distributions as dist
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.program import Program, Site
 
@@ -89,8 +90,6 @@ class Guide:
 
     def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        from ngpm_runtime import distributions as dist
-
         if site.index not in self.nets:
             values = dist.prior_sample(site, prior_args, rng)
             return values, dist.prior_logpdf(site, prior_args, values)
