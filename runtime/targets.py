@@ -1,0 +1,444 @@
+"""Target images: a binary mask plus a start pose, loaded from any PNG/JPEG.
+
+A target's start is `(x, y, dx, dy)`: a point normalized to [0, 1] with a top-left origin
+(pixel column c covers x in [c/W, (c+1)/W)) and a unit direction in image axes (y down).
+On disk a target is an image plus the original code's sidecar `<image stem>.txt`:
+two lines, `x y` then `dx dy`. Images are padded to a square (background added equally on
+both sides of the short axis, so the aspect is kept) and then resized to `size x size`
+by area averaging; a pixel is foreground when at least half of it is covered.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from ngpm_runtime.errors import TargetError
+from PIL import Image, PngImagePlugin, UnidentifiedImageError
+from scipy.ndimage import convolve, distance_transform_edt
+from skimage.filters import threshold_otsu
+from skimage.measure import label
+from skimage.morphology import skeletonize
+
+Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
+
+POLARITIES = ("auto", "dark", "light", "alpha")
+DEFAULT_SIZE = 50
+MIN_SIDE = 8  # smallest accepted input image side, in pixels
+MIN_FOREGROUND = 0.004  # smallest foreground fraction after resizing (10 px at 50 x 50)
+MAX_FOREGROUND = 0.95  # largest foreground fraction: above it there is no shape to match
+POLARITY_KEY = "ngpm-polarity"  # PNG text chunk save_target writes (always "dark")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp")
+
+
+@dataclass(frozen=True, eq=False)
+class Target:
+    """A binary target mask with a start pose in normalized image coordinates."""
+
+    mask: np.ndarray  # (H, W) bool, True = shape
+    start: Start
+    name: str = "target"
+
+    def __post_init__(self) -> None:
+        mask = np.asarray(self.mask)
+        if mask.ndim != 2:
+            raise TargetError(f"target {self.name}: mask must be 2-D, got shape {mask.shape}")
+        object.__setattr__(self, "mask", mask.astype(bool, copy=False))
+        object.__setattr__(self, "start", _check_start(self.start, f"target {self.name}"))
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(height, width) of the mask."""
+        return self.mask.shape[0], self.mask.shape[1]
+
+    def start_pose(self, viewport: Sequence[float]) -> tuple[float, float, float]:
+        """World pose (x, y, heading_degrees) of the start; world y points up."""
+        xmin, xmax, ymin, ymax = (float(v) for v in viewport)
+        x, y, dx, dy = self.start
+        heading = math.degrees(math.atan2(-dy, dx))
+        return xmin + x * (xmax - xmin), ymax - y * (ymax - ymin), heading
+
+    def start_pixel(self) -> tuple[int, int]:
+        """(row, col) of the pixel holding the start point."""
+        h, w = self.size
+        x, y = self.start[0], self.start[1]
+        return min(int(y * h), h - 1), min(int(x * w), w - 1)
+
+    def mirrored(self) -> Target:
+        """Horizontally mirrored copy: x -> 1 - x, dx -> -dx; name gets suffix `_m`."""
+        x, y, dx, dy = self.start
+        return Target(self.mask[:, ::-1].copy(), (1.0 - x, y, -dx, dy), self.name + "_m")
+
+
+# --- sidecar -----------------------------------------------------------------------------
+
+
+def sidecar_path(image_path: str | os.PathLike) -> Path:
+    """The sidecar file of an image: `<image stem>.txt` beside it."""
+    return Path(image_path).with_suffix(".txt")
+
+
+def read_sidecar(path: str | os.PathLike) -> Start:
+    """Read a 2-line sidecar (`x y`, `dx dy`); the direction is normalized to unit length."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise TargetError(f"cannot read sidecar {path}: {_reason(err)}") from None
+    lines = [ln.replace(",", " ").split() for ln in text.splitlines() if ln.strip()]
+    if len(lines) != 2 or any(len(ln) != 2 for ln in lines):
+        raise TargetError(f"bad sidecar {path}: expected two lines 'x y' and 'dx dy'")
+    try:
+        values = [float(v) for ln in lines for v in ln]
+    except ValueError:
+        raise TargetError(f"bad sidecar {path}: not numbers: {text.strip()!r}") from None
+    return _check_start(tuple(values), f"bad sidecar {path}:")
+
+
+def write_sidecar(path: str | os.PathLike, start: Start) -> None:
+    """Write a sidecar atomically."""
+    x, y, dx, dy = _check_start(start, f"sidecar {path}:")
+    _atomic_write(Path(path), f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
+
+
+def _check_start(start: Sequence[float], where: str) -> Start:
+    try:
+        x, y, dx, dy = (float(v) for v in start)
+    except (TypeError, ValueError):
+        raise TargetError(f"{where} start must be four numbers (x, y, dx, dy)") from None
+    if not all(math.isfinite(v) for v in (x, y, dx, dy)):
+        raise TargetError(f"{where} start has a value that is not finite")
+    eps = 1e-6
+    if not (-eps <= x <= 1 + eps and -eps <= y <= 1 + eps):
+        raise TargetError(f"{where} start point ({x:g}, {y:g}) is outside [0, 1]")
+    norm = math.hypot(dx, dy)
+    if norm < 1e-9:
+        raise TargetError(f"{where} start direction ({dx:g}, {dy:g}) is zero")
+    return min(max(x, 0.0), 1.0), min(max(y, 0.0), 1.0), dx / norm, dy / norm
+
+
+# --- images -> masks ---------------------------------------------------------------------
+
+
+def read_image(path: str | os.PathLike) -> Image.Image:
+    """Open an image fully (so the file is closed), or raise a TargetError naming it."""
+    path = Path(path)
+    try:
+        with Image.open(path) as img:
+            img.load()
+            img.info = dict(img.info)
+            return img
+    except FileNotFoundError:
+        raise TargetError(f"target image {path} does not exist") from None
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+        raise TargetError(f"cannot read target image {path}: {_reason(err)}") from None
+
+
+def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image") -> np.ndarray:
+    """Foreground mask (H, W) bool of an image at its own resolution.
+
+    polarity: "alpha" (opaque pixels), "dark" (dark shape on light), "light", or "auto":
+    a PNG written by save_target says its polarity; otherwise alpha when the image has an
+    alpha channel that varies; otherwise gray levels are split by Otsu's threshold and the
+    class that covers most of the image border is the background (when the border is
+    evenly split, the smaller class is the shape).
+    """
+    if polarity not in POLARITIES:
+        raise TargetError(f"{name}: polarity must be one of {', '.join(POLARITIES)}")
+    if min(img.size) < MIN_SIDE:
+        raise TargetError(f"{name}: image is tiny ({img.width} x {img.height} px, "
+                          f"need at least {MIN_SIDE} x {MIN_SIDE})")
+    if polarity == "auto" and img.info.get(POLARITY_KEY) in ("dark", "light"):
+        polarity = img.info[POLARITY_KEY]
+    alpha = _alpha(img)
+    if polarity == "auto" and alpha is not None and int(alpha.max()) - int(alpha.min()) > 32:
+        polarity = "alpha"
+    if polarity == "alpha":
+        if alpha is None:
+            raise TargetError(f"{name}: polarity 'alpha' but the image has no alpha channel")
+        if int(alpha.max()) - int(alpha.min()) <= 32:
+            raise TargetError(f"{name}: alpha channel is flat, so it holds no shape")
+        return alpha >= 128
+    gray = np.asarray(img.convert("L"), dtype=np.uint8)
+    if int(gray.max()) - int(gray.min()) <= 16:
+        raise TargetError(f"{name}: image is one flat color, so it holds no shape")
+    dark = gray <= threshold_otsu(gray)
+    if polarity == "dark":
+        return dark
+    if polarity == "light":
+        return ~dark
+    border = np.concatenate([dark[0], dark[-1], dark[1:-1, 0], dark[1:-1, -1]])
+    frac = float(border.mean())
+    if frac < 0.4:
+        return dark
+    if frac > 0.6:
+        return ~dark
+    return dark if dark.mean() <= 0.5 else ~dark
+
+
+def _alpha(img: Image.Image) -> np.ndarray | None:
+    if img.mode == "P" and "transparency" in img.info:
+        img = img.convert("RGBA")
+    if img.mode in ("RGBA", "LA", "PA"):
+        return np.asarray(img.getchannel("A"), dtype=np.uint8)
+    return None
+
+
+def pad_to_square(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Pad with background to a square; returns (square, row offset, column offset)."""
+    h, w = mask.shape
+    side = max(h, w)
+    oy, ox = (side - h) // 2, (side - w) // 2
+    out = np.zeros((side, side), dtype=bool)
+    out[oy:oy + h, ox:ox + w] = mask
+    return out, oy, ox
+
+
+def resize_mask(mask: np.ndarray, size: int) -> np.ndarray:
+    """Resize a square mask to size x size: area average (box filter), foreground >= 1/2."""
+    if mask.shape == (size, size):
+        return mask.astype(bool, copy=True)
+    img = Image.fromarray(mask.astype(np.uint8) * 255)
+    small = np.asarray(img.resize((size, size), Image.Resampling.BOX), dtype=np.uint8)
+    return small >= 128
+
+
+def mask_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
+                    polarity: str = "auto", name: str = "image",
+                    start: Start | None = None) -> tuple[np.ndarray, Start | None]:
+    """Mask at the working resolution and the start mapped through the square padding."""
+    mask = image_to_mask(img, polarity, name)
+    h, w = mask.shape
+    square, oy, ox = pad_to_square(mask)
+    side = square.shape[0]
+    if size is not None:
+        if not isinstance(size, int) or size < MIN_SIDE:
+            raise TargetError(f"{name}: working size must be an integer >= {MIN_SIDE}")
+        square = resize_mask(square, size)
+    check_mask(square, name)
+    if start is not None:
+        x, y, dx, dy = start
+        start = ((x * w + ox) / side, (y * h + oy) / side, dx, dy)
+    return square, start
+
+
+def check_mask(mask: np.ndarray, name: str) -> None:
+    """Reject masks with (almost) no foreground or no background."""
+    frac = float(mask.mean()) if mask.size else 0.0
+    count = int(mask.sum())
+    if count == 0:
+        raise TargetError(f"{name}: no shape at {mask.shape[1]} x {mask.shape[0]} px "
+                          "(empty image, or strokes too thin for this size)")
+    if frac < MIN_FOREGROUND or count < 4:
+        raise TargetError(f"{name}: shape is too small ({count} px of "
+                          f"{mask.shape[1]} x {mask.shape[0]})")
+    if frac > MAX_FOREGROUND:
+        raise TargetError(f"{name}: image is almost all foreground ({frac:.0%}); "
+                          "try another polarity")
+
+
+# --- loading and saving ------------------------------------------------------------------
+
+
+def load_target(path: str | os.PathLike, size: int | None = DEFAULT_SIZE,
+                polarity: str = "auto") -> Target:
+    """Load an image as a Target at size x size (None: keep the padded square's size).
+
+    The start comes from the sidecar `<stem>.txt` when there is one, else from
+    `auto_start` on the mask.
+    """
+    path = Path(path)
+    img = read_image(path)
+    side = sidecar_path(path)
+    start = read_sidecar(side) if side.is_file() else None
+    mask, start = mask_from_image(img, size, polarity, str(path), start)
+    if start is None:
+        start = auto_start(mask)
+    return Target(mask, start, path.stem)
+
+
+def save_target(target: Target, path: str | os.PathLike) -> Path:
+    """Write the mask as a black-on-white PNG plus its sidecar, each atomically."""
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        path = path.with_suffix(".png")
+    img = Image.fromarray(np.where(target.mask, 0, 255).astype(np.uint8), mode="L")
+    info = PngImagePlugin.PngInfo()
+    info.add_text(POLARITY_KEY, "dark")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png.tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            img.save(fh, format="PNG", pnginfo=info, optimize=True)
+        os.replace(tmp, path)
+    except BaseException:
+        _unlink(tmp)
+        raise
+    write_sidecar(sidecar_path(path), target.start)
+    return path
+
+
+def load_dataset(directory: str | os.PathLike, size: int | None = None,
+                 polarity: str = "auto") -> list[Target]:
+    """Load every target of a dataset directory, in the order of its index.json.
+
+    Without index.json, every image with a sidecar is loaded in name order. size=None keeps
+    each image's own (square) size.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise TargetError(f"dataset directory {directory} does not exist")
+    index = directory / "index.json"
+    files: list[Path]
+    if index.is_file():
+        try:
+            meta = json.loads(index.read_text(encoding="utf-8"))
+            files = [directory / str(f) for f in meta["files"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            raise TargetError(f"bad dataset index {index}: expected JSON with 'files'") from None
+    else:
+        files = sorted(p for p in directory.iterdir()
+                       if p.suffix.lower() in IMAGE_SUFFIXES and sidecar_path(p).is_file())
+    if not files:
+        raise TargetError(f"dataset directory {directory} holds no targets")
+    return [load_target(f, size=size, polarity=polarity) for f in files]
+
+
+# --- automatic start annotation ----------------------------------------------------------
+
+
+def auto_start(mask: np.ndarray) -> Start:
+    """A deterministic start for a mask without annotation.
+
+    Take the largest connected component's skeleton, prune its spurs (remove end pixels
+    as many times as the shape's half thickness) and pick its lowest pixel (ties: nearest
+    the component's center column, then leftmost). From there the skeleton leaves in one or
+    more branches; the direction is the mean offset of each branch's pixels within `reach`
+    steps (15% of the larger side, at least 3), and the most upward branch wins (ties: the
+    one going right). Straight up when the skeleton is a single pixel. The point then moves
+    backwards along the direction to the last pixel inside the shape, so growth starts at
+    the shape's edge: a vertical bar starts at its bottom heading up.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if not mask.any():
+        raise TargetError("cannot annotate an empty mask")
+    h, w = mask.shape
+    labels = label(mask, connectivity=2)
+    counts = np.bincount(labels.ravel())
+    counts[0] = 0
+    comp = labels == int(np.argmax(counts))
+    skel = skeletonize(comp)
+    if not skel.any():
+        skel = comp.copy()
+    half = int(math.ceil(float(distance_transform_edt(comp).max())))
+    skel = _prune(skel, half)
+    rows, cols = np.nonzero(skel)
+    center = float(np.nonzero(comp)[1].mean())
+    low = int(rows.max())
+    cand = cols[rows == low]
+    c0 = int(cand[np.lexsort((cand, np.abs(cand - center)))[0]])
+    r0 = low
+    reach = max(3, int(round(0.15 * max(h, w))))
+    dx, dy = _branch_direction(skel, r0, c0, reach)
+    # walk back to the shape's edge (half-pixel steps, staying inside the component)
+    py, px = r0 + 0.5, c0 + 0.5
+    for _ in range(4 * max(h, w)):
+        ny, nx = py - 0.5 * dy, px - 0.5 * dx
+        ri, ci = int(math.floor(ny)), int(math.floor(nx))
+        if not (0 <= ri < h and 0 <= ci < w and comp[ri, ci]):
+            break
+        py, px = ny, nx
+    return px / w, py / h, dx, dy
+
+
+_RING = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
+
+
+def _prune(skel: np.ndarray, times: int) -> np.ndarray:
+    """Remove end pixels (at most one 8-neighbor) `times` times; never empties it."""
+    kernel = np.ones((3, 3), dtype=np.int32)
+    kernel[1, 1] = 0
+    for _ in range(times):
+        nb = convolve(skel.astype(np.int32), kernel, mode="constant")
+        ends = skel & (nb <= 1)
+        if not ends.any() or ends.sum() == skel.sum():
+            break
+        skel = skel & ~ends
+    return skel
+
+
+def _branch_direction(skel: np.ndarray, r0: int, c0: int, reach: int) -> tuple[float, float]:
+    """Unit (dx, dy) along the most upward skeleton branch leaving (r0, c0)."""
+    h, w = skel.shape
+    first = [(r0 + dr, c0 + dc) for dr, dc in _RING
+             if 0 <= r0 + dr < h and 0 <= c0 + dc < w and skel[r0 + dr, c0 + dc]]
+    if not first:
+        return 0.0, -1.0
+    # neighbors that touch each other start the same branch
+    group = {q: i for i, q in enumerate(first)}
+    for a in first:
+        for b in first:
+            if max(abs(a[0] - b[0]), abs(a[1] - b[1])) == 1:
+                ga, gb = group[a], group[b]
+                for q, g in group.items():
+                    if g == gb:
+                        group[q] = ga
+    owner = dict(group)
+    owner[(r0, c0)] = -1
+    frontier = list(first)
+    for _ in range(reach - 1):
+        nxt = []
+        for r, c in frontier:
+            for dr, dc in _RING:
+                q = (r + dr, c + dc)
+                if 0 <= q[0] < h and 0 <= q[1] < w and q not in owner and skel[q]:
+                    owner[q] = owner[(r, c)]
+                    nxt.append(q)
+        frontier = nxt
+    best: tuple[float, float, float, float] | None = None
+    for g in sorted(set(group.values())):
+        pts = [q for q, o in owner.items() if o == g]
+        vy = float(np.mean([q[0] for q in pts])) - r0
+        vx = float(np.mean([q[1] for q in pts])) - c0
+        norm = math.hypot(vx, vy)
+        if norm < 1e-9:
+            continue
+        score = (round(-vy / norm, 6), round(vx / norm, 6))
+        if best is None or score > best[:2]:
+            best = (score[0], score[1], vx / norm, vy / norm)
+    if best is None:
+        return 0.0, -1.0
+    return best[2], best[3]
+
+
+# --- helpers -----------------------------------------------------------------------------
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        _unlink(tmp)
+        raise
+
+
+def _unlink(path: str) -> None:
+    try:
+        os.unlink(path)
+    except OSError:
+        pass
+
+
+def _reason(err: BaseException) -> str:
+    text = str(err).splitlines()[0] if str(err) else type(err).__name__
+    return text[:160]
