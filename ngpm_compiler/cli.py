@@ -12,7 +12,6 @@ from ngpm_runtime.errors import NgpmError
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
     "ngpm_compiler.cmd_grammar",  # compile, check, sample
-    "ngpm_compiler.cmd_targets",  # targets build, list, show
     "ngpm_compiler.cmd_guide",  # traces, train, export, grow
     "ngpm_compiler.cmd_targets",  # targets build, list, show
 ]
