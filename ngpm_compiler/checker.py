@@ -44,7 +44,7 @@ DEFAULT_DERIVATION_LENGTH = 1_000_000
 DEFAULT_MAX_PRIMITIVES = 5000
 # Python names a generated module uses itself.
 RESERVED = {"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "float",
-            "min", "max", "abs", "round"}
+            "min", "max", "abs", "round", "l", "O", "I"}  # l, O, I: ruff's E741
 
 
 @dataclass

@@ -163,13 +163,18 @@ class ModuleWriter:
 
     def docstring(self, texts: list[str], first: int, last: int, indent: str) -> list[str]:
         where = f"({self.base}:{first})" if first == last else f"({self.base}:{first}-{last})"
-        texts = [t.replace("\\", "\\\\").replace('"', '\\"') for t in texts]
-        one = f'{indent}"""{texts[0]}   {where}"""' if len(texts) == 1 else ""
+        rows = []
+        for text in texts:
+            parts = [p.strip() for p in text.replace("\\", "\\\\").replace('"', '\\"')
+                     .splitlines() if p.strip()]
+            rows += parts[:1] + ["    " + p for p in parts[1:]]
+        one = f'{indent}"""{rows[0]}   {where}"""' if len(rows) == 1 else ""
         if one and len(one) <= LIMIT:
             return [one]
         out: list[str] = []
-        for text in texts + [where]:
-            out += textwrap.wrap(text, LIMIT - len(indent) - 3, subsequent_indent="    ",
+        for row in rows + [where]:
+            lead = row[: len(row) - len(row.lstrip())]
+            out += textwrap.wrap(row, LIMIT - len(indent) - 3, subsequent_indent=lead + "    ",
                                  break_long_words=True, break_on_hyphens=False) or [""]
         out = [indent + line for line in out]
         out[0] = indent + '"""' + out[0][len(indent):]

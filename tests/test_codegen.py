@@ -1,0 +1,190 @@
+"""Code generation: golden files, the generated module's protocol, ruff-clean output."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from ngpm_compiler.compile import compile_grammar, write_compiled
+from ngpm_runtime.program import Program, load_program
+
+ROOT = Path(__file__).resolve().parent.parent
+GOLDEN = Path(__file__).parent / "golden"
+GRAMMARS = sorted(p.stem for p in (ROOT / "grammars").glob("*.lsys"))
+
+
+class FixedCtx:
+    """Answers every ctx call with a fixed value and records the calls."""
+
+    def __init__(self, value: float = 0.0, choice: int = 0) -> None:
+        self.value, self.choice, self.calls = value, choice, []
+
+    def normal(self, site, mu, sigma):
+        self.calls.append(("normal", site, mu, sigma))
+        return mu + self.value * sigma
+
+    def uniform(self, site, a, b):
+        self.calls.append(("uniform", site, a, b))
+        return a + self.value * (b - a)
+
+    def bernoulli(self, site, p):
+        self.calls.append(("bernoulli", site, p))
+        return 1.0
+
+    def categorical(self, site, weights):
+        self.calls.append(("categorical", site, weights))
+        return 0.0
+
+    def choose(self, site, probs):
+        self.calls.append(("choose", site, probs))
+        return self.choice
+
+
+def compiled(name: str):
+    return compile_grammar(ROOT / "grammars" / f"{name}.lsys", filename=f"grammars/{name}.lsys")
+
+
+@pytest.mark.parametrize("name", GRAMMARS)
+def test_golden(name: str) -> None:
+    """tests/golden/<name>_sampler.py equals fresh output (UPDATE_GOLDEN=1 rewrites it)."""
+    code = compiled(name).source_code
+    path = GOLDEN / f"{name}_sampler.py"
+    if os.environ.get("UPDATE_GOLDEN") == "1":
+        path.write_text(code)
+    assert path.is_file(), f"missing golden file {path}; run with UPDATE_GOLDEN=1"
+    assert code == path.read_text(), f"{name}: generated code differs from {path}"
+
+
+@pytest.mark.parametrize("name", GRAMMARS)
+def test_program_is_consistent(name: str) -> None:
+    c = compiled(name)
+    prog = c.program()
+    assert isinstance(prog, Program)
+    assert prog.name == name and prog.grammar_hash == c.grammar_hash
+    assert c.grammar_hash.startswith("sha256:") and len(c.grammar_hash) == 7 + 64
+    assert [s.index for s in prog.sites] == list(range(len(prog.sites)))
+    assert len({s.id for s in prog.sites}) == len(prog.sites)
+    assert prog.sites == c.sites
+    js = c.sites_json()
+    assert js["grammar"] == name and len(js["sites"]) == len(c.sites)
+
+
+def test_write_compiled_and_load(tmp_path: Path) -> None:
+    c = compiled("vines")
+    sampler, sites = write_compiled(c, tmp_path)
+    assert sampler.name == "vines_sampler.py" and sites.name == "vines_sites.json"
+    prog = load_program(sampler)
+    assert prog.derivation_length == 400 and prog.viewport == (-12.0, 12.0, -22.0, 2.0)
+    assert set(prog.productions) == {"S", "B", "L", "Lf", "P", "T", "K", "C1", "C2"}
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_vines_productions_follow_protocol() -> None:
+    prog = compiled("vines").program()
+    ctx = FixedCtx(value=1.0)
+    succ = prog.productions["B"](ctx, 0.75)
+    assert succ == [("+", 22.5), ("!", 0.75), ("F", 2.0), ("L",), ("P",), ("T", 0.75)]
+    b = prog.site("B/0/normal0").index
+    assert ctx.calls == [("normal", b, 0.0, 22.5)]
+    # conditions: K rewrites while w > WMIN, else no rule applies (None)
+    assert prog.productions["K"](FixedCtx(), 0.5) == [("C1", 0.5), ("C2", 0.5)]
+    assert prog.productions["K"](FixedCtx(), 0.1) is None
+    # a stochastic group: alternative 1 of C1 deletes the module
+    ctx = FixedCtx(choice=1)
+    assert prog.productions["C1"](ctx, 0.5) == []
+    assert ctx.calls == [("choose", prog.site("C1/choice").index, (0.66, 0.34))]
+    ctx = FixedCtx(choice=0)
+    assert prog.productions["C1"](ctx, 0.5) == [("[",), ("B", 0.5 * 0.975), ("]",)]
+    # leaf: default arguments filled, nested expression of a parameter
+    ctx = FixedCtx(value=0.0)
+    succ = prog.productions["Lf"](ctx, -1.0)
+    assert succ[1] == ("f", -1.0) and succ[2] == ("+", -45.0)
+    assert prog.axiom(FixedCtx()) == [("S",)]
+
+
+def test_defaults_and_types() -> None:
+    src = ("angle: 30\nAxiom: F f + - ~l ~l(2) @O !(2) | [ ] { . } % halt A(1 > 0)\n")
+    prog = compile_grammar(src).program()
+    succ = prog.axiom(FixedCtx())
+    assert succ == [("F", 1.0), ("f", 1.0), ("+", 30.0), ("-", 30.0), ("~l", 1.0, 1.0),
+                    ("~l", 2.0, 1.0), ("@O", 1.0), ("!", 2.0), ("|",), ("[",), ("]",),
+                    ("{",), (".",), ("}",), ("%",), ("halt",), ("A", 1.0)]
+    assert all(type(a) is float for m in succ for a in m[1:])
+
+
+def test_math_in_degrees_and_random_calls() -> None:
+    src = ("#define K 2\nAxiom: A(3)\nA(x) --> F(sin(30) + cos(60) + atan2(1, 1) + x ^ K) "
+           "F(min(x, 1, 2) + max(x, 5) + abs(-x) + sqrt(16) + floor(2.5) + ceil(2.5) "
+           "+ round(2.5) + pi - pi + 7 % 4) F(flip(0.3) + uniform(1, 3) + gauss(x, 1) "
+           "+ categorical(1, 2, 3) + choice(0.5, 0.5) + normal(0, 1) + bernoulli(0.5))\n")
+    c = compile_grammar(src)
+    prog = c.program()
+    ctx = FixedCtx(value=0.5)
+    succ = prog.productions["A"](ctx, 3.0)
+    assert succ[0][1] == pytest.approx(0.5 + 0.5 + 45.0 + 9.0)
+    assert succ[1][1] == pytest.approx(1 + 5 + 3 + 4 + 2 + 3 + 3 + 3)
+    assert succ[2][1] == pytest.approx(1.0 + 2.0 + 3.5 + 0.0 + 0.0 + 0.5 + 1.0)
+    kinds = [call[0] for call in ctx.calls]
+    assert kinds == ["bernoulli", "uniform", "normal", "categorical", "categorical", "normal",
+                     "bernoulli"]
+    ids = [s.id for s in c.sites]
+    assert ids == ["A/0/bernoulli0", "A/0/uniform0", "A/0/normal0", "A/0/categorical0",
+                   "A/0/categorical1", "A/0/normal1", "A/0/bernoulli1"]
+    assert [c.sites[call[1]].kind for call in ctx.calls] == [
+        "bernoulli", "uniform", "normal", "categorical", "categorical", "normal", "bernoulli"]
+    assert c.sites[3].k == 3 and c.sites[4].k == 2
+
+
+def test_nested_random_calls_and_replay_purity() -> None:
+    c = compile_grammar("Axiom: A\nA --> F(gauss(uniform(0, 1), 2))\n")
+    prog = c.program()
+    ctx = FixedCtx(value=0.25)
+    first = prog.productions["A"](ctx)
+    again = prog.productions["A"](FixedCtx(value=0.25))
+    assert first == again  # a pure function of the values ctx returns
+    assert [call[0] for call in ctx.calls] == ["uniform", "normal"]
+    assert ctx.calls[1][2] == 0.25  # the uniform's value is the normal's mean
+
+
+def test_param_names_per_alternative_and_shadowing() -> None:
+    src = ("#define x 5\nderivation length: 2\nAxiom: A(1) B(2)\n"
+           "A(y) : y > 0 --> F(y + x)\nA(z) : z > 0 --> G(z) : 1\nB(x) --> F(x)\n")
+    # the second rule has the same condition (parameters renamed): same group
+    with pytest.raises(Exception, match="sum to 2"):
+        compile_grammar(src.replace("F(y + x)", "F(y + x) : 1"))
+    src2 = ("#define x 5\nAxiom: A(1) B(2)\nA(y) : y > 0 --> F(y + x)\nA(z) --> G(z)\n"
+            "B(x) --> F(x)\n")
+    prog = compile_grammar(src2).program()
+    assert prog.productions["A"](FixedCtx(), 1.0) == [("F", 6.0)]
+    assert prog.productions["A"](FixedCtx(), -1.0) == [("G", -1.0)]
+    assert prog.productions["B"](FixedCtx(), 2.0) == [("F", 2.0)]  # parameter shadows x
+
+
+def test_python_keyword_names_are_mangled() -> None:
+    src = "#define lambda 2\nAxiom: A(lambda)\nA(ctx, math) --> F(ctx + math + lambda)\n"
+    src = src.replace("A(lambda)", "A(lambda, 1)")
+    prog = compile_grammar(src).program()
+    assert prog.productions["A"](FixedCtx(), 1.0, 2.0) == [("F", 5.0)]
+
+
+def test_interpretation_rules() -> None:
+    c = compiled("bush")
+    prog = c.program()
+    assert set(prog.interpretation) == {"L"}
+    ctx = FixedCtx(value=0.5)
+    assert prog.interpretation["L"](ctx) == [("[",), ("+", 0.0), ("~l", 1.2, 0.5), ("]",)]
+    assert c.sites[ctx.calls[0][1]].id == "interp:L/0/uniform0"
+
+
+@pytest.mark.skipif(shutil.which("ruff") is None, reason="ruff not installed")
+def test_generated_code_is_ruff_clean(tmp_path: Path) -> None:
+    for name in GRAMMARS:
+        write_compiled(compiled(name), tmp_path)
+    cfg = ROOT / "pyproject.toml"
+    res = subprocess.run(["ruff", "check", "--config", str(cfg), "--no-cache", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout + res.stderr
