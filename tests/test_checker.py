@@ -1,0 +1,164 @@
+"""Semantic checks (every error class of the language) and the site table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from ngpm_compiler.compile import compile_grammar
+from ngpm_compiler.errors import GrammarError
+
+ROOT = Path(__file__).resolve().parent.parent
+VINES = (ROOT / "grammars" / "vines.lsys").read_text()
+
+
+def err(text: str) -> GrammarError:
+    with pytest.raises(GrammarError) as info:
+        compile_grammar(text, filename="t.lsys")
+    return info.value
+
+
+ERRORS = [
+    # (grammar, message fragment, line, col)
+    ("Axiom: A\nA --> F(foo(1))\n", "unknown function 'foo'", 2, 9),
+    ("Axiom: A\nA --> F(x)\n", "unknown identifier 'x'", 2, 9),
+    ("Axiom: A(1)\nA(x) : y > 1 --> F\n", "unknown identifier 'y'", 2, 8),
+    ("#define A B + 1\nAxiom: F\n", "unknown identifier 'B'", 1, 11),
+    ("Axiom: A\nA --> B(1) B(1, 2)\n", "module B takes 1 argument", 2, 12),
+    ("module B(x)\nAxiom: B\n", "module B takes 1 argument", 2, 8),
+    ("Axiom: A\nA(x) --> F\n", "module A takes 0 arguments", 2, 1),
+    ("Axiom: F(1, 2)\n", "turtle symbol F takes 0 to 1 arguments, got 2", 1, 8),
+    ("Axiom: !\n", "turtle symbol ! takes 1 argument, got 0", 1, 8),
+    ("Axiom: [(1)\n", "turtle symbol [ takes 0 arguments, got 1", 1, 8),
+    ("Axiom: F(gauss(1))\n", "gauss() takes 2 arguments, got 1", 1, 10),
+    ("Axiom: F(flip(1, 2))\n", "flip() takes 1 argument, got 2", 1, 10),
+    ("Axiom: F(choice(1))\n", "choice() takes at least 2 arguments", 1, 10),
+    ("Axiom: F(atan2(1))\n", "atan2() takes 2 arguments, got 1", 1, 10),
+    ("Axiom: A\nA --> F : 0.5\nA --> G : 0.4\n", "sum to 0.9, not 1", 2, 11),
+    ("Axiom: A\nA --> F : 0.5\n", "sum to 0.5, not 1", 2, 11),
+    ("Axiom: A\nA --> F : 1.5\nA --> G : -0.5\n", "not in [0, 1]", 2, 11),
+    ("Axiom: A\nA --> F\nA --> G\n", "each needs a probability", 2, 1),
+    ("Axiom: A\nA --> F : 1\nA --> G\n", "each needs a probability", 3, 1),
+    ("Axiom: A(1)\nA(x) --> F : x\nA(x) --> G : 1 - x\n", "must be a constant expression", 2, 14),
+    ("Axiom: A\nA --> F : flip(0.5)\nA --> G : 0.5\n", "not allowed in the probability", 2, 11),
+    ("Axiom: A(1)\nA(x) : gauss(0, 1) > x --> F\n", "not allowed in the condition", 2, 8),
+    ("define: X = uniform(0, 1)\nAxiom: F\n", "not allowed in constant X", 1, 13),
+    ("angle: gauss(0, 1)\nAxiom: F\n", "not allowed in 'angle:'", 1, 8),
+    ("#define X 1 / (2 - 2)\nAxiom: F\n", "division by zero in constant X", 1, 13),
+    ("#define X 7 % 0\nAxiom: F\n", "division by zero in constant X", 1, 13),
+    ("#define X sqrt(-1)\nAxiom: F\n", "cannot evaluate constant X", 1, 11),
+    ("#define X 1\n#define X 2\nAxiom: F\n", "defined twice", 2, 9),
+    ("Axiom: A\nA --> F B\nB --> A\n", "recursive rules (A -> B -> A) need a 'derivation length:'",
+     2, 1),
+    ("Axiom: F\nF --> F F\n", "recursive rules (F -> F)", 2, 1),
+    ("Axiom: A(1, 2)\nA(x, x) --> F\n", "duplicate parameter 'x' in A", 2, 6),
+    ("module A(x, x)\nAxiom: F\n", "duplicate parameter", 1, 8),
+    ("Axiom: ~c\n", "unsupported symbol '~c'", 1, 8),
+    ("Axiom: @Gs\n", "unsupported symbol '@G'", 1, 8),
+    ("A --> F\n", "no 'Axiom:' line", 1, 1),
+    ("Axiom: A(1)\nA(x) --> F\nA(x) : x > 1 --> G\n", "never applies", 3, 1),
+    ("Axiom: halt\nhalt --> F\n", "turtle symbol halt cannot be rewritten", 2, 1),
+    ("module F\nAxiom: A\n", "F is a turtle symbol", 1, 8),
+    ("derivation length: 2.5\nAxiom: A\n", "must be an integer >= 0", 1, 20),
+    ("max primitives: 0\nAxiom: A\n", "must be an integer >= 1", 1, 17),
+    ("viewport: 1 0 0 1\nAxiom: A\n", "xmin < xmax", 1, 1),
+    ("Axiom: F(gauss(0, 0))\n", "standard deviation must be > 0", 1, 10),
+    ("Axiom: F(uniform(2, 1))\n", "needs a < b", 1, 10),
+    ("Axiom: F(flip(2))\n", "probability must be in [0, 1]", 1, 10),
+    ("Axiom: F(categorical(0, 0))\n", "weights must be >= 0", 1, 10),
+    ("#define pi 3\nAxiom: F\n", "built-in constant", 1, 9),
+]
+
+
+@pytest.mark.parametrize("text,fragment,line,col", ERRORS)
+def test_error_classes(text: str, fragment: str, line: int, col: int) -> None:
+    e = err(text)
+    assert fragment in e.message, str(e)
+    assert (e.line, e.col) == (line, col), str(e)
+    assert e.exit_code == 2
+    lines = str(e).splitlines()
+    assert lines[0] == f"t.lsys:{line}:{col}: {e.message}"
+    assert lines[1] == text.splitlines()[line - 1]
+    assert lines[2].endswith("^") and len(lines[2]) == col
+
+
+def test_undeclared_modules_are_plain_modules() -> None:
+    c = compile_grammar("Axiom: A Foo Bar(1, 2)\nA --> Bar(3, 4) Z\n")
+    assert c.program().arity == {"A": 0, "Foo": 0, "Bar": 2, "Z": 0}
+
+
+def test_name_splitting() -> None:
+    src = "derivation length: 2\nAxiom: X\nX --> FF[+X]FX Leaf F(2)X\n"
+    prog = compile_grammar(src).program()
+
+    class Ctx:
+        pass
+
+    names = [m[0] for m in prog.productions["X"](Ctx())]
+    assert names == ["F", "F", "[", "+", "X", "]", "F", "X", "Leaf", "F", "X"]
+    # a declared multi-letter module is one module; its letters are not split
+    src2 = "module AB\nAxiom: AB BA\nA --> F\nB --> F\n"
+    axiom = compile_grammar(src2).program().axiom(Ctx())
+    assert [m[0] for m in axiom] == ["AB", "B", "A"]
+
+
+def test_probabilities_within_tolerance() -> None:
+    c = compile_grammar("Axiom: A\nA --> F : 1/3\nA --> G : 1/3\nA --> H : 1/3\n")
+    assert c.sites[0].probs == pytest.approx((1 / 3,) * 3)
+    compile_grammar("Axiom: A\nA --> F : 0.66\nA --> G : 0.34\n")  # 0.66 + 0.34 != 1.0 exactly
+    compile_grammar("Axiom: A\nA --> F : 1\n")  # a single alternative may say 1
+    compile_grammar("Axiom: A\nA --> F : 0\nA --> G : 1\n")  # zero is a valid probability
+
+
+def test_site_table_of_vines() -> None:
+    c = compile_grammar(VINES, filename="grammars/vines.lsys")
+    ids = [s.id for s in c.sites]
+    assert ids == ["S/0/normal0", "B/0/normal0", "L/choice", "Lf/0/normal0", "P/choice",
+                   "T/choice", "C1/choice", "C2/choice"]
+    s = c.sites[2]
+    assert (s.kind, s.k, s.module, s.arity) == ("categorical", 3, "L", 0)
+    b = c.sites[1]
+    assert (b.kind, b.module, b.arity, b.source) == ("normal", "B", 1, "gauss(0, 22.5)")
+    assert VINES.splitlines()[b.line - 1][b.col - 1:].startswith("gauss(0, 22.5)")
+    assert c.sites[6].probs == (0.66, 0.34)
+
+
+def test_site_ids_with_conditions_and_axiom() -> None:
+    src = ("derivation length: 3\nAxiom: F(uniform(0, 1)) A(1)\n"
+           "A(x) : x > 1 --> F(gauss(0, 1)) : 0.5\nA(x) : x > 1 --> F(gauss(0, 2)) : 0.5\n"
+           "A(x) --> F(gauss(x, 1)) F(gauss(x, 1)) A(x + 1)\n")
+    ids = [s.id for s in compile_grammar(src).sites]
+    assert ids == ["axiom/uniform0", "A(x>1)/choice", "A(x>1)/0/normal0", "A(x>1)/1/normal0",
+                   "A/0/normal0", "A/0/normal1"]
+
+
+def edit(text: str, old: str, new: str) -> str:
+    assert old in text
+    return text.replace(old, new)
+
+
+@pytest.mark.parametrize("old,new", [
+    ("P --> @O(FLOWER) : 0.5\nP --> * : 0.5", "P --> @O(FLOWER) : 0.25\nP --> * : 0.75"),
+    ("Lf(s) --> [", "Q(z) --> F(uniform(0, 1))\nZ --> F(gauss(0, 1)) : 1\nLf(s) --> ["),
+    ("S --> +(gauss(0, 30)) B(W0)", "S --> +(gauss(0, 30)) +(uniform(-5, 5)) B(W0)"),
+    ("#define LEN 2", "# a new comment line\n\n#define LEN 2.5\n#define EXTRA 3"),
+    ("production:\n", "production:\nNew(a) --> F(flip(0.5))\n"),
+])
+def test_site_ids_are_stable_under_unrelated_edits(old: str, new: str) -> None:
+    before = {s.id: s for s in compile_grammar(VINES).sites}
+    after = {s.id: s for s in compile_grammar(edit(VINES, old, new)).sites}
+    # every site of an unedited rule keeps its id (indices and lines may move)
+    for sid in ("B/0/normal0", "L/choice", "Lf/0/normal0", "T/choice", "C1/choice",
+                "C2/choice"):
+        assert sid in after
+        assert (after[sid].kind, after[sid].k, after[sid].source) == (
+            before[sid].kind, before[sid].k, before[sid].source)
+    assert [s.index for s in compile_grammar(edit(VINES, old, new)).sites] == list(
+        range(len(after)))
+
+
+def test_alternative_order_and_ordinals_define_ids() -> None:
+    src = "Axiom: A\nA --> F(gauss(0, 1)) F(uniform(0, 1)) F(gauss(0, 2)) : 0.5\nA --> * : 0.5\n"
+    ids = [s.id for s in compile_grammar(src).sites]
+    assert ids == ["A/choice", "A/0/normal0", "A/0/uniform0", "A/0/normal1"]
