@@ -1,0 +1,341 @@
+"""Tests for ngpm_runtime.targets: formats, resizing, sidecars, mirroring, auto start."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ngpm_runtime.errors import NgpmError, TargetError
+from ngpm_runtime.targets import (
+    Target,
+    auto_start,
+    image_to_mask,
+    load_dataset,
+    load_target,
+    read_sidecar,
+    resize_mask,
+    save_target,
+    write_sidecar,
+)
+from PIL import Image
+
+
+def disk_mask(h: int = 100, w: int = 100, cy: float = 50, cx: float = 50, r: float = 25):
+    yy, xx = np.mgrid[:h, :w]
+    return (yy - cy) ** 2 + (xx - cx) ** 2 < r * r
+
+
+def save_gray(path: Path, mask: np.ndarray, fg: int = 0, bg: int = 255) -> Path:
+    Image.fromarray(np.where(mask, fg, bg).astype(np.uint8), mode="L").save(path)
+    return path
+
+
+def iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max(1, (a | b).sum()))
+
+
+# --- Target, start pose, mirroring -------------------------------------------------------
+
+
+def test_start_pose_maps_viewport_and_heading():
+    t = Target(np.ones((4, 4), bool) & (np.arange(4) < 2), (0.25, 0.75, 0.0, -1.0), "t")
+    x, y, heading = t.start_pose((-12, 12, -22, 2))
+    assert x == pytest.approx(-12 + 0.25 * 24)
+    assert y == pytest.approx(2 - 0.75 * 24)
+    assert heading == pytest.approx(90.0)
+    right = Target(t.mask, (0.5, 0.5, 1.0, 0.0)).start_pose((0, 1, 0, 1))
+    assert right == pytest.approx((0.5, 0.5, 0.0))
+    down_left = Target(t.mask, (0.0, 0.0, -1.0, 1.0)).start_pose((0, 1, 0, 1))
+    assert down_left == pytest.approx((0.0, 1.0, -135.0))
+
+
+def test_target_normalizes_direction_and_rejects_bad_starts():
+    m = np.zeros((10, 10), bool)
+    t = Target(m, (0.5, 0.5, 0.0, -3.0))
+    assert t.start == pytest.approx((0.5, 0.5, 0.0, -1.0))
+    for bad in [(1.5, 0.5, 0, 1), (0.5, -0.2, 0, 1), (0.5, 0.5, 0, 0), (0.5, math.nan, 0, 1)]:
+        with pytest.raises(TargetError):
+            Target(m, bad)
+    with pytest.raises(TargetError):
+        Target(np.zeros((2, 2, 2), bool), (0.5, 0.5, 0, 1))
+
+
+def test_mirror_flips_mask_and_annotation():
+    m = np.zeros((20, 30), bool)
+    m[5:15, 2:6] = True
+    t = Target(m, (0.11, 0.7, 0.6, -0.8), "a")
+    mt = t.mirrored()
+    assert mt.name == "a_m"
+    assert np.array_equal(mt.mask, m[:, ::-1])
+    assert mt.start == pytest.approx((0.89, 0.7, -0.6, -0.8))
+    # the start pixel moves to the mirrored column
+    r, c = t.start_pixel()
+    assert mt.start_pixel() == (r, 30 - 1 - c)
+    back = mt.mirrored()
+    assert np.array_equal(back.mask, m)
+    assert back.start == pytest.approx(t.start)
+    # world heading is reflected about the vertical
+    h = t.start_pose((0, 1, 0, 1))[2]
+    assert mt.start_pose((0, 1, 0, 1))[2] == pytest.approx(180 - h)
+
+
+# --- format detection --------------------------------------------------------------------
+
+
+def test_dark_on_light_and_light_on_dark(tmp_path):
+    m = disk_mask()
+    a = load_target(save_gray(tmp_path / "dark.png", m, 0, 255), size=100)
+    b = load_target(save_gray(tmp_path / "light.png", m, 255, 0), size=100)
+    assert np.array_equal(a.mask, m)
+    assert np.array_equal(b.mask, m)
+
+
+def test_border_rule_beats_minority(tmp_path):
+    # a big dark shape covering most of the image, light border: dark is the shape
+    m = np.zeros((100, 100), bool)
+    m[3:97, 3:97] = True
+    m[40:60, 40:60] = False
+    assert m.mean() > 0.5
+    t = load_target(save_gray(tmp_path / "big.png", m), size=100)
+    assert np.array_equal(t.mask, m)
+
+
+def test_minority_rule_when_border_is_split(tmp_path):
+    # left half of the border dark, right half light: the smaller class is the shape
+    img = np.full((100, 100), 255, np.uint8)
+    img[:, :50] = 0
+    shape = disk_mask(r=15, cx=75)
+    img[shape] = 0
+    img[disk_mask(r=10, cx=25)] = 255
+    path = tmp_path / "split.png"
+    Image.fromarray(img).save(path)
+    mask = image_to_mask(Image.open(path))
+    assert np.array_equal(mask, img == 255)  # light pixels are the minority
+
+
+def test_rgba_alpha_and_flat_alpha(tmp_path):
+    m = disk_mask()
+    rgba = np.zeros((100, 100, 4), np.uint8)  # black everywhere; only alpha holds the shape
+    rgba[..., 3] = np.where(m, 255, 0)
+    Image.fromarray(rgba, mode="RGBA").save(tmp_path / "alpha.png")
+    assert np.array_equal(load_target(tmp_path / "alpha.png", size=100).mask, m)
+    # opaque RGBA: alpha is flat, so gray levels decide
+    rgba[..., 3] = 255
+    rgba[..., :3] = np.where(m, 20, 230)[..., None]
+    Image.fromarray(rgba, mode="RGBA").save(tmp_path / "opaque.png")
+    assert np.array_equal(load_target(tmp_path / "opaque.png", size=100).mask, m)
+    with pytest.raises(TargetError, match="alpha"):
+        load_target(tmp_path / "opaque.png", polarity="alpha")
+
+
+def test_jpeg_rgb_and_explicit_polarity(tmp_path):
+    m = disk_mask()
+    rgb = np.where(m[..., None], [30, 40, 120], [250, 245, 240]).astype(np.uint8)
+    Image.fromarray(rgb).save(tmp_path / "shape.jpg", quality=85)
+    t = load_target(tmp_path / "shape.jpg", size=100)
+    assert iou(t.mask, m) > 0.97
+    inv = load_target(tmp_path / "shape.jpg", size=100, polarity="light")
+    assert iou(inv.mask, ~m) > 0.97
+    dark = load_target(tmp_path / "shape.jpg", size=100, polarity="dark")
+    assert iou(dark.mask, m) > 0.97
+    with pytest.raises(TargetError, match="polarity"):
+        load_target(tmp_path / "shape.jpg", polarity="sideways")
+
+
+def test_palette_png_with_transparency(tmp_path):
+    m = disk_mask()
+    img = Image.fromarray(np.where(m, 1, 0).astype(np.uint8), mode="P")
+    img.putpalette([255, 255, 255, 200, 0, 0] + [0] * 762)
+    img.info["transparency"] = 0
+    img.save(tmp_path / "pal.png", transparency=0)
+    assert np.array_equal(load_target(tmp_path / "pal.png", size=100).mask, m)
+
+
+# --- resizing ----------------------------------------------------------------------------
+
+
+def test_resize_pads_to_square_keeping_aspect(tmp_path):
+    m = np.zeros((100, 200), bool)  # wide image, shape fills a centered square
+    m[25:75, 75:125] = True
+    t = load_target(save_gray(tmp_path / "wide.png", m), size=50)
+    assert t.mask.shape == (50, 50)
+    # padded to 200 x 200: the 50-px square sits at rows/cols 75..125 -> 18.75..31.25 at 50
+    rows, cols = np.nonzero(t.mask)
+    assert (rows.min(), rows.max(), cols.min(), cols.max()) == (19, 30, 19, 30)
+    assert not t.mask[:18].any() and not t.mask[32:].any()
+    small = load_target(tmp_path / "wide.png", size=20)
+    assert small.mask.shape == (20, 20)
+    native = load_target(tmp_path / "wide.png", size=None)
+    assert native.mask.shape == (200, 200)
+
+
+def test_resize_mask_is_area_threshold():
+    m = np.zeros((4, 4), bool)
+    m[0, 0:2] = True  # top-left 2x2 block half covered -> foreground
+    m[2, 2] = True  # bottom-right block quarter covered -> background
+    assert resize_mask(m, 2).tolist() == [[True, False], [False, False]]
+    big = resize_mask(np.eye(2, dtype=bool), 4)
+    assert big.tolist() == [[1, 1, 0, 0], [1, 1, 0, 0], [0, 0, 1, 1], [0, 0, 1, 1]]
+
+
+def test_sidecar_follows_padding(tmp_path):
+    m = np.zeros((100, 200), bool)
+    m[20:100, 90:110] = True
+    save_gray(tmp_path / "bar.png", m)
+    write_sidecar(tmp_path / "bar.txt", (0.5, 1.0, 0.0, -1.0))
+    t = load_target(tmp_path / "bar.png", size=50)
+    assert t.start == pytest.approx((0.5, 0.75, 0.0, -1.0))
+
+
+# --- sidecars and saving -----------------------------------------------------------------
+
+
+def test_save_load_round_trip(tmp_path):
+    m = disk_mask(50, 50, 30, 20, 12)
+    m[0:3, :] = True  # the shape touches the border: polarity still comes back right
+    t = Target(m, (0.4, 0.8, 0.6, -0.8), "round")
+    path = save_target(t, tmp_path / "sub" / "round.png")
+    assert path.name == "round.png" and (tmp_path / "sub" / "round.txt").is_file()
+    lines = (tmp_path / "sub" / "round.txt").read_text().splitlines()
+    assert [len(ln.split()) for ln in lines] == [2, 2]
+    back = load_target(path)
+    assert np.array_equal(back.mask, m)
+    assert back.start == pytest.approx(t.start, abs=1e-6)
+    assert back.name == "round"
+    assert sorted(p.name for p in (tmp_path / "sub").iterdir()) == ["round.png", "round.txt"]
+
+
+def test_original_sidecar_format_is_read(tmp_path):
+    (tmp_path / "s.txt").write_text("0.5 0.9\n0 -1\n")
+    assert read_sidecar(tmp_path / "s.txt") == pytest.approx((0.5, 0.9, 0.0, -1.0))
+    (tmp_path / "c.txt").write_text("0.25, 0.5\r\n3 4\r\n\r\n")
+    assert read_sidecar(tmp_path / "c.txt") == pytest.approx((0.25, 0.5, 0.6, 0.8))
+
+
+@pytest.mark.parametrize("text", [
+    "", "0.5 0.5\n", "0.5 0.5\n0 -1\n1 1\n", "0.5 0.5 0.5\n0 -1\n", "a b\n0 -1\n",
+    "0.5 0.5\n0 0\n", "1.5 0.5\n0 -1\n", "nan 0.5\n0 -1\n",
+])
+def test_malformed_sidecar_names_file(tmp_path, text):
+    m = disk_mask()
+    save_gray(tmp_path / "img.png", m)
+    (tmp_path / "img.txt").write_text(text)
+    with pytest.raises(TargetError) as info:
+        load_target(tmp_path / "img.png")
+    msg = str(info.value)
+    assert "img.txt" in msg and "\n" not in msg
+
+
+# --- bad images --------------------------------------------------------------------------
+
+
+def make_bad(tmp_path: Path, kind: str) -> Path:
+    path = tmp_path / f"{kind}.png"
+    if kind == "missing":
+        return path
+    if kind == "garbage":
+        path.write_bytes(b"this is not a png")
+    elif kind == "flat":
+        Image.new("L", (64, 64), 200).save(path)
+    elif kind == "tiny":
+        Image.fromarray(np.eye(4, dtype=np.uint8) * 255).save(path)
+    elif kind == "thin":  # a 1-px line in a big image vanishes at 50 x 50
+        img = np.full((1000, 1000), 255, np.uint8)
+        img[100:900, 500] = 0
+        Image.fromarray(img).save(path)
+    elif kind == "speck":
+        img = np.full((100, 100), 255, np.uint8)
+        img[50:52, 50:52] = 0
+        Image.fromarray(img).save(path)
+    return path
+
+
+@pytest.mark.parametrize("kind", ["missing", "garbage", "flat", "tiny", "thin", "speck"])
+def test_bad_images_raise_one_line_naming_file(tmp_path, kind):
+    path = make_bad(tmp_path, kind)
+    with pytest.raises(TargetError) as info:
+        load_target(path)
+    assert isinstance(info.value, NgpmError)
+    assert path.name in str(info.value) and "\n" not in str(info.value)
+
+
+def test_all_foreground_is_rejected(tmp_path):
+    img = np.zeros((100, 100), np.uint8)
+    img[0, :10] = 255  # almost all dark
+    Image.fromarray(img).save(tmp_path / "full.png")
+    with pytest.raises(TargetError, match="all foreground"):
+        load_target(tmp_path / "full.png", polarity="dark")
+
+
+# --- automatic start ---------------------------------------------------------------------
+
+
+def test_auto_start_vertical_bar_starts_at_bottom_heading_up():
+    m = np.zeros((50, 50), bool)
+    m[10:40, 22:29] = True
+    x, y, dx, dy = auto_start(m)
+    assert x == pytest.approx(25.5 / 50, abs=0.03)
+    assert y == pytest.approx(39.5 / 50, abs=0.03)
+    assert dx == pytest.approx(0.0, abs=0.05) and dy == pytest.approx(-1.0, abs=0.01)
+
+
+def test_auto_start_other_shapes():
+    m = np.zeros((50, 50), bool)
+    m[35:40, 5:45] = True
+    m[10:40, 23:28] = True  # inverted T: bottom center, heading up the stem
+    x, y, dx, dy = auto_start(m)
+    assert abs(x - 0.5) < 0.04 and y > 0.76 and dy < -0.95
+    d = disk_mask(50, 50, 25, 25, 10)  # a disk: bottom, straight up
+    x, y, dx, dy = auto_start(d)
+    assert abs(x - 0.5) < 0.04 and y > 0.65 and (dx, dy) == pytest.approx((0, -1))
+    slanted = np.zeros((50, 50), bool)
+    for r in range(10, 40):
+        slanted[r, r - 5:r] = True  # leans to the right going down
+    x, y, dx, dy = auto_start(slanted)
+    assert dy < 0 and dx < 0  # from the bottom-right end, up and to the left
+    assert y > 0.7
+
+
+def test_auto_start_is_inside_largest_component_and_deterministic():
+    m = disk_mask(50, 50, 20, 15, 8) | disk_mask(50, 50, 40, 40, 3)
+    s1, s2 = auto_start(m), auto_start(m.copy())
+    assert s1 == s2
+    t = Target(m, s1)
+    r, c = t.start_pixel()
+    assert m[r, c] and r < 30  # in the big disk, not the small lower one
+    with pytest.raises(TargetError):
+        auto_start(np.zeros((5, 5), bool))
+
+
+def test_load_without_sidecar_uses_auto_start(tmp_path):
+    m = np.zeros((100, 100), bool)
+    m[20:80, 45:55] = True
+    t = load_target(save_gray(tmp_path / "bar.png", m), size=50)
+    assert t.start[3] < -0.95 and t.start[1] > 0.75
+
+
+# --- datasets ----------------------------------------------------------------------------
+
+
+def test_load_dataset_with_and_without_index(tmp_path):
+    targets = [Target(disk_mask(50, 50, 25, 10 + 10 * i, 6), (0.5, 0.6, 0, -1), f"d_{i:04d}")
+               for i in range(3)]
+    for t in targets:
+        save_target(t, tmp_path / f"{t.name}.png")
+    Image.new("L", (30, 30), 0).save(tmp_path / "no_sidecar.png")  # ignored without index
+    got = load_dataset(tmp_path)
+    assert [t.name for t in got] == ["d_0000", "d_0001", "d_0002"]
+    assert all(np.array_equal(a.mask, b.mask) for a, b in zip(got, targets, strict=True))
+    (tmp_path / "index.json").write_text(json.dumps({"files": ["d_0002.png", "d_0000.png"]}))
+    assert [t.name for t in load_dataset(tmp_path)] == ["d_0002", "d_0000"]
+    (tmp_path / "index.json").write_text("{not json")
+    with pytest.raises(TargetError, match="index.json"):
+        load_dataset(tmp_path)
+    with pytest.raises(TargetError, match="does not exist"):
+        load_dataset(tmp_path / "nope")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(TargetError, match="no targets"):
+        load_dataset(tmp_path / "empty")
