@@ -7,8 +7,9 @@ import sys
 import warnings
 from pathlib import Path
 
-from ngpm_compiler.datasets import DATASETS, DatasetWarning, build_dataset, contact_sheet
 from ngpm_runtime.targets import POLARITIES, load_dataset, load_target
+
+from ngpm_compiler.datasets import DATASETS, DatasetWarning, build_dataset, contact_sheet
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
