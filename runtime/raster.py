@@ -94,37 +94,49 @@ def _bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray | Non
 def _cover(kind: str, P: np.ndarray | None, prims: list[tuple],
            px: np.ndarray, py: np.ndarray) -> np.ndarray:
     """Coverage (g, ky, kx) of pixel centers px (g, kx), py (g, ky) by g primitives."""
-    X = px[:, None, :]
-    Y = py[:, :, None]
-    if kind == "seg":
-        ax, ay, bx, by, w = (c[:, None, None] for c in P.T)
-        ex, ey = bx - ax, by - ay
-        l2 = ex * ex + ey * ey
-        dx, dy = X - ax, Y - ay
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.where(l2 > 0, (dx * ex + dy * ey) / np.where(l2 > 0, l2, 1.0), 0.0)
-        t = np.clip(t, 0.0, 1.0)
-        qx, qy = dx - t * ex, dy - t * ey
-        return qx * qx + qy * qy < (w * w) / 4.0
-    if kind == "disk":
-        x, y, r = (c[:, None, None] for c in P.T)
-        dx, dy = X - x, Y - y
-        return dx * dx + dy * dy < r * r
-    if kind == "leaf":
-        x, y, h, length, width = (c[:, None, None] for c in P.T)
-        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
-        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
-        dx, dy = X - (x + length / 2.0 * c), Y - (y + length / 2.0 * s)
-        u = dx * c + dy * s
-        v = dy * c - dx * s
-        return (u * b) ** 2 + (v * a) ** 2 < (a * b) ** 2
     if kind == "poly":
         out = np.zeros((len(prims), py.shape[1], px.shape[1]), dtype=bool)
         for k, p in enumerate(prims):
             out[k] = _poly_inside(np.asarray(p[1], dtype=np.float64).reshape(-1, 2),
                                   px[k][None, :], py[k][:, None])
         return out
-    raise ValueError(f"unknown primitive kind {kind!r}")
+    # Work in (ky, kx, g) layout: the primitive axis is last, so numpy's inner loops run
+    # over all g primitives instead of over a few window pixels.
+    X = np.ascontiguousarray(px.T)[None, :, :]  # (1, kx, g)
+    Y = np.ascontiguousarray(py.T)[:, None, :]  # (ky, 1, g)
+    if kind == "seg":
+        ax, ay, bx, by, w = P.T
+        ex, ey = bx - ax, by - ay
+        l2 = ex * ex + ey * ey
+        inv = np.divide(1.0, l2, out=np.zeros_like(l2), where=l2 > 0)
+        dx, dy = X - ax, Y - ay
+        t = dx * (ex * inv) + dy * (ey * inv)  # projection parameter along the segment
+        np.maximum(t, 0.0, out=t)
+        np.minimum(t, 1.0, out=t)
+        qx = dx - t * ex
+        qy = dy - t * ey
+        qx *= qx
+        qy *= qy
+        qx += qy
+        res = qx < (w * w) / 4.0
+    elif kind == "disk":
+        x, y, r = P.T
+        dx, dy = X - x, Y - y
+        res = dx * dx + dy * dy < r * r
+    elif kind == "leaf":
+        x, y, h, length, width = P.T
+        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
+        dx, dy = X - (x + length / 2.0 * c), Y - (y + length / 2.0 * s)
+        u = dx * (c * b) + dy * (s * b)  # scaled local coordinates along / across
+        v = dy * (c * a) - dx * (s * a)
+        u *= u
+        v *= v
+        u += v
+        res = u < (a * b) ** 2
+    else:
+        raise ValueError(f"unknown primitive kind {kind!r}")
+    return np.ascontiguousarray(res.transpose(2, 0, 1))
 
 
 def _poly_inside(verts: np.ndarray, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
