@@ -13,6 +13,7 @@ derivation; `ilevel` > 0 a module produced by interpretation rules at that nesti
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable
 
@@ -25,6 +26,10 @@ DEFAULT_MAX_OPS = 2_000_000  # modules popped by one particle in one step before
 
 # advance() outcomes
 DRAWN, NEED, DONE, LIMIT = 1, 2, 3, 4
+
+# dispatch codes per module name
+_IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
+_RAD = math.pi / 180.0
 
 _LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")
 
@@ -44,8 +49,8 @@ class ReplayCtx:
     __slots__ = ("values", "sites", "pos")
 
     def __init__(self) -> None:
-        self.values: list[float] = []
-        self.sites: list[int] = []
+        self.values: tuple = ()
+        self.sites: tuple = ()
         self.pos = 0
 
     def _next(self, site: int, args: tuple) -> float:
@@ -81,7 +86,7 @@ class Particle:
 
     __slots__ = (
         "stack", "turtle", "tstack", "poly", "prims", "n_prims", "trace",
-        "values", "sites", "need", "in_interp", "last", "status",
+        "values", "sites", "cont", "need", "in_interp", "last", "status",
     )
 
     def __init__(self, stack: tuple | None, turtle: tuple) -> None:
@@ -92,56 +97,93 @@ class Particle:
         self.prims: tuple | None = None  # cons list, newest first
         self.n_prims = 0
         self.trace: tuple | None = None  # cons list of (site, features, value)
-        self.values: list[float] = []  # replay values for the module on top of the stack
-        self.sites: list[int] = []
+        self.values: tuple = ()  # replay values for the module on top of the stack
+        self.sites: tuple = ()  # their site indices
+        self.cont = False  # some replay value is continuous (then replays are not memoized)
         self.need: tuple[int, tuple] | None = None
         self.in_interp = False  # the top module's production returned None
         self.last: tuple | None = None  # primitive drawn by the last step
         self.status = "live"
 
     def copy(self) -> Particle:
-        q = Particle.__new__(Particle)
-        for name in Particle.__slots__:
-            setattr(q, name, getattr(self, name))
-        q.values = list(self.values)
-        q.sites = list(self.sites)
+        q = _new_particle(Particle)
+        q.stack = self.stack
+        q.turtle = self.turtle
+        q.tstack = self.tstack
+        q.poly = self.poly
+        q.prims = self.prims
+        q.n_prims = self.n_prims
+        q.trace = self.trace
+        q.values = self.values
+        q.sites = self.sites
+        q.cont = self.cont
+        q.need = self.need
+        q.in_interp = self.in_interp
+        q.last = self.last
+        q.status = self.status
         return q
+
+
+_new_particle = object.__new__
+
+
+class _Need:
+    """A production's request for a value (the memoizable form of NeedSite)."""
+
+    __slots__ = ("site", "args")
+
+    def __init__(self, site: int, args: tuple) -> None:
+        self.site = site
+        self.args = args
+
+
+_MISS = object()
+AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
+MAX_CACHE = 200_000
 
 
 def _where(fn: Callable, kind: str, mod: tuple) -> str:
     """'vines.lsys:24: production B' from the generated function's docstring."""
-    m = _LOC.search((fn.__doc__ or "").strip().splitlines()[-1] if fn.__doc__ else "")
+    doc = (fn.__doc__ or "").strip()
+    m = _LOC.search(doc.splitlines()[-1]) if doc else None
     loc = f"{m.group(1)}:{m.group(2)}: " if m else ""
     return f"{loc}{kind} {mod[0]}{tuple(mod[1:]) if len(mod) > 1 else ''}"
 
 
 class Deriver:
-    """Steps particles of one program. Holds the program's lookup tables and one ctx."""
+    """Steps particles of one program. Holds the program's lookup tables, one replay ctx
+    and memo tables: a production is pure, so its outcome (successor or the next request)
+    depends only on the module and the values replayed; outcomes are memoized while those
+    values are all discrete."""
 
     def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_OPS) -> None:
         self.program = program
         self.prods = dict(program.productions)
+        self.prods[AXIOM] = program.axiom
         self.interp = dict(program.interpretation)
         self.dlen = program.derivation_length
         self.angle = float(program.angle)
         self.max_ops = max_ops
         self.ctx = ReplayCtx()
+        self.dispatch: dict[str, int] = {}
+        self.pcache: dict[tuple, object] = {}
+        self.icache: dict[tuple, object] = {}
 
     def start(self, turtle: tuple) -> Particle:
-        """A new particle at `turtle` = (x, y, heading, width), axiom modules at depth 0.
-        The axiom may itself draw random values: it runs as the pseudo-module `axiom`."""
-        stack = (("axiom",), -1, 0, None)
-        return Particle(stack, turtle)
+        """A new particle at `turtle` = (x, y, heading, width); the axiom's modules get
+        depth 0 (the axiom runs as a pseudo-module, so it may draw random values too)."""
+        return Particle(((AXIOM,), -1, 0, None), turtle)
 
-    def _call(self, p: Particle, fn: Callable, kind: str, mod: tuple) -> list | None:
+    def _call(self, p: Particle, fn: Callable, kind: str, mod: tuple) -> object:
+        """Run `fn` with the particle's replay values: successor list, None or a _Need."""
         ctx = self.ctx
         ctx.values = p.values
         ctx.sites = p.sites
         ctx.pos = 0
         try:
-            succ = fn(ctx, *mod[1:]) if kind != "axiom" else fn(ctx)
-        except NeedSite:
-            raise
+            succ = fn(ctx, *mod[1:])
+        except NeedSite as need:
+            return _Need(need.site, need.args)
         except ProgramError as err:
             raise ProgramError(f"{_where(fn, kind, mod)}: {err}") from None
         except RecursionError:
@@ -150,83 +192,162 @@ class Deriver:
             raise ProgramError(
                 f"{_where(fn, kind, mod)}: {type(err).__name__}: {err}"
             ) from None
-        if succ is not None and not isinstance(succ, list | tuple):
-            raise ProgramError(f"{_where(fn, kind, mod)}: returned {type(succ).__name__}, "
-                               "not a list of modules")
+        if succ is None:
+            return None
+        if type(succ) is not list:
+            if not isinstance(succ, list | tuple):
+                raise ProgramError(f"{_where(fn, kind, mod)}: returned "
+                                   f"{type(succ).__name__}, not a list of modules")
+            succ = list(succ)
+        for m in succ:
+            if type(m) is not tuple or not m or type(m[0]) is not str:
+                raise ProgramError(f"{_where(fn, kind, mod)}: successor {m!r} is not a "
+                                   "module tuple")
         return succ
+
+    def _memo(self, p: Particle, fn: Callable, kind: str, mod: tuple, cache: dict,
+              key: object) -> object:
+        res = self._call(p, fn, kind, mod)
+        if key is not None:
+            if len(cache) >= MAX_CACHE:
+                cache.clear()
+            cache[key] = res
+        return res
 
     def advance(self, p: Particle) -> int:
         """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
+        pcache, icache, memo = self.pcache, self.icache, self._memo
+        dispatch = self.dispatch
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
+        max_ops = self.max_ops
+        cos, sin = math.cos, math.sin
+        mod: tuple = ()
         try:
             while stack is not None:
                 ops += 1
-                if ops > self.max_ops:
+                if ops > max_ops:
                     p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                     return LIMIT
                 mod, depth, ilevel, rest = stack
                 name = mod[0]
-                if depth < 0:  # the axiom pseudo-module
-                    succ = self._call(p, self.program.axiom, "axiom", mod)
-                    stack = _push(succ or [], 0, 0, rest, "axiom")
-                    p.values, p.sites = [], []
-                    continue
-                if ilevel == 0 and not p.in_interp and depth < dlen:
-                    fn = prods.get(name)
-                    if fn is not None:
-                        succ = self._call(p, fn, "production", mod)
-                        p.values, p.sites = [], []
-                        if succ is not None:
-                            stack = _push(succ, depth + 1, 0, rest, name)
+                code = dispatch.get(name)
+                if code is None:
+                    code = self._code(name)
+                if code == _PROD:
+                    if ilevel == 0 and depth < dlen and not p.in_interp:
+                        # memoized outcome while the replay values are all discrete
+                        if p.cont:
+                            key = None
+                            res = _MISS
+                        else:
+                            key = (mod, p.values) if p.values else mod
+                            res = pcache.get(key, _MISS)
+                        if res is _MISS:
+                            res = memo(p, prods[name], "production", mod, pcache, key)
+                        if res.__class__ is _Need:
+                            p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
+                            p.need = (res.site, res.args)
+                            return NEED
+                        if p.values:
+                            p.values, p.sites, p.cont = (), (), False
+                        if res is not None:
+                            depth += 1
+                            for m in reversed(res):
+                                rest = (m, depth, 0, rest)
+                            stack = rest
                             continue
-                fn = interp.get(name)
-                if fn is not None:
+                    code = _INTERP if name in interp else self._turtle_code(name)
+                if code == _INTERP:
                     if ilevel >= MAX_INTERP_DEPTH:
                         raise ProgramError(
                             f"interpretation rules recurse deeper than {MAX_INTERP_DEPTH} "
                             f"levels (at module {name})"
                         )
-                    p.in_interp = True
-                    succ = self._call(p, fn, "interpretation", mod)
-                    p.values, p.sites = [], []
-                    p.in_interp = False
-                    if succ is not None:
-                        stack = _push(succ, depth, ilevel + 1, rest, name)
-                        continue
-                p.in_interp = False
-                stack = rest
-                if name in TURTLE_SYMBOLS:
-                    turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly, self.angle)
-                    if prim is not None:
+                    if p.cont:
+                        res = memo(p, interp[name], "interpretation", mod, icache, None)
+                    else:
+                        key = (mod, p.values) if p.values else mod
+                        res = icache.get(key, _MISS)
+                        if res is _MISS:
+                            res = memo(p, interp[name], "interpretation", mod, icache, key)
+                    if res.__class__ is _Need:
+                        p.in_interp = True
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                        p.last = prim
-                        p.prims = (prim, p.prims)
-                        p.n_prims += 1
-                        return DRAWN
-                elif name == CUT:
+                        p.need = (res.site, res.args)
+                        return NEED
+                    p.in_interp = False
+                    if p.values:
+                        p.values, p.sites, p.cont = (), (), False
+                    if res is not None:
+                        ilevel += 1
+                        for m in reversed(res):
+                            rest = (m, depth, ilevel, rest)
+                        stack = rest
+                        continue
+                    code = self._turtle_code(name)
+                if code == _TURTLE:
+                    stack = rest
+                    if name == "F":
+                        x, y, h, w = turtle
+                        step = mod[1] if len(mod) > 1 else 1.0
+                        x1 = x + step * cos(h * _RAD)
+                        y1 = y + step * sin(h * _RAD)
+                        turtle = (x1, y1, h, w)
+                        prim = ("seg", x, y, x1, y1, w)
+                    elif name == "+" and len(mod) > 1:
+                        turtle = (turtle[0], turtle[1], turtle[2] + mod[1], turtle[3])
+                        continue
+                    elif name == "-" and len(mod) > 1:
+                        turtle = (turtle[0], turtle[1], turtle[2] - mod[1], turtle[3])
+                        continue
+                    elif name == "[":
+                        tstack = (turtle, tstack)
+                        continue
+                    elif name == "]" and tstack is not None:
+                        turtle, tstack = tstack
+                        continue
+                    elif name == "!" and len(mod) > 1:
+                        turtle = (turtle[0], turtle[1], turtle[2], float(mod[1]))
+                        continue
+                    else:
+                        turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly,
+                                                               self.angle)
+                        if prim is None:
+                            continue
+                    p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
+                    p.last = prim
+                    p.prims = (prim, p.prims)
+                    p.n_prims += 1
+                    return DRAWN
+                stack = rest
+                if code == _CUT:
                     stack = _cut(stack)
-                elif name == HALT:
+                elif code == _HALT:
                     stack = None
-        except NeedSite as need:
-            p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-            p.need = (need.site, need.args)
-            return NEED
         except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
             raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
         p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
         return DONE
 
+    def _code(self, name: str) -> int:
+        """How `advance` treats a module name first (memoized in `dispatch`)."""
+        if name in self.prods:
+            code = _PROD
+        elif name in self.interp:
+            code = _INTERP
+        else:
+            code = self._turtle_code(name)
+        self.dispatch[name] = code
+        return code
 
-def _push(succ: list | tuple, depth: int, ilevel: int, rest: tuple | None, who: str):
-    """Push a successor (leftmost on top) onto the stack `rest`."""
-    for m in reversed(succ):
-        if type(m) is not tuple or not m or type(m[0]) is not str:
-            raise ProgramError(f"successor of {who}: {m!r} is not a module tuple")
-        rest = (m, depth, ilevel, rest)
-    return rest
+    @staticmethod
+    def _turtle_code(name: str) -> int:
+        if name in TURTLE_SYMBOLS:
+            return _TURTLE
+        return {CUT: _CUT, HALT: _HALT}.get(name, _IGNORE)
 
 
 def _cut(stack: tuple | None) -> tuple | None:

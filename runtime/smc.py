@@ -214,8 +214,8 @@ def smc(
         if not np.isfinite(log_w).any():
             raise SMCFailed(f"every particle's weight is zero after step {steps} "
                             f"({n} particles, program {program.name})")
-        for i in live:
-            if log_w[i] == -np.inf and parts[i].status == "live":
+        for i in np.flatnonzero(log_w == -np.inf).tolist():
+            if parts[i].status == "live":
                 parts[i].status = "dead"
         live = [i for i in live if parts[i].status == "live"]
         ess = _ess(log_w)
@@ -299,11 +299,14 @@ def _serve_site(
     log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
     log_prior[ia] += log_p
     vals = values.tolist()
+    cont = site.kind == "normal" or site.kind == "uniform"
     for j, i in enumerate(idx):
         p = parts[i]
-        p.values.append(vals[j])
-        p.sites.append(s)
+        p.values += (vals[j],)
+        p.sites += (s,)
         p.need = None
+        if cont:
+            p.cont = True
         if record_trace:
             p.trace = ((s, feats[j], vals[j]), p.trace)
 
@@ -323,11 +326,12 @@ def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[P
 
 
 def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
-    """Particles for the ancestor indices (ascending): duplicates are shallow copies."""
+    """Particles for the ancestor indices (ascending): duplicates of live particles are
+    shallow copies; finished ones never change, so they are shared."""
     out: list[Particle] = []
     prev = -1
     for a in anc.tolist():
         p = parts[a]
-        out.append(p.copy() if a == prev else p)
+        out.append(p.copy() if a == prev and p.status == "live" else p)
         prev = a
     return out

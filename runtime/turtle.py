@@ -85,16 +85,16 @@ def interpret(
 
 
 def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
-    """World bounding box `(xmin, xmax, ymin, ymax)` of a primitive (viewport order)."""
+    """World bounding box `(xmin, ymin, xmax, ymax)` of a primitive (as raster.DrawBatch)."""
     kind = prim[0]
     if kind == "seg":
         _, x0, y0, x1, y1, w = prim
         r = abs(w) / 2.0
-        return min(x0, x1) - r, max(x0, x1) + r, min(y0, y1) - r, max(y0, y1) + r
+        return min(x0, x1) - r, min(y0, y1) - r, max(x0, x1) + r, max(y0, y1) + r
     if kind == "disk":
         _, x, y, r = prim
         r = abs(r)
-        return x - r, x + r, y - r, y + r
+        return x - r, y - r, x + r, y + r
     if kind == "leaf":
         _, x, y, h, length, width = prim
         a, b = abs(length) / 2.0, abs(width) / 2.0
@@ -102,11 +102,11 @@ def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
         cx, cy = x + length / 2.0 * c, y + length / 2.0 * s
         ex = math.sqrt((a * c) ** 2 + (b * s) ** 2)
         ey = math.sqrt((a * s) ** 2 + (b * c) ** 2)
-        return cx - ex, cx + ex, cy - ey, cy + ey
+        return cx - ex, cy - ey, cx + ex, cy + ey
     if kind == "poly":
         xs = [v[0] for v in prim[1]]
         ys = [v[1] for v in prim[1]]
-        return min(xs), max(xs), min(ys), max(ys)
+        return min(xs), min(ys), max(xs), max(ys)
     raise ValueError(f"unknown primitive {kind!r}")
 
 

@@ -185,11 +185,11 @@ def test_replay_asks_sites_one_at_a_time() -> None:
     d = Deriver(prog)
     p = d.start((0.0, 0.0, 0.0, 1.0))
     assert d.advance(p) == NEED and p.need == (0, (0, 1))
-    p.values.append(2.0)
-    p.sites.append(0)
+    p.values += (2.0,)
+    p.sites += (0,)
     assert d.advance(p) == NEED and p.need == (1, (5, 2))
-    p.values.append(3.0)
-    p.sites.append(1)
+    p.values += (3.0,)
+    p.sites += (1,)
     assert d.advance(p) == DRAWN and p.last[3] == 2.0
     q = p.copy()
     assert d.advance(p) == DRAWN and p.last[3] == 5.0
@@ -222,10 +222,11 @@ def test_work_cap_without_drawing_gives_limit() -> None:
 
 
 def test_prim_bbox() -> None:
-    assert prim_bbox(("seg", 0, 0, 2, 1, 0.5)) == (-0.25, 2.25, -0.25, 1.25)
-    assert prim_bbox(("disk", 1, 1, 0.5)) == (0.5, 1.5, 0.5, 1.5)
-    np.testing.assert_allclose(prim_bbox(("leaf", 0, 0, 90.0, 2.0, 1.0)), (-0.5, 0.5, 0, 2))
-    assert prim_bbox(("poly", ((0, 0), (2, 0), (1, 3)))) == (0, 2, 0, 3)
+    # (xmin, ymin, xmax, ymax), as raster.DrawBatch.bbox
+    assert prim_bbox(("seg", 0, 0, 2, 1, 0.5)) == (-0.25, -0.25, 2.25, 1.25)
+    assert prim_bbox(("disk", 1, 2, 0.5)) == (0.5, 1.5, 1.5, 2.5)
+    np.testing.assert_allclose(prim_bbox(("leaf", 0, 0, 90.0, 2.0, 1.0)), (-0.5, 0, 0.5, 2))
+    assert prim_bbox(("poly", ((0, 0), (2, 0), (1, 3)))) == (0, 0, 2, 3)
 
 
 def test_vines_fixture_forward() -> None:

@@ -52,8 +52,8 @@ def enumerate_program(program):
                 if lpv == -np.inf:
                     continue
                 q = p.copy()
-                q.values.append(float(v))
-                q.sites.append(s)
+                q.values += (float(v),)
+                q.sites += (s,)
                 q.need = None
                 rec(q, lp + lpv)
             return
