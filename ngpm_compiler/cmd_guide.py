@@ -12,7 +12,7 @@ import numpy as np
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program
 
-from ngpm_compiler.nets import FEATURE_SETS
+FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS (no torch here)
 
 
 class GuideFileError(NgpmError):
@@ -31,6 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--mirror", action="store_true",
                    help="add mirrored copies of targets that have none")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
+    p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
@@ -73,7 +74,7 @@ def cmd_traces(args: argparse.Namespace) -> int:
         raise NgpmError("-n, --particles and --workers must be at least 1")
     cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
                       particles=args.particles, seed=args.seed, workers=args.workers,
-                      mirror=args.mirror, size=args.size)
+                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size))
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     print(f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped (fewer than "

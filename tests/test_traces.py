@@ -1,0 +1,151 @@
+"""Trace generation: pure jobs, shards and pending files, kill-and-resume, loading."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ngpm_runtime.targets import Target, save_target
+
+from ngpm_compiler.cmd_guide import FEATURE_SETS
+from ngpm_compiler.nets import FEATURE_SETS as NET_FEATURE_SETS
+from ngpm_compiler.traces import (
+    TraceConfig,
+    TraceError,
+    TraceStore,
+    generate_traces,
+    job_arrays,
+    job_spec,
+    load_traces,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+CHAIN = str(ROOT / "grammars" / "chain.lsys")
+
+
+def make_dataset(directory: Path, n: int = 3) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        mask = np.zeros((50, 50), bool)
+        mask[5:45, 22 + 2 * i:27 + 2 * i] = True
+        save_target(Target(mask, (0.5, 0.9, 0.0, -1.0), f"bar{i}"), directory / f"bar{i}.png")
+    return directory
+
+
+def test_feature_set_names_agree():
+    assert FEATURE_SETS == NET_FEATURE_SETS
+
+
+def test_job_spec_is_pure():
+    a = [job_spec(7, i, 5) for i in range(50)]
+    assert a == [job_spec(7, i, 5) for i in range(50)]
+    assert len({s for _, s in a}) == 50 and {t for t, _ in a} <= set(range(5))
+    assert a != [job_spec(8, i, 5) for i in range(50)]
+
+
+def test_pending_and_shards_deduplicate(tmp_path):
+    store = TraceStore(tmp_path)
+    f = np.ones((2, 4), np.float32)
+    for job in range(4):
+        trace = [(0, f[0], 1.0), (1, f[1] * job, 2.0), (0, f[0], 3.0)]
+        store.write_pending(job_arrays(job, 0, 100 + job, trace, 12, kept=job != 2))
+    store.consolidate()
+    assert [p.name for p in store.shard_paths()] == ["shard_00000000.npz"]
+    assert store.pending_paths() == []
+    # a pending file left behind after its shard was written (killed in between)
+    store.write_pending(job_arrays(1, 0, 101, [(0, f[0], 1.0)], 12, kept=True))
+    done = store.finished()
+    assert sorted(done["jobs"].tolist()) == [0, 1, 2, 3]
+    assert done["kept"].tolist() == [True, True, False, True]
+    assert done["v_0"].tolist() == [1.0, 3.0, 1.0, 3.0, 1.0, 3.0]
+    assert done["j_1"].tolist() == [0, 1, 3]
+    store.consolidate()
+    assert len(store.shard_paths()) == 1 and store.pending_paths() == []
+    (tmp_path / "shard_00000001.npz").write_bytes(b"garbage")
+    with pytest.raises(TraceError, match="corrupt"):
+        store.finished()
+
+
+def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
+           "-n", str(n), "--particles", "8", "-o", str(out), "--workers", str(workers),
+           "--seed", "3", "--shard-size", "4"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+                            start_new_session=True, **kw)
+
+
+def finished_jobs(out: Path) -> int:
+    store = TraceStore(out)
+    return len(store.pending_paths()) + sum(
+        len(np.load(p)["jobs"]) for p in store.shard_paths() if p.stat().st_size > 0)
+
+
+def test_kill_and_resume(tmp_path):
+    data = make_dataset(tmp_path / "data")
+    n = 24
+    out = tmp_path / "traces"
+    proc = run_traces(out, data, n, workers=2)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            if finished_jobs(out) >= 6:
+                break
+        except (OSError, ValueError):
+            pass
+        time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()[1][-2000:]
+    os.killpg(proc.pid, signal.SIGKILL)  # the run and its workers, mid-run
+    proc.wait()
+    before = finished_jobs(out)
+    assert 6 <= before < n
+    proc = run_traces(out, data, n, workers=2)
+    _, err = proc.communicate(timeout=180)
+    assert proc.returncode == 0, err[-2000:]
+    ts = load_traces(out)
+    assert len(ts.kept_jobs) == n and len(np.unique(ts.kept_jobs)) == n
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["kept"] == n and manifest["dropped"] == 0  # chain: always 12 segments
+    assert sorted(ts.kept_jobs.tolist()) == list(range(n))
+    # the same traces as one uninterrupted single-process run (jobs are pure)
+    ref_out = tmp_path / "ref"
+    generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=n, particles=8, seed=3,
+                                workers=1, shard_size=4), ref_out, progress=False)
+    ref = load_traces(ref_out)
+    assert sorted(ref.data) == sorted(ts.data) == [0]
+    a, b = ref.data[0], ts.data[0]
+    oa, ob = np.argsort(a.jobs, kind="stable"), np.argsort(b.jobs, kind="stable")
+    assert np.array_equal(a.jobs[oa], b.jobs[ob])
+    assert np.array_equal(a.values[oa], b.values[ob])
+    assert np.array_equal(a.features[oa], b.features[ob])
+    assert np.array_equal(a.prior_args[:, 1], np.full(len(a.values), 25.0))  # gauss(0, TURN)
+
+
+def test_resume_refuses_other_configuration(tmp_path):
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=2, particles=4, workers=1)
+    generate_traces(cfg, tmp_path / "t", progress=False)
+    cfg.particles = 5
+    with pytest.raises(TraceError, match="particles"):
+        generate_traces(cfg, tmp_path / "t", progress=False)
+    with pytest.raises(TraceError, match="not a traces directory"):
+        load_traces(tmp_path / "data")
+
+
+def test_mirror_adds_missing_copies(tmp_path):
+    from ngpm_compiler.traces import load_targets
+
+    data = make_dataset(tmp_path / "data", 2)
+    names = [t.name for t in load_targets(data, 50, mirror=True)]
+    assert names == ["bar0", "bar1", "bar0_m", "bar1_m"]
+    t = load_targets(data, 50, mirror=True)[0].mirrored()
+    save_target(t, data / "bar0_m.png")
+    assert sorted(t.name for t in load_targets(data, 50, mirror=True)) == \
+        ["bar0", "bar0_m", "bar1", "bar1_m"]
