@@ -21,7 +21,7 @@ from ngpm_runtime.errors import NgpmError, TargetError
 from ngpm_runtime.targets import (
     IMAGE_SUFFIXES,
     Target,
-    _atomic_write,
+    atomic_write_bytes,
     auto_start,
     check_mask,
     image_to_mask,
@@ -517,7 +517,7 @@ def _check_previous(index: Path, params: dict) -> None:
 
 
 def _write_index(out: Path, meta: dict) -> None:
-    _atomic_write(out / "index.json", (json.dumps(meta, indent=1) + "\n").encode())
+    atomic_write_bytes(out / "index.json", (json.dumps(meta, indent=1) + "\n").encode())
 
 
 # --- contact sheets ----------------------------------------------------------------------

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import os
 import tempfile
 from collections.abc import Sequence
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from ngpm_runtime.errors import TargetError
-from PIL import Image, PngImagePlugin, UnidentifiedImageError
+from PIL import Image, ImageOps, PngImagePlugin, UnidentifiedImageError
 from scipy.ndimage import convolve, distance_transform_edt
 from skimage.filters import threshold_otsu
 from skimage.measure import label
@@ -104,7 +105,7 @@ def read_sidecar(path: str | os.PathLike) -> Start:
 def write_sidecar(path: str | os.PathLike, start: Start) -> None:
     """Write a sidecar atomically."""
     x, y, dx, dy = _check_start(start, f"sidecar {path}:")
-    _atomic_write(Path(path), f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
+    atomic_write_bytes(Path(path), f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
 
 
 def _check_start(start: Sequence[float], where: str) -> Start:
@@ -132,11 +133,14 @@ def read_image(path: str | os.PathLike) -> Image.Image:
     try:
         with Image.open(path) as img:
             img.load()
-            img.info = dict(img.info)
-            return img
+            info = dict(img.info)
+            out = ImageOps.exif_transpose(img)  # photos: honor the camera's orientation
+            out.info = info
+            return out
     except FileNotFoundError:
         raise TargetError(f"target image {path} does not exist") from None
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
+    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError,
+            SyntaxError) as err:
         raise TargetError(f"cannot read target image {path}: {_reason(err)}") from None
 
 
@@ -165,7 +169,7 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
         if int(alpha.max()) - int(alpha.min()) <= 32:
             raise TargetError(f"{name}: alpha channel is flat, so it holds no shape")
         return alpha >= 128
-    gray = np.asarray(img.convert("L"), dtype=np.uint8)
+    gray = _gray(img)
     if int(gray.max()) - int(gray.min()) <= 16:
         raise TargetError(f"{name}: image is one flat color, so it holds no shape")
     dark = gray <= threshold_otsu(gray)
@@ -180,6 +184,16 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     if frac > 0.6:
         return ~dark
     return dark if dark.mean() <= 0.5 else ~dark
+
+
+def _gray(img: Image.Image) -> np.ndarray:
+    """8-bit gray levels; 16-bit and float images are stretched from their min to max."""
+    if img.mode in ("I", "F") or img.mode.startswith("I;"):
+        values = np.asarray(img, dtype=np.float64)
+        lo, hi = float(values.min()), float(values.max())
+        scale = 255.0 / (hi - lo) if hi > lo else 0.0
+        return np.round((values - lo) * scale).astype(np.uint8)
+    return np.asarray(img.convert("L"), dtype=np.uint8)
 
 
 def _alpha(img: Image.Image) -> np.ndarray | None:
@@ -218,9 +232,9 @@ def mask_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
     square, oy, ox = pad_to_square(mask)
     side = square.shape[0]
     if size is not None:
-        if not isinstance(size, int) or size < MIN_SIDE:
+        if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < MIN_SIDE:
             raise TargetError(f"{name}: working size must be an integer >= {MIN_SIDE}")
-        square = resize_mask(square, size)
+        square = resize_mask(square, int(size))
     check_mask(square, name)
     if start is not None:
         x, y, dx, dy = start
@@ -420,7 +434,8 @@ def _branch_direction(skel: np.ndarray, r0: int, c0: int, reach: int) -> tuple[f
 # --- helpers -----------------------------------------------------------------------------
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write bytes via a temporary file in the same directory and os.replace."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:

@@ -339,3 +339,24 @@ def test_load_dataset_with_and_without_index(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(TargetError, match="no targets"):
         load_dataset(tmp_path / "empty")
+
+
+def test_sixteen_bit_png_and_numpy_size(tmp_path):
+    m = disk_mask()
+    Image.fromarray(np.where(m, 1000, 60000).astype(np.uint16)).save(tmp_path / "deep.png")
+    t = load_target(tmp_path / "deep.png", size=np.int64(100))
+    assert np.array_equal(t.mask, m)
+    with pytest.raises(TargetError, match="size"):
+        load_target(tmp_path / "deep.png", size=2.5)
+
+
+def test_jpeg_exif_orientation_is_applied(tmp_path):
+    m = np.zeros((60, 100), bool)  # stored wide with a bar on the left ...
+    m[10:50, 5:25] = True
+    img = Image.fromarray(np.where(m, 0, 255).astype(np.uint8))
+    exif = Image.Exif()
+    exif[0x0112] = 6  # ... shown rotated 90 degrees clockwise: bar at the top
+    img.save(tmp_path / "photo.jpg", exif=exif, quality=95)
+    t = load_target(tmp_path / "photo.jpg", size=100)
+    rows, cols = np.nonzero(t.mask)
+    assert rows.max() < 30 and 20 < cols.mean() < 80
