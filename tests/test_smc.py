@@ -1,0 +1,248 @@
+"""SMC mechanics: determinism, batching, resampling, traces, features, failures, options."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program  # noqa: E402
+from ngpm_runtime import features as features_module  # noqa: E402
+from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
+from ngpm_runtime.likelihood import NullLikelihood, ShapeLikelihood  # noqa: E402
+from ngpm_runtime.program import load_program  # noqa: E402
+from ngpm_runtime.proposals import PriorProposal  # noqa: E402
+from ngpm_runtime.raster import rasterize  # noqa: E402
+from ngpm_runtime.resample import SCHEMES, resample  # noqa: E402
+from ngpm_runtime.smc import SMCOptionError, forward, smc  # noqa: E402
+
+VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
+
+
+@pytest.fixture(scope="module")
+def vines():
+    return load_program(VINES)
+
+
+def disk_mask(size: int = 50) -> np.ndarray:
+    yy, xx = np.mgrid[0:size, 0:size]
+    return (xx - 24.5) ** 2 + (yy - 20) ** 2 < 16**2
+
+
+START = (0.0, -16.0, 90.0)  # bottom of the disk in vines' viewport, heading up
+
+
+def run_vines(vines, n=60, seed=0, **kw):
+    like = ShapeLikelihood(disk_mask(), vines.viewport)
+    return smc(vines, like, n, seed=seed, start=START, target_mask=disk_mask(), **kw)
+
+
+def test_seeded_runs_are_bit_identical(vines) -> None:
+    a = run_vines(vines, seed=4)
+    b = run_vines(vines, seed=4)
+    assert [p.primitives for p in a.particles] == [p.primitives for p in b.particles]
+    assert np.array_equal(a.log_weights, b.log_weights)
+    assert a.log_evidence == b.log_evidence and a.ess_history == b.ess_history
+    c = run_vines(vines, seed=5)
+    assert [p.primitives for p in a.particles] != [p.primitives for p in c.particles]
+
+
+def test_result_fields(vines) -> None:
+    r = run_vines(vines)
+    assert len(r.particles) == 60 and r.log_weights.shape == (60,)
+    assert len(r.ess_history) == r.steps and r.seconds > 0
+    assert all(0 < e <= 60 + 1e-9 for e in r.ess_history)
+    assert np.isfinite(r.log_evidence)
+    score = [p.log_prior + p.log_likelihood for p in r.particles]
+    assert r.best.log_prior + r.best.log_likelihood == max(score)
+    assert {p.status for p in r.particles} <= {"done", "limit", "dead"}
+
+
+def test_likelihood_increments_sum_to_full_loglik(vines) -> None:
+    like = ShapeLikelihood(disk_mask(), vines.viewport)
+    r = run_vines(vines, n=30, seed=2)
+    for p in r.particles[:10]:
+        img = rasterize(p.primitives, vines.viewport, 50, 50)
+        from ngpm_runtime.turtle import prim_bbox
+
+        boxes = np.array([prim_bbox(q) for q in p.primitives])
+        bbox = np.array([boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(),
+                         boxes[:, 3].max()])
+        assert abs(like.full(img, bbox) - p.log_likelihood) < 1e-6
+
+
+@pytest.mark.parametrize("scheme", sorted(SCHEMES))
+def test_resampling_schemes(scheme) -> None:
+    rng = np.random.Generator(np.random.PCG64(0))
+    w = np.array([0.1, 0.0, 0.5, 0.15, 0.25])
+    log_w = np.log(np.where(w > 0, w, 1e-300))
+    log_w[1] = -np.inf
+    counts = np.zeros(5)
+    for _ in range(400):
+        idx = resample(scheme, log_w, rng, 40)
+        assert len(idx) == 40 and np.all(np.diff(idx) >= 0)
+        assert not np.any(idx == 1)
+        counts += np.bincount(idx, minlength=5)
+    np.testing.assert_allclose(counts / counts.sum(), w, atol=0.01)
+    if scheme != "multinomial":  # low-variance schemes: each count within 1 of n * w
+        idx = resample(scheme, np.log(w[[0, 2, 3, 4]]), rng, 20)
+        np.testing.assert_array_less(np.abs(np.bincount(idx, minlength=4)
+                                            - 20 * w[[0, 2, 3, 4]]), 1.0 + 1e-9)
+
+
+class Counting(PriorProposal):
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, int]] = []
+
+    def propose(self, site, args, features, rng):
+        self.calls.append((site.index, len(args)))
+        return super().propose(site, args, features, rng)
+
+
+def test_one_batched_proposal_call_per_site_per_round(vines) -> None:
+    q = Counting()
+    r = smc(vines, None, 200, proposal=q, seed=1, start=START)
+    visits = sum(n for _, n in q.calls)
+    assert r.steps > 1 and q.calls[0] == (0, 200)  # every particle's start angle at once
+    # one call per particle visit would make `visits` calls
+    assert len(q.calls) < visits / 8
+
+
+def test_all_zero_weight_raises_smcfailed(vines) -> None:
+    class Impossible:
+        needs_canvas = False
+
+        def start(self, n):
+            return {}
+
+        def increment(self, state, canvas, draw):
+            return np.full(len(draw.idx), -np.inf)
+
+    with pytest.raises(SMCFailed) as err:
+        smc(vines, Impossible(), 20, start=START)
+    assert "\n" not in str(err.value) and isinstance(err.value, NgpmError)
+
+
+def test_nan_increments_are_zero_weight_not_nan(vines) -> None:
+    class HalfNaN:
+        needs_canvas = False
+
+        def start(self, n):
+            return {}
+
+        def increment(self, state, canvas, draw):
+            out = np.zeros(len(draw.idx))
+            out[draw.idx % 2 == 1] = np.nan
+            return out
+
+    r = smc(vines, HalfNaN(), 20, start=START, ess_threshold=0.1)
+    assert not np.isnan(r.log_weights).any() and np.isfinite(r.log_evidence)
+    assert not any(np.isnan(p.log_likelihood) for p in r.particles)
+
+
+def test_record_trace_replays_best_particle(vines) -> None:
+    r = run_vines(vines, n=40, seed=3, record_trace=True)
+    trace = r.best.trace
+    assert trace and all(isinstance(f, np.ndarray) and f.dtype == np.float32 for _, f, _ in trace)
+    fm = features_module.FeatureMaker(vines, vines.viewport, disk_mask())
+    for s, f, _ in trace:
+        assert f.shape == (fm.n_features(vines.sites[s]),)
+    assert trace[0][0] == 0  # the start angle comes first
+    # start pose: x = 0 -> 0 in [-1, 1]; y = -16 -> (-16 + 22) / 24 * 2 - 1
+    np.testing.assert_allclose(trace[0][1][:2], [0.0, 12 / 24 - 1.0], atol=1e-6)
+
+    values = [(s, v) for s, _, v in trace]
+
+    class Replay(PriorProposal):
+        def propose(self, site, args, features, rng):
+            s, v = values.pop(0)
+            assert s == site.index and len(args) == 1
+            return np.array([v]), np.zeros(1)
+
+    again = smc(vines, None, 1, proposal=Replay(), start=START).particles[0]
+    assert again.primitives == r.best.primitives and not values
+    assert abs(again.log_prior - r.best.log_prior) < 1e-9
+
+
+def test_features_are_computed_only_when_needed(vines, monkeypatch) -> None:
+    class Boom:
+        def __init__(self, *a, **k):
+            raise AssertionError("FeatureMaker built without need")
+
+    monkeypatch.setattr(features_module, "FeatureMaker", Boom)
+    run_vines(vines, n=10)
+    with pytest.raises(AssertionError):
+        run_vines(vines, n=10, record_trace=True)
+
+
+def test_proposal_with_features_gets_them(vines) -> None:
+    seen = []
+
+    class Featured(PriorProposal):
+        uses_features = True
+
+        def propose(self, site, args, features, rng):
+            assert features is not None and features.shape[0] == len(args)
+            assert features.dtype == np.float32
+            seen.append(features.shape[1])
+            return super().propose(site, args, features, rng)
+
+    run_vines(vines, n=10, proposal=Featured())
+    assert seen
+
+
+def test_forward_without_viewport_and_null_likelihood(vines) -> None:
+    prog = make_program({"A": lambda ctx: [("F", 1.0), ("@O", 0.5)]})
+    f = forward(prog)
+    assert f.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0), ("disk", 1.0, 0.0, 0.5)]
+    assert f.status == "done" and f.log_weight == 0.0 and f.trace is None
+    r = smc(vines, NullLikelihood(), 5, start=START)
+    assert r.log_evidence == 0.0
+
+    class NeedsCanvas:
+        def start(self, n):
+            return {}
+
+        def increment(self, state, canvas, draw):
+            return np.zeros(len(draw.idx))
+
+    with pytest.raises(ProgramError, match="viewport"):
+        smc(prog, NeedsCanvas(), 5)
+
+
+def test_ess_threshold_resamples_less() -> None:
+    like = SumXLikelihood(2.0, 3.0)
+    every = smc(discrete_program(), like, 100, seed=1)
+    some = smc(discrete_program(), like, 100, seed=1, ess_threshold=0.5)
+    assert every.info["resamples"] == every.steps - 1  # not after the last step
+    assert some.info["resamples"] < some.steps - 1
+
+
+def test_options_are_checked() -> None:
+    prog = discrete_program()
+    with pytest.raises(SMCOptionError):
+        smc(prog, None, 0)
+    with pytest.raises(SMCOptionError):
+        smc(prog, None, 5, resample="bogus")
+    with pytest.raises(SMCOptionError):
+        smc(prog, None, 5, ess_threshold=1.5)
+
+
+def test_errors_in_generated_code_surface_from_smc() -> None:
+    def produce_a(ctx):
+        """A --> F(log(0))   (bad.lsys:3)"""
+        import math
+
+        return [("F", math.log(0.0))]
+
+    with pytest.raises(ProgramError, match=r"bad\.lsys:3"):
+        smc(make_program({"A": produce_a}), SumXLikelihood(), 10)
+
+
+def test_finished_particles_wait() -> None:
+    # particles finish after 1..3 primitives; all of them end "done" with their weights
+    r = smc(discrete_program(), SumXLikelihood(2.0, 1.0), 300, seed=2, ess_threshold=0.2)
+    lengths = {len(p.primitives) for p in r.particles}
+    assert len(lengths) > 1 and all(p.status == "done" for p in r.particles)
