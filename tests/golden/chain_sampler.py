@@ -14,8 +14,8 @@ SITES = [
 
 
 def axiom(ctx):
-    """Axiom: C(N)   (chain.lsys:14)"""
-    return [("C", N)]
+    """Axiom: !(0.3) C(N)   (chain.lsys:14)"""
+    return [("!", 0.3), ("C", N)]
 
 
 def produce_C(ctx, n):
@@ -28,7 +28,7 @@ def produce_C(ctx, n):
 PROGRAM = Program(
     name="chain",
     source="grammars/chain.lsys",
-    grammar_hash="sha256:254b4ad39e8390144463a64b70b9c1c839918a7f1e886eb52d64f1d17ba41c15",
+    grammar_hash="sha256:391e08025a61d3f34a8907ab60e3352196ae53c2b78a8206a6f7f0ba433ec15b",
     sites=SITES,
     axiom=axiom,
     productions={

@@ -10,8 +10,8 @@ SITES = [
 
 
 def axiom(ctx):
-    """Axiom: F   (stochastic_plant.lsys:11)"""
-    return [("F", 1.0)]
+    """Axiom: !(0.4) F   (stochastic_plant.lsys:11)"""
+    return [("!", 0.4), ("F", 1.0)]
 
 
 def produce_F(ctx, arg0):
@@ -43,7 +43,7 @@ def produce_F(ctx, arg0):
 PROGRAM = Program(
     name="stochastic_plant",
     source="grammars/stochastic_plant.lsys",
-    grammar_hash="sha256:8ffe6a2026ad439556ba859036a3a639c901f21b495f979a192ba395853ea580",
+    grammar_hash="sha256:683e0fb1c7943bf82b012a48fb803385028f98bb43760ecfe2991926a0ce1c43",
     sites=SITES,
     axiom=axiom,
     productions={
