@@ -1,0 +1,128 @@
+"""runtime Guide: the Proposal protocol, prior fallback, one onnxruntime call per site per
+round; and the CLI pipeline traces -> train -> export -> grow on a small grammar."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ngpm_runtime.distributions import prior_logpdf, proposal_logpdf
+from ngpm_runtime.guide import Guide
+from ngpm_runtime.smc import smc
+
+from ngpm_compiler.cli import main
+from ngpm_compiler.export import write_onnx
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_export import N_F, SITES, fake_program, random_model  # noqa: E402
+from test_traces import CHAIN, make_dataset  # noqa: E402
+
+
+class CountingSession:
+    def __init__(self, session):
+        self.session, self.calls = session, []
+
+    def run(self, names, feeds):
+        self.calls.append(names)
+        return self.session.run(names, feeds)
+
+
+@pytest.fixture()
+def guide(tmp_path):
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    g = Guide.load(path, fake_program())
+    g.session = CountingSession(g.session)
+    return g
+
+
+def test_propose_matches_proposal_density(guide):
+    rng = np.random.default_rng(0)
+    feats = rng.normal(size=(4000, N_F)).astype(np.float32)
+    feats[:] = feats[0]  # one feature row: the samples follow one mixture
+    for site, args in ((SITES[0], [2.0, 3.0]), (SITES[1], [-1.0, 4.0]), (SITES[3], [1, 1, 1])):
+        a = np.tile(np.array(args, float), (4000, 1))
+        values, log_q = guide.propose(site, a, feats, rng)
+        params = guide.params(site.index, feats[:1])
+        assert np.allclose(log_q, proposal_logpdf(site, a, np.repeat(params, 4000, 0), values))
+        if site.kind == "categorical":
+            freq = np.bincount(values.astype(int), minlength=3) / 4000
+            assert np.abs(freq - params[0]).max() < 0.03
+        else:  # the sample's histogram matches the density
+            lo, hi = np.quantile(values, [0.25, 0.75])
+            grid = np.linspace(lo, hi, 2001)
+            dens = np.exp(proposal_logpdf(site, a[:2001], np.repeat(params, 2001, 0), grid))
+            mass = float(np.sum((dens[1:] + dens[:-1]) / 2 * np.diff(grid)))
+            assert mass == pytest.approx(0.5, abs=0.03)
+    assert len(guide.session.calls) == 3 + 3  # one call per propose (+ params checks)
+
+
+def test_fallback_site_uses_the_prior(guide):
+    rng = np.random.default_rng(1)
+    site = SITES[2]
+    args = np.full((1000, 1), 0.3)
+    values, log_q = guide.propose(site, args, np.zeros((1000, N_F), np.float32), rng)
+    assert np.allclose(log_q, prior_logpdf(site, args, values))
+    assert abs(values.mean() - 0.3) < 0.05
+    assert guide.session.calls == [] and guide.fallback_sites == [2]
+
+
+def test_const_guide_needs_no_features(tmp_path):
+    g = Guide.load(write_onnx(random_model(1, "const"), tmp_path / "c.onnx"), fake_program())
+    assert not g.uses_features
+    values, log_q = g.propose(SITES[0], np.tile([0.0, 1.0], (5, 1)), None,
+                              np.random.default_rng(0))
+    assert values.shape == log_q.shape == (5,) and np.isfinite(log_q).all()
+
+
+def test_one_call_per_site_per_round_in_smc(tmp_path):
+    """Run SMC with a guide on the chain grammar and count onnxruntime calls."""
+    from ngpm_compiler.traces import load_grammar
+
+    program = load_grammar(CHAIN)
+    out = tmp_path / "m"
+    data = make_dataset(tmp_path / "data", 2)
+    assert main(["traces", CHAIN, "--targets", str(data), "-n", "3", "--particles", "5",
+                 "-o", str(out / "tr"), "--workers", "1"]) == 0
+    assert main(["train", str(out / "tr"), "-o", str(out / "m.pt"), "--epochs", "2"]) == 0
+    assert main(["export", str(out / "m.pt"), "-o", str(out / "g.onnx")]) == 0
+    g = Guide.load(out / "g.onnx", program)
+    g.session = CountingSession(g.session)
+    r = smc(program, None, 7, proposal=g, seed=0)
+    assert all(len(p.primitives) == 12 for p in r.particles)
+    assert len(g.session.calls) == 12  # one site, one round per chain link, all 7 particles
+
+
+def test_cli_pipeline_and_errors(tmp_path, capsys):
+    data = make_dataset(tmp_path / "data", 2)
+    tr, model, onnx_path = tmp_path / "tr", tmp_path / "m.pt", tmp_path / "g.onnx"
+    assert main(["traces", CHAIN, "--targets", str(data), "-n", "4", "--particles", "6",
+                 "-o", str(tr), "--workers", "1", "--mirror"]) == 0
+    assert "4 traces kept" in capsys.readouterr().out
+    assert main(["train", str(tr), "-o", str(model), "--epochs", "3", "--K", "1",
+                 "--features", "local"]) == 0
+    out = capsys.readouterr().out
+    assert "1 site networks" in out and "validation NLL" in out
+    assert not Path(str(model) + ".ckpt").exists()
+    assert main(["export", str(model), "-o", str(onnx_path)]) == 0
+    png = tmp_path / "grown.png"
+    assert main(["grow", CHAIN, "--guide", str(onnx_path), "--target",
+                 str(data / "bar0.png"), "-N", "5", "-o", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "similarity" in out and "(guided)" in out and png.is_file()
+    assert main(["grow", CHAIN, "--target", str(data / "bar0.png"), "-N", "5"]) == 0
+    assert "(unguided)" in capsys.readouterr().out
+    # a guide for another grammar, a corrupt guide, a corrupt model: one-line errors
+    vines = str(Path(CHAIN).with_name("vines.lsys"))
+    assert main(["grow", vines, "--guide", str(onnx_path), "--target",
+                 str(data / "bar0.png")]) == 1
+    assert "trained for grammar" in capsys.readouterr().err
+    onnx_path.write_bytes(onnx_path.read_bytes()[:100])
+    assert main(["grow", CHAIN, "--guide", str(onnx_path), "--target",
+                 str(data / "bar0.png")]) == 1
+    assert "corrupt or truncated" in capsys.readouterr().err
+    model.write_bytes(b"junk")
+    assert main(["export", str(model), "-o", str(onnx_path)]) == 1
+    err = capsys.readouterr().err
+    assert "not a model written by" in err and err.count("\n") == 1
