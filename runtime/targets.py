@@ -148,10 +148,10 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     """Foreground mask (H, W) bool of an image at its own resolution.
 
     polarity: "alpha" (opaque pixels), "dark" (dark shape on light), "light", or "auto":
-    a PNG written by save_target says its polarity; otherwise alpha when the image has an
-    alpha channel that varies; otherwise gray levels are split by Otsu's threshold and the
-    class that covers most of the image border is the background (when the border is
-    evenly split, the smaller class is the shape).
+    a PNG written by save_target says its polarity; otherwise alpha when the image has
+    both transparent (alpha < 128) and opaque pixels; otherwise gray levels are split by
+    Otsu's threshold and the class that covers most of the image border is the background
+    (when the border is evenly split, the smaller class is the shape).
     """
     if polarity not in POLARITIES:
         raise TargetError(f"{name}: polarity must be one of {', '.join(POLARITIES)}")
@@ -161,7 +161,7 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     if polarity == "auto" and img.info.get(POLARITY_KEY) in ("dark", "light"):
         polarity = img.info[POLARITY_KEY]
     alpha = _alpha(img)
-    if polarity == "auto" and alpha is not None and int(alpha.max()) - int(alpha.min()) > 32:
+    if polarity == "auto" and alpha is not None and alpha.min() < 128 <= alpha.max():
         polarity = "alpha"
     if polarity == "alpha":
         if alpha is None:

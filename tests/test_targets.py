@@ -360,3 +360,13 @@ def test_jpeg_exif_orientation_is_applied(tmp_path):
     t = load_target(tmp_path / "photo.jpg", size=100)
     rows, cols = np.nonzero(t.mask)
     assert rows.max() < 30 and 20 < cols.mean() < 80
+
+
+def test_nearly_opaque_alpha_falls_back_to_gray(tmp_path):
+    m = disk_mask()
+    rgba = np.zeros((100, 100, 4), np.uint8)
+    rgba[..., :3] = np.where(m, 0, 255)[..., None]
+    rgba[..., 3] = 255
+    rgba[:5, :5, 3] = 200  # alpha varies, but nothing is transparent
+    Image.fromarray(rgba, mode="RGBA").save(tmp_path / "semi.png")
+    assert np.array_equal(load_target(tmp_path / "semi.png", size=100).mask, m)
