@@ -340,7 +340,10 @@ class Checker:
             params = {p: p for p in rule.params}
             if rule.pred not in sets:
                 taken = set(self.const_names.values())
-                py = [safe_name(p, taken, "p") for p in rule.params]
+                py = []
+                for p in rule.params:
+                    py.append(safe_name(p, taken, "p"))
+                    taken.add(py[-1])
                 py += [f"arg{i}" for i in range(len(py), arity)]
                 sets[rule.pred] = RuleSet(rule.pred, section, arity, py)
             rs = sets[rule.pred]

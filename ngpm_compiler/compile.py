@@ -71,9 +71,14 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
         filename = filename or "<grammar>"
     text = text.replace("\r\n", "\n")
     name = grammar_name(filename)
-    checked = check(parse(text, filename), name)
     digest = "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()
-    code = generate(checked, filename, digest)
+    try:
+        checked = check(parse(text, filename), name)
+        code = generate(checked, filename, digest)
+        compile(code, f"{name}_sampler.py", "exec")  # Python's own nesting limits
+    except (RecursionError, SyntaxError, MemoryError):
+        raise GrammarError("expressions or successors are nested too deeply", filename, 1, 1,
+                           text) from None
     return CompiledGrammar(name, filename, text, code, checked.sites, digest, checked)
 
 
