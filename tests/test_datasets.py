@@ -55,6 +55,8 @@ def test_scribbles_vary_in_thickness_and_direction():
     assert min(thickness) < 3.0 and max(thickness) > 6.0  # thin and thick strokes
     ups = sum(t.start[3] < -0.5 for t in shapes)
     assert 15 <= ups < 40  # mostly upward starts, but not all
+    loops = sum(label(~t.mask, connectivity=1).max() > 1 for t in shapes)
+    assert 5 <= loops < 40  # some strokes cross themselves and enclose background
 
 
 def test_scribbles_other_size():

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from ngpm_runtime.errors import NgpmError, TargetError
 from ngpm_runtime.targets import (
     Target,
@@ -370,3 +372,17 @@ def test_nearly_opaque_alpha_falls_back_to_gray(tmp_path):
     rgba[:5, :5, 3] = 200  # alpha varies, but nothing is transparent
     Image.fromarray(rgba, mode="RGBA").save(tmp_path / "semi.png")
     assert np.array_equal(load_target(tmp_path / "semi.png", size=100).mask, m)
+
+
+@settings(max_examples=60, deadline=None)
+@given(x=st.floats(0, 1), y=st.floats(0, 1), a=st.floats(-math.pi, math.pi))
+def test_start_pose_and_mirror_properties(x, y, a):
+    t = Target(np.zeros((8, 8), bool), (x, y, math.cos(a), math.sin(a)))
+    vp = (-12.0, 12.0, -22.0, 2.0)
+    wx, wy, h = t.start_pose(vp)
+    assert -12 <= wx <= 12 and -22 <= wy <= 2
+    # heading points the same way as the image direction with y flipped
+    assert math.cos(math.radians(h)) == pytest.approx(t.start[2], abs=1e-9)
+    assert math.sin(math.radians(h)) == pytest.approx(-t.start[3], abs=1e-9)
+    mx, my, _ = t.mirrored().start_pose(vp)
+    assert mx == pytest.approx(-wx, abs=1e-9) and my == pytest.approx(wy)
