@@ -1,0 +1,309 @@
+"""`ngpmc demo`: grow guided and unguided vines into the built-in targets, side by side.
+
+Writes `demo.png` (rows: targets; columns: target | guided | unguided, similarity and
+seconds under each), one render per run and `summary.md`, and prints the summary. Uses only
+the package data (ngpm_runtime.bundled): nothing is trained or downloaded.
+
+`write_demo_targets(dir)` (re)makes the built-in demo targets shipped in runtime/data/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.targets import Target, auto_start, save_target
+from PIL import Image, ImageDraw, ImageFont
+
+CELL = 220  # pixels per picture in demo.png
+CAPTION = 34  # caption height under each picture
+HEADER = 26
+PAD = 8
+DEFAULT_OUT = "ngpm_demo"
+
+
+class DemoError(NgpmError):
+    """The demo cannot run or write its output."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "demo", help="grow guided and unguided vines into built-in targets (no training)",
+        description="Grow the vines model into a few built-in targets with the bundled "
+                    "pretrained guide and without it (prior proposals), with the same number "
+                    "of particles, and write a side-by-side comparison.")
+    p.add_argument("-o", "--out", default=DEFAULT_OUT,
+                   help=f"output folder (default: {DEFAULT_OUT})")
+    p.add_argument("-N", "--particles", type=int, default=10,
+                   help="particles per run, guided and unguided (default 10)")
+    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.set_defaults(handler=cmd_demo)
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class DemoRow:
+    target: Target
+    guided: Any  # cmd_guide.GrowResult
+    unguided: Any
+
+
+def run_demo(particles: int = 10, seed: int = 0) -> tuple[list[DemoRow], Any]:
+    """Guided and unguided SMC on every built-in target; returns the rows and the guide."""
+    from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
+
+    from ngpm_compiler.cmd_guide import grow
+
+    program = bundled_program()
+    guide = bundled_guide(program)
+    rows = []
+    for target in demo_targets():
+        rows.append(DemoRow(target, grow(program, target, guide, particles, seed),
+                            grow(program, target, None, particles, seed)))
+    return rows, guide
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    if args.particles < 1:
+        raise DemoError("-N must be at least 1")
+    out = prepare_out_dir(args.out)
+    rows, guide = run_demo(args.particles, args.seed)
+    program = guide.program
+    files = []
+    for row in rows:
+        for kind, res in (("guided", row.guided), ("unguided", row.unguided)):
+            path = out / f"{row.target.name}_{kind}.png"
+            _save_png(_render(res.primitives, program.viewport, row.target.mask, 512), path)
+            files.append(path)
+    sheet = out / "demo.png"
+    _save_png(comparison_image(rows, args.particles, program.viewport), sheet)
+    text = summary_markdown(rows, guide, args.particles, args.seed)
+    _write_text(out / "summary.md", text)
+    print(summary_table(rows, args.particles))
+    print(f"wrote {sheet}, {out / 'summary.md'} and {len(files)} renders in {out}")
+    return 0
+
+
+def prepare_out_dir(path: str | os.PathLike) -> Path:
+    """Create the output folder and check that it is writable, before any work."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=out, prefix=".ngpm_demo_probe.")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise DemoError(f"{out}: cannot write the demo output there "
+                        f"({err.strerror or err.__class__.__name__})") from None
+    return out
+
+
+# --------------------------------------------------------------------------- summary
+
+
+def _fmt(res: Any) -> tuple[str, str]:
+    return f"{res.similarity:.3f}", f"{res.seconds:.2f}"
+
+
+def summary_table(rows: list[DemoRow], particles: int) -> str:
+    head = ("target", f"guided N={particles}", "seconds", f"unguided N={particles}", "seconds")
+    body = [(r.target.name, *_fmt(r.guided), *_fmt(r.unguided)) for r in rows]
+    body.append(("mean", *_mean(rows, "guided"), *_mean(rows, "unguided")))
+    widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
+    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w)
+                       for i, (c, w) in enumerate(zip(r, widths, strict=True)))
+             for r in [head, *body]]
+    lines.insert(1, "-" * len(lines[0]))
+    return "similarity (1 = the target exactly, 0 = no better than a blank canvas)\n" + \
+        "\n".join(lines)
+
+
+def _mean(rows: list[DemoRow], kind: str) -> tuple[str, str]:
+    sims = [getattr(r, kind).similarity for r in rows]
+    secs = [getattr(r, kind).seconds for r in rows]
+    return f"{np.mean(sims):.3f}", f"{np.mean(secs):.2f}"
+
+
+def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int) -> str:
+    from ngpm_runtime.bundled import guide_summary
+
+    program = guide.program
+    lines = [
+        "# ngpm demo: guided vs unguided SMC",
+        "",
+        f"Grammar `{program.name}` ({program.grammar_hash[:19]}...), {particles} particles per "
+        f"run, seed {seed}. Guide: `{Path(guide.path).name}` ({guide_summary(guide)}).",
+        "",
+        "Similarity is the paper's normalized shape similarity of the best particle: 1 is the "
+        "target exactly, 0 is no better than a blank canvas.",
+        "",
+        f"| target | guided N={particles} | seconds | unguided N={particles} | seconds |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(f"| {r.target.name} | {' | '.join(_fmt(r.guided))} | "
+                     f"{' | '.join(_fmt(r.unguided))} |")
+    lines.append(f"| **mean** | {' | '.join(_mean(rows, 'guided'))} | "
+                 f"{' | '.join(_mean(rows, 'unguided'))} |")
+    lines += ["", "![comparison](demo.png)", "",
+              "Grow a vine into your own picture: `ngpmc grow picture.png -o vine.png`.", ""]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- pictures
+
+
+def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    try:
+        import matplotlib
+
+        path = Path(matplotlib.get_data_path()) / "fonts" / "ttf" / "DejaVuSans.ttf"
+        return ImageFont.truetype(str(path), size)
+    except (OSError, ImportError):
+        return ImageFont.load_default()
+
+
+def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> np.ndarray:
+    from ngpm_runtime.render import render_array
+
+    return render_array(prims, viewport, size, target_mask=mask)
+
+
+def target_picture(target: Target, size: int) -> np.ndarray:
+    """The target mask (dark gray on white) with its start as a red arrow from a green dot."""
+    tile = np.where(target.mask, 70, 255).astype(np.uint8)
+    img = Image.fromarray(tile, mode="L").resize((size, size), Image.Resampling.NEAREST)
+    img = img.convert("RGB")
+    draw = ImageDraw.Draw(img)
+    sx, sy, dx, dy = target.start
+    px, py = sx * size, sy * size
+    alen = 0.16 * size
+    ex, ey = px + dx * alen, py + dy * alen
+    draw.line((px, py, ex, ey), fill=(220, 30, 30), width=3)
+    ang = math.atan2(dy, dx)
+    for side in (2.6, -2.6):
+        draw.line((ex, ey, ex + 0.4 * alen * math.cos(ang + side),
+                   ey + 0.4 * alen * math.sin(ang + side)), fill=(220, 30, 30), width=3)
+    draw.ellipse((px - 5, py - 5, px + 5, py + 5), fill=(20, 170, 40))
+    return np.asarray(img)
+
+
+def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.ndarray:
+    """RGB array: one row per target, columns target | guided | unguided, with captions."""
+    if not rows:
+        raise DemoError("no demo targets to draw")
+    cols = 3
+    width = PAD + cols * (CELL + PAD)
+    height = HEADER + len(rows) * (CELL + CAPTION + PAD) + PAD
+    sheet = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    title, small = _font(15), _font(13)
+    heads = ("target", f"guided, N={particles}", f"unguided, N={particles}")
+    for c, text in enumerate(heads):
+        draw.text((PAD + c * (CELL + PAD) + CELL / 2, HEADER / 2), text, fill=(0, 0, 0),
+                  font=title, anchor="mm")
+    for r, row in enumerate(rows):
+        y0 = HEADER + r * (CELL + CAPTION + PAD)
+        pics = [target_picture(row.target, CELL),
+                _render(row.guided.primitives, viewport, row.target.mask, CELL),
+                _render(row.unguided.primitives, viewport, row.target.mask, CELL)]
+        caps = [row.target.name,
+                f"similarity {row.guided.similarity:.3f}, {row.guided.seconds:.2f} s",
+                f"similarity {row.unguided.similarity:.3f}, {row.unguided.seconds:.2f} s"]
+        for c, (pic, cap) in enumerate(zip(pics, caps, strict=True)):
+            x0 = PAD + c * (CELL + PAD)
+            tile = Image.fromarray(pic)
+            if tile.size != (CELL, CELL):
+                tile = tile.resize((CELL, CELL), Image.Resampling.LANCZOS)
+            sheet.paste(tile, (x0, y0))
+            draw.rectangle((x0, y0, x0 + CELL - 1, y0 + CELL - 1), outline=(200, 200, 200))
+            draw.text((x0 + CELL / 2, y0 + CELL + CAPTION / 2), cap, fill=(0, 0, 0),
+                      font=small, anchor="mm")
+    return np.asarray(sheet)
+
+
+def _save_png(rgb: np.ndarray, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            Image.fromarray(rgb).save(fh, format="PNG", optimize=True)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+# --------------------------------------------------------------------------- targets
+
+SIZE = 50
+SUPER = 8  # supersampling of the drawn shapes
+
+
+def _heart_mask(n: int) -> np.ndarray:
+    t = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
+    x = 16 * np.sin(t) ** 3
+    y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
+    pts = [(n / 2 + n * 0.028 * float(a), n / 2 - n * 0.028 * float(b)) for a, b in zip(x, y,
+                                                                                       strict=True)]
+    img = Image.new("L", (n, n), 0)
+    ImageDraw.Draw(img).polygon(pts, fill=255)
+    return np.asarray(img) >= 128
+
+
+def _spiral_mask(n: int) -> np.ndarray:
+    th = np.linspace(0.0, 2.6 * math.pi, 600)
+    r = n * (0.05 + 0.135 * th / math.pi)
+    pts = [(n / 2 + float(rr * math.cos(a)), n / 2 - float(rr * math.sin(a)))
+           for rr, a in zip(r, th, strict=True)]
+    img = Image.new("L", (n, n), 0)
+    draw = ImageDraw.Draw(img)
+    wid = int(round(0.075 * n))
+    draw.line(pts, fill=255, width=wid, joint="curve")
+    for x, y in (pts[0], pts[-1]):
+        draw.ellipse((x - wid / 2, y - wid / 2, x + wid / 2, y + wid / 2), fill=255)
+    return np.asarray(img) >= 128
+
+
+def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
+    """The demo's targets: a glyph (DejaVu Sans Bold 'S'), scikit-image's horse, and a heart
+    and a spiral drawn here; all framed like the datasets' silhouettes, automatic start."""
+    from skimage.data import horse
+
+    from ngpm_compiler.datasets import SUPERSAMPLE, default_font, fit_mask, render_glyph
+
+    face = ImageFont.truetype(str(default_font()), size * SUPERSAMPLE)
+    masks = {
+        "glyph": render_glyph(face, "S", size),
+        "horse": fit_mask(~horse(), size)[0],
+        "heart": fit_mask(_heart_mask(size * SUPER), size)[0],
+        "spiral": fit_mask(_spiral_mask(size * SUPER), size)[0],
+    }
+    return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
+
+
+def write_demo_targets(out_dir: str | os.PathLike) -> list[Path]:
+    """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
+    return [save_target(t, Path(out_dir) / f"demo_{name}.png")
+            for name, t in make_demo_targets().items()]

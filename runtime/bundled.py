@@ -1,0 +1,106 @@
+"""Package data: the vines model, its pretrained guide and the demo targets.
+
+Everything lives in `ngpm_runtime/data/` (the `runtime/data/` folder of the repository):
+
+- `vines_sampler.py`, `vines_sites.json`: `ngpmc compile grammars/vines.lsys -o runtime/data`
+- `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
+- `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), made by
+  `ngpm_compiler.cmd_demo.write_demo_targets("runtime/data")`
+
+Only numpy / onnxruntime code is imported here: no torch, no lark, no compiler.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+from ngpm_runtime.errors import GuideError, ProgramError, TargetError
+from ngpm_runtime.program import Program, load_program
+
+DATA_DIR = Path(__file__).resolve().parent / "data"
+SAMPLER_FILE = "vines_sampler.py"
+SITES_FILE = "vines_sites.json"
+GUIDE_FILE = "vines_guide.onnx"
+DEMO_TARGETS = ("glyph", "horse", "heart", "spiral")  # demo order
+REGENERATE = "bash scripts/train_vines_guide.sh work/vines"
+
+
+def data_path(name: str) -> Path:
+    """Path of a file in the package's data folder (it may not exist)."""
+    return DATA_DIR / name
+
+
+def sampler_path() -> Path:
+    return data_path(SAMPLER_FILE)
+
+
+def guide_path() -> Path:
+    return data_path(GUIDE_FILE)
+
+
+def demo_target_path(name: str) -> Path:
+    """The PNG of a built-in demo target (`glyph`, `horse`, `heart`, `spiral`)."""
+    if name not in DEMO_TARGETS:
+        raise TargetError(f"no built-in demo target {name!r}; choose from "
+                          f"{', '.join(DEMO_TARGETS)}")
+    return data_path(f"demo_{name}.png")
+
+
+@lru_cache(maxsize=1)
+def _cached_program(path: str, mtime: float) -> Program:
+    return load_program(path)
+
+
+def bundled_program() -> Program:
+    """The vines Program from the generated sampler shipped with the package."""
+    path = sampler_path()
+    if not path.is_file():
+        raise ProgramError(f"{path}: the bundled vines sampler is missing "
+                           "(regenerate: ngpmc compile grammars/vines.lsys -o runtime/data)")
+    return _cached_program(str(path), path.stat().st_mtime)
+
+
+def bundled_guide(program: Program | None = None) -> Any:
+    """The pretrained vines guide (a `ngpm_runtime.guide.Guide`) for `program`.
+
+    `program` defaults to `bundled_program()`; any Program compiled from the same
+    grammars/vines.lsys works (the guide checks the grammar hash and the site table).
+    """
+    from ngpm_runtime.guide import Guide
+
+    path = guide_path()
+    if not path.is_file():
+        raise GuideError(f"{path}: the bundled vines guide is missing "
+                         f"(regenerate it with `{REGENERATE}` and copy "
+                         f"work/vines/{GUIDE_FILE} there)")
+    return Guide.load(path, bundled_program() if program is None else program)
+
+
+def demo_targets(size: int = 50) -> list[Any]:
+    """The built-in demo targets (`ngpm_runtime.targets.Target`), in DEMO_TARGETS order."""
+    from ngpm_runtime.targets import Target, load_target
+
+    targets = []
+    for name in DEMO_TARGETS:
+        path = demo_target_path(name)
+        if not path.is_file():
+            raise TargetError(f"{path}: built-in demo target is missing")
+        t = load_target(path, size=size)
+        targets.append(Target(t.mask, t.start, name))
+    return targets
+
+
+def guide_summary(guide: Any) -> str:
+    """One line on how a guide was trained, from its ONNX metadata."""
+    t = guide.training or {}
+    parts = [f"{len(guide.nets)} site networks", f"features {guide.feature_set}",
+             f"K {guide.K}"]
+    if t.get("traces") is not None:
+        parts.append(f"{t['traces']} traces ({t.get('val_traces', 0)} held out)")
+    if t.get("best_epoch") is not None:
+        parts.append(f"best epoch {t['best_epoch']} of {t.get('epochs_run', '?')}")
+    if isinstance(t.get("val_nll"), (int, float)):
+        parts.append(f"validation NLL {t['val_nll']:.3f} per trace")
+    return ", ".join(parts)

@@ -1,0 +1,180 @@
+"""Package data: the bundled vines sampler is up to date, the bundled guide belongs to it and
+was really trained, the demo targets are the ones the project makes, all usable without torch."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ngpm_runtime import bundled
+from ngpm_runtime.errors import GuideError, ProgramError, TargetError
+from ngpm_runtime.guide import Guide
+
+REPO = Path(__file__).resolve().parents[1]
+VINES = REPO / "grammars" / "vines.lsys"
+MIN_TRACES = 500  # the bundled guide comes from scripts/train_vines_guide.sh (1000 traces)
+
+
+def vines_hash() -> str:
+    text = VINES.read_text(encoding="utf-8").replace("\r\n", "\n")
+    return "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+# --- the generated sampler ---------------------------------------------------------------
+
+
+def test_data_folder_is_flat_so_pyproject_ships_it() -> None:
+    # pyproject's package-data is `data/*`: files in subfolders would not be installed
+    assert bundled.DATA_DIR == REPO / "runtime" / "data"
+    assert not [p for p in bundled.DATA_DIR.iterdir() if p.is_dir() and p.name != "__pycache__"]
+    assert 'ngpm_runtime = ["data/*"]' in (REPO / "pyproject.toml").read_text()
+
+
+def test_bundled_sampler_is_up_to_date_with_vines_lsys() -> None:
+    program = bundled.bundled_program()
+    assert program.name == "vines"
+    assert program.grammar_hash == vines_hash(), (
+        "runtime/data/vines_sampler.py is stale: run "
+        "`ngpmc compile grammars/vines.lsys -o runtime/data`")
+
+
+def test_bundled_sites_match_a_fresh_compile() -> None:
+    from ngpm_compiler.compile import compile_grammar
+
+    compiled = compile_grammar(VINES)
+    assert compiled.grammar_hash == vines_hash()
+    shipped = json.loads((bundled.DATA_DIR / bundled.SITES_FILE).read_text(encoding="utf-8"))
+    assert shipped == compiled.sites_json()
+    program, fresh = bundled.bundled_program(), compiled.program()
+    assert [s.to_json() for s in program.sites] == [s.to_json() for s in fresh.sites]
+    for field in ("viewport", "start", "derivation_length", "angle", "max_primitives",
+                  "arity"):
+        assert getattr(program, field) == getattr(fresh, field), field
+    assert sorted(program.productions) == sorted(fresh.productions)
+
+
+def test_bundled_program_is_cached_and_samples() -> None:
+    from ngpm_runtime.smc import forward
+
+    assert bundled.bundled_program() is bundled.bundled_program()
+    a = forward(bundled.bundled_program(), seed=3)
+    assert a.primitives and a.primitives[0][0] == "seg"
+
+
+def test_missing_sampler_is_a_one_line_error(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(bundled, "DATA_DIR", tmp_path)
+    with pytest.raises(ProgramError, match="bundled vines sampler is missing") as err:
+        bundled.bundled_program()
+    assert "\n" not in str(err.value)
+
+
+# --- the guide ---------------------------------------------------------------------------
+
+
+def test_bundled_guide_belongs_to_vines_lsys_and_was_trained() -> None:
+    guide = bundled.bundled_guide()
+    assert isinstance(guide, Guide)
+    assert guide.meta["grammar"] == "vines"
+    assert guide.meta["grammar_hash"] == vines_hash()
+    assert guide.fallback_sites == []  # every site has a network
+    assert guide.training["traces"] >= MIN_TRACES, "a tiny development guide was bundled"
+    assert "traces" in bundled.guide_summary(guide)
+
+
+def test_bundled_guide_accepts_a_freshly_compiled_program() -> None:
+    from ngpm_compiler.compile import compile_grammar
+
+    guide = bundled.bundled_guide(compile_grammar(VINES).program())
+    assert guide.program.name == "vines"
+
+
+def test_bundled_guide_rejects_another_grammar() -> None:
+    from ngpm_compiler.compile import compile_grammar
+
+    other = compile_grammar(REPO / "grammars" / "chain.lsys").program()
+    with pytest.raises(GuideError, match="trained for grammar 'vines'"):
+        bundled.bundled_guide(other)
+
+
+def test_missing_guide_names_the_regeneration_command(tmp_path: Path, monkeypatch) -> None:
+    program = bundled.bundled_program()
+    monkeypatch.setattr(bundled, "DATA_DIR", tmp_path)
+    with pytest.raises(GuideError, match="train_vines_guide.sh") as err:
+        bundled.bundled_guide(program)
+    assert "\n" not in str(err.value)
+
+
+# --- demo targets ------------------------------------------------------------------------
+
+
+def test_demo_targets_load_in_order() -> None:
+    targets = bundled.demo_targets()
+    assert [t.name for t in targets] == list(bundled.DEMO_TARGETS)
+    for t in targets:
+        assert t.size == (50, 50)
+        assert 0.05 < t.mask.mean() < 0.6
+        r, c = t.start_pixel()
+        assert t.mask[r, c], f"{t.name}: start is not on the shape"
+
+
+def test_demo_targets_are_the_ones_the_project_makes() -> None:
+    from ngpm_compiler.cmd_demo import make_demo_targets
+
+    made = make_demo_targets()
+    assert list(made) == list(bundled.DEMO_TARGETS)
+    for t in bundled.demo_targets():
+        assert np.array_equal(t.mask, made[t.name].mask), t.name
+        assert np.allclose(t.start, made[t.name].start, atol=1e-5), t.name
+
+
+def test_unknown_demo_target() -> None:
+    with pytest.raises(TargetError, match="choose from glyph"):
+        bundled.demo_target_path("unicorn")
+
+
+# --- torch-free use ----------------------------------------------------------------------
+
+SCRIPT = textwrap.dedent(
+    """
+    import importlib.abc, sys
+
+    BLOCKED = ("torch", "lark", "ngpm_compiler")
+
+    class Blocker(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name.split(".")[0] in BLOCKED:
+                raise ImportError(f"blocked: {name}")
+            return None
+
+    sys.meta_path.insert(0, Blocker())
+    from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
+    from ngpm_runtime.likelihood import ShapeLikelihood
+    from ngpm_runtime.smc import smc
+
+    program = bundled_program()
+    guide = bundled_guide(program)
+    target = demo_targets()[1]
+    vp = program.viewport
+    result = smc(program, ShapeLikelihood(target.mask, vp), 4, proposal=guide, seed=0,
+                 start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
+    assert result.best.primitives
+    leaked = [m for m in sys.modules if m.split(".")[0] in BLOCKED]
+    assert not leaked, leaked
+    print("ok")
+    """
+)
+
+
+def test_guided_smc_with_package_data_needs_no_torch_lark_or_compiler(tmp_path: Path) -> None:
+    script = tmp_path / "check.py"
+    script.write_text(SCRIPT)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().endswith("ok")

@@ -1,0 +1,136 @@
+"""`ngpmc demo`: the README's first command, run as written in a temp dir, and its errors."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from ngpm_runtime import bundled
+from PIL import Image
+
+from ngpm_compiler import cmd_demo
+from ngpm_compiler.cli import main
+
+ROW_RE = re.compile(r"^\| (\w+) \| ([-\d.]+) \| ([\d.]+) \| ([-\d.]+) \| ([\d.]+) \|$")
+
+
+def ngpmc(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """Run the CLI as a user would: the `ngpmc` script when installed, else the module."""
+    exe = shutil.which("ngpmc")
+    cmd = [exe, *args] if exe else [sys.executable, "-m", "ngpm_compiler.cli", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, subprocess.CompletedProcess]:
+    cwd = tmp_path_factory.mktemp("demo")
+    proc = ngpmc("demo", "-o", "demo_out", cwd=cwd)
+    return cwd / "demo_out", proc
+
+
+def test_demo_command_as_in_readme(demo_run) -> None:
+    out, proc = demo_run
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    names = list(bundled.DEMO_TARGETS)
+    for name in names:
+        assert name in proc.stdout
+    with Image.open(out / "demo.png") as img:
+        img.load()
+        assert img.mode == "RGB"
+        assert img.size == (cmd_demo.PAD + 3 * (cmd_demo.CELL + cmd_demo.PAD),
+                            cmd_demo.HEADER + len(names) * (cmd_demo.CELL + cmd_demo.CAPTION
+                                                            + cmd_demo.PAD) + cmd_demo.PAD)
+        pixels = np.asarray(img)
+    assert pixels.std() > 10  # not a blank picture
+    for name in names:
+        for kind in ("guided", "unguided"):
+            with Image.open(out / f"{name}_{kind}.png") as img:
+                img.verify()
+    assert not list(out.glob(".*tmp"))  # no temp files left behind
+
+
+def test_summary_md_holds_a_row_per_target_and_matches_stdout(demo_run) -> None:
+    out, proc = demo_run
+    text = (out / "summary.md").read_text(encoding="utf-8")
+    rows = {m.group(1): m.groups()[1:] for m in map(ROW_RE.match, text.splitlines()) if m}
+    assert list(rows) == list(bundled.DEMO_TARGETS)
+    for name, (gs, gt, us, ut) in rows.items():
+        for sim in (float(gs), float(us)):
+            assert -1.5 <= sim <= 1.0
+        assert float(gt) >= 0 and float(ut) >= 0
+        line = next(ln for ln in proc.stdout.splitlines() if ln.startswith(name + " "))
+        assert line.split() == [name, gs, gt, us, ut]
+    assert "![comparison](demo.png)" in text
+    assert "grammar `vines`".lower() in text.lower()
+
+
+def test_guide_beats_prior_on_the_demo_targets(demo_run) -> None:
+    out, _ = demo_run
+    text = (out / "summary.md").read_text(encoding="utf-8")
+    rows = [m.groups() for m in map(ROW_RE.match, text.splitlines()) if m]
+    guided = np.mean([float(r[1]) for r in rows])
+    unguided = np.mean([float(r[3]) for r in rows])
+    assert guided > unguided + 0.1, (guided, unguided)
+
+
+def test_demo_is_deterministic_for_a_seed() -> None:
+    a, _ = cmd_demo.run_demo(particles=3, seed=5)
+    b, _ = cmd_demo.run_demo(particles=3, seed=5)
+    for ra, rb in zip(a, b, strict=True):
+        assert ra.guided.similarity == rb.guided.similarity
+        assert ra.unguided.primitives == rb.unguided.primitives
+
+
+# --- bad input: one line naming the problem, exit code != 0, no traceback ----------------
+
+
+def one_line_error(proc: subprocess.CompletedProcess) -> str:
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+def test_unwritable_output_path(tmp_path: Path) -> None:
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("not a folder")
+    line = one_line_error(ngpmc("demo", "-o", str(blocker / "out"), cwd=tmp_path))
+    assert "cannot write the demo output" in line and "file.txt" in line
+    line = one_line_error(ngpmc("demo", "-o", str(blocker), cwd=tmp_path))
+    assert "cannot write the demo output" in line
+
+
+def test_bad_particle_count(tmp_path: Path) -> None:
+    line = one_line_error(ngpmc("demo", "-N", "0", "-o", "x", cwd=tmp_path))
+    assert "-N must be at least 1" in line
+    assert not (tmp_path / "x").exists()
+
+
+def test_missing_bundled_guide(tmp_path: Path, monkeypatch, capsys) -> None:
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copy(bundled.sampler_path(), data / bundled.SAMPLER_FILE)
+    monkeypatch.setattr(bundled, "DATA_DIR", data)
+    code = main(["demo", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert err.count("\n") == 1 and "bundled vines guide is missing" in err
+
+
+def test_foreign_bundled_guide(tmp_path: Path, monkeypatch, capsys) -> None:
+    data = tmp_path / "data"
+    data.mkdir()
+    shutil.copy(bundled.sampler_path(), data / bundled.SAMPLER_FILE)
+    (data / bundled.GUIDE_FILE).write_bytes(b"not an onnx file at all")
+    monkeypatch.setattr(bundled, "DATA_DIR", data)
+    code = main(["demo", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert err.count("\n") == 1 and "not a readable ONNX guide" in err
