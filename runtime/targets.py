@@ -316,6 +316,9 @@ def load_dataset(directory: str | os.PathLike, size: int | None = None,
             files = [directory / str(f) for f in meta["files"]]
         except (OSError, ValueError, KeyError, TypeError):
             raise TargetError(f"bad dataset index {index}: expected JSON with 'files'") from None
+        if meta.get("complete") is False:
+            raise TargetError(f"dataset {directory} is incomplete (interrupted build); "
+                              "run the same build command again")
     else:
         files = sorted(p for p in directory.iterdir()
                        if p.suffix.lower() in IMAGE_SUFFIXES and sidecar_path(p).is_file())

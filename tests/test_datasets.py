@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from ngpm_runtime.errors import TargetError
 from ngpm_runtime.targets import Target, load_dataset, load_target
 from PIL import Image, ImageFont
 from skimage.measure import label
@@ -231,6 +232,8 @@ def test_interrupted_build_keeps_finished_files(tmp_path, monkeypatch):
     done = sorted(p.name for p in tmp_path.glob("*.png"))
     assert done == ["scribbles_0000.png", "scribbles_0001.png", "scribbles_0002.png"]
     assert json.loads((tmp_path / "index.json").read_text())["complete"] is False
+    with pytest.raises(TargetError, match="incomplete"):
+        load_dataset(tmp_path)
     monkeypatch.setitem(datasets.DATASETS, "scribbles", spec)
     assert len(build_dataset("scribbles", tmp_path, count=6)) == 6
 
