@@ -32,27 +32,46 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
     return out
 
 
-def window_features(levels: list[np.ndarray], idx: np.ndarray | None,
-                    u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(n, 36) 3x3 windows at every level; `levels[l]` is (N, h, w), or (h, w) if idx is None."""
-    n = len(u)
-    out = np.full((n, 9 * len(levels)), -1.0, dtype=np.float32)
+def _unit(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # non-finite or far-away positions read as outside everywhere
-    u = np.clip(np.nan_to_num(u, nan=-10.0), -10.0, 10.0)
-    v = np.clip(np.nan_to_num(v, nan=-10.0), -10.0, 10.0)
+    u = np.nan_to_num(np.asarray(u, dtype=np.float64), nan=-10.0, posinf=10.0, neginf=-10.0)
+    v = np.nan_to_num(np.asarray(v, dtype=np.float64), nan=-10.0, posinf=10.0, neginf=-10.0)
+    return np.minimum(np.maximum(u, -10.0), 10.0), np.minimum(np.maximum(v, -10.0), 10.0)
+
+
+def window_cells(shapes: list[tuple[int, int]], u: np.ndarray, v: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """3x3 windows at every level: cell index within its level (n, L, 3, 3), inside mask."""
+    u, v = _unit(u, v)
+    hs = np.array([s[0] for s in shapes], dtype=np.intp)
+    ws = np.array([s[1] for s in shapes], dtype=np.intp)
     off = np.arange(-1, 2)
+    rows = np.floor(v[:, None] * hs).astype(np.intp)[:, :, None] + off  # (n, L, 3)
+    cols = np.floor(u[:, None] * ws).astype(np.intp)[:, :, None] + off
+    hb, wb = hs[:, None], ws[:, None]
+    ok = ((rows >= 0) & (rows < hb))[..., None] & ((cols >= 0) & (cols < wb))[..., None, :]
+    rows = np.minimum(np.maximum(rows, 0), np.maximum(hb - 1, 0))
+    cols = np.minimum(np.maximum(cols, 0), np.maximum(wb - 1, 0))
+    cell = rows[..., None] * wb[..., None] + cols[..., None, :]
+    return cell, ok
+
+
+def window_features(levels: list[np.ndarray], idx: np.ndarray | None,
+                    u: np.ndarray, v: np.ndarray,
+                    cells: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(n, 9 L) 3x3 windows at every level, -1 outside; `levels[l]` is (N, h, w) read at
+    particles `idx`, or (h, w) when idx is None. `cells` = window_cells(...) if known."""
+    shapes = [a.shape[-2:] for a in levels]
+    cell, ok = window_cells(shapes, u, v) if cells is None else cells
+    n = cell.shape[0]
+    vals = np.empty(cell.shape, dtype=np.float32)
     for lv, arr in enumerate(levels):
-        h, w = arr.shape[-2:]
+        h, w = shapes[lv]
         if h == 0 or w == 0:
             continue
-        rows = np.floor(v * h).astype(np.intp)[:, None] + off  # (n, 3)
-        cols = np.floor(u * w).astype(np.intp)[:, None] + off
-        ok = ((rows >= 0) & (rows < h))[:, :, None] & ((cols >= 0) & (cols < w))[:, None, :]
-        r = np.clip(rows, 0, h - 1)[:, :, None]
-        c = np.clip(cols, 0, w - 1)[:, None, :]
-        vals = arr[r, c] if idx is None else arr[idx[:, None, None], r, c]
-        out[:, 9 * lv:9 * lv + 9] = np.where(ok, vals, -1.0).reshape(n, 9)
-    return out
+        flat = cell[:, lv] if idx is None else cell[:, lv] + (idx * (h * w))[:, None, None]
+        vals[:, lv] = arr.reshape(-1)[flat]
+    return np.where(ok, vals, np.float32(-1.0)).reshape(n, -1)
 
 
 class FeatureMaker:
@@ -65,6 +84,17 @@ class FeatureMaker:
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (None if target_mask is None
                               else pyramid(np.asarray(target_mask, dtype=bool)))
+
+    def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
+        if canvas is not None:
+            if (self.target_levels is not None
+                    and self.target_levels[0].shape != canvas.image.shape[1:]):
+                raise ValueError(f"canvas {canvas.image.shape[1:]} and target "
+                                 f"{self.target_levels[0].shape} differ in size")
+            return canvas.height, canvas.width
+        if self.target_levels is not None:
+            return self.target_levels[0].shape
+        return (0, 0)
 
     @staticmethod
     def n_local(site: Site) -> int:
@@ -99,12 +129,15 @@ class FeatureMaker:
         out[:, N_LOCAL_BASE:N_LOCAL_BASE + site.arity] = _fit_columns(params, n, site.arity)
         out[:, N_LOCAL_BASE + site.arity:lay["local"].stop] = _fit_columns(
             prior_args, n, site.n_args())
+        shapes = [(h >> lv, w >> lv) for lv in range(N_LEVELS)
+                  for h, w in [self._shape(canvas)]]
+        cells = window_cells(shapes, u, v)
         if self.target_levels is None:
             out[:, lay["target"]] = 0.0
         else:
-            out[:, lay["target"]] = window_features(self.target_levels, None, u, v)
+            out[:, lay["target"]] = window_features(self.target_levels, None, u, v, cells)
         if canvas is None:
             out[:, lay["partial"]] = 0.0
         else:
-            out[:, lay["partial"]] = window_features(canvas.levels, idx, u, v)
+            out[:, lay["partial"]] = window_features(canvas.levels, idx, u, v, cells)
         return out

@@ -16,6 +16,7 @@ import numpy as np
 Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 N_LEVELS = 4
 _EPS = 1e-9
+_CHUNK = 12288  # window pixels per vectorized shape test
 
 
 @dataclass
@@ -199,21 +200,40 @@ class _Grid:
     def cover(self, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Rasterize prims: y0, x0 (n,), coverage (n, ky, kx) bool, world bbox (n, 4)."""
         n = len(prims)
+        kinds = [p[0] for p in prims]
         groups: dict[str, list[int]] = {}
-        for k, p in enumerate(prims):
-            groups.setdefault(p[0], []).append(k)
+        if n and kinds.count(kinds[0]) == n:
+            groups[kinds[0]] = list(range(n))  # the common case: one kind
+        else:
+            for k, kind in enumerate(kinds):
+                groups.setdefault(kind, []).append(k)
         bbox = np.empty((n, 4))
         params: dict[str, np.ndarray | None] = {}
         for kind, pos in groups.items():
-            bbox[pos], params[kind] = _bboxes(kind, [prims[k] for k in pos])
+            sel = prims if len(pos) == n else [prims[k] for k in pos]
+            b, params[kind] = _bboxes(kind, sel)
+            if len(pos) == n:
+                bbox[:] = b
+            else:
+                bbox[pos] = b
         y0, x0, ky, kx, empty = self.windows(bbox)
         cov = np.zeros((n, ky, kx), dtype=bool)
         ax, ay = np.arange(kx) + 0.5, np.arange(ky) + 0.5
+        # chunks keep the float64 temporaries small (cache-sized, no mmap per temporary)
+        step = max(16, _CHUNK // (ky * kx))
         for kind, pos in groups.items():
-            pa = np.asarray(pos)
+            whole = len(pos) == n
+            pa = slice(None) if whole else np.asarray(pos)
             px = self.xmin + (x0[pa, None] + ax) * self.sx
             py = self.ymax - (y0[pa, None] + ay) * self.sy
-            cov[pa] = _cover(kind, params[kind], [prims[k] for k in pos], px, py)
+            P = params[kind]
+            sub = cov if whole else np.empty((len(pos), ky, kx), dtype=bool)
+            for s in range(0, len(pos), step):
+                e = s + step
+                sub[s:e] = _cover(kind, None if P is None else P[s:e],
+                                  [prims[k] for k in pos[s:e]], px[s:e], py[s:e])
+            if not whole:
+                cov[pa] = sub
         if empty.any():
             cov[empty] = False
         return y0, x0, cov, bbox
@@ -256,8 +276,8 @@ class Canvas:
             np.zeros((self.n, h, w), dtype=np.float32)
             for h, w in level_shapes(self.height, self.width)[1:]
         ]
-        rows = np.arange(self.height)[:, None] * self.width
-        self._row_off = rows  # (H, 1) flat row offsets
+        self._spare: list[np.ndarray] | None = None  # take()'s second buffers
+        self._row_off = np.arange(self.height)[:, None] * self.width  # (H, 1) flat offsets
 
     def draw(self, idx: np.ndarray, prims: list[tuple]) -> DrawBatch:
         """Rasterize `prims[k]` into canvas `idx[k]` (indices distinct); returns the changes."""
@@ -287,11 +307,26 @@ class Canvas:
         return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox)
 
     def take(self, idx: np.ndarray) -> None:
-        """Resampling: particle k becomes old particle idx[k] (every per-particle array)."""
+        """Resampling: particle k becomes old particle idx[k] (every per-particle array).
+
+        The arrays are double-buffered (fresh allocations of this size cost page faults):
+        a reference to `image` or `levels` kept across two `take` calls gets overwritten.
+        """
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
-        self.image = self.image[idx]
-        self.levels = [self.image] + [lv[idx] for lv in self.levels[1:]]
-        self.n = len(idx)
+        if len(idx) != self.n:
+            self.image = self.image[idx]
+            self.levels = [self.image] + [lv[idx] for lv in self.levels[1:]]
+            self.n = len(idx)
+            self._spare = None
+            return
+        if self._spare is None:
+            self._spare = [np.empty_like(a) for a in self.levels]
+        spare = self._spare
+        for a, out in zip(self.levels, spare, strict=True):
+            np.take(a, idx, axis=0, out=out)
+        self._spare = self.levels
+        self.levels = spare
+        self.image = spare[0]
 
     def world_to_unit(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points as normalized image coords (u right, v down, [0, 1] inside)."""

@@ -94,3 +94,14 @@ def test_layout_slices() -> None:
     assert lay["partial"] == slice(46, 82)
     assert fm.layout(prog.sites[1])["local"] == slice(0, 10)
     assert fm.n_features(prog.sites[1]) == 82
+
+
+def test_no_canvas_no_target_gives_zero_windows() -> None:
+    prog = _program()
+    fm = FeatureMaker(prog, VP, None)
+    site = prog.sites[1]
+    got = fm.features(site, None, np.arange(2), np.zeros((2, 4)), np.zeros(2),
+                      np.zeros((2, 0)), np.full((2, 3), 1 / 3))
+    lay = fm.layout(site)
+    assert not got[:, lay["target"]].any() and not got[:, lay["partial"]].any()
+    np.testing.assert_allclose(got[:, 7:10], 1 / 3, rtol=1e-6)

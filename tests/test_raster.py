@@ -142,3 +142,23 @@ def test_prim_mask_and_viewport_of() -> None:
     vp = viewport_of([("seg", 0, 0, 4, 0, 1), ("disk", 0, 3, 1)])
     assert vp[0] < -0.5 and vp[1] > 4.5 and vp[2] < -0.5 and vp[3] > 4
     assert math.isclose(vp[1] - vp[0], vp[3] - vp[2])
+
+
+def test_repeated_take_with_double_buffers() -> None:
+    rng = np.random.default_rng(7)
+    n = 5
+    canvas = Canvas(n, 30, 30, VP)
+    ref_img = np.zeros((n, 30, 30), dtype=np.uint8)
+    for _ in range(6):
+        prims = [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
+                 for _ in range(n)]
+        canvas.draw(np.arange(n), prims)
+        for i, p in enumerate(prims):
+            ref_img[i] |= rasterize([p], VP, 30, 30)
+        anc = np.sort(rng.integers(0, n, n))
+        canvas.take(anc)
+        ref_img = ref_img[anc]
+        assert np.array_equal(canvas.image, ref_img)
+        assert canvas.levels[0] is canvas.image
+        for got, want in zip(canvas.levels, pyramid(ref_img), strict=True):
+            np.testing.assert_allclose(got, want, atol=1e-5)
