@@ -162,3 +162,13 @@ def test_alternative_order_and_ordinals_define_ids() -> None:
     src = "Axiom: A\nA --> F(gauss(0, 1)) F(uniform(0, 1)) F(gauss(0, 2)) : 0.5\nA --> * : 0.5\n"
     ids = [s.id for s in compile_grammar(src).sites]
     assert ids == ["A/choice", "A/0/normal0", "A/0/uniform0", "A/0/normal1"]
+
+
+def test_deep_nesting_is_a_grammar_error() -> None:
+    for inner in ("-" * 3000 + "1", "sin(" * 150 + "1" + ")" * 150, "1+" * 5000 + "1"):
+        assert "nested too deeply" in err(f"Axiom: F({inner})\n").message
+
+
+def test_rules_before_any_section_are_productions() -> None:
+    prog = compile_grammar("Axiom: A\nA --> F\n").program()
+    assert set(prog.productions) == {"A"} and prog.interpretation == {}

@@ -188,3 +188,14 @@ def test_generated_code_is_ruff_clean(tmp_path: Path) -> None:
     res = subprocess.run(["ruff", "check", "--config", str(cfg), "--no-cache", str(tmp_path)],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_mangled_parameter_names_stay_distinct() -> None:
+    prog = compile_grammar("Axiom: A(1, 2)\nA(l, p_l) --> F(l + 10 * p_l)\n").program()
+    assert prog.productions["A"](FixedCtx(), 1.0, 2.0) == [("F", 21.0)]
+
+
+def test_rewritten_turtle_symbol_gets_its_full_arity() -> None:
+    prog = compile_grammar("derivation length: 1\nAxiom: F\nF --> F F(2)\n").program()
+    assert prog.axiom(FixedCtx()) == [("F", 1.0)]
+    assert prog.productions["F"](FixedCtx(), 1.0) == [("F", 1.0), ("F", 2.0)]
