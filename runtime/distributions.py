@@ -89,21 +89,45 @@ def _check_args(site: Site, args: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- prior
 
 
-def prior_sample(site: Site, args: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Draw one value per row of `args` from the site's prior."""
+def prior_draw(
+    site: Site, args: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Draw one value per row of `args` from the site's prior; returns (values, log prior)."""
     args = _check_args(site, args)
     n = args.shape[0]
     kind = site.kind
     if kind == "normal":
-        return args[:, 0] + np.abs(args[:, 1]) * rng.standard_normal(n)
+        z = rng.standard_normal(n)
+        sd = np.abs(args[:, 1])
+        if (sd > 0).all():
+            return args[:, 0] + sd * z, -0.5 * z * z - np.log(sd) - 0.5 * LOG_2PI
+        v = args[:, 0] + sd * z
+        return v, _normal_logpdf(v, args[:, 0], sd)
     if kind == "uniform":
         a, b = _uniform_bounds(args)
-        return a + (b - a) * rng.random(n)
+        width = b - a
+        v = a + width * rng.random(n)
+        return v, -_log(np.where(width > 0, width, 1.0))
     if kind == "bernoulli":
-        return (rng.random(n) < args[:, 0]).astype(np.float64)
+        p = np.clip(args[:, 0], 0.0, 1.0)
+        v = (rng.random(n) < p).astype(np.float64)
+        return v, _log(np.where(v == 1.0, p, 1.0 - p))
     if kind == "categorical":
-        return _categorical_sample(_categorical_probs(site, args), rng)
+        if n > 1 and (args == args[0]).all():  # one distribution for all rows (groups)
+            p0 = _categorical_probs(site, args[:1])[0]
+            cum = np.cumsum(p0)
+            k = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"),
+                           len(p0) - 1)
+            return k.astype(np.float64), _log(p0)[k]
+        p = _categorical_probs(site, args)
+        v = _categorical_sample(p, rng)
+        return v, _log(p[np.arange(n), v.astype(np.intp)])
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def prior_sample(site: Site, args: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Draw one value per row of `args` from the site's prior."""
+    return prior_draw(site, args, rng)[0]
 
 
 def prior_logpdf(site: Site, args: np.ndarray, values: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 from ngpm_runtime.distributions import (
+    prior_draw,
     prior_logpdf,
     prior_sample,
     proposal_logpdf,
@@ -44,8 +45,7 @@ class PriorProposal:
         features: np.ndarray | None,
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]:
-        values = prior_sample(site, prior_args, rng)
-        return values, prior_logpdf(site, prior_args, values)
+        return prior_draw(site, prior_args, rng)
 
 
 class FixedProposal:

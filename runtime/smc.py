@@ -286,29 +286,38 @@ def _serve_site(
                            "numbers of one length") from None
     if args.ndim != 2:
         args = args.reshape(len(idx), -1)
+    if site.kind != "categorical" and args.shape[1] != site.n_args():
+        raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
+                           f"{site.n_args()} arguments, got {args.shape[1]}")
     feats = None
     if fmaker is not None:
         feats = _features(fmaker, site, canvas, idx, parts, args)
     values, log_q = proposal.propose(site, args, feats if use_features else None, rng)
-    values = np.asarray(values, dtype=np.float64)
-    log_q = np.asarray(log_q, dtype=np.float64)
-    log_p = log_q if is_prior else prior_logpdf(site, args, values)
     ia = np.asarray(idx, dtype=np.intp)
-    with np.errstate(invalid="ignore"):
-        delta = log_p - log_q
-    log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
-    log_prior[ia] += log_p
+    if is_prior:  # log q = log prior: the weight does not change
+        log_prior[ia] += log_q
+    else:
+        values = np.asarray(values, dtype=np.float64)
+        log_q = np.asarray(log_q, dtype=np.float64)
+        log_p = prior_logpdf(site, args, values)
+        with np.errstate(invalid="ignore"):
+            delta = log_p - log_q
+        log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
+        log_prior[ia] += log_p
     vals = values.tolist()
     cont = site.kind == "normal" or site.kind == "uniform"
-    for j, i in enumerate(idx):
+    st = (s,)
+    if record_trace:
+        for j, i in enumerate(idx):
+            p = parts[i]
+            p.trace = ((s, feats[j], vals[j]), p.trace)
+    for i, v in zip(idx, vals, strict=True):
         p = parts[i]
-        p.values += (vals[j],)
-        p.sites += (s,)
+        p.values += (v,)
+        p.sites += st
         p.need = None
         if cont:
             p.cont = True
-        if record_trace:
-            p.trace = ((s, feats[j], vals[j]), p.trace)
 
 
 def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[Particle],

@@ -138,3 +138,20 @@ def test_discrete_proposals() -> None:
     np.testing.assert_allclose(
         proposal_logpdf(BERN, np.array([[0.5], [0.5]]), bp, np.array([1.0, 0.0])),
         np.log([0.9, 0.1]))
+
+
+def test_prior_draw_log_density_matches_prior_logpdf() -> None:
+    from ngpm_runtime.distributions import prior_draw
+
+    cases = [
+        (NORMAL, np.array([[1.0, 2.0], [0.0, 0.0], [3.0, -0.5]] * 10)),
+        (UNIFORM, np.array([[0.0, 2.0], [1.0, 1.0], [3.0, -1.0]] * 10)),
+        (BERN, np.array([[0.3], [0.0], [1.0]] * 10)),
+        (CAT, np.array([[1.0, 2.0, 1.0], [0.0, 1.0, 3.0], [1.0, 0.0, 0.0]] * 10)),
+        (CAT, np.tile([0.2, 0.0, 0.8], (30, 1))),
+    ]
+    for site, args in cases:
+        v, lp = prior_draw(site, args, rng(1))
+        np.testing.assert_allclose(lp, prior_logpdf(site, args, v))
+        assert np.all(np.isfinite(lp))
+        np.testing.assert_array_equal(v, prior_sample(site, args, rng(1)))
