@@ -1,1 +1,37 @@
-"""ngpm_compiler: the .lsys language, code generation, training and export (CLI `ngpmc`)."""
+"""ngpm_compiler: the .lsys language, code generation, training and export (CLI `ngpmc`).
+
+Python API (see docs/api.md):
+
+    from ngpm_compiler import compile_grammar
+    program = compile_grammar("grammars/vines.lsys").program()
+
+The names below are imported on first use, so `import ngpm_compiler` stays cheap.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import Any
+
+_EXPORTS = {
+    "compile_grammar": "ngpm_compiler.compile",
+    "CompiledGrammar": "ngpm_compiler.compile",
+    "write_compiled": "ngpm_compiler.compile",
+    "GrammarError": "ngpm_compiler.errors",
+    "load_grammar": "ngpm_compiler.traces",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ngpm_compiler' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
