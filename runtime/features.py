@@ -11,6 +11,7 @@ normalized image position (u right, v down from ymax).
 from __future__ import annotations
 
 import numpy as np
+from ngpm_runtime.errors import TargetError
 from ngpm_runtime.program import Program, Site
 from ngpm_runtime.raster import N_LEVELS, Canvas, Viewport, pyramid
 
@@ -89,8 +90,8 @@ class FeatureMaker:
         if canvas is not None:
             if (self.target_levels is not None
                     and self.target_levels[0].shape != canvas.image.shape[1:]):
-                raise ValueError(f"canvas {canvas.image.shape[1:]} and target "
-                                 f"{self.target_levels[0].shape} differ in size")
+                raise TargetError(f"canvas {canvas.image.shape[1:]} and target "
+                                  f"{self.target_levels[0].shape} differ in size")
             return canvas.height, canvas.width
         if self.target_levels is not None:
             return self.target_levels[0].shape

@@ -152,7 +152,8 @@ class ShapeLikelihood:
     def increment(self, state: dict[str, np.ndarray], canvas: Canvas,
                   draw: DrawBatch) -> np.ndarray:
         if canvas.image.shape[1:] != self.target.shape:
-            raise ValueError(f"canvas {canvas.image.shape[1:]} != target {self.target.shape}")
+            raise TargetError(f"canvas {canvas.image.shape[1:]} and target {self.target.shape} "
+                              "differ in size")
         idx = draw.idx
         dsim = (_window(self.gain, draw) * draw.new).sum(axis=(1, 2))
         sim = state["sim"][idx] + dsim
@@ -169,6 +170,44 @@ class ShapeLikelihood:
         return shape_loglik(image, self.target, bbox, self.viewport)
 
 
+# Sobel magnitude / 4 of a 0/1 image, by the integer gradients (gx, gy) in [-4, 4]^2
+_GRAD = np.arange(-4, 5)
+_MAG_LUT = (np.sqrt(_GRAD[:, None] ** 2 + _GRAD[None, :] ** 2) / 4.0).reshape(-1)
+
+
+def _edge_sum_codes(p: np.ndarray) -> np.ndarray:
+    """LUT codes (n, h, w) of the Sobel gradients of 0/1 int16 patches (n, h+2, w+2)."""
+    left, mid, right = p[:, :, :-2], p[:, :, 1:-1], p[:, :, 2:]
+    dx = right - left
+    gx = dx[:, :-2] + 2 * dx[:, 1:-1] + dx[:, 2:]
+    sm = left + 2 * mid + right
+    gy = sm[:, 2:] - sm[:, :-2]
+    return (gx + 4) * 9 + (gy + 4)
+
+
+def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray,
+                 new: np.ndarray) -> np.ndarray:
+    """Change of each canvas's Sobel magnitude sum caused by its `new` pixels (already drawn).
+
+    Only the window plus a 1-pixel ring can change; that needs a 2-pixel margin of input.
+    """
+    _, h, w = image.shape
+    ky, kx = new.shape[1:]
+    rows = y0[:, None] + np.arange(-2, ky + 2)  # (n, ky+4)
+    cols = x0[:, None] + np.arange(-2, kx + 2)
+    rin = (rows >= 0) & (rows < h)
+    cin = (cols >= 0) & (cols < w)
+    flat = ((idx[:, None] * h + np.clip(rows, 0, h - 1))[:, :, None] * w
+            + np.clip(cols, 0, w - 1)[:, None, :])
+    after = image.reshape(-1)[flat].astype(np.int16)
+    after *= rin[:, :, None] & cin[:, None, :]
+    before = after.copy()
+    before[:, 2:2 + ky, 2:2 + kx] -= new
+    inner = rin[:, 1:-1, None] & cin[:, None, 1:-1]
+    diff = _MAG_LUT[_edge_sum_codes(after)] - _MAG_LUT[_edge_sum_codes(before)]
+    return (diff * inner).sum(axis=(1, 2))
+
+
 class CircuitLikelihood:
     """The paper's equation 2: dense edges at about half fill (no target)."""
 
@@ -183,19 +222,11 @@ class CircuitLikelihood:
                   draw: DrawBatch) -> np.ndarray:
         idx = draw.idx
         h, w = canvas.height, canvas.width
-        ky, kx = draw.new.shape[1:]
-        # the window plus a 2-pixel margin (Sobel changes within 1 pixel of a new pixel)
-        rows = draw.y0[:, None] + np.arange(-2, ky + 2)  # (n, ky+4)
-        cols = draw.x0[:, None] + np.arange(-2, kx + 2)
-        rin = (rows >= 0) & (rows < h)
-        cin = (cols >= 0) & (cols < w)
-        patch = canvas.image[idx[:, None, None], np.clip(rows, 0, h - 1)[:, :, None],
-                             np.clip(cols, 0, w - 1)[:, None, :]].astype(np.float64)
-        patch *= rin[:, :, None] & cin[:, None, :]
-        old = patch.copy()
-        old[:, 2:2 + ky, 2:2 + kx] -= draw.new
-        inner = rin[:, 1:-1, None] & cin[:, None, 1:-1]
-        d_edge = ((_sobel_valid(patch) - _sobel_valid(old)) * inner).sum(axis=(1, 2))
+        d_edge = np.zeros(len(idx))
+        changed = np.flatnonzero(draw.new.any(axis=(1, 2)))
+        if changed.size:
+            d_edge[changed] = _edge_change(canvas.image, idx[changed], draw.y0[changed],
+                                           draw.x0[changed], draw.new[changed])
         edge_sum = state["edge_sum"][idx] + d_edge
         filled = state["filled"][idx] + draw.new.sum(axis=(1, 2))
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
