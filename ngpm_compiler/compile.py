@@ -53,11 +53,11 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
                     ) -> CompiledGrammar:
     """Compile a grammar given as a path or as its text; raise GrammarError if malformed.
 
-    A str that names an existing file (and has no newline) is read as a path."""
+    A str without a newline that ends in `.lsys` or names an existing file is a path."""
     text: str
     if isinstance(path_or_text, os.PathLike) or (
             isinstance(path_or_text, str) and "\n" not in path_or_text
-            and path_or_text.endswith(".lsys")):
+            and (path_or_text.endswith(".lsys") or os.path.isfile(path_or_text))):
         path = Path(path_or_text)
         try:
             text = path.read_text(encoding="utf-8")
