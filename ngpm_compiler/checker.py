@@ -114,6 +114,13 @@ def safe_name(name: str, taken: set[str], prefix: str) -> str:
     return out
 
 
+def shorten(text: str, more: bool, limit: int = 72) -> str:
+    """One line of source for a site table: at most `limit` characters."""
+    if more:
+        text += " ..."
+    return text if len(text) <= limit else text[: limit - 4].rstrip() + " ..."
+
+
 def compact(text: str) -> str:
     return re.sub(r"\s+", "", text)
 
@@ -440,7 +447,7 @@ class Checker:
                     if len(group.alts) > 1:
                         r = group.rule
                         texts = list(dict.fromkeys(a.rule.text for a in group.alts))
-                        source = texts[0] + (" ..." if len(texts) > 1 else "")
+                        source = shorten(" ".join(texts[0].split()), len(texts) > 1)
                         found.append(((r.line, r.col, 0), dict(
                             id=f"{group.key}/choice", kind="categorical", k=len(group.alts),
                             probs=tuple(a.prob for a in group.alts),
@@ -473,8 +480,9 @@ class Checker:
                         found.append(((node.line, node.col, 1), dict(
                             id=f"{prefix}/{kind}{n}", kind=kind,
                             k=len(node.args) if kind == "categorical" else 2,
-                            name=f"{node.text} in {module}", module=module, arity=arity,
-                            line=node.line, col=node.col, source=node.text), node))
+                            name=shorten(f"{node.text} in {module}", False), module=module,
+                            arity=arity, line=node.line, col=node.col,
+                            source=shorten(node.text, False)), node))
 
     # ---- all -------------------------------------------------------------------------------
 

@@ -13,7 +13,7 @@ FORK = 30.0
 SITES = [
     Site(index=0, id="A(l>=MINLEN)/choice", kind="categorical", name="choice of A", module="A",
          arity=2, k=2, probs=(0.6, 0.4), line=23, col=1,
-         source="A(l, w) : l >= MINLEN --> !(w) F(l) [ +(gauss(FORK, 8)) A(l * SHRINK, w * WDECAY) ] [ -(gauss(FORK, 8)) A(l * SHRINK, w * WDECAY) ] : 0.6\n                        | !(w) F(l) +(gauss(0, 10)) A(l * SHRINK, w * WDECAY) : 0.4"),  # noqa: E501
+         source="A(l, w) : l >= MINLEN --> !(w) F(l) [ +(gauss(FORK, 8)) A(l * SHRINK ..."),
     Site(index=1, id="A(l>=MINLEN)/0/normal0", kind="normal", name="gauss(FORK, 8) in A",
          module="A", arity=2, line=23, col=41, source="gauss(FORK, 8)"),
     Site(index=2, id="A(l>=MINLEN)/0/normal1", kind="normal", name="gauss(FORK, 8) in A",

@@ -5,7 +5,7 @@ from ngpm_runtime.program import Program, Site
 SITES = [
     Site(index=0, id="F/choice", kind="categorical", name="choice of F", module="F", arity=1, k=3,
          probs=(0.3333333333333333, 0.3333333333333333, 0.3333333333333333), line=15, col=1,
-         source="F --> F[+F]F[-F]F : 1/3\n    | F[+F]F      : 1/3\n    | F[-F]F      : 1/3"),
+         source="F --> F[+F]F[-F]F : 1/3 | F[+F]F : 1/3 | F[-F]F : 1/3"),
 ]
 
 
