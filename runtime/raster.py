@@ -228,10 +228,11 @@ class _Grid:
             py = self.ymax - (y0[pa, None] + ay) * self.sy
             P = params[kind]
             sub = cov if whole else np.empty((len(pos), ky, kx), dtype=bool)
-            for s in range(0, len(pos), step):
-                e = s + step
-                sub[s:e] = _cover(kind, None if P is None else P[s:e],
-                                  [prims[k] for k in pos[s:e]], px[s:e], py[s:e])
+            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+                for s in range(0, len(pos), step):  # non-finite geometry: window is empty
+                    e = s + step
+                    sub[s:e] = _cover(kind, None if P is None else P[s:e],
+                                      [prims[k] for k in pos[s:e]], px[s:e], py[s:e])
             if not whole:
                 cov[pa] = sub
         if empty.any():

@@ -162,3 +162,16 @@ def test_repeated_take_with_double_buffers() -> None:
         assert canvas.levels[0] is canvas.image
         for got, want in zip(canvas.levels, pyramid(ref_img), strict=True):
             np.testing.assert_allclose(got, want, atol=1e-5)
+
+
+def test_degenerate_primitives() -> None:
+    # a zero-length segment is a disk of radius width / 2 (round caps)
+    seg = rasterize([("seg", 0.3, -9.7, 0.3, -9.7, 4.0)], VP, 50, 50)
+    disk = rasterize([("disk", 0.3, -9.7, 2.0)], VP, 50, 50)
+    assert seg.sum() > 0 and np.array_equal(seg, disk)
+    canvas = Canvas(4, 50, 50, VP)
+    prims = [("leaf", 0.0, -10.0, 30.0, 3.0, 0.0), ("disk", float("nan"), 0.0, 1.0),
+             ("seg", 0.0, 0.0, float("inf"), 0.0, 1.0), ("poly", ((0.0, 0.0), (1.0, 1.0)))]
+    batch = canvas.draw(np.arange(4), prims)
+    assert not batch.new.any() and canvas.image.sum() == 0
+    assert all(lv.sum() == 0 for lv in canvas.levels)
