@@ -19,13 +19,13 @@ from collections.abc import Callable
 
 from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Program
-from ngpm_runtime.turtle import CUT, HALT, TURTLE_SYMBOLS, interpret
+from ngpm_runtime.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, interpret
 
 MAX_INTERP_DEPTH = 64
 DEFAULT_MAX_OPS = 2_000_000  # modules popped by one particle in one step before "limit"
 
 # advance() outcomes
-DRAWN, NEED, DONE, LIMIT = 1, 2, 3, 4
+DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
 
 # dispatch codes per module name
 _IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
@@ -214,8 +214,10 @@ class Deriver:
             cache[key] = res
         return res
 
-    def advance(self, p: Particle) -> int:
-        """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT."""
+    def advance(self, p: Particle, peek: bool = False) -> int:
+        """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT.
+        With `peek`, stop before drawing instead (PAUSED): SMC uses it to do a particle's
+        deterministic work before resampling, so that copies share it."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
         pcache, icache, memo = self.pcache, self.icache, self._memo
         dispatch = self.dispatch
@@ -289,6 +291,9 @@ class Deriver:
                         continue
                     code = self._turtle_code(name)
                 if code == _TURTLE:
+                    if peek and name in DRAWING:
+                        p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
+                        return PAUSED
                     stack = rest
                     if name == "F":
                         x, y, h, w = turtle

@@ -14,6 +14,9 @@ Guide parameter layouts, `K` mixture components:
 
 from __future__ import annotations
 
+import math
+from itertools import accumulate
+
 import numpy as np
 from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Site
@@ -114,11 +117,14 @@ def prior_draw(
         return v, _log(np.where(v == 1.0, p, 1.0 - p))
     if kind == "categorical":
         if n > 1 and (args == args[0]).all():  # one distribution for all rows (groups)
-            p0 = _categorical_probs(site, args[:1])[0]
-            cum = np.cumsum(p0)
+            w = args[0].tolist()
+            total = math.fsum(w)
+            if not (total > 0 and all(0.0 <= x < math.inf for x in w)):
+                _categorical_probs(site, args[:1])  # raises the error
+            cum = np.array(list(accumulate(w)))
             k = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"),
-                           len(p0) - 1)
-            return k.astype(np.float64), _log(p0)[k]
+                           len(w) - 1)
+            return k.astype(np.float64), _log(np.array(w) / total)[k]
         p = _categorical_probs(site, args)
         v = _categorical_sample(p, rng)
         return v, _log(p[np.arange(n), v.astype(np.intp)])

@@ -13,10 +13,11 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any
 
 import numpy as np
-from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver, Particle
+from ngpm_runtime.derive import DONE, DRAWN, LIMIT, NEED, Deriver, Particle
 from ngpm_runtime.distributions import prior_logpdf
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
 from ngpm_runtime.program import Program
@@ -159,9 +160,18 @@ def smc(
         steps += 1
         particle_steps += len(live)
         drawn: list[int] = []
-        run = live
-        while run:
-            waiting: dict[int, list[int]] = {}
+        # particles already waiting on a site (from the look-ahead below) skip round one
+        waiting: dict[int, list[int]] = {}
+        run = []
+        for i in live:
+            need = parts[i].need
+            if need is None:
+                run.append(i)
+            elif need[0] in waiting:
+                waiting[need[0]].append(i)
+            else:
+                waiting[need[0]] = [i]
+        while run or waiting:
             for i in run:
                 p = parts[i]
                 code = advance(p)
@@ -179,10 +189,11 @@ def smc(
                     p.status = "limit"
             run = []
             for s in sorted(waiting):
-                idx = waiting[s]
+                idx = sorted(waiting[s])
                 _serve_site(program, s, idx, parts, proposal, is_prior, rng, log_w,
                             log_prior, fmaker, canvas, use_features, record_trace)
                 run.extend(idx)
+            waiting = {}
             run.sort()
 
         if drawn:
@@ -206,6 +217,14 @@ def smc(
             for i in drawn:
                 p = parts[i]
                 if p.n_prims >= cap and p.stack is not None:
+                    p.status = "limit"
+                    continue
+                # look ahead: deterministic work up to the next request or drawing, done
+                # before resampling so that copies share it
+                code = advance(p, True)
+                if code == DONE:
+                    p.status = "done"
+                elif code == LIMIT:
                     p.status = "limit"
 
         if (log_w == np.inf).any():
@@ -279,13 +298,7 @@ def _serve_site(
     if not 0 <= s < len(program.sites):
         raise ProgramError(f"program {program.name} asked for unknown site {s}")
     site = program.sites[s]
-    try:
-        args = np.array([parts[i].need[1] for i in idx], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
-                           "numbers of one length") from None
-    if args.ndim != 2:
-        args = args.reshape(len(idx), -1)
+    args = _prior_args(site, [parts[i].need[1] for i in idx])
     if site.kind != "categorical" and args.shape[1] != site.n_args():
         raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
                            f"{site.n_args()} arguments, got {args.shape[1]}")
@@ -318,6 +331,22 @@ def _serve_site(
         p.need = None
         if cont:
             p.cont = True
+
+
+def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
+    """(n, n_args) float64 from the particles' argument tuples (often one shared tuple)."""
+    first = rows[0]
+    k = len(first)
+    n = len(rows)
+    try:
+        if all(r is first for r in rows):
+            return np.repeat(np.array(first, dtype=np.float64).reshape(1, k), n, axis=0)
+        if all(len(r) == k for r in rows):
+            return np.fromiter(chain.from_iterable(rows), np.float64, n * k).reshape(n, k)
+    except (TypeError, ValueError):
+        pass
+    raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
+                       "numbers of one length")
 
 
 def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[Particle],

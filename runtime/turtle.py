@@ -16,6 +16,8 @@ Prim = tuple
 
 # Symbols the turtle acts on; every other module is ignored by it.
 TURTLE_SYMBOLS = frozenset(["F", "f", "+", "-", "|", "[", "]", "!", "~l", "@O", "{", ".", "}"])
+# Symbols that may draw a primitive (resampling points).
+DRAWING = frozenset(["F", "~l", "@O", "}"])
 # Control symbols handled by the derivation itself.
 CUT = "%"
 HALT = "halt"
