@@ -2,9 +2,9 @@
 
 The graph holds every site network side by side: per site an input `f_<index>` (raw feature
 rows, float32, batch dimension `n_<index>`) and an output `p_<index>` (section-5 proposal
-parameters). The graph is built op by op from `SiteNet.forward` (same op order, so torch and
-onnxruntime agree to float rounding). onnxruntime needs every graph input fed, so the runtime
-feeds empty batches for the other sites and fetches only `p_<index>`.
+parameters). The graph computes `SiteNet.forward` with few nodes (folded affine ops); torch
+and onnxruntime agree to float rounding (tests/test_export.py). onnxruntime needs every graph
+input fed, so the runtime feeds empty batches for the other sites and fetches only `p_<index>`.
 
 metadata_props: ngpm_format, grammar, grammar_hash, sites (site table JSON), features (feature
 set, per-site layout, widths and selected columns), nets (per-site kind / sizes), K, training.
@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+import torch
 from onnx import TensorProto, helper, numpy_helper
 
-from ngpm_compiler.nets import LOGIT_BOUND, LOGSD_BOUND, MEAN_BOUND, GuideModel, SiteNet
+from ngpm_compiler.nets import LOGIT_BOUND, LOGSD_BOUND, MEAN_BOUND, GuideModel, NetSpec, SiteNet
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
 OPSET = 17
@@ -43,56 +44,60 @@ class _Graph:
         self.nodes.append(helper.make_node(op_type, inputs, [output], name=output, **attrs))
         return output
 
-    def bound(self, x: str, b: float, name: str) -> str:
-        """b * tanh(x * (1/b)), as nets._bound."""
-        inv = self.const(f"{name}_inv", np.array(1.0 / b, dtype=np.float32))
-        scale = self.const(f"{name}_b", np.array(b, dtype=np.float32))
-        t = self.op("Tanh", [self.op("Mul", [x, inv], f"{name}_scaled")], f"{name}_tanh")
-        return self.op("Mul", [t, scale], name)
-
 
 def _f32(t: object) -> np.ndarray:
     return np.asarray(t.detach().cpu().numpy(), dtype=np.float32)  # type: ignore[attr-defined]
 
 
+def _bounds(spec: NetSpec) -> np.ndarray:
+    """Per output column, the bound b of b * tanh(raw / b) (nets.SiteNet.heads)."""
+    if spec.kind in ("normal", "uniform"):
+        return np.repeat([LOGIT_BOUND, MEAN_BOUND, LOGSD_BOUND], spec.K)
+    return np.full(spec.n_out, LOGIT_BOUND)
+
+
 def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
-    """Add one site's network; returns the name of its output."""
+    """Add one site's network; returns the name of its output.
+
+    Lean form of SiteNet.forward (few nodes: onnxruntime's cost is per node): the input
+    standardization is folded into the first Gemm, the 1/b of the bounding transforms into
+    the second; a feature-free net's output is a constant row expanded to the batch."""
     s, p = net.spec, f"s{index}_"
-    x = f"f_{index}"
+    x, out = f"f_{index}", f"p_{index}"
     if net.const is not None:
+        with torch.no_grad():
+            row = _f32(net(torch.zeros(1, s.n_f)))
         shape = g.op("Shape", [x], p + "shape")
-        n = g.op("Slice", [shape, g.const(p + "s0", np.array([0])), g.const(p + "s1",
-                 np.array([1]))], p + "n")
+        n = g.op("Slice", [shape, g.const(p + "s0", np.array([0])),
+                           g.const(p + "s1", np.array([1]))], p + "n")
         target = g.op("Concat", [n, g.const(p + "nout", np.array([s.n_out]))], p + "target",
                       axis=0)
-        raw = g.op("Expand", [g.const(p + "const", _f32(net.const)[None, :]), target], p + "raw")
-    else:
-        sel = g.op("Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))],
-                   p + "sel", axis=1)
-        cen = g.op("Sub", [sel, g.const(p + "shift", _f32(net.shift))], p + "centered")
-        std = g.op("Mul", [cen, g.const(p + "scale", _f32(net.scale))], p + "std")
-        h = g.op("Gemm", [std, g.const(p + "w1", _f32(net.l1.weight)),
-                          g.const(p + "b1", _f32(net.l1.bias))], p + "h", transB=1)
-        h = g.op("Tanh", [h], p + "hidden")
-        raw = g.op("Gemm", [h, g.const(p + "w2", _f32(net.l2.weight)),
-                            g.const(p + "b2", _f32(net.l2.bias))], p + "raw", transB=1)
-    out = f"p_{index}"
+        return g.op("Expand", [g.const(p + "row", row), target], out)
+    w1 = net.l1.weight.detach().double().numpy() * net.scale.double().numpy()[None, :]
+    b1 = net.l1.bias.detach().double().numpy() - w1 @ net.shift.double().numpy()
+    inv_b = 1.0 / _bounds(s)
+    w2 = net.l2.weight.detach().double().numpy() * inv_b[:, None]
+    b2 = net.l2.bias.detach().double().numpy() * inv_b
+    sel = g.op("Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))],
+               p + "sel", axis=1)
+    h = g.op("Gemm", [sel, g.const(p + "w1", w1.astype(np.float32)),
+                      g.const(p + "b1", b1.astype(np.float32))], p + "h", transB=1)
+    h = g.op("Tanh", [h], p + "hidden")
+    raw = g.op("Gemm", [h, g.const(p + "w2", w2.astype(np.float32)),
+                        g.const(p + "b2", b2.astype(np.float32))], p + "raw", transB=1)
+    bounded = g.op("Mul", [g.op("Tanh", [raw], p + "tanh"),
+                           g.const(p + "bounds", _bounds(s).astype(np.float32))], p + "bounded")
     if s.kind in ("normal", "uniform"):
         K = s.K
         axes = g.const(p + "axes", np.array([1]))
-        parts = []
-        for j, (name, bnd) in enumerate((("logits", LOGIT_BOUND), ("mean", MEAN_BOUND),
-                                         ("logsd", LOGSD_BOUND))):
-            piece = g.op("Slice", [raw, g.const(p + f"{name}_lo", np.array([j * K])),
-                                   g.const(p + f"{name}_hi", np.array([(j + 1) * K])), axes],
-                         p + name)
-            parts.append(g.bound(piece, bnd, p + name + "_bounded"))
-        parts[0] = g.op("LogSoftmax", [parts[0]], p + "logw", axis=1)
-        return g.op("Concat", parts, out, axis=1)
-    logits = g.bound(raw, LOGIT_BOUND, p + "logits")
+        cut = [g.const(p + f"c{i}", np.array([v])) for i, v in enumerate((0, K, 3 * K))]
+        logits = g.op("Slice", [bounded, cut[0], cut[1], axes], p + "logits")
+        rest = g.op("Slice", [bounded, cut[1], cut[2], axes], p + "rest")
+        logw = g.op("LogSoftmax", [logits], p + "logw", axis=1)
+        return g.op("Concat", [logw, rest], out, axis=1)
     if s.kind == "bernoulli":
-        return g.op("Sigmoid", [logits], out)
-    return g.op("Softmax", [logits], out, axis=1)
+        return g.op("Sigmoid", [bounded], out)
+    return g.op("Softmax", [bounded], out, axis=1)
 
 
 def build_onnx(model: GuideModel) -> onnx.ModelProto:

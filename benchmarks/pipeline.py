@@ -1,0 +1,111 @@
+"""Learned-guide pipeline figures on this machine: traces, training, guided SMC.
+
+    python3 benchmarks/pipeline.py [--traces 40] [--particles 600] [--workers 2] [--out DIR]
+
+Prints seconds per 600-particle trace (one process), the wall time for N traces on
+`--workers` processes and its extrapolation to 1000 (goal <= 10 min), the training time on
+them and its extrapolation to 1000 traces (goal <= 2 min), and seconds per guided N=10 result
+(goal <= 0.05 s) next to unguided N=10. The machine may be shared: figures can be inflated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from ngpm_runtime.guide import Guide
+
+from ngpm_compiler.cmd_guide import grow
+from ngpm_compiler.datasets import build_dataset
+from ngpm_compiler.export import write_onnx
+from ngpm_compiler.traces import (
+    TraceConfig,
+    generate_traces,
+    job_spec,
+    load_grammar,
+    load_targets,
+    load_traces,
+    run_job,
+)
+from ngpm_compiler.train import TrainConfig, train_guide
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grammar", default=str(ROOT / "grammars" / "vines.lsys"))
+    ap.add_argument("--traces", type=int, default=40, help="traces to generate (N)")
+    ap.add_argument("--particles", type=int, default=600)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--targets", type=int, default=60, help="scribble targets (+ mirrored)")
+    ap.add_argument("--grow", type=int, default=20, help="targets to grow into")
+    ap.add_argument("--out", help="work directory (default: a temporary one)")
+    args = ap.parse_args()
+    work = Path(args.out or tempfile.mkdtemp(prefix="ngpm_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
+    data = work / "scribbles"
+    build_dataset("scribbles", data, count=args.targets, seed=0, mirror=True)
+    program = load_grammar(args.grammar)
+    targets = load_targets(data, 50, mirror=False)
+    print(f"grammar {program.name}: {len(program.sites)} sites; {len(targets)} targets; "
+          f"work dir {work}")
+
+    # 1. one 600-particle trace job, single process
+    times, kept = [], 0
+    for job in range(8):
+        ti, seed = job_spec(1234, job, len(targets))
+        t0 = time.perf_counter()
+        _, n_prims = run_job(program, targets[ti], seed, args.particles)
+        times.append(time.perf_counter() - t0)
+        kept += n_prims >= 10
+    per_job = statistics.mean(times)
+    print(f"trace job ({args.particles} particles, 1 process): {per_job:.2f} s mean, "
+          f"{min(times):.2f}-{max(times):.2f} s over {len(times)} jobs ({kept} kept)")
+
+    # 2. N kept traces on `workers` processes
+    out = work / "traces"
+    t0 = time.perf_counter()
+    m = generate_traces(TraceConfig(grammar=args.grammar, targets=str(data), n=args.traces,
+                                    particles=args.particles, workers=args.workers),
+                        out, progress=False)
+    wall = time.perf_counter() - t0
+    jobs = m["kept"] + m["dropped"]
+    print(f"{m['kept']} traces ({m['dropped']} dropped, {jobs} jobs) on {args.workers} "
+          f"processes: {wall:.1f} s wall = {wall / m['kept']:.2f} s per kept trace; "
+          f"extrapolated to 1000 traces: {wall / m['kept'] * 1000 / 60:.1f} min (goal <= 10)")
+
+    # 3. training
+    ts = load_traces(out)
+    rows = sum(len(d.values) for d in ts.data.values())
+    t0 = time.perf_counter()
+    model = train_guide(ts.sites, ts.layouts, ts.data, TrainConfig(),
+                        grammar=program.name, grammar_hash=program.grammar_hash)
+    train_s = time.perf_counter() - t0
+    s = model.summary
+    print(f"training on {m['kept']} traces ({rows} site visits): {train_s:.1f} s, "
+          f"{s['epochs_run']} epochs (best {s['best_epoch']}), validation NLL "
+          f"{s['val_nll']:.2f} per trace; extrapolated to 1000 traces: "
+          f"{train_s * 1000 / m['kept'] / 60:.2f} min (goal <= 2)")
+
+    # 4. guided vs unguided N = 10
+    guide = Guide.load(write_onnx(model, work / "guide.onnx"), program)
+    if guide.fallback_sites:
+        print(f"sites unseen in training (prior fallback): {guide.fallback_sites}")
+    for name, proposal in (("guided", guide), ("unguided", None)):
+        secs, sims = [], []
+        for i in range(min(args.grow, len(targets))):
+            r = grow(program, targets[(7 * i) % len(targets)], proposal, 10, seed=i)
+            secs.append(r.seconds)
+            sims.append(r.similarity)
+        print(f"{name} N=10: {statistics.mean(secs):.3f} s per result "
+              f"(median {statistics.median(secs):.3f}), mean similarity "
+              f"{statistics.mean(sims):.3f} over {len(secs)} targets"
+              + (" (goal <= 0.05 s)" if proposal else ""))
+
+
+if __name__ == "__main__":
+    main()
