@@ -146,11 +146,11 @@ class Checker:
 
     def evaluate(self, expr: Expr, what: str) -> float:
         """Value of a constant expression (already checked to use constants only)."""
-        text = ExprPrinter(self.const_names)(expr)
+        text = ExprPrinter(self.const_names).number(expr)
         env = {"math": math, **{self.const_names[k]: v for k, v in self.const_values.items()}}
+        builtins = {"float": float, "bool": bool, "min": min, "max": max, "abs": abs}
         try:
-            value = float(eval(text, {"__builtins__": {"float": float, "min": min, "max": max,
-                                                       "abs": abs}}, env))
+            value = float(eval(text, {"__builtins__": builtins}, env))
         except ZeroDivisionError:
             raise self.err(f"division by zero in {what}", self.find_division(expr)) from None
         except (ValueError, OverflowError) as e:

@@ -83,12 +83,19 @@ class ExprPrinter:
     def number(self, expr: Expr) -> str:
         """Print a value that must be a float (bools become 0.0 / 1.0)."""
         text, _ = self.expr(expr)
-        return f"float({text})" if is_bool(expr) else text
+        return self.as_float(expr, text) if is_bool(expr) else text
+
+    @staticmethod
+    def as_float(expr: Expr, text: str) -> str:
+        """A logical value as 1.0 / 0.0 (`and` / `or` return an operand in Python)."""
+        if isinstance(expr, Binary) and expr.op in ("and", "or"):
+            return f"float(bool({text}))"
+        return f"float({text})"
 
     def wrap(self, expr: Expr, min_prec: int) -> str:
         text, prec = self.expr(expr)
         if is_bool(expr) and min_prec >= PREC["+"]:
-            return f"float({text})"
+            return self.as_float(expr, text)
         return f"({text})" if prec < min_prec else text
 
     def expr(self, expr: Expr) -> tuple[str, int]:

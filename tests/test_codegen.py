@@ -199,3 +199,11 @@ def test_rewritten_turtle_symbol_gets_its_full_arity() -> None:
     prog = compile_grammar("derivation length: 1\nAxiom: F\nF --> F F(2)\n").program()
     assert prog.axiom(FixedCtx()) == [("F", 1.0)]
     assert prog.productions["F"](FixedCtx(), 1.0) == [("F", 1.0), ("F", 2.0)]
+
+
+def test_logical_values_are_one_or_zero() -> None:
+    src = ("#define X 2 or 3\n#define Y (1 < 2) + (3 and 4)\nAxiom: A(5)\n"
+           "A(v) --> F(v or 0) F(not v) F((v > 1) + (v and 2)) F(0 or 0) F(X) F(Y)\n")
+    prog = compile_grammar(src).program()
+    assert prog.productions["A"](FixedCtx(), 5.0) == [
+        ("F", 1.0), ("F", 0.0), ("F", 2.0), ("F", 0.0), ("F", 1.0), ("F", 2.0)]
