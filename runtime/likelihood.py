@@ -124,14 +124,6 @@ def empty_bbox(n: int) -> np.ndarray:
     return out
 
 
-def _window(arr: np.ndarray, draw: DrawBatch) -> np.ndarray:
-    """(n, ky, kx) values of a (H, W) array at each draw window."""
-    ky, kx = draw.new.shape[1:]
-    rows = draw.y0[:, None, None] + np.arange(ky)[:, None]
-    cols = draw.x0[:, None, None] + np.arange(kx)
-    return arr[rows, cols]
-
-
 class ShapeLikelihood:
     """The paper's equation 1 against a target mask (H, W) bool on a same-size canvas."""
 
@@ -145,6 +137,7 @@ class ShapeLikelihood:
         self.sim_blank, total = _blank_sim(w, t)
         # gain of covering pixel p, in normalized-similarity units
         self.gain = w * (2.0 * t - 1.0) / total / (1.0 - self.sim_blank)
+        self.gain_flat = self.gain.reshape(-1)
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {"sim": np.zeros(n), "bbox": empty_bbox(n), "ll": np.zeros(n)}
@@ -155,7 +148,8 @@ class ShapeLikelihood:
             raise TargetError(f"canvas {canvas.image.shape[1:]} and target {self.target.shape} "
                               "differ in size")
         idx = draw.idx
-        dsim = (_window(self.gain, draw) * draw.new).sum(axis=(1, 2))
+        k, pix = draw.hits(self.target.shape[1])
+        dsim = np.bincount(k, weights=self.gain_flat[pix], minlength=len(idx))
         sim = state["sim"][idx] + dsim
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
         ll = -(((sim - 1.0) / SHAPE_SIGMA) ** 2) + bounds_penalty(bbox, self.viewport)

@@ -16,7 +16,7 @@ import numpy as np
 Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 N_LEVELS = 4
 _EPS = 1e-9
-_CHUNK = 12288  # window pixels per vectorized shape test
+_CHUNK = 8192  # window pixels per vectorized shape test: float64 temporaries <= 64 KiB
 
 
 @dataclass
@@ -33,6 +33,16 @@ class DrawBatch:
     x0: np.ndarray  # (n,) intp
     new: np.ndarray  # (n, ky, kx) bool: newly covered pixels
     bbox: np.ndarray  # (n, 4) float64
+    # the newly covered pixels as a list (optional; filled by Canvas.draw):
+    hit_k: np.ndarray | None = None  # (m,) batch row k of each new pixel
+    hit_pix: np.ndarray | None = None  # (m,) its pixel index row * W + col in the image
+
+    def hits(self, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """(batch rows, pixel indices row * width + col) of every newly covered pixel."""
+        if self.hit_k is not None and self.hit_pix is not None:
+            return self.hit_k, self.hit_pix
+        k, i, j = np.nonzero(self.new)
+        return k, (self.y0[k] + i) * width + self.x0[k] + j
 
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
@@ -288,16 +298,18 @@ class Canvas:
         y0, x0, cov, bbox = self._grid.cover(prims)
         h, w = self.height, self.width
         ky, kx = cov.shape[1:]
-        base = idx * (h * w) + y0 * w + x0
-        off = self._row_off[:ky] + np.arange(kx)
-        flat = base[:, None, None] + off  # (n, ky, kx)
+        itype = np.int32 if self.n * h * w < 2**31 else np.intp  # small index temporaries
+        base = (idx * (h * w) + y0 * w + x0).astype(itype)
+        off = (self._row_off[:ky] + np.arange(kx)).astype(itype)
+        flat = base[:, None, None] + off  # (n, ky, kx) global pixel indices
         img = self.image.reshape(-1)
         new = cov & (img[flat] == 0)
-        hit = flat[new]
-        img[hit] = 1
-        if hit.size:
-            p, rem = np.divmod(hit, h * w)
-            r, c = np.divmod(rem, w)
+        k, i, j = np.nonzero(new)
+        r = y0[k] + i
+        c = x0[k] + j
+        p = idx[k]
+        img[(p * h + r) * w + c] = 1
+        if k.size:
             for lv in range(1, N_LEVELS):
                 arr = self.levels[lv]
                 hl, wl = arr.shape[1:]
@@ -305,7 +317,7 @@ class Canvas:
                 ok = (rl < hl) & (cl < wl)
                 np.add.at(arr.reshape(-1), (p[ok] * hl + rl[ok]) * wl + cl[ok],
                           np.float32(1.0 / 4**lv))
-        return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox)
+        return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox, hit_k=k, hit_pix=r * w + c)
 
     def take(self, idx: np.ndarray) -> None:
         """Resampling: particle k becomes old particle idx[k] (every per-particle array).
