@@ -166,3 +166,18 @@ def test_null_and_empty_target() -> None:
     assert np.array_equal(null.increment(null.start(2), canvas, batch), [0.0])
     with pytest.raises(TargetError):
         ShapeLikelihood(np.zeros((10, 10), dtype=bool), VP)
+
+
+def test_drawbatch_without_hit_list_gives_same_increments() -> None:
+    from ngpm_runtime.raster import DrawBatch
+
+    t = np.zeros((30, 30), dtype=bool)
+    t[5:25, 10:20] = True
+    rng = np.random.default_rng(5)
+    canvas = Canvas(4, 30, 30, VP)
+    lik = ShapeLikelihood(t, VP)
+    s1, s2 = lik.start(4), lik.start(4)
+    for _ in range(10):
+        b = canvas.draw(np.arange(4), _random_prims(rng, 4))
+        bare = DrawBatch(idx=b.idx, y0=b.y0, x0=b.x0, new=b.new, bbox=b.bbox)
+        np.testing.assert_allclose(lik.increment(s1, canvas, b), lik.increment(s2, canvas, bare))
