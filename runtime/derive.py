@@ -216,8 +216,11 @@ class Deriver:
 
     def advance(self, p: Particle, peek: bool = False) -> int:
         """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT.
-        With `peek`, stop before drawing instead (PAUSED): SMC uses it to do a particle's
-        deterministic work before resampling, so that copies share it."""
+
+        After drawing, the particle looks ahead: it goes on with its deterministic work up
+        to its next request (then `p.need` is set), its next drawing symbol or its end (then
+        `p.stack` is None), and still returns DRAWN; done before resampling, this work is
+        shared by the copies. With `peek`, it stops before drawing anything (PAUSED)."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
         pcache, icache, memo = self.pcache, self.icache, self._memo
         dispatch = self.dispatch
@@ -227,12 +230,13 @@ class Deriver:
         max_ops = self.max_ops
         cos, sin = math.cos, math.sin
         mod: tuple = ()
+        drew = False
         try:
             while stack is not None:
                 ops += 1
                 if ops > max_ops:
                     p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                    return LIMIT
+                    return DRAWN if drew else LIMIT
                 mod, depth, ilevel, rest = stack
                 name = mod[0]
                 code = dispatch.get(name)
@@ -252,7 +256,7 @@ class Deriver:
                         if res.__class__ is _Need:
                             p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                             p.need = (res.site, res.args)
-                            return NEED
+                            return DRAWN if drew else NEED
                         if p.values:
                             p.values, p.sites, p.cont = (), (), False
                         if res is not None:
@@ -279,7 +283,7 @@ class Deriver:
                         p.in_interp = True
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                         p.need = (res.site, res.args)
-                        return NEED
+                        return DRAWN if drew else NEED
                     p.in_interp = False
                     if p.values:
                         p.values, p.sites, p.cont = (), (), False
@@ -293,7 +297,7 @@ class Deriver:
                 if code == _TURTLE:
                     if peek and name in DRAWING:
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                        return PAUSED
+                        return DRAWN if drew else PAUSED
                     stack = rest
                     if name == "F":
                         x, y, h, w = turtle
@@ -322,11 +326,11 @@ class Deriver:
                                                                self.angle)
                         if prim is None:
                             continue
-                    p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                     p.last = prim
                     p.prims = (prim, p.prims)
                     p.n_prims += 1
-                    return DRAWN
+                    drew = peek = True
+                    continue
                 stack = rest
                 if code == _CUT:
                     stack = _cut(stack)
@@ -335,7 +339,7 @@ class Deriver:
         except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
             raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
         p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
-        return DONE
+        return DRAWN if drew else DONE
 
     def _code(self, name: str) -> int:
         """How `advance` treats a module name first (memoized in `dispatch`)."""

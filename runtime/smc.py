@@ -17,7 +17,7 @@ from itertools import chain
 from typing import Any
 
 import numpy as np
-from ngpm_runtime.derive import DONE, DRAWN, LIMIT, NEED, Deriver, Particle
+from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver, Particle
 from ngpm_runtime.distributions import prior_logpdf
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
 from ngpm_runtime.program import Program
@@ -216,15 +216,9 @@ def smc(
                 log_lik[idx] += inc
             for i in drawn:
                 p = parts[i]
-                if p.n_prims >= cap and p.stack is not None:
-                    p.status = "limit"
-                    continue
-                # look ahead: deterministic work up to the next request or drawing, done
-                # before resampling so that copies share it
-                code = advance(p, True)
-                if code == DONE:
+                if p.stack is None:
                     p.status = "done"
-                elif code == LIMIT:
+                elif p.n_prims >= cap:
                     p.status = "limit"
 
         if (log_w == np.inf).any():
