@@ -77,9 +77,10 @@ def cmd_traces(args: argparse.Namespace) -> int:
                       mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size))
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
+    failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
     print(f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped (fewer than "
-          f"{cfg.min_primitives} primitives), {len(m['shards'])} shards, "
-          f"{per:.2f} s per trace")
+          f"{cfg.min_primitives} primitives{failed}), {len(m['shards'])} shards, "
+          f"{per:.2f} s per job")
     return 0
 
 

@@ -6,7 +6,8 @@ job is written at once to `pending/job_<i>.npz` (atomic), and pending jobs are g
 shards `shard_<first>.npz`. A rerun on the same directory skips finished job ids, so an
 interrupted run loses no finished trace and never repeats one.
 
-Shard / pending npz arrays: `jobs, kept, n_prims, target, seed` (one entry per job) and per
+Shard / pending npz arrays: `jobs, kept, n_prims, target, seed` (one entry per job; n_prims
+is -1 when SMC failed: every particle died, so the job is dropped) and per
 visited site `i`: `f_<i>` (m, n_f) float32 features, `v_<i>` (m,) values, `j_<i>` (m,) job ids.
 `manifest.json` holds the configuration (checked on resume), site table, feature layouts and
 counts. Job ids are handed out in increasing order and only while `kept + running < n`, so the
@@ -28,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.errors import NgpmError, SMCFailed
 from ngpm_runtime.program import Program, Site, load_program
 from tqdm import tqdm
 
@@ -250,7 +251,10 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
     t0 = time.perf_counter()
     targets = _WORKER["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
-    trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles)
+    try:
+        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles)
+    except SMCFailed:  # every particle died: a property of the job, so it is dropped
+        trace, n_prims = [], -1
     kept = n_prims >= min_prims
     return job_arrays(job, ti, seed, trace, n_prims, kept), time.perf_counter() - t0
 
@@ -296,8 +300,10 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     since_shard = 0
     job_seconds: list[float] = list(old.get("job_seconds", [])) if old else []
 
+    failed = int((done.get("n_prims", np.zeros(0)) < 0).sum())
+
     def finish(arrays: dict[str, np.ndarray], seconds: float) -> None:
-        nonlocal kept, dropped, since_shard
+        nonlocal kept, dropped, since_shard, failed
         store.write_pending(arrays)
         done_ids.add(int(arrays["jobs"][0]))
         job_seconds.append(seconds)
@@ -306,6 +312,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
             bar.update(1)
         else:
             dropped += 1
+            failed += int(arrays["n_prims"][0] < 0)
             bar.set_postfix(dropped=dropped)
         since_shard += 1
         if since_shard >= cfg.shard_size:
@@ -349,7 +356,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         store.consolidate()
         manifest["seconds"] += time.perf_counter() - t0
         manifest["job_seconds"] = job_seconds
-        manifest.update(kept=kept, dropped=dropped, jobs_done=len(done_ids),
+        manifest.update(kept=kept, dropped=dropped, failed=failed, jobs_done=len(done_ids),
                         shards=[p.name for p in store.shard_paths()])
         store.write_manifest(manifest)
     return manifest

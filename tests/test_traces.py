@@ -149,3 +149,24 @@ def test_mirror_adds_missing_copies(tmp_path):
     save_target(t, data / "bar0_m.png")
     assert sorted(t.name for t in load_targets(data, 50, mirror=True)) == \
         ["bar0", "bar0_m", "bar1", "bar1_m"]
+
+
+def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
+    from ngpm_runtime.errors import SMCFailed
+
+    import ngpm_compiler.traces as traces_mod
+
+    real = traces_mod.run_job
+
+    def flaky(program, target, seed, particles):
+        if seed % 3 == 0:
+            raise SMCFailed("every particle's weight is zero")
+        return real(program, target, seed, particles)
+
+    monkeypatch.setattr(traces_mod, "run_job", flaky)
+    data = make_dataset(tmp_path / "data", 2)
+    m = generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4,
+                                    workers=1), tmp_path / "t", progress=False)
+    failing = sum(job_spec(0, j, 2)[1] % 3 == 0 for j in range(m["jobs_done"]))
+    assert failing >= 1 and m["kept"] == 6 and m["failed"] == m["dropped"] == failing
+    assert len(load_traces(tmp_path / "t").kept_jobs) == 6
