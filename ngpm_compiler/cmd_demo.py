@@ -10,6 +10,7 @@ the package data (ngpm_runtime.bundled): nothing is trained or downloaded.
 from __future__ import annotations
 
 import argparse
+import io
 import math
 import os
 import tempfile
@@ -231,28 +232,25 @@ def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.n
     return np.asarray(sheet)
 
 
-def _save_png(rgb: np.ndarray, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write a file atomically (temp file beside it, then rename), default permissions."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with os.fdopen(fd, "wb") as fh:
-            Image.fromarray(rgb).save(fh, format="PNG", optimize=True)
+        tmp.write_bytes(data)
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _save_png(rgb: np.ndarray, path: Path) -> None:
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="PNG", optimize=True)
+    write_atomic(path, buf.getvalue())
 
 
 def _write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, text.encode("utf-8"))
 
 
 # --------------------------------------------------------------------------- targets
