@@ -98,7 +98,10 @@ def smc(
     max_steps: int | None = None,
     max_primitives: int | None = None,
 ) -> SMCResult:
-    """Run SMC; `likelihood=None` means no likelihood (forward sampling).
+    """Run SMC; `likelihood=None` (or a NullLikelihood) means no likelihood, no canvas.
+
+    A likelihood with `needs_canvas = False` gets, instead of raster's DrawBatch, a
+    `PrimBatch` (idx, bbox, prims); with a canvas, the DrawBatch also carries `.prims`.
 
     `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
     (None: every step). `max_primitives` overrides `program.max_primitives`.
@@ -121,6 +124,8 @@ def smc(
     # What the run needs: features, a canvas.
     use_features = bool(getattr(proposal, "uses_features", False))
     need_features = use_features or record_trace
+    if likelihood is not None and _is_null(likelihood):
+        likelihood = None  # nothing to compute, no canvas needed
     like_canvas = likelihood is not None and getattr(likelihood, "needs_canvas", True)
     canvas = None
     if need_features or like_canvas:
@@ -136,6 +141,7 @@ def smc(
 
         fmaker = FeatureMaker(program, viewport, target_mask)
     like_state = likelihood.start(n) if likelihood is not None else {}
+    blank_ll = _blank_loglik(likelihood, canvas)
 
     x0, y0, h0 = program.start if start is None else start
     deriver = Deriver(program)
@@ -160,6 +166,7 @@ def smc(
         steps += 1
         particle_steps += len(live)
         drawn: list[int] = []
+        empty: list[int] = []  # particles that ended without drawing anything
         # particles already waiting on a site (from the look-ahead below) skip round one
         waiting: dict[int, list[int]] = {}
         run = []
@@ -183,10 +190,10 @@ def smc(
                         waiting[s].append(i)
                     else:
                         waiting[s] = [i]
-                elif code == DONE:
-                    p.status = "done"
                 else:
-                    p.status = "limit"
+                    p.status = "done" if code == DONE else "limit"
+                    if p.n_prims == 0:
+                        empty.append(i)
             run = []
             for s in sorted(waiting):
                 idx = sorted(waiting[s])
@@ -220,6 +227,11 @@ def smc(
                     p.status = "done"
                 elif p.n_prims >= cap:
                     p.status = "limit"
+
+        if empty and blank_ll is not None:
+            ia = np.asarray(empty, dtype=np.intp)
+            log_w[ia] += blank_ll
+            log_lik[ia] += blank_ll
 
         if (log_w == np.inf).any():
             raise SMCFailed(f"a proposal gave zero density to its own value at step {steps} "
@@ -271,6 +283,23 @@ def smc(
         seconds=time.perf_counter() - t0,
         info={"particle_steps": particle_steps, "resamples": n_resample},
     )
+
+
+def _blank_loglik(likelihood: Any, canvas: Any) -> float | None:
+    """Log-likelihood of an empty drawing, charged to particles that end without drawing
+    (increments only come with primitives); None when the likelihood cannot say."""
+    full = getattr(likelihood, "full", None)
+    if full is None or canvas is None:
+        return None
+    blank = np.zeros(canvas.image.shape[1:], dtype=np.uint8)
+    value = float(full(blank, np.array([np.inf, np.inf, -np.inf, -np.inf])))
+    return value if not math.isnan(value) else -math.inf
+
+
+def _is_null(likelihood: Any) -> bool:
+    from ngpm_runtime.likelihood import NullLikelihood
+
+    return isinstance(likelihood, NullLikelihood)
 
 
 def _serve_site(

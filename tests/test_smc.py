@@ -200,6 +200,8 @@ def test_forward_without_viewport_and_null_likelihood(vines) -> None:
     assert f.status == "done" and f.log_weight == 0.0 and f.trace is None
     r = smc(vines, NullLikelihood(), 5, start=START)
     assert r.log_evidence == 0.0
+    r = smc(make_program({"A": lambda ctx: [("F", 1.0)]}), NullLikelihood(), 3)
+    assert all(p.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0)] for p in r.particles)
 
     class NeedsCanvas:
         def start(self, n):
@@ -246,3 +248,22 @@ def test_finished_particles_wait() -> None:
     r = smc(discrete_program(), SumXLikelihood(2.0, 1.0), 300, seed=2, ess_threshold=0.2)
     lengths = {len(p.primitives) for p in r.particles}
     assert len(lengths) > 1 and all(p.status == "done" for p in r.particles)
+
+
+def test_particles_that_draw_nothing_get_the_blank_loglik(vines) -> None:
+    from ngpm_runtime.program import Site
+
+    sites = [Site(index=0, id="A/choice", kind="categorical", k=2, probs=(0.5, 0.5))]
+
+    def produce_a(ctx):
+        return [("F", 4.0)] if ctx.choose(0, (0.5, 0.5)) == 0 else []
+
+    prog = make_program({"A": produce_a}, sites=sites, viewport=vines.viewport,
+                        start=START)
+    like = ShapeLikelihood(disk_mask(), vines.viewport)
+    r = smc(prog, like, 40, seed=0, ess_threshold=0.01)
+    blank = like.full(np.zeros((50, 50), dtype=np.uint8),
+                      np.array([np.inf, np.inf, -np.inf, -np.inf]))
+    empties = [p for p in r.particles if not p.primitives]
+    assert empties and all(p.log_likelihood == blank for p in empties)
+    assert blank < -1000  # eq. 1 of an empty image: far from the target
