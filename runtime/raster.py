@@ -347,6 +347,19 @@ class Canvas:
         return (np.asarray(x) - xmin) / (xmax - xmin), (ymax - np.asarray(y)) / (ymax - ymin)
 
 
+def bbox_of(prims: list[tuple]) -> np.ndarray:
+    """World box (4,) = (xmin, ymin, xmax, ymax) of all prims; +-inf when there are none."""
+    out = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    groups: dict[str, list[tuple]] = {}
+    for p in prims:
+        groups.setdefault(p[0], []).append(p)
+    for kind, group in groups.items():
+        b = _bboxes(kind, group)[0]
+        out[:2] = np.minimum(out[:2], b[:, :2].min(axis=0))
+        out[2:] = np.maximum(out[2:], b[:, 2:].max(axis=0))
+    return out
+
+
 def viewport_of(prims: list[tuple], margin: float = 0.05) -> Viewport:
     """A square viewport fitting every primitive, with a relative margin."""
     if not prims:
@@ -364,5 +377,5 @@ def viewport_of(prims: list[tuple], margin: float = 0.05) -> Viewport:
     return (cx - half, cx + half, cy - half, cy + half)
 
 
-__all__ = ["Canvas", "DrawBatch", "pyramid", "level_shapes", "prim_mask", "rasterize",
+__all__ = ["Canvas", "DrawBatch", "bbox_of", "pyramid", "level_shapes", "prim_mask", "rasterize",
            "viewport_of", "N_LEVELS"]

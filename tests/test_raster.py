@@ -175,3 +175,15 @@ def test_degenerate_primitives() -> None:
     batch = canvas.draw(np.arange(4), prims)
     assert not batch.new.any() and canvas.image.sum() == 0
     assert all(lv.sum() == 0 for lv in canvas.levels)
+
+
+def test_bbox_of_matches_draw_boxes() -> None:
+    from ngpm_runtime.raster import bbox_of
+
+    rng = np.random.default_rng(11)
+    prims = [_random_prim(rng) for _ in range(20)]
+    canvas = Canvas(20, 20, 20, VP)
+    b = canvas.draw(np.arange(20), prims).bbox
+    want = np.concatenate([b[:, :2].min(axis=0), b[:, 2:].max(axis=0)])
+    np.testing.assert_allclose(bbox_of(prims), want)
+    assert np.isinf(bbox_of([])).all()
