@@ -14,6 +14,7 @@ COMMAND_MODULES = [
     "ngpm_compiler.cmd_grammar",  # compile, check, sample
     "ngpm_compiler.cmd_guide",  # traces, train, export, grow
     "ngpm_compiler.cmd_targets",  # targets build, list, show
+    "ngpm_compiler.cmd_eval",  # eval
     "ngpm_compiler.cmd_demo",  # demo
 ]
 

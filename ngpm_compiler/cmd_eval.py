@@ -1,0 +1,169 @@
+"""`ngpmc eval`: reproduce the paper's experiments (shape matching, ablations, result grids,
+circuits, chain) and write CSV files, PNG plots, README.md and report.md.
+
+    ngpmc eval --quick -o OUT                      # CI-sized, everything made on the fly
+    ngpmc eval -o docs/results --work work/eval --traces work/vines/traces \\
+        --guide-all work/vines/vines_guide.onnx    # the full run (docs/results/README.md)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from ngpm_runtime.errors import NgpmError
+
+from ngpm_compiler.eval_config import EvalConfig, quick_config
+from ngpm_compiler.evaluate import atomic_write
+
+STAGES = ("shape", "grids", "circuit", "chain", "report")
+
+
+class EvalError(NgpmError):
+    """The evaluation cannot run with the given options or inputs."""
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") \
+            from None
+    if not vals or min(vals) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {text!r}")
+    return vals
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("eval", help="run the paper's experiments and write results",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("-o", "--out", required=True, help="results directory (CSV, PNG, Markdown)")
+    p.add_argument("--work", help="scratch directory (default: OUT/work)")
+    p.add_argument("--quick", action="store_true",
+                   help="CI-sized run: tiny N, 2 targets, models from a few fresh traces")
+    p.add_argument("--traces", help="shape-matching traces directory (`ngpmc traces`)")
+    p.add_argument("--guide-all", help="use this .onnx as the all-features K=4 guide")
+    p.add_argument("--glyphs", help="glyph dataset directory (default: built in --work)")
+    p.add_argument("--silhouettes", help="silhouette dataset directory (default: built)")
+    p.add_argument("--n-glyphs", type=int, help="test glyphs (default 12)")
+    p.add_argument("--n-silhouettes", type=int, help="test silhouettes (default 6)")
+    p.add_argument("--ns", type=_ints, help="particle counts, e.g. 1,2,5,10,20,50,100,200")
+    p.add_argument("--repeats", type=int, help="SMC runs per target and N (default 3)")
+    p.add_argument("--workers", type=int, help="processes (default 2; quick: 1)")
+    p.add_argument("--circuit-traces", type=int, help="circuit traces (default 200)")
+    p.add_argument("--stages", default=",".join(STAGES),
+                   help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.set_defaults(handler=cmd_eval)
+
+
+def config_from_args(args: argparse.Namespace) -> EvalConfig:
+    out = str(args.out)
+    work = str(args.work) if args.work else str(Path(out) / "work")
+    if args.quick:
+        cfg = quick_config(out, work, workers=args.workers or 1)
+    else:
+        cfg = EvalConfig(out=out, work=work)
+    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
+    bad = [s for s in stages if s not in STAGES]
+    if bad or not stages:
+        raise EvalError(f"unknown stage(s) {', '.join(bad) or '(none)'}; "
+                        f"choose from {', '.join(STAGES)}")
+    cfg.stages = stages
+    for key in ("traces", "guide_all", "glyphs", "silhouettes", "n_glyphs", "n_silhouettes",
+                "ns", "repeats", "workers", "circuit_traces"):
+        v = getattr(args, key, None)
+        if v is not None:
+            setattr(cfg, key, v)
+    cfg.seed = args.seed
+    if cfg.repeats < 1 or cfg.workers < 1:
+        raise EvalError("--repeats and --workers must be at least 1")
+    for key in ("traces", "guide_all", "glyphs", "silhouettes"):
+        v = getattr(cfg, key)
+        if v is not None and not Path(v).exists():
+            raise EvalError(f"--{key.replace('_', '-')} {v}: no such file or directory")
+    root = Path(__file__).resolve().parents[1]  # the repository, for the bundled grammars
+    for key in ("grammar", "chain_grammar"):
+        path = Path(getattr(cfg, key))
+        if not path.is_file() and (root / path).is_file():
+            setattr(cfg, key, str(root / path))
+        if not Path(getattr(cfg, key)).is_file():
+            raise EvalError(f"{path}: no such grammar (run from the repository root)")
+    return cfg
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    cfg = config_from_args(args)
+    command = "ngpmc " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else ""
+    run_eval(cfg, command=command)
+    return 0
+
+
+def log_line(text: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
+
+
+def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[str, Any]:
+    """Run the selected stages; returns what they produced (for tests)."""
+    from ngpm_compiler import eval_extra, eval_report, eval_shape
+
+    t0 = time.perf_counter()
+    out, work = Path(cfg.out), Path(cfg.work)
+    out.mkdir(parents=True, exist_ok=True)
+    work.mkdir(parents=True, exist_ok=True)
+    settings_path = out / "settings.json"
+    settings: dict[str, Any] = {}
+    if settings_path.is_file():
+        settings = json.loads(settings_path.read_text(encoding="utf-8"))
+    settings.update(cfg.to_json())
+    settings["machine"] = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+    result: dict[str, Any] = {}
+    need_shape = any(s in cfg.stages for s in ("shape", "grids"))
+    if need_shape:
+        from ngpm_compiler.traces import load_traces
+
+        targets = eval_shape.test_targets(cfg)
+        settings["test_targets"] = {k: len(v) for k, v in targets.items()}
+        settings["test_target_names"] = {k: [t.name for t in v] for k, v in targets.items()}
+        traces = cfg.traces or eval_shape.tiny_traces(cfg)
+        kept = len(load_traces(traces).kept_jobs)
+        if kept < 2:
+            raise EvalError(f"{traces}: needs at least 2 kept traces, has {kept}")
+        settings.update(traces=traces, kept_traces=kept)
+        _save_settings(settings_path, settings)
+        guides = eval_shape.prepare_guides(cfg, traces, kept, log)
+        if "shape" in cfg.stages:
+            rows = eval_shape.run_shape(cfg, targets, guides, kept, log)
+        else:
+            rows = eval_shape.load_rows(cfg)
+        result.update(eval_shape.analyze_shape(cfg, rows, kept))
+        log(f"shape study done ({len(rows)} runs)")
+        if "grids" in cfg.stages:
+            result["grids"] = eval_shape.run_grids(cfg, targets, guides, result["summary"], log)
+    if "circuit" in cfg.stages:
+        result["circuit"] = eval_extra.run_circuit(cfg, log)
+        log("circuit study done")
+    if "chain" in cfg.stages:
+        result["chain"] = eval_extra.run_chain(cfg, log)
+        log("chain study done")
+    stage_min = dict(settings.get("stage_minutes") or {})
+    stage_min[",".join(cfg.stages)] = round((time.perf_counter() - t0) / 60.0, 2)
+    settings["stage_minutes"] = stage_min
+    settings["wall_minutes"] = round(sum(stage_min.values()), 1)
+    _save_settings(settings_path, settings)
+    if "report" in cfg.stages:
+        readme, report = eval_report.write_reports(out, command)
+        log(f"wrote {readme} and {report}")
+    result["files"] = sorted(p.name for p in out.iterdir() if p.is_file())
+    return result
+
+
+def _save_settings(path: Path, settings: dict[str, Any]) -> None:
+    atomic_write(path, (json.dumps(settings, indent=1, default=str) + "\n").encode("utf-8"))

@@ -1,0 +1,70 @@
+"""Settings of one evaluation run (`ngpmc eval`): the full preset and the `--quick` one."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+SHAPE_MODELS = ("const", "local", "local+target", "all")
+
+
+@dataclass
+class EvalConfig:
+    out: str  # results directory (CSV, PNG, report.md, README.md)
+    work: str  # scratch directory (datasets, traces, models)
+    quick: bool = False
+    grammar: str = "grammars/vines.lsys"
+    chain_grammar: str = "grammars/chain.lsys"
+    traces: str | None = None  # canonical shape traces (None: make tiny ones in work/)
+    guide_all: str | None = None  # reuse this .onnx as the all-features K=4 model
+    glyphs: str | None = None  # glyph dataset dir (None: build into work/)
+    silhouettes: str | None = None
+    n_glyphs: int = 12
+    n_silhouettes: int = 6
+    ns: tuple[int, ...] = (1, 2, 5, 10, 20, 50, 100, 200)
+    unguided_extra_ns: tuple[int, ...] = (600,)  # unguided only (reference, time curve)
+    k1_ns: tuple[int, ...] = (1, 2, 5, 10, 20, 50, 100)
+    trainset_sizes: tuple[int, ...] = (10, 30, 100, 300, 1000)
+    trainset_n: int = 10  # particles for the training-set-size curve
+    repeats: int = 3
+    thresholds: tuple[float, ...] = tuple(round(0.05 * i, 2) for i in range(2, 19))
+    epochs: int = 40
+    grid_targets: int = 6  # targets in the result grids (half glyphs, half silhouettes)
+    reference_n: int = 600
+    guided_n: int = 10
+    # tiny traces (quick mode, or when no canonical traces are given)
+    tiny_scribbles: int = 4
+    tiny_traces: int = 8
+    tiny_particles: int = 40
+    # circuits
+    circuit_traces: int = 200
+    circuit_particles: int = 300
+    circuit_reference_n: int = 600
+    circuit_guided_n: int = 15
+    circuit_repeats: int = 5
+    # chain
+    chain_train_targets: int = 40
+    chain_test_targets: int = 3
+    chain_traces: int = 150
+    chain_particles: int = 100
+    chain_ns: tuple[int, ...] = (1, 5, 20)
+    chain_repeats: int = 5
+    workers: int = 2
+    seed: int = 0
+    stages: tuple[str, ...] = ("shape", "grids", "circuit", "chain", "report")
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def quick_config(out: str, work: str, workers: int = 1) -> EvalConfig:
+    """Small enough for CI: tiny N, two targets, two repeats, models from a few traces."""
+    return EvalConfig(
+        out=out, work=work, quick=True, n_glyphs=1, n_silhouettes=1, ns=(1, 3),
+        unguided_extra_ns=(6,), k1_ns=(1, 3), trainset_sizes=(2, 4), trainset_n=3,
+        repeats=2, thresholds=(0.05, 0.1, 0.2, 0.3), epochs=2, grid_targets=2,
+        reference_n=6, guided_n=3, tiny_scribbles=3, tiny_traces=5, tiny_particles=20,
+        circuit_traces=3, circuit_particles=15, circuit_reference_n=8, circuit_guided_n=3,
+        circuit_repeats=2, chain_train_targets=4, chain_test_targets=1, chain_traces=4,
+        chain_particles=10, chain_ns=(1, 3), chain_repeats=2, workers=workers)

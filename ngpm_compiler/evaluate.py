@@ -1,0 +1,276 @@
+"""Evaluation core: SMC runs over (model, target, N, repeat), summary statistics, CSV files.
+
+One *run* is SMC with N particles into one target; it records the best particle's normalized
+similarity (the argument of the Gaussian of equation 1, `likelihood.similarity`) and the wall
+time of the SMC call. Runs go to worker processes in a shuffled order, so a load change on the
+machine touches every model alike. The statistics follow the paper: the median over repeats
+per target, then the mean over targets with a 95% t interval.
+
+The other eval_*.py modules build models (eval_models), plot (eval_plots), run the circuit and
+chain studies (eval_extra) and write the report (eval_report); cmd_eval.py drives them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import multiprocessing as mp
+import os
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+RUN_FIELDS = ("model", "dataset", "target", "n", "repeat", "seed", "similarity", "seconds",
+              "primitives")
+SUMMARY_FIELDS = ("dataset", "model", "n", "targets", "mean_similarity", "ci_low", "ci_high",
+                  "mean_seconds", "median_seconds")
+UNGUIDED = "unguided"
+
+
+@dataclass(frozen=True)
+class RunTask:
+    model: str  # key into the worker's guides ("unguided" = prior proposals)
+    dataset: str
+    target: int  # index into the worker's target list
+    n: int
+    repeat: int
+    seed: int
+
+
+@dataclass
+class RunResult:
+    task: RunTask
+    target_name: str
+    similarity: float
+    seconds: float
+    primitives: list[tuple]
+
+    def row(self) -> dict[str, Any]:
+        t = self.task
+        return {"model": t.model, "dataset": t.dataset, "target": self.target_name, "n": t.n,
+                "repeat": t.repeat, "seed": t.seed, "similarity": round(self.similarity, 6),
+                "seconds": round(self.seconds, 6), "primitives": len(self.primitives)}
+
+
+def run_seed(base: int, target: int, n: int, repeat: int) -> int:
+    """SMC seed of one run: the same for every model (common random numbers)."""
+    return int(np.random.SeedSequence([int(base), int(target), int(n), int(repeat)])
+               .generate_state(1)[0])
+
+
+def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
+              ) -> tuple[float, float, list[tuple]]:
+    """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
+    from ngpm_runtime.likelihood import ShapeLikelihood, similarity
+    from ngpm_runtime.raster import rasterize
+    from ngpm_runtime.smc import smc
+
+    vp = program.viewport
+    like = ShapeLikelihood(target.mask, vp)
+    t0 = time.perf_counter()
+    res = smc(program, like, n, proposal=proposal, seed=seed, start=target.start_pose(vp),
+              canvas_size=target.size, target_mask=target.mask)
+    seconds = time.perf_counter() - t0
+    prims = list(res.best.primitives)
+    image = rasterize(prims, vp, *target.size)
+    return float(similarity(image, target.mask)), seconds, prims
+
+
+# --------------------------------------------------------------------------- workers
+
+_W: dict[str, Any] = {}
+
+
+def _init(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str]) -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from ngpm_runtime.guide import Guide
+
+    from ngpm_compiler.traces import load_grammar
+
+    program = load_grammar(grammar)
+    _W["program"] = program
+    _W["targets"] = targets
+    _W["guides"] = {name: Guide.load(path, program) for name, path in guides.items()}
+
+
+def _run(task: RunTask) -> RunResult:
+    target = _W["targets"][task.dataset][task.target]
+    proposal = None if task.model == UNGUIDED else _W["guides"][task.model]
+    sim, seconds, prims = grow_once(_W["program"], target, proposal, task.n, task.seed)
+    return RunResult(task, target.name, sim, seconds, prims)
+
+
+def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str],
+              tasks: list[RunTask], workers: int = 1, shuffle_seed: int = 0,
+              on_result: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+    """Run every task (shuffled order, `workers` processes); results in task order."""
+    order = np.random.default_rng(shuffle_seed).permutation(len(tasks))
+    shuffled = [tasks[i] for i in order]
+    out: dict[RunTask, RunResult] = {}
+    if workers <= 1:
+        _init(grammar, targets, guides)
+        for t in shuffled:
+            r = _run(t)
+            out[t] = r
+            if on_result:
+                on_result(r)
+    else:
+        ctx = mp.get_context("spawn")
+        with ctx.Pool(workers, initializer=_init, initargs=(grammar, targets, guides)) as pool:
+            for r in pool.imap_unordered(_run, shuffled, chunksize=1):
+                out[r.task] = r
+                if on_result:
+                    on_result(r)
+    return [out[t] for t in tasks]
+
+
+def shape_tasks(models: Iterable[str], datasets: dict[str, int], ns: Iterable[int],
+                repeats: int, base_seed: int = 0) -> list[RunTask]:
+    """Every (model, dataset target, N, repeat) combination; `datasets` maps name -> count."""
+    tasks = []
+    offset = 0
+    for ds, count in datasets.items():
+        for ti in range(count):
+            for n in ns:
+                for rep in range(repeats):
+                    seed = run_seed(base_seed, offset + ti, n, rep)
+                    tasks.extend(RunTask(m, ds, ti, int(n), rep, seed) for m in models)
+        offset += count
+    return tasks
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """(mean, low, high): the mean with a Student-t confidence interval."""
+    from scipy import stats
+
+    v = np.asarray(values, dtype=np.float64)
+    m = float(v.mean())
+    if len(v) < 2:
+        return m, m, m
+    half = float(stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+    return m, m - half, m + half
+
+
+def summarize(rows: list[dict[str, Any]], dataset: str = "all") -> list[dict[str, Any]]:
+    """Per (model, N): mean over targets of the per-target median similarity, 95% CI, times.
+
+    `dataset` names the rows' test set in the output ("all" for every row given)."""
+    groups: dict[tuple[str, int], dict[str, list[dict[str, Any]]]] = {}
+    for r in rows:
+        key = (str(r["model"]), int(r["n"]))
+        groups.setdefault(key, {}).setdefault(f"{r['dataset']}/{r['target']}", []).append(r)
+    out = []
+    for (model, n), by_target in sorted(groups.items()):
+        med = np.array([np.median([float(x["similarity"]) for x in rs])
+                        for rs in by_target.values()])
+        secs = np.array([float(x["seconds"]) for rs in by_target.values() for x in rs])
+        mean, lo, hi = t_interval(med)
+        out.append({"dataset": dataset, "model": model, "n": n, "targets": len(med),
+                    "mean_similarity": round(mean, 6), "ci_low": round(lo, 6),
+                    "ci_high": round(hi, 6), "mean_seconds": round(float(secs.mean()), 6),
+                    "median_seconds": round(float(np.median(secs)), 6)})
+    return out
+
+
+def curve(summary: list[dict[str, Any]], model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N, mean similarity, mean seconds) of one model, by increasing N."""
+    rows = sorted((r for r in summary if r["model"] == model), key=lambda r: r["n"])
+    return (np.array([r["n"] for r in rows], dtype=np.int64),
+            np.array([r["mean_similarity"] for r in rows], dtype=np.float64),
+            np.array([r["mean_seconds"] for r in rows], dtype=np.float64))
+
+
+def time_to_reach(sims: np.ndarray, secs: np.ndarray, threshold: float) -> float:
+    """Seconds a model needs to reach `threshold` similarity (nan if it never does).
+
+    Walks the curve by increasing N and interpolates log-time linearly in similarity
+    between the last point below the threshold and the first at or above it.
+    """
+    best_sim, prev_t = -math.inf, None
+    for s, t in zip(sims, secs, strict=True):
+        if s >= threshold:
+            if prev_t is None or best_sim == -math.inf or s <= best_sim:
+                return float(t)
+            frac = (threshold - best_sim) / (s - best_sim)
+            lt = math.log(max(prev_t, 1e-9)) + frac * (math.log(max(t, 1e-9))
+                                                        - math.log(max(prev_t, 1e-9)))
+            return float(min(math.exp(lt), t))
+        if s > best_sim:
+            best_sim, prev_t = s, t
+    return math.nan
+
+
+def speedups(summary: list[dict[str, Any]], models: list[str], thresholds: Iterable[float],
+             baseline: str = UNGUIDED) -> list[dict[str, Any]]:
+    """Rows (model, threshold, seconds, baseline_seconds, speedup) for Fig. 4b.
+
+    Where the baseline never reaches a threshold, `speedup` is the lower bound given by its
+    slowest run and `bound` is ">".
+    """
+    _, bs, bt = curve(summary, baseline)
+    out = []
+    for model in models:
+        _, s, t = curve(summary, model)
+        for thr in thresholds:
+            tm = time_to_reach(s, t, thr)
+            tb = time_to_reach(bs, bt, thr)
+            bound = ""
+            if math.isnan(tb) and not math.isnan(tm) and len(bt):
+                tb, bound = float(bt.max()), ">"
+            sp = tb / tm if not (math.isnan(tb) or math.isnan(tm)) and tm > 0 else math.nan
+            out.append({"model": model, "threshold": round(float(thr), 4),
+                        "seconds": _r(tm), "baseline_seconds": _r(tb), "speedup": _r(sp),
+                        "bound": bound})
+    return out
+
+
+def _r(x: float) -> float | str:
+    return "" if math.isnan(x) else round(float(x), 6)
+
+
+def n_to_match(summary: list[dict[str, Any]], similarity: float,
+               baseline: str = UNGUIDED) -> float:
+    """Smallest baseline N (log-interpolated) whose mean similarity reaches `similarity`."""
+    ns, s, _ = curve(summary, baseline)
+    v = time_to_reach(s, ns.astype(np.float64), similarity)
+    return v
+
+
+# --------------------------------------------------------------------------- files
+
+
+def atomic_write(path: str | Path, data: bytes) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_csv(path: str | Path, rows: list[dict[str, Any]], fields: Iterable[str]) -> Path:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(fields), lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in w.fieldnames})
+    return atomic_write(path, buf.getvalue().encode("utf-8"))
+
+
+def read_csv(path: str | Path) -> list[dict[str, Any]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
