@@ -187,3 +187,34 @@ def test_bbox_of_matches_draw_boxes() -> None:
     want = np.concatenate([b[:, :2].min(axis=0), b[:, 2:].max(axis=0)])
     np.testing.assert_allclose(bbox_of(prims), want)
     assert np.isinf(bbox_of([])).all()
+
+
+def _prim_strategy():
+    from hypothesis import strategies as st
+
+    coord = st.floats(-16, 16, allow_nan=False)
+    pos = st.floats(0.05, 4)
+    return st.one_of(
+        st.tuples(st.just("seg"), coord, coord, coord, coord, pos),
+        st.tuples(st.just("leaf"), coord, coord, st.floats(-720, 720), pos, pos),
+        st.tuples(st.just("disk"), coord, coord, pos),
+        st.tuples(st.just("poly"), st.lists(st.tuples(coord, coord), min_size=3, max_size=6)
+                  .map(tuple)),
+    )
+
+
+def test_property_batched_draw_equals_slow_rasterization() -> None:
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    vp = (-8.0, 8.0, -6.0, 6.0)
+
+    @settings(max_examples=60, deadline=None, derandomize=True)
+    @given(st.lists(_prim_strategy(), min_size=1, max_size=5))
+    def check(prims: list[tuple]) -> None:
+        canvas = Canvas(len(prims), 12, 16, vp)
+        canvas.draw(np.arange(len(prims)), prims)
+        for k, p in enumerate(prims):
+            assert np.array_equal(canvas.image[k], _slow_image([p], vp, 12, 16))
+
+    check()
