@@ -238,7 +238,9 @@ class CircuitLikelihood:
 
 
 class NullLikelihood:
-    """Forward sampling: every increment is 0."""
+    """Forward sampling: every increment is 0 (works on any batch with `.idx`)."""
+
+    needs_canvas = False
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {}
