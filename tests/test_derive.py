@@ -242,3 +242,16 @@ def test_vines_fixture_forward() -> None:
         lengths.append(len(f.primitives))
     assert max(lengths) > 3
     assert forward(prog, seed=7).primitives == forward(prog, seed=7).primitives
+
+
+def test_compiled_vines_matches_hand_written_fixture() -> None:
+    from ngpm_compiler.compile import compile_grammar
+
+    compiled = compile_grammar(str(Path(__file__).parents[1] / "grammars" / "vines.lsys"))
+    prog = compiled.program()
+    fixture = load_program(VINES)
+    assert [s.id for s in prog.sites] == [s.id for s in fixture.sites]
+    for seed in range(20):
+        a = forward(prog, seed=seed, start=(0.0, -16.0, 90.0))
+        b = forward(fixture, seed=seed, start=(0.0, -16.0, 90.0))
+        assert a.primitives == b.primitives and a.log_prior == b.log_prior
