@@ -197,3 +197,35 @@ def test_gaussian_lengths_posterior_and_evidence(prop) -> None:
     first = np.array([p.primitives[0][3] for p in r.particles])
     assert abs(float(w @ first) - want_mean) < 0.03
     assert abs(r.log_evidence - want_log_z) < 0.05
+
+
+TINY_LSYS = """
+viewport: -10 10 -10 10
+derivation length: 4
+start: 0 0 0
+Axiom: X(0)
+production:
+X(n) : n < 2 --> F(1) [ +(90 * categorical(1, 2, 1) - 90) F(0.5 + flip(0.3)) % F(9) ] Y(n) : 0.6
+    | @O(0.5) L : 0.4
+Y(n) --> X(n + 1) : 0.7 | halt F(5) : 0.3
+interpretation:
+L --> @O(0.25 + 0.5 * flip(0.4))
+endlsystem
+"""
+
+
+@pytest.mark.parametrize(("scheme", "ess", "prop"), [("residual", None, None),
+                                                     ("systematic", 0.5, "q")])
+def test_compiled_grammar_posterior_and_evidence(scheme, ess, prop) -> None:
+    # groups, a categorical, flips, cut, halt and a random interpretation rule, compiled
+    from ngpm_compiler.compile import compile_grammar
+
+    prog = compile_grammar(TINY_LSYS, filename="tiny.lsys").program()
+    assert [s.id for s in prog.sites][-1] == "interp:L/0/bernoulli0"
+    q = FixedProposal({0: [0.3, 0.7], 1: [0.2, 0.2, 0.6], 2: [0.7], 3: [0.4, 0.6], 4: [0.9]})
+    like = SumXLikelihood(goal=3.0, scale=1.5)
+    want_post, want_log_z = exact(prog, like)
+    assert len(want_post) > 10
+    post, log_z = pooled(prog, like, q if prop else None, scheme, ess, seed=30)
+    assert check(post, log_z, want_post, want_log_z, 0.08), (tv(post, want_post), log_z,
+                                                             want_log_z)
