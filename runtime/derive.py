@@ -321,6 +321,16 @@ class Deriver:
                     elif name == "!" and len(mod) > 1:
                         turtle = (turtle[0], turtle[1], turtle[2], float(mod[1]))
                         continue
+                    elif name == "f" and len(mod) > 1:
+                        x, y, h, w = turtle
+                        step = mod[1]
+                        turtle = (x + step * cos(h * _RAD), y + step * sin(h * _RAD), h, w)
+                        continue
+                    elif name == "~l" and len(mod) == 3:
+                        prim = ("leaf", turtle[0], turtle[1], turtle[2], float(mod[1]),
+                                float(mod[2]))
+                    elif name == "@O" and len(mod) == 2:
+                        prim = ("disk", turtle[0], turtle[1], float(mod[1]))
                     else:
                         turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly,
                                                                self.angle)

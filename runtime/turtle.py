@@ -58,11 +58,11 @@ def interpret(
             tstack, poly, None,
         )
     if name == "~l":
-        length = mod[1] if len(mod) > 1 else 1.0
-        width = mod[2] if len(mod) > 2 else 1.0
+        length = float(mod[1]) if len(mod) > 1 else 1.0
+        width = float(mod[2]) if len(mod) > 2 else 1.0
         return turtle, tstack, poly, ("leaf", x, y, h, length, width)
     if name == "@O":
-        r = mod[1] if len(mod) > 1 else 1.0
+        r = float(mod[1]) if len(mod) > 1 else 1.0
         return turtle, tstack, poly, ("disk", x, y, r)
     if name == "|":
         return (x, y, h + 180.0, w), tstack, poly, None

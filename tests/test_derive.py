@@ -162,6 +162,10 @@ def test_bad_successor_and_turtle_arguments_raise() -> None:
         forward(make_program({"A": lambda ctx: ["F"]}))
     with pytest.raises(ProgramError, match="turtle"):
         forward(make_program({}, axiom=[("F", "x")]))
+    with pytest.raises(ProgramError, match="turtle"):
+        forward(make_program({}, axiom=[("~l", "x", 1.0)]))
+    with pytest.raises(ProgramError, match="turtle"):
+        forward(make_program({}, axiom=[("@O", None)]))
     with pytest.raises(ProgramError, match="without a matching"):
         forward(make_program({}, axiom=[("]",)]))
 
