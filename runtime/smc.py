@@ -281,7 +281,8 @@ def smc(
         ess_history=ess_history,
         steps=steps,
         seconds=time.perf_counter() - t0,
-        info={"particle_steps": particle_steps, "resamples": n_resample},
+        info={"particle_steps": particle_steps, "resamples": n_resample,
+              "status": {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}},
     )
 
 

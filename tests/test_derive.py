@@ -216,6 +216,7 @@ def test_primitive_cap_gives_limit_status() -> None:
     assert all(p.status == "limit" and len(p.primitives) == 2 for p in r.particles)
     r = smc(prog, None, 3, max_steps=4)
     assert all(p.status == "limit" and len(p.primitives) == 4 for p in r.particles)
+    assert r.info["status"] == {"done": 0, "limit": 3, "dead": 0}
 
 
 def test_work_cap_without_drawing_gives_limit() -> None:
