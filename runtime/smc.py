@@ -357,8 +357,8 @@ def _serve_site(
             p.cont = True
 
 
-def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
-    """(n, n_args) float64 from the particles' argument tuples (often one shared tuple)."""
+def _rows(rows: list[tuple]) -> np.ndarray | None:
+    """(n, k) float64 from n tuples of k numbers (often one shared tuple); None if ragged."""
     first = rows[0]
     k = len(first)
     n = len(rows)
@@ -369,20 +369,28 @@ def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
             return np.fromiter(chain.from_iterable(rows), np.float64, n * k).reshape(n, k)
     except (TypeError, ValueError):
         pass
-    raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
-                       "numbers of one length")
+    return None
+
+
+def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
+    args = _rows(rows)
+    if args is None:
+        raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
+                           "numbers of one length")
+    return args
 
 
 def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[Particle],
               args: np.ndarray) -> np.ndarray:
     n = len(idx)
-    turtle = np.array([parts[i].turtle for i in idx], dtype=np.float64).reshape(n, 4)
+    turtle = np.fromiter(chain.from_iterable(parts[i].turtle for i in idx), np.float64,
+                         4 * n).reshape(n, 4)
     tops = [parts[i].stack for i in idx]
-    depth = np.array([max(t[1], 0) for t in tops], dtype=np.float64)
-    try:
-        params = np.array([t[0][1:] for t in tops], dtype=np.float64).reshape(n, -1)
-    except ValueError:
-        raise ProgramError(f"site {site.id}: modules of different arity share it") from None
+    depth = np.fromiter((t[1] for t in tops), np.float64, n)
+    np.maximum(depth, 0.0, out=depth)  # the axiom pseudo-module has depth -1
+    params = _rows([t[0][1:] for t in tops])
+    if params is None:
+        raise ProgramError(f"site {site.id}: modules of different arity share it")
     return fmaker.features(site, canvas, np.asarray(idx, dtype=np.intp), turtle, depth,
                            params, args)
 
