@@ -115,6 +115,9 @@ def smc(
                              f"(choose from {', '.join(SCHEMES)})")
     if ess_threshold is not None and not 0.0 < ess_threshold <= 1.0:
         raise SMCOptionError(f"ess_threshold must be in (0, 1], got {ess_threshold}")
+    if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
+        raise SMCOptionError(f"target mask {tuple(np.shape(target_mask))} and canvas size "
+                             f"{tuple(canvas_size)} differ")
     rng = np.random.Generator(np.random.PCG64(seed))
     proposal = PriorProposal() if proposal is None else proposal
     is_prior = type(proposal) is PriorProposal

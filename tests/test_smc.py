@@ -230,6 +230,8 @@ def test_options_are_checked() -> None:
         smc(prog, None, 5, resample="bogus")
     with pytest.raises(SMCOptionError):
         smc(prog, None, 5, ess_threshold=1.5)
+    with pytest.raises(SMCOptionError, match="differ"):
+        smc(prog, None, 5, target_mask=np.zeros((40, 40), bool))
 
 
 def test_errors_in_generated_code_surface_from_smc() -> None:
