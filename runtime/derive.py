@@ -147,6 +147,8 @@ def _where(fn: Callable, kind: str, mod: tuple) -> str:
     doc = (fn.__doc__ or "").strip()
     m = _LOC.search(doc.splitlines()[-1]) if doc else None
     loc = f"{m.group(1)}:{m.group(2)}: " if m else ""
+    if mod[0] == AXIOM:
+        return f"{loc}axiom"
     return f"{loc}{kind} {mod[0]}{tuple(mod[1:]) if len(mod) > 1 else ''}"
 
 

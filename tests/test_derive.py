@@ -157,6 +157,15 @@ def test_errors_in_generated_code_name_module_and_line() -> None:
         forward(prog)
 
 
+def test_error_in_axiom_names_the_axiom() -> None:
+    def axiom(ctx):
+        """Axiom: F(1 / 0)   (tiny.lsys:3)"""
+        return [("F", 1 / 0)]
+
+    with pytest.raises(ProgramError, match=r"^tiny\.lsys:3: axiom: ZeroDivisionError"):
+        forward(make_program({}, axiom=axiom))
+
+
 def test_bad_successor_and_turtle_arguments_raise() -> None:
     with pytest.raises(ProgramError, match="not a module tuple"):
         forward(make_program({"A": lambda ctx: ["F"]}))
