@@ -149,7 +149,8 @@ def _where(fn: Callable, kind: str, mod: tuple) -> str:
     loc = f"{m.group(1)}:{m.group(2)}: " if m else ""
     if mod[0] == AXIOM:
         return f"{loc}axiom"
-    return f"{loc}{kind} {mod[0]}{tuple(mod[1:]) if len(mod) > 1 else ''}"
+    args = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in mod[1:])
+    return f"{loc}{kind} {mod[0]}({args})" if len(mod) > 1 else f"{loc}{kind} {mod[0]}"
 
 
 class Deriver:
