@@ -269,3 +269,26 @@ def test_particles_that_draw_nothing_get_the_blank_loglik(vines) -> None:
     empties = [p for p in r.particles if not p.primitives]
     assert empties and all(p.log_likelihood == blank for p in empties)
     assert blank < -1000  # eq. 1 of an empty image: far from the target
+
+
+def test_resampling_properties() -> None:
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    weights = st.lists(st.floats(0.0, 1e3), min_size=1, max_size=30).filter(
+        lambda w: sum(w) > 1e-6)
+
+    @settings(max_examples=60, deadline=None)
+    @given(w=weights, n=st.integers(1, 50), scheme=st.sampled_from(sorted(SCHEMES)),
+           seed=st.integers(0, 2**31))
+    def check(w, n, scheme, seed):
+        w = np.array(w)
+        with np.errstate(divide="ignore"):
+            idx = resample(scheme, np.log(w), np.random.Generator(np.random.PCG64(seed)), n)
+        assert len(idx) == n and np.all(np.diff(idx) >= 0)
+        assert np.all(w[idx] > 0)
+        if scheme == "residual":
+            counts = np.bincount(idx, minlength=len(w))
+            assert np.all(counts >= np.floor(n * w / w.sum() + 1e-9) - 1)
+
+    check()
