@@ -237,8 +237,9 @@ def smc(
             log_lik[ia] += blank_ll
 
         if (log_w == np.inf).any():
-            raise SMCFailed(f"a proposal gave zero density to its own value at step {steps} "
-                            f"(program {program.name})")
+            raise SMCFailed(f"a weight became +inf at step {steps} (program {program.name}): "
+                            "a proposal gave zero density to its own value or a likelihood "
+                            "returned +inf")
         if not np.isfinite(log_w).any():
             raise SMCFailed(f"every particle's weight is zero after step {steps} "
                             f"({n} particles, program {program.name})")
