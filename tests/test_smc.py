@@ -292,3 +292,13 @@ def test_resampling_properties() -> None:
             assert np.all(counts >= np.floor(n * w / w.sum() + 1e-9) - 1)
 
     check()
+
+
+def test_infinite_weight_raises_smcfailed() -> None:
+    class Liar(PriorProposal):
+        def propose(self, site, args, features, rng):
+            v, _ = super().propose(site, args, features, rng)
+            return v, np.full(len(v), -np.inf)
+
+    with pytest.raises(SMCFailed, match=r"\+inf"):
+        smc(discrete_program(), None, 10, proposal=Liar())
