@@ -58,14 +58,17 @@ class DemoRow:
     unguided: Any
 
 
-def run_demo(particles: int = 10, seed: int = 0) -> tuple[list[DemoRow], Any]:
-    """Guided and unguided SMC on every built-in target; returns the rows and the guide."""
+def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
+             guide: Any = None) -> tuple[list[DemoRow], Any]:
+    """Guided and unguided SMC on every built-in target; returns the rows and the guide.
+
+    program and guide default to the bundled vines model and guide."""
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
 
     from ngpm_compiler.cmd_guide import grow
 
-    program = bundled_program()
-    guide = bundled_guide(program)
+    program = bundled_program() if program is None else program
+    guide = bundled_guide(program) if guide is None else guide
     rows = []
     for target in demo_targets():
         rows.append(DemoRow(target, grow(program, target, guide, particles, seed),
@@ -74,11 +77,16 @@ def run_demo(particles: int = 10, seed: int = 0) -> tuple[list[DemoRow], Any]:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from ngpm_runtime.bundled import DEMO_TARGETS, bundled_guide, bundled_program
+
     if args.particles < 1:
         raise DemoError("-N must be at least 1")
+    program = bundled_program()
+    guide = bundled_guide(program)
     out = prepare_out_dir(args.out)
-    rows, guide = run_demo(args.particles, args.seed)
-    program = guide.program
+    print(f"growing vines into {len(DEMO_TARGETS)} built-in targets, guided and unguided, "
+          f"{args.particles} particles each ...", flush=True)
+    rows, _ = run_demo(args.particles, args.seed, program, guide)
     files = []
     for row in rows:
         for kind, res in (("guided", row.guided), ("unguided", row.unguided)):

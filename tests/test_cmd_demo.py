@@ -122,6 +122,7 @@ def test_missing_bundled_guide(tmp_path: Path, monkeypatch, capsys) -> None:
     err = capsys.readouterr().err
     assert code != 0
     assert err.count("\n") == 1 and "bundled vines guide is missing" in err
+    assert not (tmp_path / "out").exists()  # checked before anything is written
 
 
 def test_foreign_bundled_guide(tmp_path: Path, monkeypatch, capsys) -> None:
