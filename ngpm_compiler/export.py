@@ -13,8 +13,6 @@ set, per-site layout, widths and selected columns), nets (per-site kind / sizes)
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +21,7 @@ import torch
 from onnx import TensorProto, helper, numpy_helper
 
 from ngpm_compiler.nets import LOGIT_BOUND, LOGSD_BOUND, MEAN_BOUND, GuideModel, NetSpec, SiteNet
+from ngpm_compiler.traces import atomic_write
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
 OPSET = 17
@@ -132,15 +131,4 @@ def build_onnx(model: GuideModel) -> onnx.ModelProto:
 
 def write_onnx(model: GuideModel, path: str | Path) -> Path:
     """Build, check and atomically write the guide's ONNX file."""
-    path = Path(path)
-    data = build_onnx(model).SerializeToString()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return atomic_write(path, build_onnx(model).SerializeToString())

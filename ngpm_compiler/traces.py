@@ -125,21 +125,28 @@ def prior_arg_columns(site: Site, layout: dict[str, slice]) -> slice:
 # --------------------------------------------------------------------------- files
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: str | Path, data: bytes) -> Path:
+    """Write a file atomically (temp file + os.replace), with the usual umask permissions."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    return path
 
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
-    _atomic_write(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
 def _load_npz(path: Path) -> dict[str, np.ndarray]:
@@ -195,7 +202,7 @@ class TraceStore:
             raise TraceError(f"{path}: corrupt manifest") from None
 
     def write_manifest(self, manifest: dict[str, Any]) -> None:
-        _atomic_write(self.dir / "manifest.json",
+        atomic_write(self.dir / "manifest.json",
                       json.dumps(manifest, indent=1).encode("utf-8"))
 
     def write_pending(self, arrays: dict[str, np.ndarray]) -> None:

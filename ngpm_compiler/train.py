@@ -9,8 +9,7 @@ are kept. A checkpoint is written atomically after each epoch, so an interrupted
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
+import io
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -30,7 +29,7 @@ from ngpm_compiler.nets import (
     continuous_z,
     select_columns,
 )
-from ngpm_compiler.traces import SiteData
+from ngpm_compiler.traces import SiteData, atomic_write
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
 
@@ -56,16 +55,9 @@ class _Split:
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    os.close(fd)
-    try:
-        torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    atomic_write(path, buf.getvalue())
 
 
 def save_model(model: GuideModel, path: str | Path) -> None:

@@ -115,3 +115,15 @@ def test_rejects_other_grammar_and_bad_files(tmp_path):
     guide = Guide.load(path, fake_program())
     with pytest.raises(GuideError, match="expects 12 features"):
         guide.params(0, np.zeros((3, 5), np.float32))
+
+
+def test_written_files_follow_the_umask(tmp_path):
+    import os
+
+    umask = os.umask(0o022)
+    try:
+        path = write_onnx(random_model(1, "local"), tmp_path / "g.onnx")
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644
+    assert [p.name for p in tmp_path.iterdir()] == ["g.onnx"]  # no temp file left
