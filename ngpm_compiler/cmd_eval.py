@@ -153,6 +153,8 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     if "chain" in cfg.stages:
         result["chain"] = eval_extra.run_chain(cfg, log)
         log("chain study done")
+    if command:
+        settings.setdefault("commands", {})[",".join(cfg.stages)] = command
     stage_min = dict(settings.get("stage_minutes") or {})
     stage_min[",".join(cfg.stages)] = round((time.perf_counter() - t0) / 60.0, 2)
     settings["stage_minutes"] = stage_min

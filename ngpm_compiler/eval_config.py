@@ -23,6 +23,7 @@ class EvalConfig:
     n_silhouettes: int = 6
     ns: tuple[int, ...] = (1, 2, 5, 10, 20, 50, 100, 200)
     unguided_extra_ns: tuple[int, ...] = (600,)  # unguided only (reference, time curve)
+    ablation_max_n: int = 100  # const / local / local+target: N up to this
     k1_ns: tuple[int, ...] = (1, 2, 5, 10, 20, 50, 100)
     trainset_sizes: tuple[int, ...] = (10, 30, 100, 300, 1000)
     trainset_n: int = 10  # particles for the training-set-size curve
@@ -62,7 +63,7 @@ def quick_config(out: str, work: str, workers: int = 1) -> EvalConfig:
     """Small enough for CI: tiny N, two targets, two repeats, models from a few traces."""
     return EvalConfig(
         out=out, work=work, quick=True, n_glyphs=1, n_silhouettes=1, ns=(1, 3),
-        unguided_extra_ns=(6,), k1_ns=(1, 3), trainset_sizes=(2, 4), trainset_n=3,
+        unguided_extra_ns=(6,), ablation_max_n=3, k1_ns=(1, 3), trainset_sizes=(2, 4), trainset_n=3,
         repeats=2, thresholds=(0.05, 0.1, 0.2, 0.3), epochs=2, grid_targets=2,
         reference_n=6, guided_n=3, tiny_scribbles=3, tiny_traces=5, tiny_particles=20,
         circuit_traces=3, circuit_particles=15, circuit_reference_n=8, circuit_guided_n=3,

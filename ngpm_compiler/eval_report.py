@@ -135,8 +135,10 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
     main = [UNGUIDED, *SHAPE_MODELS]
 
     rd = ["# Results", ""]
-    if command:
-        rd += ["Produced by:", "", "```bash", command, "```", ""]
+    commands = list(dict.fromkeys([*settings.get("commands", {}).values(), command]))
+    commands = [c for c in commands if c]
+    if commands:
+        rd += ["Produced by (from the repository root):", "", "```bash", *commands, "```", ""]
     rd += _settings_lines(settings) + [""]
     if summary:
         rd += ["## Headline figures", ""] + headline(summary, speed, guided_n) + [""]

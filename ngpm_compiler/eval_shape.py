@@ -124,8 +124,10 @@ def run_shape(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
               kept: int, log: Any = print) -> list[dict[str, Any]]:
     """Every SMC run of the shape study; writes shape_runs.csv and returns its rows."""
     counts = {ds: len(ts) for ds, ts in targets.items()}
-    main = [UNGUIDED, *SHAPE_MODELS]
-    tasks = shape_tasks(main, counts, cfg.ns, cfg.repeats, cfg.seed)
+    tasks = shape_tasks([UNGUIDED, "all"], counts, cfg.ns, cfg.repeats, cfg.seed)
+    ablation = [m for m in SHAPE_MODELS if m != "all"]
+    tasks += shape_tasks(ablation, counts, [n for n in cfg.ns if n <= cfg.ablation_max_n],
+                         cfg.repeats, cfg.seed)
     tasks += shape_tasks([UNGUIDED], counts, cfg.unguided_extra_ns, cfg.repeats, cfg.seed)
     tasks += shape_tasks(["all_k1"], counts, cfg.k1_ns, cfg.repeats, cfg.seed)
     ts_models = [m for m in trainset_models(cfg, kept).values() if m != "all"]
@@ -215,6 +217,23 @@ def equal_time_n(summary: list[dict[str, Any]], seconds: float, n_min: int) -> i
     return max(n_min, int(round(math.exp(ln))))
 
 
+def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int, seed: int,
+                   tries: int = 4) -> tuple[float, float, list[tuple], int]:
+    """Unguided SMC whose wall time is close to `seconds`: start from the estimate `n`,
+    rescale N by the time ratio until within 25% (at most `tries` runs)."""
+    res = grow_once(program, target, None, n, seed)
+    for _ in range(tries - 1):
+        ratio = seconds / max(res[1], 1e-6)
+        if 0.8 <= ratio <= 1.25:
+            break
+        new_n = max(n_min, int(round(n * ratio)))
+        if new_n == n:
+            break
+        n = new_n
+        res = grow_once(program, target, None, n, seed)
+    return res[0], res[1], res[2], n
+
+
 def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, str],
               summary: list[dict[str, Any]], log: Any = print) -> list[dict[str, Any]]:
     """Target | Reference | Guided | Unguided equal N | Unguided equal time, per test set."""
@@ -237,13 +256,18 @@ def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
             size = 150
             cells = [{"image": plots.target_image(t.mask, size), "caption": t.name}]
             guided = grow_once(program, t, guide, cfg.guided_n, seed)
-            n_eq = equal_time_n(overall, guided[1], cfg.guided_n)
+            equal = equal_time_run(program, t, guided[1], equal_time_n(
+                overall, guided[1], cfg.guided_n), cfg.guided_n, seed)
             runs = [("reference", None, cfg.reference_n), ("guided", guide, cfg.guided_n),
                     ("unguided_equal_n", None, cfg.guided_n),
-                    ("unguided_equal_time", None, n_eq)]
+                    ("unguided_equal_time", None, equal[3])]
             for kind, prop, n in runs:
-                sim, secs, prims = guided if kind == "guided" else grow_once(
-                    program, t, prop, n, seed)
+                if kind == "guided":
+                    sim, secs, prims = guided
+                elif kind == "unguided_equal_time":
+                    sim, secs, prims = equal[:3]
+                else:
+                    sim, secs, prims = grow_once(program, t, prop, n, seed)
                 img = render_array(prims, program.viewport, size, target_mask=t.mask)
                 cells.append({"image": img,
                               "caption": f"N = {n}, {plots.fmt_secs(secs)}\nsim {sim:.3f}"})

@@ -17,7 +17,6 @@ import io
 import math
 import multiprocessing as mp
 import os
-import tempfile
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -25,6 +24,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ngpm_compiler.traces import atomic_write
+
+__all__ = ["atomic_write"]  # re-exported for the other eval_* modules
 
 RUN_FIELDS = ("model", "dataset", "target", "n", "repeat", "seed", "similarity", "seconds",
               "primitives")
@@ -246,20 +249,6 @@ def n_to_match(summary: list[dict[str, Any]], similarity: float,
 
 
 # --------------------------------------------------------------------------- files
-
-
-def atomic_write(path: str | Path, data: bytes) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix="." + path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def write_csv(path: str | Path, rows: list[dict[str, Any]], fields: Iterable[str]) -> Path:
