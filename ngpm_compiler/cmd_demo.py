@@ -1,8 +1,10 @@
 """`ngpmc demo`: grow guided and unguided vines into the built-in targets, side by side.
 
-Writes `demo.png` (rows: targets; columns: target | guided | unguided, similarity and
-seconds under each), one render per run and `summary.md`, and prints the summary. Uses only
-the package data (ngpm_runtime.bundled): nothing is trained or downloaded.
+Each configuration runs `--runs` times (seeds seed, seed+1, ...): the table gives the mean
+similarity and seconds over the runs, the pictures show the median run. Writes `demo.png`
+(rows: targets; columns: target | guided | unguided, similarity and seconds under each),
+one render of each median run and `summary.md`, and prints the summary. Uses only the package
+data (ngpm_runtime.bundled): nothing is trained or downloaded.
 
 `write_demo_targets(dir)` (re)makes the built-in demo targets shipped in runtime/data/.
 """
@@ -44,7 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"output folder (default: {DEFAULT_OUT})")
     p.add_argument("-N", "--particles", type=int, default=10,
                    help="particles per run, guided and unguided (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--runs", type=int, default=3,
+                   help="runs per target and kind, seeds seed, seed+1, ... (default 3)")
     p.set_defaults(handler=cmd_demo)
 
 
@@ -54,12 +58,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 @dataclass
 class DemoRow:
     target: Target
-    guided: Any  # cmd_guide.GrowResult
-    unguided: Any
+    guided_runs: list[Any]  # cmd_guide.GrowResult per seed
+    unguided_runs: list[Any]
+
+    @property
+    def guided(self) -> Any:
+        """The median guided run (by similarity)."""
+        return median_run(self.guided_runs)
+
+    @property
+    def unguided(self) -> Any:
+        return median_run(self.unguided_runs)
+
+
+def median_run(runs: list[Any]) -> Any:
+    """The run with the median similarity (the lower middle one for an even count)."""
+    return sorted(runs, key=lambda r: r.similarity)[(len(runs) - 1) // 2]
 
 
 def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
-             guide: Any = None) -> tuple[list[DemoRow], Any]:
+             guide: Any = None, runs: int = 3) -> tuple[list[DemoRow], Any]:
     """Guided and unguided SMC on every built-in target; returns the rows and the guide.
 
     program and guide default to the bundled vines model and guide."""
@@ -71,8 +89,9 @@ def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
     guide = bundled_guide(program) if guide is None else guide
     rows = []
     for target in demo_targets():
-        rows.append(DemoRow(target, grow(program, target, guide, particles, seed),
-                            grow(program, target, None, particles, seed)))
+        seeds = range(seed, seed + runs)
+        rows.append(DemoRow(target, [grow(program, target, guide, particles, s) for s in seeds],
+                            [grow(program, target, None, particles, s) for s in seeds]))
     return rows, guide
 
 
@@ -81,12 +100,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     if args.particles < 1:
         raise DemoError("-N must be at least 1")
+    if args.runs < 1:
+        raise DemoError("--runs must be at least 1")
     program = bundled_program()
     guide = bundled_guide(program)
     out = prepare_out_dir(args.out)
     print(f"growing vines into {len(DEMO_TARGETS)} built-in targets, guided and unguided, "
-          f"{args.particles} particles each ...", flush=True)
-    rows, _ = run_demo(args.particles, args.seed, program, guide)
+          f"{args.particles} particles, {args.runs} runs each ...", flush=True)
+    rows, _ = run_demo(args.particles, args.seed, program, guide, args.runs)
     files = []
     for row in rows:
         for kind, res in (("guided", row.guided), ("unguided", row.unguided)):
@@ -95,9 +116,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
             files.append(path)
     sheet = out / "demo.png"
     _save_png(comparison_image(rows, args.particles, program.viewport), sheet)
-    text = summary_markdown(rows, guide, args.particles, args.seed)
+    text = summary_markdown(rows, guide, args.particles, args.seed, args.runs)
     _write_text(out / "summary.md", text)
-    print(summary_table(rows, args.particles))
+    print(summary_table(rows, args.particles, args.runs))
     print(f"wrote {sheet}, {out / 'summary.md'} and {len(files)} renders in {out}")
     return 0
 
@@ -119,52 +140,63 @@ def prepare_out_dir(path: str | os.PathLike) -> Path:
 # --------------------------------------------------------------------------- summary
 
 
-def _fmt(res: Any) -> tuple[str, str]:
-    return f"{res.similarity:.3f}", f"{res.seconds:.2f}"
+def _stats(runs: list[Any]) -> tuple[str, str]:
+    """Mean similarity and mean seconds over runs, formatted."""
+    sim = float(np.mean([r.similarity for r in runs]))
+    return f"{sim:.3f}", f"{float(np.mean([r.seconds for r in runs])):.2f}"
 
 
-def summary_table(rows: list[DemoRow], particles: int) -> str:
+def _mean(rows: list[DemoRow], kind: str) -> tuple[str, str]:
+    return _stats([r for row in rows for r in getattr(row, f"{kind}_runs")])
+
+
+def summary_table(rows: list[DemoRow], particles: int, runs: int = 1) -> str:
     head = ("target", f"guided N={particles}", "seconds", f"unguided N={particles}", "seconds")
-    body = [(r.target.name, *_fmt(r.guided), *_fmt(r.unguided)) for r in rows]
+    body = [(r.target.name, *_stats(r.guided_runs), *_stats(r.unguided_runs)) for r in rows]
     body.append(("mean", *_mean(rows, "guided"), *_mean(rows, "unguided")))
     widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
     lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w)
                        for i, (c, w) in enumerate(zip(r, widths, strict=True)))
              for r in [head, *body]]
     lines.insert(1, "-" * len(lines[0]))
-    return "similarity (1 = the target exactly, 0 = no better than a blank canvas)\n" + \
-        "\n".join(lines)
+    return (f"similarity (1 = the target exactly, 0 = no better than a blank canvas) and "
+            f"seconds, mean of {runs} run{'s' if runs > 1 else ''}\n" + "\n".join(lines))
 
 
-def _mean(rows: list[DemoRow], kind: str) -> tuple[str, str]:
-    sims = [getattr(r, kind).similarity for r in rows]
-    secs = [getattr(r, kind).seconds for r in rows]
-    return f"{np.mean(sims):.3f}", f"{np.mean(secs):.2f}"
-
-
-def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int) -> str:
+def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int,
+                     runs: int = 1) -> str:
     from ngpm_runtime.bundled import guide_summary
 
     program = guide.program
+    seeds = f"seed {seed}" if runs == 1 else f"seeds {seed} to {seed + runs - 1}"
     lines = [
         "# ngpm demo: guided vs unguided SMC",
         "",
         f"Grammar `{program.name}` ({program.grammar_hash[:19]}...), {particles} particles per "
-        f"run, seed {seed}. Guide: `{Path(guide.path).name}` ({guide_summary(guide)}).",
+        f"run, {runs} run{'s' if runs > 1 else ''} per target and kind ({seeds}). "
+        f"Guide: `{Path(guide.path).name}` ({guide_summary(guide)}).",
         "",
         "Similarity is the paper's normalized shape similarity of the best particle: 1 is the "
-        "target exactly, 0 is no better than a blank canvas. Seconds are each SMC run's "
-        "wall-clock time; unguided runs are short because under the prior most vines stop "
-        "after a few branches.",
+        "target exactly, 0 is no better than a blank canvas. The table gives the mean over the "
+        "runs; the pictures show the median run. Seconds are each SMC run's wall-clock time; "
+        "unguided runs are short because under the prior most vines stop after a few "
+        "branches.",
         "",
         f"| target | guided N={particles} | seconds | unguided N={particles} | seconds |",
         "|---|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r.target.name} | {' | '.join(_fmt(r.guided))} | "
-                     f"{' | '.join(_fmt(r.unguided))} |")
+        lines.append(f"| {r.target.name} | {' | '.join(_stats(r.guided_runs))} | "
+                     f"{' | '.join(_stats(r.unguided_runs))} |")
     lines.append(f"| **mean** | {' | '.join(_mean(rows, 'guided'))} | "
                  f"{' | '.join(_mean(rows, 'unguided'))} |")
+    lines.append("")
+    lines.append("Every run (similarity):")
+    lines.append("")
+    for r in rows:
+        g = ", ".join(f"{x.similarity:.3f}" for x in r.guided_runs)
+        u = ", ".join(f"{x.similarity:.3f}" for x in r.unguided_runs)
+        lines.append(f"- {r.target.name}: guided {g}; unguided {u}")
     lines += ["", "![comparison](demo.png)", "",
               "Grow a vine into your own picture: `ngpmc grow picture.png -o vine.png`.", ""]
     return "\n".join(lines)
@@ -209,7 +241,8 @@ def target_picture(target: Target, size: int) -> np.ndarray:
 
 
 def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.ndarray:
-    """RGB array: one row per target, columns target | guided | unguided, with captions."""
+    """RGB array: one row per target, columns target | guided | unguided (median runs),
+    with captions."""
     if not rows:
         raise DemoError("no demo targets to draw")
     cols = 3
@@ -218,7 +251,9 @@ def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.n
     sheet = Image.new("RGB", (width, height), (255, 255, 255))
     draw = ImageDraw.Draw(sheet)
     title, small = _font(15), _font(13)
-    heads = ("target", f"guided, N={particles}", f"unguided, N={particles}")
+    runs = len(rows[0].guided_runs)
+    median = f", median of {runs}" if runs > 1 else ""
+    heads = ("target", f"guided, N={particles}{median}", f"unguided, N={particles}{median}")
     for c, text in enumerate(heads):
         draw.text((PAD + c * (CELL + PAD) + CELL / 2, HEADER / 2), text, fill=(0, 0, 0),
                   font=title, anchor="mm")

@@ -67,6 +67,14 @@ def test_summary_md_holds_a_row_per_target_and_matches_stdout(demo_run) -> None:
         line = next(ln for ln in proc.stdout.splitlines() if ln.startswith(name + " "))
         assert line.split() == [name, gs, gt, us, ut]
     assert "![comparison](demo.png)" in text
+    assert "3 runs per target and kind (seeds 0 to 2)" in text
+    runs = [ln for ln in text.splitlines() if ln.startswith("- ")]
+    assert len(runs) == len(rows)
+    for line in runs:  # the table's mean is the mean of the listed runs
+        name = line[2:].split(":")[0]
+        guided = [float(x) for x in line.split("guided ")[1].split(";")[0].split(", ")]
+        assert len(guided) == 3
+        assert abs(np.mean(guided) - float(rows[name][0])) < 1.5e-3
     assert "grammar `vines`".lower() in text.lower()
 
 
@@ -80,8 +88,8 @@ def test_guide_beats_prior_on_the_demo_targets(demo_run) -> None:
 
 
 def test_demo_is_deterministic_for_a_seed() -> None:
-    a, _ = cmd_demo.run_demo(particles=3, seed=5)
-    b, _ = cmd_demo.run_demo(particles=3, seed=5)
+    a, _ = cmd_demo.run_demo(particles=3, seed=5, runs=1)
+    b, _ = cmd_demo.run_demo(particles=3, seed=5, runs=1)
     for ra, rb in zip(a, b, strict=True):
         assert ra.guided.similarity == rb.guided.similarity
         assert ra.unguided.primitives == rb.unguided.primitives
@@ -110,6 +118,8 @@ def test_unwritable_output_path(tmp_path: Path) -> None:
 def test_bad_particle_count(tmp_path: Path) -> None:
     line = one_line_error(ngpmc("demo", "-N", "0", "-o", "x", cwd=tmp_path))
     assert "-N must be at least 1" in line
+    line = one_line_error(ngpmc("demo", "--runs", "0", "-o", "x", cwd=tmp_path))
+    assert "--runs must be at least 1" in line
     assert not (tmp_path / "x").exists()
 
 
