@@ -17,6 +17,8 @@ from ngpm_runtime.raster import N_LEVELS, Canvas, Viewport, pyramid
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
+_DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
+_DC = np.tile(np.arange(-1, 2), 3)
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -40,41 +42,6 @@ def _unit(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.minimum(np.maximum(u, -10.0), 10.0), np.minimum(np.maximum(v, -10.0), 10.0)
 
 
-def window_cells(shapes: list[tuple[int, int]], u: np.ndarray, v: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """3x3 windows at every level: cell index within its level (n, L, 3, 3), inside mask."""
-    u, v = _unit(u, v)
-    hs = np.array([s[0] for s in shapes], dtype=np.intp)
-    ws = np.array([s[1] for s in shapes], dtype=np.intp)
-    off = np.arange(-1, 2)
-    rows = np.floor(v[:, None] * hs).astype(np.intp)[:, :, None] + off  # (n, L, 3)
-    cols = np.floor(u[:, None] * ws).astype(np.intp)[:, :, None] + off
-    hb, wb = hs[:, None], ws[:, None]
-    ok = ((rows >= 0) & (rows < hb))[..., None] & ((cols >= 0) & (cols < wb))[..., None, :]
-    rows = np.minimum(np.maximum(rows, 0), np.maximum(hb - 1, 0))
-    cols = np.minimum(np.maximum(cols, 0), np.maximum(wb - 1, 0))
-    cell = rows[..., None] * wb[..., None] + cols[..., None, :]
-    return cell, ok
-
-
-def window_features(levels: list[np.ndarray], idx: np.ndarray | None,
-                    u: np.ndarray, v: np.ndarray,
-                    cells: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """(n, 9 L) 3x3 windows at every level, -1 outside; `levels[l]` is (N, h, w) read at
-    particles `idx`, or (h, w) when idx is None. `cells` = window_cells(...) if known."""
-    shapes = [a.shape[-2:] for a in levels]
-    cell, ok = window_cells(shapes, u, v) if cells is None else cells
-    n = cell.shape[0]
-    vals = np.empty(cell.shape, dtype=np.float32)
-    for lv, arr in enumerate(levels):
-        h, w = shapes[lv]
-        if h == 0 or w == 0:
-            continue
-        flat = cell[:, lv] if idx is None else cell[:, lv] + (idx * (h * w))[:, None, None]
-        vals[:, lv] = arr.reshape(-1)[flat]
-    return np.where(ok, vals, np.float32(-1.0)).reshape(n, -1)
-
-
 class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
@@ -85,6 +52,8 @@ class FeatureMaker:
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (None if target_mask is None
                               else pyramid(np.asarray(target_mask, dtype=bool)))
+        self._target_flat: np.ndarray | None = None
+        self._geom: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
         if canvas is not None:
@@ -110,35 +79,71 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per canvas size: level heights, widths and row-major starts (concatenated)."""
+        key = (h, w)
+        if key not in self._geom:
+            hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.intp)
+            ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.intp)
+            starts = np.concatenate([[0], np.cumsum(hs * ws)[:-1]]).astype(np.intp)
+            self._geom[key] = (hs, ws, starts)
+        return self._geom[key]
+
     def features(self, site: Site, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                  depth: np.ndarray, params: np.ndarray, prior_args: np.ndarray) -> np.ndarray:
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
         turtle = np.asarray(turtle, dtype=np.float64).reshape(n, 4)
-        x, y, heading, width = turtle.T
         xmin, xmax, ymin, ymax = self.viewport
-        u = (x - xmin) / (xmax - xmin)
-        v = (ymax - y) / (ymax - ymin)
+        u = (turtle[:, 0] - xmin) / (xmax - xmin)
+        v = (ymax - turtle[:, 1]) / (ymax - ymin)
+        heading = turtle[:, 2]
+        a, k = int(site.arity), int(site.n_args())
+        nl = N_LOCAL_BASE + a + k
+        out = np.empty((n, nl + 2 * N_WINDOW), dtype=np.float32)
+        out[:, 0] = 2.0 * u - 1.0
+        out[:, 1] = 1.0 - 2.0 * v
+        out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
         rad = np.radians(heading)
-        base = np.stack([2.0 * u - 1.0, 1.0 - 2.0 * v, np.mod(heading, 360.0) / 180.0 - 1.0,
-                         np.sin(rad), np.cos(rad), width,
-                         np.asarray(depth, dtype=np.float64).reshape(n)
-                         / self.derivation_length], axis=1)
-        lay = self.layout(site)
-        out = np.empty((n, self.n_features(site)), dtype=np.float32)
-        out[:, :N_LOCAL_BASE] = base
-        out[:, N_LOCAL_BASE:N_LOCAL_BASE + site.arity] = _fit_columns(params, n, site.arity)
-        out[:, N_LOCAL_BASE + site.arity:lay["local"].stop] = _fit_columns(
-            prior_args, n, site.n_args())
-        shapes = [(h >> lv, w >> lv) for lv in range(N_LEVELS)
-                  for h, w in [self._shape(canvas)]]
-        cells = window_cells(shapes, u, v)
+        out[:, 3] = np.sin(rad)
+        out[:, 4] = np.cos(rad)
+        out[:, 5] = turtle[:, 3]
+        out[:, 6] = np.asarray(depth, dtype=np.float64).reshape(n) / self.derivation_length
+        out[:, N_LOCAL_BASE:N_LOCAL_BASE + a] = _fit_columns(params, n, a)
+        out[:, N_LOCAL_BASE + a:nl] = _fit_columns(prior_args, n, k)
+        target = out[:, nl:nl + N_WINDOW]
+        partial = out[:, nl + N_WINDOW:]
+        h, w = self._shape(canvas)
+        if h == 0 or w == 0:
+            target[:] = 0.0 if self.target_levels is None else -1.0
+            partial[:] = 0.0 if canvas is None else -1.0
+            return out
+        if not (np.isfinite(u).all() and np.isfinite(v).all()):
+            u, v = _unit(u, v)
+        hs, ws, starts = self._windows(h, w)
+        # 3x3 cells around the turtle's pixel at each level: (n, L, 9)
+        rows = np.floor(np.clip(v, -10.0, 10.0)[:, None] * hs).astype(np.intp)
+        cols = np.floor(np.clip(u, -10.0, 10.0)[:, None] * ws).astype(np.intp)
+        rows = rows[:, :, None] + _DR
+        cols = cols[:, :, None] + _DC
+        hb, wb = hs[:, None], ws[:, None]
+        ok = (rows >= 0) & (rows < hb) & (cols >= 0) & (cols < wb)
+        cell = (np.minimum(np.maximum(rows, 0), hb - 1) * wb
+                + np.minimum(np.maximum(cols, 0), wb - 1))
         if self.target_levels is None:
-            out[:, lay["target"]] = 0.0
+            target[:] = 0.0
         else:
-            out[:, lay["target"]] = window_features(self.target_levels, None, u, v, cells)
+            if self._target_flat is None:
+                self._target_flat = np.concatenate(
+                    [lev.reshape(-1) for lev in self.target_levels]).astype(np.float32)
+            vals = self._target_flat[cell + starts[:, None]]
+            target[:] = np.where(ok, vals, np.float32(-1.0)).reshape(n, N_WINDOW)
         if canvas is None:
-            out[:, lay["partial"]] = 0.0
+            partial[:] = 0.0
         else:
-            out[:, lay["partial"]] = window_features(canvas.levels, idx, u, v, cells)
+            vals = np.empty(cell.shape, dtype=np.float32)
+            for lv, arr in enumerate(canvas.levels):
+                flat = arr.reshape(-1)
+                vals[:, lv] = flat[cell[:, lv] + (idx * int(hs[lv] * ws[lv]))[:, None]]
+            partial[:] = np.where(ok, vals, np.float32(-1.0)).reshape(n, N_WINDOW)
         return out
