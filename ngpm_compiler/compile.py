@@ -6,12 +6,12 @@ import hashlib
 import json
 import os
 import sys
-import tempfile
 import types
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
 
 from ngpm_compiler.checker import Checked, check
@@ -80,18 +80,6 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
         raise GrammarError("expressions or successors are nested too deeply", filename, 1, 1,
                            text) from None
     return CompiledGrammar(name, filename, text, code, checked.sites, digest, checked)
-
-
-def atomic_write(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike) -> tuple[Path, Path]:

@@ -8,6 +8,7 @@ Nothing is downloaded: fonts and silhouettes come from files on this machine.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import os
@@ -18,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError, TargetError
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.targets import (
     IMAGE_SUFFIXES,
     Target,
-    atomic_write_bytes,
     auto_start,
     check_mask,
     image_to_mask,
@@ -517,7 +518,7 @@ def _check_previous(index: Path, params: dict) -> None:
 
 
 def _write_index(out: Path, meta: dict) -> None:
-    atomic_write_bytes(out / "index.json", (json.dumps(meta, indent=1) + "\n").encode())
+    atomic_write(out / "index.json", json.dumps(meta, indent=1) + "\n")
 
 
 # --- contact sheets ----------------------------------------------------------------------
@@ -557,16 +558,10 @@ def contact_sheet(targets: list[Target], path: str | os.PathLike, cols: int | No
         if labels:
             text = t.name if len(t.name) <= cell // 6 else t.name.split("_", 1)[-1]
             draw.text((x0, y0 + cell + 1), text, fill=(0, 0, 0), font=font)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        sheet.quantize(colors=32, method=Image.Quantize.MEDIANCUT).save(
-            tmp, format="PNG", optimize=True)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    buf = io.BytesIO()
+    sheet.quantize(colors=32, method=Image.Quantize.MEDIANCUT).save(buf, format="PNG",
+                                                                    optimize=True)
+    path = atomic_write(path, buf.getvalue())
     return path
 
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 import base64
 import io
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.raster import Viewport, prim_mask, viewport_of
 
 BACKGROUND = (255, 255, 255)
@@ -137,16 +137,6 @@ def _svg_text(prims: list[tuple], vp: Viewport, size: int,
     return "\n".join(out) + "\n"
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def save_render(prims: list[tuple], path: str | Path, viewport: Viewport | None = None,
                 size: int = 512, target_mask: np.ndarray | None = None) -> Path:
     """Write a render as PNG or SVG (chosen by the suffix); returns the path."""
@@ -161,7 +151,7 @@ def save_render(prims: list[tuple], path: str | Path, viewport: Viewport | None 
         raise RenderError(f"{path}: unknown render format {suffix or '(none)'!r}; "
                           "use .png or .svg")
     try:
-        _write_atomic(path, data)
+        atomic_write(path, data)
     except OSError as err:
         raise RenderError(f"{path}: cannot write render: {err.strerror or err}") from None
     return path

@@ -10,17 +10,18 @@ by area averaging; a pixel is foreground when at least half of it is covered.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import numbers
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from ngpm_runtime.errors import TargetError
+from ngpm_runtime.files import atomic_write
 from PIL import Image, ImageOps, PngImagePlugin, UnidentifiedImageError
 from scipy.ndimage import convolve, distance_transform_edt
 from skimage.filters import threshold_otsu
@@ -105,7 +106,7 @@ def read_sidecar(path: str | os.PathLike) -> Start:
 def write_sidecar(path: str | os.PathLike, start: Start) -> None:
     """Write a sidecar atomically."""
     x, y, dx, dy = _check_start(start, f"sidecar {path}:")
-    atomic_write_bytes(Path(path), f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
+    atomic_write(path, f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
 
 
 def _check_start(start: Sequence[float], where: str) -> Start:
@@ -285,15 +286,9 @@ def save_target(target: Target, path: str | os.PathLike) -> Path:
     img = Image.fromarray(np.where(target.mask, 0, 255).astype(np.uint8), mode="L")
     info = PngImagePlugin.PngInfo()
     info.add_text(POLARITY_KEY, "dark")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png.tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            img.save(fh, format="PNG", pnginfo=info, optimize=True)
-        os.replace(tmp, path)
-    except BaseException:
-        _unlink(tmp)
-        raise
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", pnginfo=info, optimize=True)
+    atomic_write(path, buf.getvalue())
     write_sidecar(sidecar_path(path), target.start)
     return path
 
@@ -435,26 +430,6 @@ def _branch_direction(skel: np.ndarray, r0: int, c0: int, reach: int) -> tuple[f
 
 
 # --- helpers -----------------------------------------------------------------------------
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write bytes via a temporary file in the same directory and os.replace."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        _unlink(tmp)
-        raise
-
-
-def _unlink(path: str) -> None:
-    try:
-        os.unlink(path)
-    except OSError:
-        pass
 
 
 def _reason(err: BaseException) -> str:
