@@ -55,9 +55,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--n-glyphs", type=int, help="test glyphs (default 12)")
     p.add_argument("--n-silhouettes", type=int, help="test silhouettes (default 6)")
     p.add_argument("--ns", type=_ints, help="particle counts, e.g. 1,2,5,10,20,50,100,200")
+    p.add_argument("--unguided-ns", type=_ints,
+                   help="extra particle counts for unguided SMC only (default 600)")
     p.add_argument("--repeats", type=int, help="SMC runs per target and N (default 3)")
     p.add_argument("--workers", type=int, help="processes (default 2; quick: 1)")
     p.add_argument("--circuit-traces", type=int, help="circuit traces (default 200)")
+    p.add_argument("--circuit-repeats", type=int, help="circuit runs of each kind (default 5)")
     p.add_argument("--stages", default=",".join(STAGES),
                    help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
     p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
@@ -78,8 +81,10 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
                         f"choose from {', '.join(STAGES)}")
     cfg.stages = stages
     for key in ("traces", "guide_all", "glyphs", "silhouettes", "n_glyphs", "n_silhouettes",
-                "ns", "repeats", "workers", "circuit_traces"):
+                "ns", "repeats", "workers", "circuit_traces", "circuit_repeats",
+                "unguided_ns"):
         v = getattr(args, key, None)
+        key = "unguided_extra_ns" if key == "unguided_ns" else key
         if v is not None:
             setattr(cfg, key, v)
     cfg.seed = args.seed
@@ -153,7 +158,7 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     if "chain" in cfg.stages:
         result["chain"] = eval_extra.run_chain(cfg, log)
         log("chain study done")
-    if command:
+    if command and cfg.stages != ("report",):
         settings.setdefault("commands", {})[",".join(cfg.stages)] = command
     stage_min = dict(settings.get("stage_minutes") or {})
     stage_min[",".join(cfg.stages)] = round((time.perf_counter() - t0) / 60.0, 2)

@@ -208,12 +208,12 @@ def chain_arc(rng: np.random.Generator, program: Any, size: int = 50, links: int
 
     vp = program.viewport
     x, y, h = program.start
-    a, b = rng.uniform(-10, 10), rng.uniform(-12, 12)
+    a, b = rng.uniform(-14, 14), rng.uniform(-16, 16)
     prims = []
     for i in range(links):
         h += a + b * (i / links - 0.5)
         nx, ny = x + math.cos(math.radians(h)), y + math.sin(math.radians(h))
-        prims.append(("seg", x, y, nx, ny, 1.6))
+        prims.append(("seg", x, y, nx, ny, 1.0))
         x, y = nx, ny
     mask = rasterize(prims, vp, size, size).astype(bool)
     xmin, xmax, ymin, ymax = vp

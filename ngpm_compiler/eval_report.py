@@ -68,6 +68,19 @@ def ci_table(summary: list[dict[str, Any]], dataset: str, models: list[str]) -> 
     return _table(["model", "N", "targets", "similarity", "95% CI", "mean s"], rows)
 
 
+def match_table(summary: list[dict[str, Any]], dataset: str, models: list[str]) -> str:
+    sub = [r for r in summary if r["dataset"] == dataset]
+    ns_u, s_u, _ = curve(sub, UNGUIDED)
+    rows = []
+    for m in models:
+        for r in sorted((x for x in sub if x["model"] == m), key=lambda x: int(x["n"])):
+            need = time_to_reach(s_u, ns_u.astype(float), float(r["mean_similarity"]))
+            txt = f"> {int(ns_u.max())}" if math.isnan(need) else f"{need:.0f}"
+            ratio = "" if math.isnan(need) else f"{need / int(r['n']):.1f}"
+            rows.append([label(m), r["n"], _f(r["mean_similarity"]), txt, ratio])
+    return _table(["model", "N", "similarity", "unguided N to match", "particle ratio"], rows)
+
+
 def headline(summary: list[dict[str, Any]], speed: list[dict[str, Any]], guided_n: int
              ) -> list[str]:
     """Sentences with the task's target figures."""
@@ -180,6 +193,11 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
             rp += [f"## Similarity with 95% CI: {ds}", "",
                    ci_table(summary, ds, main + ["all_k1"] + sorted(
                        {r["model"] for r in summary if r["model"].startswith("all_n")}))]
+    if summary:
+        rp += ["## Unguided particles needed to match each guided run (all test targets)", "",
+               "N of unguided SMC (log-interpolated) whose mean similarity equals the model's "
+               "at its N; '>' where unguided never gets there.", "",
+               match_table(summary, "all", list(SHAPE_MODELS) + ["all_k1"])]
     if speed:
         rp += ["## Time to reach a similarity (all test targets)", "", _table(
             ["model", "similarity", "seconds", "unguided seconds", "speedup"],

@@ -218,20 +218,23 @@ def equal_time_n(summary: list[dict[str, Any]], seconds: float, n_min: int) -> i
 
 
 def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int, seed: int,
-                   tries: int = 4) -> tuple[float, float, list[tuple], int]:
-    """Unguided SMC whose wall time is close to `seconds`: start from the estimate `n`,
-    rescale N by the time ratio until within 25% (at most `tries` runs)."""
-    res = grow_once(program, target, None, n, seed)
-    for _ in range(tries - 1):
-        ratio = seconds / max(res[1], 1e-6)
+                   tries: int = 4, n_max: int = 5000) -> tuple[float, float, list[tuple], int]:
+    """Unguided SMC whose wall time is closest to `seconds`: start from the estimate `n`,
+    rescale N by the time ratio (at most x4 per try) until within 25%; returns
+    (similarity, seconds, primitives, N) of the try closest in time."""
+    tried = []
+    for _ in range(tries):
+        sim, secs, prims = grow_once(program, target, None, n, seed)
+        tried.append((abs(math.log(max(secs, 1e-6) / max(seconds, 1e-6))), sim, secs, prims, n))
+        ratio = min(4.0, max(0.25, seconds / max(secs, 1e-6)))
         if 0.8 <= ratio <= 1.25:
             break
-        new_n = max(n_min, int(round(n * ratio)))
+        new_n = min(n_max, max(n_min, int(round(n * ratio))))
         if new_n == n:
             break
         n = new_n
-        res = grow_once(program, target, None, n, seed)
-    return res[0], res[1], res[2], n
+    _, sim, secs, prims, n = min(tried, key=lambda x: x[0])
+    return sim, secs, prims, n
 
 
 def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, str],
