@@ -64,11 +64,14 @@ def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return idx.astype(np.float64)
 
 
-def _categorical_logpmf(p: np.ndarray, values: np.ndarray) -> np.ndarray:
+def _categorical_logpmf(p: np.ndarray, values: np.ndarray,
+                        rows: np.ndarray | None = None) -> np.ndarray:
+    """log p[row, value] per value; `rows` picks the row of `p` for each value
+    (default: row i for value i)."""
     v = np.asarray(values)
     ok = (v >= 0) & (v < p.shape[1]) & (v == np.floor(v))
     k = np.where(ok, v, 0).astype(np.intp)
-    out = _log(p[np.arange(p.shape[0]), k])
+    out = _log(p[np.arange(p.shape[0]) if rows is None else rows, k])
     return np.where(ok, out, -np.inf)
 
 
@@ -155,6 +158,9 @@ def prior_logpdf(site: Site, args: np.ndarray, values: np.ndarray) -> np.ndarray
         out = np.where(x == 1.0, _log(p), _log(1.0 - p))
         return np.where((x == 0.0) | (x == 1.0), out, -np.inf)
     if kind == "categorical":
+        if args.shape[0] > 1 and (args == args[0]).all():  # one distribution for all rows
+            return _categorical_logpmf(_categorical_probs(site, args[:1]),
+                                       x, rows=np.zeros(len(x), dtype=np.intp))
         return _categorical_logpmf(_categorical_probs(site, args), x)
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
 
@@ -260,4 +266,40 @@ def proposal_logpdf(
         return np.where((x == 0.0) | (x == 1.0), out, -np.inf)
     if kind == "categorical":
         return _categorical_logpmf(_probs(params), x)
+    raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def proposal_draw(
+    site: Site, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """`proposal_sample` and `proposal_logpdf` of the drawn values in one pass: returns
+    (values, log q). The log q values equal `proposal_logpdf(site, args, params, values)`."""
+    args = _check_args(site, args)
+    kind = site.kind
+    n = args.shape[0]
+    if kind == "categorical":
+        p = np.asarray(params, dtype=np.float64)
+        if (p >= 0).all():
+            total = p.sum(axis=1)
+            if (total > 0).all():
+                cum = np.cumsum(p, axis=1)
+                u = rng.random(n) * cum[:, -1]
+                k = np.minimum((cum <= u[:, None]).sum(axis=1), p.shape[1] - 1)
+                rows = np.arange(n)
+                # the same arithmetic as _probs, so log q equals proposal_logpdf's
+                return k.astype(np.float64), _log(p[rows, k] / total)
+        probs = _probs(p)
+        v = _categorical_sample(probs, rng)
+        return v, _log(probs[np.arange(n), v.astype(np.intp)])
+    if kind == "bernoulli":
+        p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
+        v = (rng.random(n) < p).astype(np.float64)
+        return v, _log(np.where(v == 1.0, p, 1.0 - p))
+    if kind == "normal":
+        logw, mean, sd = _normal_mixture(args, params)
+        v = _mixture_sample(logw, mean, sd, rng)
+        return v, _mixture_logpdf(v, logw, mean, sd)
+    if kind == "uniform":
+        v = proposal_sample(site, args, params, rng)
+        return v, proposal_logpdf(site, args, params, v)
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")

@@ -2,9 +2,9 @@
 
 `Guide.load(path, program)` checks that the file is an ngpm guide for this grammar (hash and
 site table); `Guide.propose` implements the Proposal protocol (docs/architecture.md section 5):
-one onnxruntime call per site per round, then sampling with distributions.proposal_sample /
-proposal_logpdf. Sites without a network (unseen in training) fall back to the prior; they are
-listed in `Guide.fallback_sites`.
+one onnxruntime call per site per round (one small session per site net when the `onnx`
+package can split the file), then sampling with distributions.proposal_draw. Sites without a
+network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
 """
 
 from __future__ import annotations
@@ -41,6 +41,8 @@ class Guide:
                                           if s.index not in self.nets]
         self._empty = {f"f_{i}": np.zeros((0, n["n_f"]), dtype=np.float32)
                        for i, n in self.nets.items()}
+        # one small session per site net when the `onnx` package can split the file
+        self.site_sessions: dict[int, ort.InferenceSession] = {}
 
     @classmethod
     def load(cls, path: str | Path, program: Program) -> Guide:
@@ -70,6 +72,7 @@ class Guide:
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
+        guide.site_sessions = _site_sessions(path, list(guide.nets), opts)
         return guide
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
@@ -83,9 +86,13 @@ class Guide:
         if x.ndim != 2 or x.shape[1] != net["n_f"]:
             raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
                              f"got shape {x.shape} (features changed since training?)")
-        feeds = dict(self._empty)
-        feeds[f"f_{site}"] = x
-        (out,) = self.session.run([f"p_{site}"], feeds)
+        sess = self.site_sessions.get(site)
+        if sess is not None:
+            (out,) = sess.run(None, {f"f_{site}": x})
+        else:  # the whole file: every input must be fed (empty batches run too)
+            feeds = dict(self._empty)
+            feeds[f"f_{site}"] = x
+            (out,) = self.session.run([f"p_{site}"], feeds)
         return out.astype(np.float64)
 
     def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
@@ -94,8 +101,26 @@ class Guide:
             values = dist.prior_sample(site, prior_args, rng)
             return values, dist.prior_logpdf(site, prior_args, values)
         params = self.params(site.index, features, n=len(prior_args))
-        values = dist.proposal_sample(site, prior_args, params, rng)
-        return values, dist.proposal_logpdf(site, prior_args, params, values)
+        return dist.proposal_draw(site, prior_args, params, rng)
+
+
+def _site_sessions(path: str, sites: list[int], opts: ort.SessionOptions
+                   ) -> dict[int, ort.InferenceSession]:
+    """One session per site net, cut from the file's graph (a call then runs only that
+    net); empty when the `onnx` package is missing or cannot split the file."""
+    try:
+        import onnx
+        import onnx.utils
+    except ImportError:
+        return {}
+    try:
+        extractor = onnx.utils.Extractor(onnx.load(path))
+        return {s: ort.InferenceSession(
+                    extractor.extract_model([f"f_{s}"], [f"p_{s}"]).SerializeToString(),
+                    opts, providers=["CPUExecutionProvider"])
+                for s in sites}
+    except Exception:  # any failure: the whole-file session still works
+        return {}
 
 
 def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:

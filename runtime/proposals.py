@@ -15,8 +15,7 @@ from ngpm_runtime.distributions import (
     prior_draw,
     prior_logpdf,
     prior_sample,
-    proposal_logpdf,
-    proposal_sample,
+    proposal_draw,
 )
 from ngpm_runtime.program import Site
 
@@ -74,5 +73,4 @@ class FixedProposal:
             values = prior_sample(site, prior_args, rng)
             return values, prior_logpdf(site, prior_args, values)
         params = np.repeat(row, prior_args.shape[0], axis=0)
-        values = proposal_sample(site, prior_args, params, rng)
-        return values, proposal_logpdf(site, prior_args, params, values)
+        return proposal_draw(site, prior_args, params, rng)

@@ -5,6 +5,7 @@ import pytest
 from ngpm_runtime.distributions import (
     prior_logpdf,
     prior_sample,
+    proposal_draw,
     proposal_logpdf,
     proposal_sample,
 )
@@ -155,3 +156,41 @@ def test_prior_draw_log_density_matches_prior_logpdf() -> None:
         np.testing.assert_allclose(lp, prior_logpdf(site, args, v))
         assert np.all(np.isfinite(lp))
         np.testing.assert_array_equal(v, prior_sample(site, args, rng(1)))
+
+
+def test_proposal_draw_log_q_equals_proposal_logpdf() -> None:
+    """The fused draw returns exactly the proposal density of its own values."""
+    r = rng(3)
+    n = 40
+    k3 = 3  # mixture components
+    mix = np.hstack([r.normal(size=(n, k3)), r.normal(size=(n, k3)), r.normal(size=(n, k3))])
+    cat = r.random((n, 3))
+    cat[0] = [0.0, 0.0, 0.0]  # falls back to uniform
+    cat[1] = [0.0, 2.0, 0.0]  # one possible value
+    cat[2] = [-1.0, 1.0, 1.0]  # negative weights clip to zero
+    cases = [
+        (NORMAL, np.column_stack([r.normal(size=n), r.random(n) + 0.1]), mix),
+        (UNIFORM, np.column_stack([-r.random(n), r.random(n) + 0.5]), mix),
+        (BERN, r.random((n, 1)), r.random((n, 1))),
+        (CAT, np.ones((n, 3)), cat),
+    ]
+    for site, args, params in cases:
+        values, log_q = proposal_draw(site, args, params, rng(7))
+        want = proposal_logpdf(site, args, params, values)
+        np.testing.assert_array_equal(log_q, want)
+        assert np.isfinite(log_q).all()
+        # the same values as proposal_sample from the same generator state
+        np.testing.assert_array_equal(values, proposal_sample(site, args, params, rng(7)))
+    v, _ = proposal_draw(CAT, np.ones((n, 3)), cat, rng(1))
+    assert v[1] == 1.0 and v[2] != 0.0
+
+
+def test_categorical_prior_logpdf_shared_rows() -> None:
+    """The shared-distribution shortcut agrees with the row-by-row computation."""
+    w = np.array([[1.0, 2.0, 5.0]])
+    args = np.repeat(w, 6, axis=0)
+    x = np.array([0.0, 1.0, 2.0, 2.0, 3.0, 0.5])
+    shared = prior_logpdf(CAT, args, x)
+    single = np.array([prior_logpdf(CAT, w, x[i:i + 1])[0] for i in range(6)])
+    np.testing.assert_array_equal(shared, single)
+    assert shared[4] == -np.inf and shared[5] == -np.inf

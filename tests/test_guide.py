@@ -21,19 +21,27 @@ from test_traces import CHAIN, make_dataset  # noqa: E402
 
 
 class CountingSession:
-    def __init__(self, session):
-        self.session, self.calls = session, []
+    def __init__(self, session, calls=None):
+        self.session = session
+        self.calls = [] if calls is None else calls
 
     def run(self, names, feeds):
         self.calls.append(names)
         return self.session.run(names, feeds)
 
 
+def count_calls(g: Guide) -> None:
+    """Count onnxruntime calls of the whole-file and per-site sessions in g.session.calls."""
+    g.session = CountingSession(g.session)
+    g.site_sessions = {s: CountingSession(x, g.session.calls) for s, x in
+                       g.site_sessions.items()}
+
+
 @pytest.fixture()
 def guide(tmp_path):
     path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
     g = Guide.load(path, fake_program())
-    g.session = CountingSession(g.session)
+    count_calls(g)
     return g
 
 
@@ -56,6 +64,20 @@ def test_propose_matches_proposal_density(guide):
             mass = float(np.sum((dens[1:] + dens[:-1]) / 2 * np.diff(grid)))
             assert mass == pytest.approx(0.5, abs=0.03)
     assert len(guide.session.calls) == 3 + 3  # one call per propose (+ params checks)
+
+
+def test_site_sessions_match_the_whole_file(tmp_path):
+    """Per-site sessions cut from the file give the whole file's outputs, bit for bit; without
+    them (no `onnx` package) the whole-file session answers."""
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    g = Guide.load(path, fake_program())
+    assert sorted(g.site_sessions) == sorted(g.nets) and 2 not in g.site_sessions
+    feats = np.random.default_rng(2).normal(size=(5, N_F)).astype(np.float32)
+    for s in g.nets:
+        split = g.params(s, feats)
+        whole = Guide.load(path, fake_program())
+        whole.site_sessions = {}
+        np.testing.assert_array_equal(split, whole.params(s, feats))
 
 
 def test_fallback_site_uses_the_prior(guide):
@@ -88,7 +110,7 @@ def test_one_call_per_site_per_round_in_smc(tmp_path):
     assert main(["train", str(out / "tr"), "-o", str(out / "m.pt"), "--epochs", "2"]) == 0
     assert main(["export", str(out / "m.pt"), "-o", str(out / "g.onnx")]) == 0
     g = Guide.load(out / "g.onnx", program)
-    g.session = CountingSession(g.session)
+    count_calls(g)
     r = smc(program, None, 7, proposal=g, seed=0)
     assert all(len(p.primitives) == 12 for p in r.particles)
     assert len(g.session.calls) == 12  # one site, one round per chain link, all 7 particles
