@@ -96,16 +96,27 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
 
 def run_job(program: Program, target: Any, seed: int, particles: int
             ) -> tuple[list[tuple[int, np.ndarray, float]], int]:
-    """Unguided SMC on one target; the best particle's trace and primitive count."""
+    """Unguided SMC on one target; the best particle's trace and primitive count.
+
+    The run records values only; the best particle alone is then replayed with its values
+    to compute its features (the same rows a run with features for every particle gives)."""
+    from ngpm_runtime.errors import ProgramError
     from ngpm_runtime.likelihood import ShapeLikelihood
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.smc import replay, smc
 
     viewport = program.viewport
+    start = target.start_pose(viewport)
     result = smc(program, ShapeLikelihood(target.mask, viewport), particles, seed=seed,
-                 record_trace=True, start=target.start_pose(viewport),
-                 canvas_size=target.size, target_mask=target.mask)
+                 record_trace="values", start=start, canvas_size=target.size,
+                 target_mask=target.mask)
     best = result.best
-    return list(best.trace or []), len(best.primitives)
+    values = [(s, v) for s, _, v in best.trace or []]
+    again = replay(program, values, start=start, canvas_size=target.size,
+                   target_mask=target.mask)
+    if again.primitives != best.primitives:
+        raise ProgramError(f"program {program.name}: replaying the best particle's values "
+                           "drew other primitives (generated code is not pure)")
+    return list(again.trace or []), len(best.primitives)
 
 
 def site_layouts(program: Program, target_mask: np.ndarray | None) -> dict[int, dict[str, slice]]:

@@ -17,6 +17,7 @@ from ngpm_runtime.distributions import (
     prior_sample,
     proposal_draw,
 )
+from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Site
 
 
@@ -74,3 +75,38 @@ class FixedProposal:
             return values, prior_logpdf(site, prior_args, values)
         params = np.repeat(row, prior_args.shape[0], axis=0)
         return proposal_draw(site, prior_args, params, rng)
+
+
+class ReplayProposal:
+    """Returns recorded values, site by site, with log q = log prior (weights unchanged):
+    one particle replays one derivation. A different site or too few values is an error."""
+
+    uses_features = False
+
+    def __init__(self, values: list[tuple[int, float]]) -> None:
+        self.values = list(values)
+        self.pos = 0
+
+    def propose(
+        self,
+        site: Site,
+        prior_args: np.ndarray,
+        features: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        if prior_args.shape[0] != 1:
+            raise ProgramError(f"replay runs one particle, got {prior_args.shape[0]}")
+        if self.pos >= len(self.values):
+            raise ProgramError(f"replay: site {site.id} asked for a value after the "
+                               f"{len(self.values)} recorded ones")
+        s, v = self.values[self.pos]
+        if s != site.index:
+            raise ProgramError(f"replay: recorded site {s} at choice {self.pos}, "
+                               f"the program asked for site {site.index} ({site.id})")
+        self.pos += 1
+        values = np.array([float(v)])
+        return values, prior_logpdf(site, prior_args, values)
+
+    def check_used(self) -> None:
+        if self.pos != len(self.values):
+            raise ProgramError(f"replay used {self.pos} of {len(self.values)} recorded values")

@@ -91,7 +91,7 @@ def smc(
     seed: int = 0,
     resample: str = "residual",
     ess_threshold: float | None = None,
-    record_trace: bool = False,
+    record_trace: bool | str = False,
     start: tuple[float, float, float] | None = None,
     canvas_size: tuple[int, int] = (50, 50),
     target_mask: np.ndarray | None = None,
@@ -105,6 +105,8 @@ def smc(
 
     `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
     (None: every step). `max_primitives` overrides `program.max_primitives`.
+    `record_trace=True` records every particle's trace with features; `"values"` records
+    (site, None, value) only, at no feature cost (`replay` adds the features afterwards).
     """
     t0 = time.perf_counter()
     n = int(n_particles)
@@ -113,6 +115,9 @@ def smc(
     if resample not in SCHEMES:
         raise SMCOptionError(f"unknown resampling scheme {resample!r} "
                              f"(choose from {', '.join(SCHEMES)})")
+    if record_trace not in (False, True, "values"):
+        raise SMCOptionError(f"record_trace must be True, False or 'values', "
+                             f"got {record_trace!r}")
     if ess_threshold is not None and not 0.0 < ess_threshold <= 1.0:
         raise SMCOptionError(f"ess_threshold must be in (0, 1], got {ess_threshold}")
     if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
@@ -126,7 +131,7 @@ def smc(
 
     # What the run needs: features, a canvas.
     use_features = bool(getattr(proposal, "uses_features", False))
-    need_features = use_features or record_trace
+    need_features = use_features or record_trace is True
     if likelihood is not None and _is_null(likelihood):
         likelihood = None  # nothing to compute, no canvas needed
     like_canvas = likelihood is not None and getattr(likelihood, "needs_canvas", True)
@@ -272,7 +277,7 @@ def smc(
             log_prior=float(log_prior[i]),
             log_likelihood=float(log_lik[i]),
             log_weight=float(log_w[i]),
-            trace=cons_to_list(p.trace) if record_trace else None,
+            trace=cons_to_list(p.trace) if record_trace is not False else None,
             status=p.status,
         )
         for i, p in enumerate(parts)
@@ -338,6 +343,26 @@ class SiteOrder:
                  if not any(k in reach.get(a, empty) for a in waiting if a != k)]
         return max(first or waiting, key=lambda k: (len(waiting[k]), -k))
 
+def replay(
+    program: Program,
+    values: list[tuple[int, float]],
+    start: tuple[float, float, float] | None = None,
+    canvas_size: tuple[int, int] = (50, 50),
+    target_mask: np.ndarray | None = None,
+    max_primitives: int | None = None,
+) -> FinalParticle:
+    """The one derivation that makes the given (site, value) choices, with its full trace
+    (features as `smc(..., record_trace=True)` computes them); no likelihood."""
+    from ngpm_runtime.proposals import ReplayProposal
+
+    proposal = ReplayProposal(values)
+    res = smc(program, None, 1, proposal=proposal, record_trace=True, start=start,
+              canvas_size=canvas_size, target_mask=target_mask,
+              max_primitives=max_primitives)
+    proposal.check_used()
+    return res.particles[0]
+
+
 def _blank_loglik(likelihood: Any, canvas: Any) -> float | None:
     """Log-likelihood of an empty drawing, charged to particles that end without drawing
     (increments only come with primitives); None when the likelihood cannot say."""
@@ -368,7 +393,7 @@ def _serve_site(
     fmaker: Any,
     canvas: Any,
     use_features: bool,
-    record_trace: bool,
+    record_trace: bool | str,
 ) -> None:
     """Draw site `s` for the waiting particles `idx` with one proposal call."""
     if not 0 <= s < len(program.sites):
@@ -396,10 +421,14 @@ def _serve_site(
     vals = values.tolist()
     cont = site.kind == "normal" or site.kind == "uniform"
     st = (s,)
-    if record_trace:
+    if record_trace is True:
         for j, i in enumerate(idx):
             p = parts[i]
             p.trace = ((s, feats[j], vals[j]), p.trace)
+    elif record_trace:
+        for i, v in zip(idx, vals, strict=True):
+            p = parts[i]
+            p.trace = ((s, None, v), p.trace)
     for i, v in zip(idx, vals, strict=True):
         p = parts[i]
         p.values += (v,)

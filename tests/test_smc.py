@@ -16,7 +16,7 @@ from ngpm_runtime.program import load_program  # noqa: E402
 from ngpm_runtime.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.raster import rasterize  # noqa: E402
 from ngpm_runtime.resample import SCHEMES, resample  # noqa: E402
-from ngpm_runtime.smc import SMCOptionError, forward, smc  # noqa: E402
+from ngpm_runtime.smc import SMCOptionError, forward, replay, smc  # noqa: E402
 
 VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
 
@@ -309,3 +309,33 @@ def test_infinite_weight_raises_smcfailed() -> None:
 
     with pytest.raises(SMCFailed, match=r"\+inf"):
         smc(discrete_program(), None, 10, proposal=Liar())
+
+
+def test_value_traces_replay_to_the_full_trace(vines) -> None:
+    """record_trace="values" draws what record_trace=True draws; replaying the best
+    particle's values gives its full trace, features and all, bit for bit."""
+    full = run_vines(vines, n=30, seed=4, record_trace=True)
+    vals = run_vines(vines, n=30, seed=4, record_trace="values")
+    assert vals.best.primitives == full.best.primitives
+    assert [(s, v) for s, _, v in vals.best.trace] == [(s, v) for s, _, v in full.best.trace]
+    assert all(f is None for _, f, _ in vals.best.trace)
+    again = replay(vines, [(s, v) for s, _, v in vals.best.trace], start=START,
+                   target_mask=disk_mask())
+    assert again.primitives == full.best.primitives
+    assert again.log_prior == pytest.approx(full.best.log_prior, abs=1e-9)
+    assert len(again.trace) == len(full.best.trace)
+    for (s1, f1, v1), (s2, f2, v2) in zip(again.trace, full.best.trace, strict=True):
+        assert s1 == s2 and v1 == v2 and np.array_equal(f1, f2)
+
+
+def test_replay_rejects_wrong_values(vines) -> None:
+    trace = run_vines(vines, n=5, record_trace="values")
+    values = [(s, v) for s, _, v in trace.best.trace]
+    with pytest.raises(ProgramError, match="recorded site"):
+        replay(vines, [(values[0][0] + 1, values[0][1])] + values[1:], start=START)
+    with pytest.raises(ProgramError, match="after the"):
+        replay(vines, values[:-1], start=START)
+    with pytest.raises(ProgramError, match="used"):
+        replay(vines, values + [(0, 0.0)], start=START)
+    with pytest.raises(SMCOptionError):
+        run_vines(vines, n=5, record_trace="features")
