@@ -19,6 +19,7 @@ N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
+PAD = 3  # padding cells around each pyramid level in the window lookup tables
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -79,15 +80,38 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per canvas size: level heights, widths and row-major starts (concatenated)."""
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                 np.ndarray]:
+        """Per canvas size, the pyramid padded by PAD cells on each side and concatenated:
+        level heights and widths, where each padded level starts, the 3x3 window offsets per
+        level (4, 9), and `cells`: a cell's unpadded row-major index in its level, -1 in
+        the padding (flat, int64)."""
         key = (h, w)
         if key not in self._geom:
             hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.intp)
             ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.intp)
-            starts = np.concatenate([[0], np.cumsum(hs * ws)[:-1]]).astype(np.intp)
-            self._geom[key] = (hs, ws, starts)
+            hp, wp = hs + 2 * PAD, ws + 2 * PAD
+            starts = np.concatenate([[0], np.cumsum(hp * wp)[:-1]]).astype(np.intp)
+            offs = _DR[None, :] * wp[:, None] + _DC[None, :]
+            cells = []
+            for hl, wl in zip(hs.tolist(), ws.tolist(), strict=True):
+                c = np.full((hl + 2 * PAD, wl + 2 * PAD), -1, dtype=np.intp)
+                c[PAD:PAD + hl, PAD:PAD + wl] = np.arange(hl * wl).reshape(hl, wl)
+                cells.append(c.reshape(-1))
+            self._geom[key] = (hs, ws, starts, offs, np.concatenate(cells))
         return self._geom[key]
+
+    def _padded_target(self) -> np.ndarray:
+        """The target pyramid in `_windows`' padded layout, -1 in the padding (float32)."""
+        if self._target_flat is None:
+            levels = []
+            for lev in self.target_levels or []:
+                p = np.full((lev.shape[0] + 2 * PAD, lev.shape[1] + 2 * PAD), -1.0,
+                            dtype=np.float32)
+                p[PAD:PAD + lev.shape[0], PAD:PAD + lev.shape[1]] = lev
+                levels.append(p.reshape(-1))
+            self._target_flat = np.concatenate(levels)
+        return self._target_flat
 
     def features(self, site: Site, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                  depth: np.ndarray, params: np.ndarray, prior_args: np.ndarray) -> np.ndarray:
@@ -120,30 +144,28 @@ class FeatureMaker:
             return out
         if not (np.isfinite(u).all() and np.isfinite(v).all()):
             u, v = _unit(u, v)
-        hs, ws, starts = self._windows(h, w)
-        # 3x3 cells around the turtle's pixel at each level: (n, L, 9)
-        rows = np.floor(np.clip(v, -10.0, 10.0)[:, None] * hs).astype(np.intp)
-        cols = np.floor(np.clip(u, -10.0, 10.0)[:, None] * ws).astype(np.intp)
-        rows = rows[:, :, None] + _DR
-        cols = cols[:, :, None] + _DC
-        hb, wb = hs[:, None], ws[:, None]
-        ok = (rows >= 0) & (rows < hb) & (cols >= 0) & (cols < wb)
-        cell = (np.minimum(np.maximum(rows, 0), hb - 1) * wb
-                + np.minimum(np.maximum(cols, 0), wb - 1))
+        hs, ws, starts, offs, cells = self._windows(h, w)
+        # the turtle's cell at each level, clipped to the padding (a window centred 2 cells
+        # outside lies wholly outside, like one further out): (n, L)
+        rows = np.floor(v[:, None] * hs)
+        cols = np.floor(u[:, None] * ws)
+        np.clip(rows, -2, hs + 1, out=rows)
+        np.clip(cols, -2, ws + 1, out=cols)
+        base = (rows + PAD).astype(np.intp) * (ws + 2 * PAD) + cols.astype(np.intp) + (
+            starts + PAD)
+        at = base[:, :, None] + offs  # (n, L, 9) indices into the padded pyramid
         if self.target_levels is None:
             target[:] = 0.0
         else:
-            if self._target_flat is None:
-                self._target_flat = np.concatenate(
-                    [lev.reshape(-1) for lev in self.target_levels]).astype(np.float32)
-            vals = self._target_flat[cell + starts[:, None]]
-            target[:] = np.where(ok, vals, np.float32(-1.0)).reshape(n, N_WINDOW)
+            target[:] = self._padded_target()[at].reshape(n, N_WINDOW)
         if canvas is None:
             partial[:] = 0.0
         else:
-            vals = np.empty(cell.shape, dtype=np.float32)
+            cell = cells[at]
+            outside = cell < 0
+            cell += (idx[:, None] * (hs * ws))[:, :, None]
+            vals = partial.reshape(n, N_LEVELS, 9)
             for lv, arr in enumerate(canvas.levels):
-                flat = arr.reshape(-1)
-                vals[:, lv] = flat[cell[:, lv] + (idx * int(hs[lv] * ws[lv]))[:, None]]
-            partial[:] = np.where(ok, vals, np.float32(-1.0)).reshape(n, N_WINDOW)
+                vals[:, lv] = arr.reshape(-1)[cell[:, lv]]
+            vals[outside] = -1.0
         return out
