@@ -269,6 +269,40 @@ def proposal_logpdf(
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
 
 
+_SMALL = 16  # rows up to which the categorical draw runs in plain Python
+
+
+def _small_categorical_draw(
+    p: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The categorical branch of `proposal_draw` for a few rows and fewer than 8 categories,
+    in plain Python with numpy's arithmetic (numpy's row sums, sequential cumulative sums
+    as np.cumsum, the same divisions and log), so the results are identical; None when
+    some row has a
+    negative, non-finite or all-zero weight (the general path handles those)."""
+    rows = p.tolist()
+    totals = p.sum(axis=1).tolist()  # numpy's summation order, as in _probs
+    cums = []
+    for row, total in zip(rows, totals, strict=True):
+        if not (0.0 < total < math.inf) or min(row) < 0.0:
+            return None
+        cums.append(list(accumulate(row)))
+    last = len(rows[0]) - 1
+    us = rng.random(len(rows)).tolist()
+    ks = []
+    qs = []
+    for row, cum, total, u in zip(rows, cums, totals, us, strict=True):
+        x = u * cum[-1]
+        k = 0
+        for c in cum:
+            if c <= x:
+                k += 1
+        k = min(k, last)
+        ks.append(float(k))
+        qs.append(row[k] / total)
+    return np.array(ks), _log(np.array(qs))
+
+
 def proposal_draw(
     site: Site, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -279,6 +313,10 @@ def proposal_draw(
     n = args.shape[0]
     if kind == "categorical":
         p = np.asarray(params, dtype=np.float64)
+        if n <= _SMALL and p.shape[1] < 8:
+            out = _small_categorical_draw(p, rng)
+            if out is not None:
+                return out
         if (p >= 0).all():
             total = p.sum(axis=1)
             if (total > 0).all():

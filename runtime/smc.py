@@ -166,6 +166,7 @@ def smc(
     particle_steps = 0
     live = list(range(n))
     order = SiteOrder()
+    tables: dict[tuple, np.ndarray] = {}  # categorical log prior per (site, weights)
 
     while live:
         if max_steps is not None and steps >= max_steps:
@@ -211,7 +212,7 @@ def smc(
             served = order.pick(waiting)
             run = sorted(waiting.pop(served))
             _serve_site(program, served, run, parts, proposal, is_prior, rng, log_w,
-                        log_prior, fmaker, canvas, use_features, record_trace)
+                        log_prior, fmaker, canvas, use_features, record_trace, tables)
 
         if drawn:
             drawn.sort()
@@ -394,12 +395,14 @@ def _serve_site(
     canvas: Any,
     use_features: bool,
     record_trace: bool | str,
+    tables: dict[tuple, np.ndarray],
 ) -> None:
     """Draw site `s` for the waiting particles `idx` with one proposal call."""
     if not 0 <= s < len(program.sites):
         raise ProgramError(f"program {program.name} asked for unknown site {s}")
     site = program.sites[s]
-    args = _prior_args(site, [parts[i].need[1] for i in idx])
+    rows = [parts[i].need[1] for i in idx]
+    args = _prior_args(site, rows)
     if site.kind != "categorical" and args.shape[1] != site.n_args():
         raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
                            f"{site.n_args()} arguments, got {args.shape[1]}")
@@ -413,7 +416,11 @@ def _serve_site(
     else:
         values = np.asarray(values, dtype=np.float64)
         log_q = np.asarray(log_q, dtype=np.float64)
-        log_p = prior_logpdf(site, args, values)
+        log_p = None
+        if site.kind == "categorical":
+            log_p = _categorical_logp(site, rows, args, values, tables)
+        if log_p is None:
+            log_p = prior_logpdf(site, args, values)
         with np.errstate(invalid="ignore"):
             delta = log_p - log_q
         log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
@@ -436,6 +443,28 @@ def _serve_site(
         p.need = None
         if cont:
             p.cont = True
+
+
+def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, values: np.ndarray,
+                      tables: dict[tuple, np.ndarray]) -> np.ndarray | None:
+    """prior_logpdf of categorical values whose rows share one weight tuple, from a table
+    made by prior_logpdf itself (the same numbers); None when it does not apply."""
+    first = rows[0]
+    for r in rows:
+        if r != first:
+            return None
+    key = (site.index, first)
+    table = tables.get(key)
+    if table is None:
+        k = len(first)
+        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0), np.arange(k, dtype=np.float64))
+        if len(tables) >= 4096:
+            tables.clear()
+        tables[key] = table
+    ki = values.astype(np.intp)
+    if not ((ki == values).all() and (ki >= 0).all() and (ki < len(table)).all()):
+        return None
+    return table[ki]
 
 
 def _rows(rows: list[tuple]) -> np.ndarray | None:

@@ -194,3 +194,25 @@ def test_categorical_prior_logpdf_shared_rows() -> None:
     single = np.array([prior_logpdf(CAT, w, x[i:i + 1])[0] for i in range(6)])
     np.testing.assert_array_equal(shared, single)
     assert shared[4] == -np.inf and shared[5] == -np.inf
+
+
+def test_small_categorical_draw_matches_the_array_path() -> None:
+    """Few rows take a plain-Python path: the same values and log q as many rows."""
+    r = rng(11)
+    for k in (1, 2, 3, 5, 7):
+        params = r.random((200, k)) * r.choice([1e-3, 1.0, 1e3], size=(200, 1))
+        params[::7, 0] = 0.0
+        big_v, big_q = proposal_draw(CAT, np.ones((200, k)), params, rng(5))
+        g = rng(5)
+        parts = [proposal_draw(CAT, np.ones((4, k)), params[i:i + 4], g) for i in
+                 range(0, 200, 4)]
+        g2 = rng(5)
+        small_v = np.concatenate([p[0] for p in parts])
+        small_q = np.concatenate([p[1] for p in parts])
+        np.testing.assert_array_equal(small_q, proposal_logpdf(CAT, np.ones((200, k)),
+                                                               params, small_v))
+        # the same uniforms, drawn in pieces: the same values
+        u = np.concatenate([g2.random(4) for _ in range(50)])
+        assert np.array_equal(u, rng(5).random(200))
+        np.testing.assert_array_equal(small_v, big_v)
+        np.testing.assert_array_equal(small_q, big_q)
