@@ -24,6 +24,8 @@ PAD = 3  # padding cells around each pyramid level in the window lookup tables
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
     """(n, k) float64: `a` reshaped, truncated or zero-padded to k columns."""
+    if type(a) is np.ndarray and a.shape == (n, k):
+        return a
     a = np.asarray(a, dtype=np.float64)
     if a.size == 0:
         return np.zeros((n, k))
@@ -80,25 +82,27 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                 np.ndarray]:
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per canvas size, the pyramid padded by PAD cells on each side and concatenated:
-        level heights and widths, where each padded level starts, the 3x3 window offsets per
-        level (4, 9), and `cells`: a cell's unpadded row-major index in its level, -1 in
-        the padding (flat, int64)."""
+        level heights and widths (float64), the 3x3 window offsets per level (4, 9) from a
+        padded row-major (row, col) index, and `cells`: a cell's unpadded row-major index in
+        its level, -1 in the padding (flat)."""
         key = (h, w)
         if key not in self._geom:
             hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.intp)
             ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.intp)
             hp, wp = hs + 2 * PAD, ws + 2 * PAD
             starts = np.concatenate([[0], np.cumsum(hp * wp)[:-1]]).astype(np.intp)
-            offs = _DR[None, :] * wp[:, None] + _DC[None, :]
+            # window offsets, with each level's start and the padding folded in
+            offs = (_DR[None, :] * wp[:, None] + _DC[None, :]
+                    + (starts + PAD * wp + PAD)[:, None])
             cells = []
             for hl, wl in zip(hs.tolist(), ws.tolist(), strict=True):
                 c = np.full((hl + 2 * PAD, wl + 2 * PAD), -1, dtype=np.intp)
                 c[PAD:PAD + hl, PAD:PAD + wl] = np.arange(hl * wl).reshape(hl, wl)
                 cells.append(c.reshape(-1))
-            self._geom[key] = (hs, ws, starts, offs, np.concatenate(cells))
+            self._geom[key] = (hs.astype(np.float64), ws.astype(np.float64), offs,
+                               np.concatenate(cells))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
@@ -144,16 +148,18 @@ class FeatureMaker:
             return out
         if not (np.isfinite(u).all() and np.isfinite(v).all()):
             u, v = _unit(u, v)
-        hs, ws, starts, offs, cells = self._windows(h, w)
+        hs, ws, offs, cells = self._windows(h, w)
         # the turtle's cell at each level, clipped to the padding (a window centred 2 cells
         # outside lies wholly outside, like one further out): (n, L)
         rows = np.floor(v[:, None] * hs)
         cols = np.floor(u[:, None] * ws)
-        np.clip(rows, -2, hs + 1, out=rows)
-        np.clip(cols, -2, ws + 1, out=cols)
-        base = (rows + PAD).astype(np.intp) * (ws + 2 * PAD) + cols.astype(np.intp) + (
-            starts + PAD)
-        at = base[:, :, None] + offs  # (n, L, 9) indices into the padded pyramid
+        np.maximum(rows, -2.0, out=rows)
+        np.minimum(rows, hs + 1, out=rows)
+        np.maximum(cols, -2.0, out=cols)
+        np.minimum(cols, ws + 1, out=cols)
+        rows *= ws + 2 * PAD
+        rows += cols
+        at = rows.astype(np.intp)[:, :, None] + offs  # (n, L, 9) into the padded pyramid
         if self.target_levels is None:
             target[:] = 0.0
         else:
@@ -163,7 +169,7 @@ class FeatureMaker:
         else:
             cell = cells[at]
             outside = cell < 0
-            cell += (idx[:, None] * (hs * ws))[:, :, None]
+            cell += (idx[:, None] * (hs * ws).astype(np.intp))[:, :, None]
             vals = partial.reshape(n, N_LEVELS, 9)
             for lv, arr in enumerate(canvas.levels):
                 vals[:, lv] = arr.reshape(-1)[cell[:, lv]]
