@@ -189,6 +189,7 @@ def smc(
             else:
                 waiting[need[0]] = [i]
         served = -1  # the site `run` was just served at (-1: none)
+        nexts: set[int] = set()  # the sites the particles of `run` asked for next
         while run or waiting:
             for i in run:
                 p = parts[i]
@@ -197,8 +198,7 @@ def smc(
                     drawn.append(i)
                 elif code == NEED:
                     s = p.need[0]
-                    if served >= 0:
-                        order.saw(served, s)
+                    nexts.add(s)
                     if s in waiting:
                         waiting[s].append(i)
                     else:
@@ -207,6 +207,10 @@ def smc(
                     p.status = "done" if code == DONE else "limit"
                     if p.n_prims == 0:
                         empty.append(i)
+            if served >= 0:
+                for s in nexts:
+                    order.saw(served, s)
+            nexts.clear()
             if not waiting:
                 break
             served = order.pick(waiting)
