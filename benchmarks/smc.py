@@ -1,14 +1,21 @@
 """Unguided SMC on vines against a 50x50 filled-disk target: seconds per run and
-particle-steps per second (one core). Usage: python benchmarks/smc.py [--profile]
+particle-steps per second (one core); then, with a guide (`--guide PATH`, default
+work/vines/vines_guide.onnx when present), guided N=10 on glyph targets: seconds per result
+and proposal calls per result; and the 600-particle trace job (values recorded, best particle
+replayed for its features) next to recording features for every particle.
+
+Usage: python benchmarks/smc.py [--profile] [--guide PATH] [--targets N]
 
 Uses the compiler's output for grammars/vines.lsys when the compiler is importable, else the
-hand-written fixture tests/fixtures/vines_sampler.py.
+hand-written fixture tests/fixtures/vines_sampler.py (then no guided or trace figures).
+CPU seconds are reported as well as wall seconds: the machine may be shared.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import math
 import os
 import pstats
 import statistics
@@ -50,6 +57,8 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--resample", default="residual")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--guide", default=str(ROOT / "work" / "vines" / "vines_guide.onnx"))
+    ap.add_argument("--targets", type=int, default=20, help="glyph targets for guided runs")
     args = ap.parse_args()
 
     from ngpm_runtime.likelihood import ShapeLikelihood
@@ -96,6 +105,94 @@ def main() -> None:
     print(f"particle-steps per second: {sum(psteps) / sum(secs):,.0f}")
     print(f"best particle: median {statistics.median(nprims):.0f} primitives, "
           f"similarity median {statistics.median(sims):.3f}")
+    if origin != "compiled":
+        return
+    targets = glyph_targets(args.targets)
+    guided(program, targets, args.guide)
+    trace_jobs(program, targets[:6])
+
+
+def glyph_targets(count: int) -> list:
+    import tempfile
+
+    from ngpm_runtime.targets import load_dataset
+
+    from ngpm_compiler.datasets import build_dataset
+
+    with tempfile.TemporaryDirectory() as tmp:
+        build_dataset("glyphs", tmp, count=count, seed=0)
+        return load_dataset(tmp)
+
+
+class CountingProposal:
+    """Counts the proposal calls of the proposal it wraps."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.uses_features = inner.uses_features
+        self.calls = 0
+
+    def propose(self, site, args, features, rng):
+        self.calls += 1
+        return self.inner.propose(site, args, features, rng)
+
+
+def guided(program, targets: list, guide_path: str) -> None:
+    """Guided N=10 on each target (best of 3 runs each): seconds and calls per result."""
+    from ngpm_runtime.guide import Guide
+    from ngpm_runtime.likelihood import ShapeLikelihood, similarity
+    from ngpm_runtime.raster import rasterize
+    from ngpm_runtime.smc import smc
+
+    if not Path(guide_path).is_file():
+        print(f"no guide at {guide_path}: no guided figures")
+        return
+    vp = program.viewport
+    prop = CountingProposal(Guide.load(guide_path, program))
+    for label, proposal, n in (("guided N=10", prop, 10), ("unguided N=10", None, 10),
+                               ("unguided N=200", None, 200)):
+        secs, cpus, sims = [], [], []
+        prop.calls = 0
+        for t in targets:
+            best_wall, best_cpu = math.inf, math.inf
+            for _ in range(3):
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = smc(program, ShapeLikelihood(t.mask, vp), n, proposal=proposal, seed=0,
+                          start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask)
+                best_wall = min(best_wall, time.perf_counter() - t0)
+                best_cpu = min(best_cpu, time.process_time() - c0)
+            secs.append(best_wall)
+            cpus.append(best_cpu)
+            sims.append(similarity(rasterize(res.best.primitives, vp, *t.size), t.mask))
+        calls = (f", {prop.calls / (3 * len(targets)):.0f} proposal calls per result"
+                 if proposal is prop else "")
+        print(f"{label}: {statistics.mean(secs):.4f} s per result (CPU "
+              f"{statistics.mean(cpus):.4f}; best of 3, mean over {len(targets)} glyphs)"
+              f"{calls}; similarity mean {statistics.mean(sims):.3f}")
+
+
+def trace_jobs(program, targets: list) -> None:
+    """The 600-particle trace job (traces.run_job) and the same run with features for
+    every particle (record_trace=True), CPU seconds per job."""
+    from ngpm_runtime.likelihood import ShapeLikelihood
+    from ngpm_runtime.smc import smc
+
+    from ngpm_compiler.traces import run_job
+
+    vp = program.viewport
+    job, full = [], []
+    for t in targets:
+        c0 = time.process_time()
+        run_job(program, t, 5, 600)
+        c1 = time.process_time()
+        smc(program, ShapeLikelihood(t.mask, vp), 600, seed=5, record_trace=True,
+            start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask)
+        c2 = time.process_time()
+        job.append(c1 - c0)
+        full.append(c2 - c1)
+    print(f"trace job, 600 particles: {statistics.mean(job):.3f} CPU s per job (values "
+          f"recorded, best replayed) vs {statistics.mean(full):.3f} with features for every "
+          f"particle; mean over {len(targets)} glyphs")
 
 
 if __name__ == "__main__":
