@@ -270,6 +270,7 @@ def proposal_logpdf(
 
 
 _SMALL = 16  # rows up to which the categorical draw runs in plain Python
+_SMALL_NORMAL = 4  # the same for the normal mixture (its rows cost more)
 
 
 def _small_categorical_draw(
@@ -334,6 +335,10 @@ def proposal_draw(
         v = (rng.random(n) < p).astype(np.float64)
         return v, _log(np.where(v == 1.0, p, 1.0 - p))
     if kind == "normal":
+        if n <= _SMALL_NORMAL:
+            out = _small_normal_draw(args, params, rng)
+            if out is not None:
+                return out
         logw, mean, sd = _normal_mixture(args, params)
         v = _mixture_sample(logw, mean, sd, rng)
         return v, _mixture_logpdf(v, logw, mean, sd)
@@ -341,3 +346,51 @@ def proposal_draw(
         v = proposal_sample(site, args, params, rng)
         return v, proposal_logpdf(site, args, params, v)
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def _small_normal_draw(
+    args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The normal-mixture branch of `proposal_draw` for a few rows, in plain Python: the
+    same draws from `rng` (one uniform per row for the component, then one standard normal
+    per row) and the same formulas as the array path, equal to it up to rounding; None
+    when a row has non-finite numbers or a zero sd (the array path handles those)."""
+    p = np.asarray(params, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] % 3 != 0 or p.shape[1] == 0:
+        return None
+    k = p.shape[1] // 3
+    rows = p.tolist()
+    mus = args[:, 0].tolist()
+    sigmas = np.abs(args[:, 1]).tolist()
+    mixes = []
+    exp, log = math.exp, math.log
+    for row, mu, sigma in zip(rows, mus, sigmas, strict=True):
+        lw = row[:k]
+        top = max(lw)
+        if not (math.isfinite(top) and sigma > 0.0 and math.isfinite(math.fsum(row))):
+            return None
+        lse = top + log(sum(exp(x - top) for x in lw))
+        lw = [x - lse for x in lw]
+        means = [mu + sigma * m for m in row[k:2 * k]]
+        sds = [sigma * exp(x) for x in row[2 * k:]]
+        if min(sds) <= 0.0 or not all(math.isfinite(x) for x in sds + means):
+            return None
+        mixes.append((lw, means, sds))
+    us = rng.random(len(rows)).tolist()
+    zs = rng.standard_normal(len(rows)).tolist()
+    values = []
+    log_q = []
+    for (lw, means, sds), u, z in zip(mixes, us, zs, strict=True):
+        cum = list(accumulate(exp(x) for x in lw))
+        x = u * cum[-1]
+        c = min(sum(1 for y in cum if y <= x), k - 1)
+        v = means[c] + sds[c] * z
+        comp = [w - 0.5 * ((v - m) / sd) ** 2 - log(sd) - 0.5 * LOG_2PI
+                for w, m, sd in zip(lw, means, sds, strict=True)]
+        top = max(comp)
+        if top == -math.inf:
+            log_q.append(-math.inf)
+        else:
+            log_q.append(top + log(sum(exp(y - top) for y in comp)))
+        values.append(v)
+    return np.array(values), np.array(log_q)

@@ -216,3 +216,20 @@ def test_small_categorical_draw_matches_the_array_path() -> None:
         assert np.array_equal(u, rng(5).random(200))
         np.testing.assert_array_equal(small_v, big_v)
         np.testing.assert_array_equal(small_q, big_q)
+
+
+def test_small_normal_draw_matches_the_array_path() -> None:
+    """Few rows take a plain-Python path: the same values, log q equal up to rounding."""
+    r = rng(12)
+    for n in (1, 2, 3, 4):
+        for _ in range(50):
+            args = np.column_stack([r.normal(size=n) * 10, r.random(n) * 5 + 0.01])
+            params = r.normal(size=(n, 9)) * 2
+            v, q = proposal_draw(NORMAL, args, params, rng(4))
+            np.testing.assert_allclose(v, proposal_sample(NORMAL, args, params, rng(4)),
+                                       rtol=1e-13, atol=1e-13)
+            np.testing.assert_allclose(q, proposal_logpdf(NORMAL, args, params, v),
+                                       rtol=1e-12, atol=1e-12)
+    # a zero sd takes the array path (a point mass)
+    v, q = proposal_draw(NORMAL, np.array([[1.0, 0.0]]), np.zeros((1, 3)), rng(0))
+    assert v[0] == 1.0 and q[0] == 0.0
