@@ -170,6 +170,10 @@ def _poly_inside(verts: np.ndarray, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
 # ---------------------------------------------------------------- windows
 
 
+_LO = [0, 3]  # bbox columns of the (x, y) pixel-space lower corner: xmin, ymax
+_HI = [2, 1]  # and of the upper corner: xmax, ymin
+
+
 class _Grid:
     """Pixel geometry of a viewport on an H x W image."""
 
@@ -181,31 +185,40 @@ class _Grid:
         self.h, self.w = int(height), int(width)
         self.sx = (xmax - xmin) / self.w
         self.sy = (ymax - ymin) / self.h
+        # windows(): per (x, y) column, origin, signed scale, upper clamp and last pixel
+        self._org = np.array([xmin, ymax])
+        self._scale = np.array([self.sx, -self.sy])
+        self._lim = np.array([self.w + 1.0, self.h + 1.0])
+        self._last = np.array([self.w - 1.0, self.h - 1.0])
 
     def windows(self, bbox: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
         """Common window (ky, kx) and origins y0, x0 holding every box's pixel centers."""
         h, w = self.h, self.w
-        u0 = (bbox[:, 0] - self.xmin) / self.sx - 0.5
-        u1 = (bbox[:, 2] - self.xmin) / self.sx - 0.5
-        v0 = (self.ymax - bbox[:, 3]) / self.sy - 0.5
-        v1 = (self.ymax - bbox[:, 1]) / self.sy - 0.5
+        # columns (x, y): pixel-center coordinates of the box corners, x right, y down
+        # ((b - ymax) / -sy equals (ymax - b) / sy exactly)
+        lo = (bbox[:, _LO] - self._org) / self._scale - 0.5
+        hi = (bbox[:, _HI] - self._org) / self._scale - 0.5
         with np.errstate(invalid="ignore"):
-            c0 = np.ceil(np.clip(u0 - _EPS, -1.0, w + 1.0))
-            c1 = np.floor(np.clip(u1 + _EPS, -1.0, w + 1.0))
-            r0 = np.ceil(np.clip(v0 - _EPS, -1.0, h + 1.0))
-            r1 = np.floor(np.clip(v1 + _EPS, -1.0, h + 1.0))
-        finite = np.isfinite(bbox).all(axis=1)
-        c0 = np.where(finite, np.maximum(c0, 0), 0).astype(np.intp)
-        r0 = np.where(finite, np.maximum(r0, 0), 0).astype(np.intp)
-        c1 = np.where(finite, np.minimum(c1, w - 1), -1).astype(np.intp)
-        r1 = np.where(finite, np.minimum(r1, h - 1), -1).astype(np.intp)
-        empty = (c1 < c0) | (r1 < r0)
-        kx = int(max(1, (c1 - c0 + 1)[~empty].max(initial=1)))
-        ky = int(max(1, (r1 - r0 + 1)[~empty].max(initial=1)))
-        kx, ky = min(kx, w), min(ky, h)
-        x0 = np.where(empty, 0, np.minimum(c0, w - kx))
-        y0 = np.where(empty, 0, np.minimum(r0, h - ky))
-        return y0, x0, ky, kx, empty
+            lo -= _EPS
+            hi += _EPS
+            np.maximum(lo, -1.0, out=lo)
+            np.maximum(hi, -1.0, out=hi)
+            np.minimum(lo, self._lim, out=lo)
+            np.minimum(hi, self._lim, out=hi)
+            np.ceil(lo, out=lo)
+            np.floor(hi, out=hi)
+        finite = np.isfinite(bbox).all(axis=1)[:, None]
+        lo = np.where(finite, np.maximum(lo, 0.0), 0.0).astype(np.intp)
+        hi = np.where(finite, np.minimum(hi, self._last), -1.0).astype(np.intp)
+        empty = (hi < lo).any(axis=1)
+        size = hi - lo + 1
+        if empty.any():
+            size = size[~empty]
+        kx, ky = (size.max(axis=0).tolist() if len(size) else (1, 1))
+        kx, ky = min(max(1, kx), w), min(max(1, ky), h)
+        org = np.minimum(lo, (w - kx, h - ky))
+        org[empty] = 0
+        return org[:, 1], org[:, 0], ky, kx, empty
 
     def cover(self, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Rasterize prims: y0, x0 (n,), coverage (n, ky, kx) bool, world bbox (n, 4)."""
