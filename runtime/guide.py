@@ -2,7 +2,7 @@
 
 `Guide.load(path, program)` checks that the file is an ngpm guide for this grammar (hash and
 site table); `Guide.propose` implements the Proposal protocol (docs/architecture.md section 5):
-one onnxruntime call per site per round (one small session per site net when the `onnx`
+one onnxruntime call per propose (one small session per site net when the `onnx`
 package can split the file), then sampling with distributions.proposal_draw. Sites without a
 network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
 """

@@ -2,9 +2,10 @@
 
 All particles advance together. In one step every live particle runs to its next drawn
 primitive; the random values it asks for on the way are drawn in rounds, one batched
-`proposal.propose` call per site per round (sites by index, particles by index). Then the
-new primitives are rasterized, the likelihood increments applied and, every step or when the
-ESS drops below `ess_threshold * N`, the particles are resampled. Weights carry
+`proposal.propose` call per round for the particles waiting on one site (`SiteOrder` picks
+it; particles by index). Then the new primitives are rasterized, the likelihood increments
+applied and, every step or when the ESS drops below `ess_threshold * N`, the particles are
+resampled. Weights carry
 `log prior - log q` of every site, so any proposal gives a correct answer.
 """
 
