@@ -313,41 +313,32 @@ class SiteOrder:
     Every round serves one site, so a step always ends; the choice is deterministic."""
 
     def __init__(self) -> None:
-        self.succ: dict[int, set[int]] = {}
-        self.reach: dict[int, frozenset[int]] | None = {}
+        self.reach: dict[int, set[int]] = {}  # transitive closure of the seen successions
 
     def saw(self, a: int, b: int) -> None:
-        nxt = self.succ.get(a)
-        if nxt is None:
-            self.succ[a] = {b}
-            self.reach = None
-        elif b not in nxt:
-            nxt.add(b)
-            self.reach = None
-
-    def _closure(self) -> dict[int, frozenset[int]]:
-        reach: dict[int, frozenset[int]] = {}
-        for a in self.succ:
-            seen: set[int] = set()
-            todo = list(self.succ[a])
-            while todo:
-                b = todo.pop()
-                if b not in seen:
-                    seen.add(b)
-                    todo.extend(self.succ.get(b, ()))
-            reach[a] = frozenset(seen)
-        return reach
+        """Site `b` was asked for right after site `a` in a step."""
+        ra = self.reach.setdefault(a, set())
+        if b in ra:
+            return
+        new = {b} | self.reach.get(b, set())
+        for x, rx in self.reach.items():  # every path into a now goes on to b
+            if x == a or a in rx:
+                rx |= new
 
     def pick(self, waiting: dict[int, list[int]]) -> int:
         if len(waiting) == 1:
             return next(iter(waiting))
-        reach = self.reach
-        if reach is None:
-            reach = self.reach = self._closure()
-        empty: frozenset[int] = frozenset()
-        first = [k for k in waiting
-                 if not any(k in reach.get(a, empty) for a in waiting if a != k)]
+        keys = waiting.keys()
+        blocked: set[int] = set()
+        for a in waiting:
+            ra = self.reach.get(a)
+            if ra:
+                hit = ra & keys
+                hit.discard(a)  # a site that follows itself does not block itself
+                blocked |= hit
+        first = [k for k in waiting if k not in blocked]
         return max(first or waiting, key=lambda k: (len(waiting[k]), -k))
+
 
 def replay(
     program: Program,

@@ -370,3 +370,24 @@ def test_greedy_batching_makes_fewer_calls(vines) -> None:
 
     r = run_vines(vines, n=40, seed=1, proposal=Counting())
     assert len(calls) <= 7.5 * r.steps  # 7.1 here; serving every waiting site: 8.0
+
+
+def test_site_order_closure_matches_brute_force() -> None:
+    rng = np.random.default_rng(5)
+    order = SiteOrder()
+    edges: set[tuple[int, int]] = set()
+    for _ in range(60):
+        a, b = (int(x) for x in rng.integers(0, 12, 2))
+        order.saw(a, b)
+        edges.add((a, b))
+        reach = {x: set() for x in range(12)}
+        for _ in range(12):  # brute force transitive closure
+            for x, y in edges:
+                reach[x] |= {y} | reach[y]
+        for x in range(12):
+            assert order.reach.get(x, set()) == reach[x]
+        sites = rng.choice(12, size=int(rng.integers(1, 6)), replace=False).tolist()
+        waiting = {k: [0] * int(rng.integers(1, 4)) for k in sites}
+        free = [k for k in waiting if not any(k in reach[a] for a in waiting if a != k)]
+        want = max(free or waiting, key=lambda k: (len(waiting[k]), -k))
+        assert order.pick(waiting) == want
