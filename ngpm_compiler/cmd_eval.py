@@ -166,7 +166,8 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     settings["wall_minutes"] = round(sum(stage_min.values()), 1)
     _save_settings(settings_path, settings)
     if "report" in cfg.stages:
-        readme, report = eval_report.write_reports(out, command)
+        readme, report = eval_report.write_reports(
+            out, command if cfg.stages != ("report",) else "")
         log(f"wrote {readme} and {report}")
     result["files"] = sorted(p.name for p in out.iterdir() if p.is_file())
     return result

@@ -98,8 +98,18 @@ def train_models(specs: list[ModelSpec], traces_dir: str, out_dir: str, workers:
 
 
 def model_info(onnx_path: str) -> dict[str, Any]:
-    """The sidecar JSON written beside a trained model ({} if none)."""
+    """The sidecar JSON written beside a trained model; else the training summary that
+    `ngpmc export` stores in the ONNX metadata ({} if neither is readable)."""
     p = Path(onnx_path).with_suffix(".json")
-    if not p.is_file():
+    if p.is_file():
+        return json.loads(p.read_text(encoding="utf-8"))
+    try:
+        import onnxruntime as ort
+
+        sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+        t = json.loads(sess.get_modelmeta().custom_metadata_map["training"])
+    except Exception:  # not an ngpm guide, or no summary: the table shows blanks
         return {}
-    return json.loads(p.read_text(encoding="utf-8"))
+    spec = {"features": t.get("feature_set", "all"), "K": t.get("K", 4)}
+    return {"key": {"spec": spec}, **{k: t.get(k) for k in (
+        "traces", "val_traces", "best_epoch", "epochs_run", "val_nll", "seconds")}}
