@@ -20,8 +20,6 @@ from __future__ import annotations
 import io
 import json
 import multiprocessing as mp
-import os
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -30,6 +28,7 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError, SMCFailed
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site, load_program
 from tqdm import tqdm
 
@@ -134,24 +133,6 @@ def prior_arg_columns(site: Site, layout: dict[str, slice]) -> slice:
 
 
 # --------------------------------------------------------------------------- files
-
-
-def atomic_write(path: str | Path, data: bytes) -> Path:
-    """Write a file atomically (temp file + os.replace), with the usual umask permissions."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
 
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:

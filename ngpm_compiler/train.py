@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Site
 from tqdm import tqdm
 
@@ -29,7 +30,7 @@ from ngpm_compiler.nets import (
     continuous_z,
     select_columns,
 )
-from ngpm_compiler.traces import SiteData, atomic_write
+from ngpm_compiler.traces import SiteData
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
 
