@@ -127,7 +127,8 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     settings: dict[str, Any] = {}
     if settings_path.is_file():
         settings = json.loads(settings_path.read_text(encoding="utf-8"))
-    settings.update(cfg.to_json())
+    if cfg.stages != ("report",):  # a report-only run keeps the measuring run's settings
+        settings.update(cfg.to_json())
     settings["machine"] = f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
     result: dict[str, Any] = {}
     need_shape = any(s in cfg.stages for s in ("shape", "grids"))
