@@ -24,8 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from ngpm_compiler.traces import atomic_write
+from ngpm_runtime.files import atomic_write
 
 __all__ = ["atomic_write"]  # re-exported for the other eval_* modules
 
