@@ -53,14 +53,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", required=True, help="ONNX file to write")
     p.set_defaults(handler=cmd_export)
 
-    p = subparsers.add_parser("grow", help="grow a grammar into a target with SMC")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
-    p.add_argument("--target", required=True, help="target image (with its .txt sidecar)")
-    p.add_argument("--guide", help="guide .onnx (default: unguided, prior proposals)")
+    p = subparsers.add_parser(
+        "grow", help="grow a vine (or any grammar) into a picture with SMC",
+        description="Grow a grammar into a target image with SMC. With no --grammar it grows "
+                    "the bundled vines model, guided by the bundled pretrained guide.")
+    p.add_argument("inputs", nargs="*", metavar="IMAGE",
+                   help="target image; a .txt sidecar beside it gives the start "
+                        "(`x y` then `dx dy`), else it is found automatically")
+    p.add_argument("--grammar", help="the .lsys file or a generated *_sampler.py "
+                                     "(default: the bundled vines model)")
+    p.add_argument("--target", help=argparse.SUPPRESS)  # older form: grow GRAMMAR --target IMG
+    p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
+                                   "bundled vines guide when the grammar is vines.lsys)")
     p.add_argument("-N", "--particles", type=int, default=10, help="particles (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
+    p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
+                   help="shape: match the image (default); circuit: the paper's circuit-like "
+                        "density (the image, if any, only gives the start)")
     p.add_argument("-o", "--out", help="render of the best particle (.png or .svg)")
+    p.add_argument("--svg", nargs="?", const="", metavar="PATH",
+                   help="also write an SVG (default path: the -o file with .svg)")
+    p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
+                   help="also write an animation of the growth (default path: the -o file "
+                        "with .gif)")
     p.set_defaults(handler=cmd_grow)
 
 
@@ -149,7 +165,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 @dataclass
 class GrowResult:
-    similarity: float
+    similarity: float  # to the target; nan when there is none
     seconds: float
     particles: int
     primitives: list[tuple]
@@ -157,54 +173,202 @@ class GrowResult:
     smc: Any  # the SMCResult
 
 
+class _Ticking:
+    """A likelihood that ticks a progress bar once per SMC step, then defers to `inner`."""
+
+    def __init__(self, inner: Any, bar: Any) -> None:
+        self.inner = inner
+        self.bar = bar
+
+    def start(self, n: int) -> dict[str, np.ndarray]:
+        return self.inner.start(n)
+
+    def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
+        self.bar.update(1)
+        return self.inner.increment(state, canvas, draw)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
 def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10,
-         seed: int = 0) -> GrowResult:
-    """SMC (guided when `guide` is given) into `target`; the best particle and its score."""
-    from ngpm_runtime.likelihood import ShapeLikelihood, similarity
+         seed: int = 0, likelihood: str = "shape", progress: bool = False) -> GrowResult:
+    """SMC (guided when `guide` is given) into `target`; the best particle and its score.
+
+    likelihood: "shape" (match the target) or "circuit" (the target, optional, only gives
+    the start pose and the target features). `progress` shows a bar on runs over a second.
+    """
+    from ngpm_runtime.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
     from ngpm_runtime.raster import rasterize
     from ngpm_runtime.smc import smc
 
     viewport = program.viewport
     if viewport is None:
         raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
+    if likelihood == "shape":
+        if target is None:
+            raise NgpmError("the shape likelihood needs a target image")
+        like: Any = ShapeLikelihood(target.mask, viewport)
+    elif likelihood == "circuit":
+        like = CircuitLikelihood(viewport)
+    else:
+        raise NgpmError(f"unknown likelihood {likelihood!r}; choose shape or circuit")
+    size = target.size if target is not None else (50, 50)
+    start = target.start_pose(viewport) if target is not None else None
+    mask = target.mask if target is not None else None
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None)
+        like = _Ticking(like, bar)
     t0 = time.perf_counter()
-    result = smc(program, ShapeLikelihood(target.mask, viewport), n_particles, proposal=guide,
-                 seed=seed, start=target.start_pose(viewport), canvas_size=target.size,
-                 target_mask=target.mask)
+    try:
+        result = smc(program, like, n_particles, proposal=guide, seed=seed, start=start,
+                     canvas_size=size, target_mask=mask)
+    finally:
+        if bar is not None:
+            bar.close()
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
-    image = rasterize(prims, viewport, *target.size)
-    return GrowResult(float(similarity(image, target.mask)), seconds, n_particles, prims,
-                      image, result)
+    image = rasterize(prims, viewport, *size)
+    sim = float(similarity(image, mask)) if mask is not None else float("nan")
+    return GrowResult(sim, seconds, n_particles, prims, image, result)
+
+
+def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
+                   target_mask: np.ndarray | None = None, size: int = 256,
+                   max_frames: int = 60) -> Path:
+    """An animated GIF of the growth: the primitives in drawing order, a few per frame."""
+    import io
+
+    from ngpm_runtime.render import render_array
+    from PIL import Image
+
+    from ngpm_compiler.cmd_demo import write_atomic
+
+    path = Path(path)
+    n = len(prims)
+    ks = sorted({int(k) for k in np.linspace(0, n, min(n, max_frames - 1) + 1).round()})
+    frames = [Image.fromarray(render_array(prims[:k], viewport, size, target_mask))
+              for k in ks]
+    durations = [80] * len(frames)
+    durations[-1] = 2000
+    buf = io.BytesIO()
+    frames[0].save(buf, format="GIF", save_all=True, append_images=frames[1:],
+                   duration=durations, loop=0)
+    write_atomic(path, buf.getvalue())
+    return path
+
+
+def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
+    """(grammar or None for the bundled vines, image or None) from the command line."""
+    grammar, image = args.grammar, args.target
+    pos = list(args.inputs)
+    if image is not None:  # older form: grow GRAMMAR --target IMAGE
+        if len(pos) > 1 or (pos and grammar):
+            raise NgpmError("give the grammar once: ngpmc grow IMAGE --grammar GRAMMAR")
+        return (pos[0] if pos else grammar), image
+    if len(pos) > 1:
+        raise NgpmError(f"one target image at a time, got {len(pos)}: {' '.join(pos)}")
+    image = pos[0] if pos else None
+    if image is not None and Path(image).suffix.lower() in (".lsys", ".py"):
+        raise NgpmError(f"{image} is a grammar, not an image: "
+                        f"ngpmc grow IMAGE --grammar {image}")
+    return grammar, image
+
+
+def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, Path | None]:
+    """(render, svg, gif) paths, checked before any work is done."""
+    import os
+
+    out = Path(args.out) if args.out else None
+    if out is not None and out.suffix.lower() not in (".png", ".svg"):
+        raise NgpmError(f"{out}: the output must be a .png or .svg file")
+
+    def derived(value: str | None, suffix: str, flag: str) -> Path | None:
+        if value is None:
+            return None
+        path = Path(value) if value else (out.with_suffix(suffix) if out else None)
+        if path is None:
+            raise NgpmError(f"{flag} needs a path or -o")
+        if path.suffix.lower() != suffix:
+            raise NgpmError(f"{path}: {flag} writes a {suffix} file")
+        return path
+
+    paths = (out, derived(args.svg, ".svg", "--svg"),
+             derived(args.steps_gif, ".gif", "--steps-gif"))
+    for path in paths:
+        if path is None:
+            continue
+        folder = path.parent
+        if path.is_dir():
+            raise NgpmError(f"{path}: is a folder, not a file to write")
+        if not folder.is_dir():
+            raise NgpmError(f"{path}: cannot write there (no folder {folder})")
+        if not os.access(folder, os.W_OK):
+            raise NgpmError(f"{path}: cannot write there (permission denied)")
+    return paths
+
+
+def _grow_guide(choice: str | None, program: Program) -> Any:
+    """The guide to use: a file, 'none', or by default the bundled guide for vines.lsys."""
+    from ngpm_runtime import bundled
+    from ngpm_runtime.guide import Guide
+
+    if choice is not None and choice.lower() == "none":
+        return None
+    if choice is not None:
+        return Guide.load(choice, program)
+    if program.grammar_hash != bundled.bundled_program().grammar_hash:
+        print(f"no guide for grammar {program.name}: unguided SMC (train one with "
+              "ngpmc traces, train and export; pass it with --guide)")
+        return None
+    return bundled.bundled_guide(program)
 
 
 def cmd_grow(args: argparse.Namespace) -> int:
-    from ngpm_runtime.guide import Guide
+    from ngpm_runtime import bundled
     from ngpm_runtime.targets import load_target
 
     from ngpm_compiler.traces import load_grammar
 
     if args.particles < 1:
         raise NgpmError("-N must be at least 1")
-    if not Path(args.grammar).is_file():
-        raise NgpmError(f"{args.grammar}: no such grammar file")
-    program = load_grammar(args.grammar)
-    target = load_target(args.target, size=args.size)
-    guide = None
-    if args.guide:
-        guide = Guide.load(args.guide, program)
-        if guide.fallback_sites:
-            ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
-            print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
-                  f"prior: {ids}")
-    res = grow(program, target, guide, args.particles, args.seed)
+    grammar, image = _grow_inputs(args)
+    if image is None and args.likelihood == "shape":
+        raise NgpmError("give a target image: ngpmc grow IMAGE -o vine.png")
+    out, svg, gif = _grow_outputs(args)
+    if grammar is None:
+        program = bundled.bundled_program()
+    else:
+        if not Path(grammar).is_file():
+            raise NgpmError(f"{grammar}: no such grammar file")
+        program = load_grammar(grammar)
+    target = load_target(image, size=args.size) if image is not None else None
+    guide = _grow_guide(args.guide, program)
+    if guide is not None and guide.fallback_sites:
+        ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
+        print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
+              f"prior: {ids}")
+    res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
+               progress=True)
     kind = "guided" if guide else "unguided"
-    print(f"{target.name}: similarity {res.similarity:.3f}, {res.particles} particles "
-          f"({kind}), {res.seconds:.2f} s, {len(res.primitives)} primitives")
-    if args.out:
-        from ngpm_runtime.render import save_render
+    name = target.name if target is not None else program.name
+    score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else
+             f"circuit log-likelihood {res.smc.best.log_likelihood:.2f}")
+    print(f"{name}: {score}, {res.particles} particles ({kind}), {res.seconds:.2f} s, "
+          f"{len(res.primitives)} primitives")
+    if guide is not None:
+        print(f"guide: {guide.path}")
+    from ngpm_runtime.render import save_render
 
-        save_render(res.primitives, args.out, viewport=program.viewport,
-                    target_mask=target.mask)
-        print(f"wrote {args.out}")
+    mask = target.mask if target is not None else None
+    for path in (out, svg):
+        if path is not None:
+            save_render(res.primitives, path, viewport=program.viewport, target_mask=mask)
+            print(f"wrote {path}")
+    if gif is not None:
+        save_steps_gif(res.primitives, gif, program.viewport, mask)
+        print(f"wrote {gif} (growth animation)")
     return 0

@@ -1,0 +1,167 @@
+"""`ngpmc grow IMAGE -o out.png`: the bundled vines guide by default, --grammar, --guide,
+--likelihood, --svg, --steps-gif; and bad input as one-line errors through the CLI."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from ngpm_runtime import bundled
+from PIL import Image
+
+from ngpm_compiler.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+VINES = str(REPO / "grammars" / "vines.lsys")
+CHAIN = str(REPO / "grammars" / "chain.lsys")
+LINE_RE = re.compile(r"^(\w+): similarity (-?[\d.]+), (\d+) particles \((guided|unguided)\), "
+                     r"([\d.]+) s, (\d+) primitives$", re.M)
+
+
+@pytest.fixture()
+def horse(tmp_path: Path) -> Path:
+    """A copy of the demo horse (PNG + sidecar) in a temp folder."""
+    src = bundled.demo_target_path("horse")
+    shutil.copy(src, tmp_path / "horse.png")
+    shutil.copy(src.with_suffix(".txt"), tmp_path / "horse.txt")
+    return tmp_path / "horse.png"
+
+
+def run(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(list(args))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(capsys, *args: str) -> str:
+    code, _, err = run(capsys, *args)
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ngpmc: error: "), err
+    return lines[0]
+
+
+def test_grow_image_with_the_bundled_guide(horse: Path, capsys) -> None:
+    out = horse.with_name("vine.png")
+    code, text, _ = run(capsys, "grow", str(horse), "-o", str(out))
+    assert code == 0
+    m = LINE_RE.search(text)
+    assert m, text
+    name, sim, n, kind, secs, prims = m.groups()
+    assert (name, n, kind) == ("horse", "10", "guided")
+    assert 0.0 < float(sim) <= 1.0 and float(secs) > 0 and int(prims) > 0
+    assert "vines_guide.onnx" in text
+    with Image.open(out) as img:
+        img.verify()
+
+
+def test_svg_and_growth_animation_beside_the_render(horse: Path, capsys) -> None:
+    out = horse.with_name("vine.png")
+    code, text, _ = run(capsys, "grow", str(horse), "-o", str(out), "--svg", "--steps-gif",
+                        "-N", "4")
+    assert code == 0, text
+    assert out.with_suffix(".svg").read_text().startswith("<svg")
+    prims = int(LINE_RE.search(text).group(6))
+    with Image.open(out.with_suffix(".gif")) as gif:
+        assert gif.n_frames == min(prims, 59) + 1  # empty canvas, then the growth
+        assert gif.info.get("loop") == 0
+    gif2 = horse.with_name("steps.gif")
+    assert run(capsys, "grow", str(horse), "--steps-gif", str(gif2), "-N", "2")[0] == 0
+    with Image.open(gif2) as gif:
+        assert gif.n_frames > 1
+
+
+def test_same_seed_same_result(horse: Path, capsys) -> None:
+    a = LINE_RE.search(run(capsys, "grow", str(horse), "-N", "3", "--seed", "7")[1])
+    b = LINE_RE.search(run(capsys, "grow", str(horse), "-N", "3", "--seed", "7")[1])
+    assert a.group(2, 6) == b.group(2, 6)
+
+
+def test_guide_choices(horse: Path, capsys) -> None:
+    code, text, _ = run(capsys, "grow", str(horse), "--guide", "none", "-N", "3")
+    assert code == 0 and "(unguided)" in text
+    # the same grammar compiled from source still gets the bundled guide (same hash)
+    code, text, _ = run(capsys, "grow", str(horse), "--grammar", VINES, "-N", "3")
+    assert code == 0 and "(guided)" in text
+    code, text, _ = run(capsys, "grow", str(horse), "--guide", str(bundled.guide_path()),
+                        "-N", "3")
+    assert code == 0 and "(guided)" in text
+    # another grammar has no default guide
+    code, text, _ = run(capsys, "grow", str(horse), "--grammar", CHAIN, "-N", "3")
+    assert code == 0 and "no guide for grammar chain" in text and "(unguided)" in text
+
+
+def test_older_form_grammar_then_target(horse: Path, capsys) -> None:
+    code, text, _ = run(capsys, "grow", VINES, "--target", str(horse), "-N", "3")
+    assert code == 0 and LINE_RE.search(text).group(4) == "guided"
+
+
+def test_circuit_likelihood_needs_no_image(capsys) -> None:
+    code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3")
+    assert code == 0
+    assert re.search(r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(guided\)", text,
+                     re.M), text
+
+
+# --- bad input ---------------------------------------------------------------------------
+
+
+def test_missing_and_unreadable_images(tmp_path: Path, capsys) -> None:
+    line = one_line_error(capsys, "grow", str(tmp_path / "nope.png"))
+    assert "nope.png does not exist" in line
+    fake = tmp_path / "fake.png"
+    fake.write_text("this is not an image")
+    assert "cannot read target image" in one_line_error(capsys, "grow", str(fake))
+    assert "give a target image" in one_line_error(capsys, "grow")
+
+
+def test_grammar_given_as_the_image(capsys) -> None:
+    line = one_line_error(capsys, "grow", VINES)
+    assert "is a grammar, not an image" in line and "--grammar" in line
+
+
+def test_guide_for_another_grammar(horse: Path, capsys) -> None:
+    line = one_line_error(capsys, "grow", str(horse), "--grammar", CHAIN,
+                          "--guide", str(bundled.guide_path()))
+    assert "trained for grammar 'vines'" in line
+
+
+def test_corrupt_guide_and_missing_grammar(horse: Path, capsys) -> None:
+    bad = horse.with_name("bad.onnx")
+    bad.write_bytes(b"\x00" * 50)
+    assert "not a readable ONNX guide" in one_line_error(capsys, "grow", str(horse),
+                                                         "--guide", str(bad))
+    line = one_line_error(capsys, "grow", str(horse), "--grammar", "nowhere/x.lsys")
+    assert "no such grammar file" in line
+
+
+def test_unwritable_or_wrong_outputs(horse: Path, capsys) -> None:
+    out = horse.with_name("vine.png")
+    line = one_line_error(capsys, "grow", str(horse), "-o", str(horse.parent / "no" / "v.png"))
+    assert "cannot write there" in line
+    assert "must be a .png or .svg" in one_line_error(capsys, "grow", str(horse), "-o",
+                                                      str(horse.with_name("v.jpg")))
+    folder = horse.with_name("folder.png")
+    folder.mkdir()
+    assert "is a folder" in one_line_error(capsys, "grow", str(horse), "-o", str(folder))
+    assert "--steps-gif needs a path or -o" in one_line_error(capsys, "grow", str(horse),
+                                                              "--steps-gif")
+    assert "writes a .gif file" in one_line_error(capsys, "grow", str(horse), "-o", str(out),
+                                                  "--steps-gif", str(out))
+    assert "-N must be at least 1" in one_line_error(capsys, "grow", str(horse), "-N", "0")
+    assert not out.exists()
+
+
+def test_errors_through_the_installed_command(tmp_path: Path) -> None:
+    exe = shutil.which("ngpmc")
+    cmd = [exe] if exe else [sys.executable, "-m", "ngpm_compiler.cli"]
+    fake = tmp_path / "fake.png"
+    fake.write_text("no image")
+    proc = subprocess.run([*cmd, "grow", str(fake), "-o", str(tmp_path / "v.png")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and "fake.png" in proc.stderr

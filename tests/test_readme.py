@@ -1,0 +1,140 @@
+"""README.md: the two set-up commands come first, every `ngpmc` command in it parses, every
+linked or named file exists, its grammar compiles and its quick tour runs (scaled down)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+import shlex
+import shutil
+from pathlib import Path
+
+import pytest
+from ngpm_runtime import bundled
+from PIL import Image
+
+from ngpm_compiler.cli import build_parser, main
+
+REPO = Path(__file__).resolve().parents[1]
+README = (REPO / "README.md").read_text(encoding="utf-8")
+SETUP = [
+    'pip install torch==2.13.0 && pip install -e ".[train,dev]" && ngpmc demo -o demo_out',
+    'pip install torch==2.13.0 && pip install -e ".[train,dev]" && python3 -m pytest',
+]
+# the tour, scaled down so that it runs in seconds
+SMALLER = {"--count": "3", "-n": "3", "--particles": "8"}
+
+
+def fences(text: str) -> list[tuple[str, str]]:
+    """(language, body) of every fenced block, in order."""
+    out, lang, body = [], None, []
+    for line in text.splitlines():
+        if line.startswith("```"):
+            if lang is None:
+                lang, body = line[3:].strip(), []
+            else:
+                out.append((lang, "\n".join(body) + "\n"))
+                lang = None
+        elif lang is not None:
+            body.append(line)
+    return out
+
+
+def blocks(lang: str, text: str = README) -> list[str]:
+    return [body for fence_lang, body in fences(text) if fence_lang == lang]
+
+
+def commands(block: str) -> list[str]:
+    """Command lines of a bash block, without comments."""
+    out = []
+    for line in block.splitlines():
+        line = re.sub(r"\s+#.*$", "", line).strip()
+        if line and not line.startswith("#"):
+            out.append(line)
+    return out
+
+
+def ngpmc_lines() -> list[str]:
+    lines = []
+    for block in blocks("bash"):
+        for line in commands(block):
+            lines += [p.strip() for p in line.split("&&") if p.strip().startswith("ngpmc ")]
+    return lines
+
+
+def test_the_two_setup_commands_come_first() -> None:
+    first = commands(blocks("bash")[0])
+    assert first[:2] == SETUP
+    assert README.index(SETUP[0]) < README.index("## ")  # before any section
+
+
+def test_every_ngpmc_command_parses() -> None:
+    lines = ngpmc_lines()
+    assert len(lines) >= 15
+    used = set()
+    for line in lines:
+        argv = shlex.split(line)[1:]
+        try:
+            args = build_parser().parse_args(argv)
+        except SystemExit as err:
+            pytest.fail(f"README command does not parse ({err}): {line}")
+        assert getattr(args, "handler", None), line
+        used.add(argv[0])
+    assert {"demo", "grow", "check", "compile", "sample", "targets", "traces", "train",
+            "export"} <= used
+
+
+def test_links_and_named_files_exist() -> None:
+    links = re.findall(r"\]\(([^)#]+)\)", README)
+    assert "docs/img/demo.png" in links
+    for doc in ("docs/language.md", "docs/architecture.md", "docs/datasets.md", "docs/api.md",
+                "docs/results/"):
+        assert doc in links, doc
+    named = re.findall(r"(?<![\w/])((?:grammars|scripts|runtime|docs|tests|benchmarks|\.ci)"
+                       r"/[\w./-]*[\w/])", README)
+    assert "scripts/train_vines_guide.sh" in named
+    for rel in set(links) | set(named):
+        if rel.startswith(("http://", "https://")):
+            continue
+        assert (REPO / rel).exists(), f"README names {rel}, which does not exist"
+
+
+def test_demo_picture_is_an_image() -> None:
+    with Image.open(REPO / "docs" / "img" / "demo.png") as img:
+        img.verify()
+
+
+def test_readme_python_runs(monkeypatch) -> None:
+    (code,) = blocks("python")
+    out = io.StringIO()
+    monkeypatch.chdir(REPO)
+    with contextlib.redirect_stdout(out):
+        exec(compile(code, "README.md", "exec"), {})
+    assert re.search(r"^\d+ primitives$", out.getvalue(), re.M)
+
+
+def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys, monkeypatch) -> None:
+    grammars = [b for b in blocks("") if "endlsystem" in b]
+    assert len(grammars) == 1
+    name = re.search(r"Save this as `(\w+\.lsys)`", README).group(1)
+    (tmp_path / name).write_text(grammars[0], encoding="utf-8")
+    horse = bundled.demo_target_path("horse")
+    shutil.copy(horse, tmp_path / "my_picture.png")
+    shutil.copy(horse.with_suffix(".txt"), tmp_path / "my_picture.txt")
+    start = README.index("## Quick tour")
+    end = README.index("\n## ", start + 5)
+    tour = [ln for b in blocks("bash", README[start:end]) for ln in commands(b)]
+    assert [shlex.split(ln)[1] for ln in tour] == [
+        "check", "compile", "sample", "targets", "traces", "train", "export", "grow", "grow"]
+    monkeypatch.chdir(tmp_path)
+    for line in tour:
+        argv = shlex.split(line)[1:]
+        argv = [SMALLER.get(argv[i - 1], a) if i else a for i, a in enumerate(argv)]
+        argv += {"traces": ["--workers", "1"], "train": ["--epochs", "2"]}.get(argv[0], [])
+        assert main(argv) == 0, line
+    out = capsys.readouterr().out
+    assert "(guided)" in out and "(unguided)" in out
+    stem = name[:-5]
+    for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx"):
+        assert (tmp_path / out).is_file(), out
