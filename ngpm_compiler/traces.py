@@ -20,6 +20,9 @@ from __future__ import annotations
 import io
 import json
 import multiprocessing as mp
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -265,6 +268,13 @@ def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[
             "min_primitives": cfg.min_primitives}
 
 
+def _exit_on_sigterm() -> None:
+    """Make SIGTERM unwind like Ctrl-C, so the pool's workers are stopped and the manifest of
+    the finished jobs is written (the default SIGTERM handler skips all cleanup)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+
+
 def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True,
                     on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest."""
@@ -335,6 +345,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                 finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives)))
         else:
             ctx = mp.get_context("spawn")
+            _exit_on_sigterm()
             with ctx.Pool(cfg.workers, initializer=_init_worker,
                           initargs=(cfg.grammar, cfg.targets, cfg.size, cfg.mirror)) as pool:
                 running: list[Any] = []
