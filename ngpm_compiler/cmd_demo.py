@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.targets import Target, auto_start, save_target
 from PIL import Image, ImageDraw, ImageFont
 
@@ -277,25 +278,14 @@ def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.n
     return np.asarray(sheet)
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write a file atomically (temp file beside it, then rename), default permissions."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def _save_png(rgb: np.ndarray, path: Path) -> None:
     buf = io.BytesIO()
     Image.fromarray(rgb).save(buf, format="PNG", optimize=True)
-    write_atomic(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
 def _write_text(path: Path, text: str) -> None:
-    write_atomic(path, text.encode("utf-8"))
+    atomic_write(path, text)
 
 
 # --------------------------------------------------------------------------- targets

@@ -242,10 +242,9 @@ def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
     """An animated GIF of the growth: the primitives in drawing order, a few per frame."""
     import io
 
+    from ngpm_runtime.files import atomic_write
     from ngpm_runtime.render import render_array
     from PIL import Image
-
-    from ngpm_compiler.cmd_demo import write_atomic
 
     path = Path(path)
     n = len(prims)
@@ -257,7 +256,7 @@ def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
     buf = io.BytesIO()
     frames[0].save(buf, format="GIF", save_all=True, append_images=frames[1:],
                    duration=durations, loop=0)
-    write_atomic(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
     return path
 
 
