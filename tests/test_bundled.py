@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
+from blocked_imports import run_blocked
 from ngpm_runtime import bundled
 from ngpm_runtime.errors import GuideError, ProgramError, TargetError
 from ngpm_runtime.guide import Guide
@@ -142,17 +141,6 @@ def test_unknown_demo_target() -> None:
 
 SCRIPT = textwrap.dedent(
     """
-    import importlib.abc, sys
-
-    BLOCKED = ("torch", "lark", "ngpm_compiler")
-
-    class Blocker(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if name.split(".")[0] in BLOCKED:
-                raise ImportError(f"blocked: {name}")
-            return None
-
-    sys.meta_path.insert(0, Blocker())
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
     from ngpm_runtime.likelihood import ShapeLikelihood
     from ngpm_runtime.smc import smc
@@ -164,17 +152,11 @@ SCRIPT = textwrap.dedent(
     result = smc(program, ShapeLikelihood(target.mask, vp), 4, proposal=guide, seed=0,
                  start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
     assert result.best.primitives
-    leaked = [m for m in sys.modules if m.split(".")[0] in BLOCKED]
-    assert not leaked, leaked
-    print("ok")
     """
 )
 
 
 def test_guided_smc_with_package_data_needs_no_torch_lark_or_compiler(tmp_path: Path) -> None:
-    script = tmp_path / "check.py"
-    script.write_text(SCRIPT)
-    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=120, cwd=tmp_path)
+    proc = run_blocked(SCRIPT, tmp_path, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.strip().endswith("ok")
