@@ -224,20 +224,15 @@ def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> n
 
 def target_picture(target: Target, size: int) -> np.ndarray:
     """The target mask (dark gray on white) with its start as a red arrow from a green dot."""
+    from ngpm_compiler.datasets import draw_start
+
     tile = np.where(target.mask, 70, 255).astype(np.uint8)
     img = Image.fromarray(tile, mode="L").resize((size, size), Image.Resampling.NEAREST)
     img = img.convert("RGB")
     draw = ImageDraw.Draw(img)
     sx, sy, dx, dy = target.start
     px, py = sx * size, sy * size
-    alen = 0.16 * size
-    ex, ey = px + dx * alen, py + dy * alen
-    draw.line((px, py, ex, ey), fill=(220, 30, 30), width=3)
-    ang = math.atan2(dy, dx)
-    for side in (2.6, -2.6):
-        draw.line((ex, ey, ex + 0.4 * alen * math.cos(ang + side),
-                   ey + 0.4 * alen * math.sin(ang + side)), fill=(220, 30, 30), width=3)
-    draw.ellipse((px - 5, py - 5, px + 5, py + 5), fill=(20, 170, 40))
+    draw_start(draw, px, py, dx, dy, 0.16 * size, head=0.4, width=3, dot=5)
     return np.asarray(img)
 
 

@@ -524,6 +524,18 @@ def _write_index(out: Path, meta: dict) -> None:
 # --- contact sheets ----------------------------------------------------------------------
 
 
+def draw_start(draw: ImageDraw.ImageDraw, px: float, py: float, dx: float, dy: float,
+               length: float, head: float, width: int, dot: int) -> None:
+    """A start pose: a green dot at (px, py) and a red arrow of `length` along (dx, dy)."""
+    ex, ey = px + dx * length, py + dy * length
+    draw.line((px, py, ex, ey), fill=(220, 30, 30), width=width)
+    ang = math.atan2(dy, dx)
+    for side in (2.6, -2.6):
+        draw.line((ex, ey, ex + head * length * math.cos(ang + side),
+                   ey + head * length * math.sin(ang + side)), fill=(220, 30, 30), width=width)
+    draw.ellipse((px - dot, py - dot, px + dot, py + dot), fill=(20, 170, 40))
+
+
 def contact_sheet(targets: list[Target], path: str | os.PathLike, cols: int | None = None,
                   cell: int = 64, labels: bool = True) -> Path:
     """Draw targets in a grid (shape dark gray on white), each start as a red arrow from a
@@ -547,14 +559,7 @@ def contact_sheet(targets: list[Target], path: str | os.PathLike, cols: int | No
         sheet.paste(img.convert("RGB"), (x0, y0))
         sx, sy, dx, dy = t.start
         px, py = x0 + sx * cell, y0 + sy * cell
-        alen = 0.28 * cell
-        ex, ey = px + dx * alen, py + dy * alen
-        draw.line((px, py, ex, ey), fill=(220, 30, 30), width=2)
-        ang = math.atan2(dy, dx)
-        for side in (2.6, -2.6):
-            draw.line((ex, ey, ex + 0.35 * alen * math.cos(ang + side),
-                       ey + 0.35 * alen * math.sin(ang + side)), fill=(220, 30, 30), width=2)
-        draw.ellipse((px - 3, py - 3, px + 3, py + 3), fill=(20, 170, 40))
+        draw_start(draw, px, py, dx, dy, 0.28 * cell, head=0.35, width=2, dot=3)
         if labels:
             text = t.name if len(t.name) <= cell // 6 else t.name.split("_", 1)[-1]
             draw.text((x0, y0 + cell + 1), text, fill=(0, 0, 0), font=font)
