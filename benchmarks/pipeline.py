@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ngpm_runtime.guide import Guide
+from ngpm_runtime.inference.guide import Guide
 
 from ngpm_compiler.cmd_guide import grow
 from ngpm_compiler.datasets import build_dataset

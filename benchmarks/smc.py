@@ -43,7 +43,7 @@ def vines_program():
 
 def disk_target(size: int = 50):
     """A filled disk in the upper middle of the image; start at its bottom, heading up."""
-    from ngpm_runtime.targets import Target
+    from ngpm_runtime.image.targets import Target
 
     yy, xx = np.mgrid[0:size, 0:size]
     c = (size - 1) / 2.0
@@ -61,8 +61,8 @@ def main() -> None:
     ap.add_argument("--targets", type=int, default=20, help="glyph targets for guided runs")
     args = ap.parse_args()
 
-    from ngpm_runtime.likelihood import ShapeLikelihood
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood
+    from ngpm_runtime.inference.smc import smc
 
     program, origin = vines_program()
     target = disk_target()
@@ -82,8 +82,8 @@ def main() -> None:
         pstats.Stats(prof, stream=sys.stdout).sort_stats("tottime").print_stats(25)
         return
     secs, cpus, psteps, stepss, nprims, sims = [], [], [], [], [], []
-    from ngpm_runtime.likelihood import similarity
-    from ngpm_runtime.raster import rasterize
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.likelihood import similarity
 
     for seed in range(args.runs):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -115,7 +115,7 @@ def main() -> None:
 def glyph_targets(count: int) -> list:
     import tempfile
 
-    from ngpm_runtime.targets import load_dataset
+    from ngpm_runtime.image.targets import load_dataset
 
     from ngpm_compiler.datasets import build_dataset
 
@@ -139,10 +139,10 @@ class CountingProposal:
 
 def guided(program, targets: list, guide_path: str) -> None:
     """Guided N=10 on each target (best of 3 runs each): seconds and calls per result."""
-    from ngpm_runtime.guide import Guide
-    from ngpm_runtime.likelihood import ShapeLikelihood, similarity
-    from ngpm_runtime.raster import rasterize
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.guide import Guide
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood, similarity
+    from ngpm_runtime.inference.smc import smc
 
     if not Path(guide_path).is_file():
         print(f"no guide at {guide_path}: no guided figures")
@@ -174,8 +174,8 @@ def guided(program, targets: list, guide_path: str) -> None:
 def trace_jobs(program, targets: list) -> None:
     """The 600-particle trace job (traces.run_job) and the same run with features for
     every particle (record_trace=True), CPU seconds per job."""
-    from ngpm_runtime.likelihood import ShapeLikelihood
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood
+    from ngpm_runtime.inference.smc import smc
 
     from ngpm_compiler.traces import run_job
 

@@ -6,7 +6,7 @@ similarity and seconds over the runs, the pictures show the median run. Writes `
 one render of each median run and `summary.md`, and prints the summary. Uses only the package
 data (ngpm_runtime.bundled): nothing is trained or downloaded.
 
-`write_demo_targets(dir)` (re)makes the built-in demo targets shipped in runtime/data/.
+`write_demo_targets(dir)` (re)makes the built-in demo targets shipped in runtime/ngpm_runtime/data/.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.targets import Target, auto_start, save_target
+from ngpm_runtime.image.targets import Target, auto_start, save_target
 from PIL import Image, ImageDraw, ImageFont
 
 CELL = 220  # pixels per picture in demo.png
@@ -217,7 +217,7 @@ def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
 
 
 def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> np.ndarray:
-    from ngpm_runtime.render import render_array
+    from ngpm_runtime.image.render import render_array
 
     return render_array(prims, viewport, size, target_mask=mask)
 

@@ -60,8 +60,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_sample(args: argparse.Namespace) -> int:
-    from ngpm_runtime.render import save_render
-    from ngpm_runtime.smc import forward
+    from ngpm_runtime.image.render import save_render
+    from ngpm_runtime.inference.smc import forward
 
     suffix = Path(args.out).suffix.lower()
     if suffix not in (".png", ".svg"):

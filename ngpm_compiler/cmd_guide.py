@@ -198,9 +198,9 @@ def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10
     likelihood: "shape" (match the target) or "circuit" (the target, optional, only gives
     the start pose and the target features). `progress` shows a bar on runs over a second.
     """
-    from ngpm_runtime.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
-    from ngpm_runtime.raster import rasterize
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
+    from ngpm_runtime.inference.smc import smc
 
     viewport = program.viewport
     if viewport is None:
@@ -243,7 +243,7 @@ def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
     import io
 
     from ngpm_runtime.files import atomic_write
-    from ngpm_runtime.render import render_array
+    from ngpm_runtime.image.render import render_array
     from PIL import Image
 
     path = Path(path)
@@ -313,7 +313,7 @@ def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, P
 def _grow_guide(choice: str | None, program: Program) -> Any:
     """The guide to use: a file, 'none', or by default the bundled guide for vines.lsys."""
     from ngpm_runtime import bundled
-    from ngpm_runtime.guide import Guide
+    from ngpm_runtime.inference.guide import Guide
 
     if choice is not None and choice.lower() == "none":
         return None
@@ -328,7 +328,7 @@ def _grow_guide(choice: str | None, program: Program) -> Any:
 
 def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_runtime import bundled
-    from ngpm_runtime.targets import load_target
+    from ngpm_runtime.image.targets import load_target
 
     from ngpm_compiler.traces import load_grammar
 
@@ -360,7 +360,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
           f"{len(res.primitives)} primitives")
     if guide is not None:
         print(f"guide: {guide.path}")
-    from ngpm_runtime.render import save_render
+    from ngpm_runtime.image.render import save_render
 
     mask = target.mask if target is not None else None
     for path in (out, svg):

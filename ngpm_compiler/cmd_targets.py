@@ -7,7 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from ngpm_runtime.targets import POLARITIES, load_dataset, load_target
+from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 
 from ngpm_compiler.datasets import DATASETS, DatasetWarning, build_dataset, contact_sheet
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from ngpm_runtime.errors import NgpmError, TargetError
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.targets import (
+from ngpm_runtime.image.targets import (
     IMAGE_SUFFIXES,
     Target,
     auto_start,

@@ -38,7 +38,7 @@ def circuit_start(viewport: tuple[float, ...]) -> tuple[float, float, float]:
 
 def circuit_score(image: np.ndarray) -> float:
     """edge(I) * (1 - |fill(I) - tau| / tau): equation 2's argument (1 is the optimum)."""
-    from ngpm_runtime.likelihood import CIRCUIT_TAU, sobel
+    from ngpm_runtime.inference.likelihood import CIRCUIT_TAU, sobel
 
     img = np.asarray(image, dtype=np.float64)
     edge, fill = float(sobel(img).mean()), float(img.mean())
@@ -48,9 +48,9 @@ def circuit_score(image: np.ndarray) -> float:
 def circuit_once(program: Any, proposal: Any, n: int, seed: int, record: bool = False
                  ) -> tuple[float, float, Any]:
     """SMC under the circuit likelihood; (score of the best particle, seconds, best)."""
-    from ngpm_runtime.likelihood import CircuitLikelihood
-    from ngpm_runtime.raster import rasterize
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.likelihood import CircuitLikelihood
+    from ngpm_runtime.inference.smc import smc
 
     vp = program.viewport
     t0 = time.perf_counter()
@@ -129,8 +129,8 @@ def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
 
 def run_circuit(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     """Traces, a guide, then reference / guided / unguided equal N / equal time runs."""
-    from ngpm_runtime.guide import Guide
-    from ngpm_runtime.render import render_array
+    from ngpm_runtime.image.render import render_array
+    from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.traces import load_grammar
 
@@ -203,8 +203,8 @@ def circuit_table(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def chain_arc(rng: np.random.Generator, program: Any, size: int = 50, links: int = 12,
               name: str = "arc") -> Any:
     """A smooth arc drawn like the chain (links of length 1 with slowly varying turns)."""
-    from ngpm_runtime.raster import rasterize
-    from ngpm_runtime.targets import Target
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.image.targets import Target
 
     vp = program.viewport
     x, y, h = program.start
@@ -225,9 +225,9 @@ def chain_arc(rng: np.random.Generator, program: Any, size: int = 50, links: int
 
 def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     """Chain of Figure 1: prior samples, unguided vs guided SMC, guide samples."""
-    from ngpm_runtime.guide import Guide
-    from ngpm_runtime.render import render_array
-    from ngpm_runtime.smc import forward
+    from ngpm_runtime.image.render import render_array
+    from ngpm_runtime.inference.guide import Guide
+    from ngpm_runtime.inference.smc import forward
 
     from ngpm_compiler.traces import TraceConfig, generate_traces, load_grammar
 
@@ -239,7 +239,7 @@ def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     train, test = arcs[:cfg.chain_train_targets], arcs[cfg.chain_train_targets:]
     tdir = work / "targets"
     if not tdir.is_dir():
-        from ngpm_runtime.targets import save_target
+        from ngpm_runtime.image.targets import save_target
 
         tdir.mkdir(parents=True)
         for t in train:

@@ -50,7 +50,7 @@ def pick(items: list[Any], k: int) -> list[Any]:
 
 def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:
     """The held-out test targets: evenly spread glyphs and silhouettes (built if needed)."""
-    from ngpm_runtime.targets import load_dataset
+    from ngpm_runtime.image.targets import load_dataset
 
     from ngpm_compiler.datasets import build_dataset
 
@@ -240,8 +240,8 @@ def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int
 def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, str],
               summary: list[dict[str, Any]], log: Any = print) -> list[dict[str, Any]]:
     """Target | Reference | Guided | Unguided equal N | Unguided equal time, per test set."""
-    from ngpm_runtime.guide import Guide
-    from ngpm_runtime.render import render_array
+    from ngpm_runtime.image.render import render_array
+    from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.traces import load_grammar
 

@@ -69,9 +69,9 @@ def run_seed(base: int, target: int, n: int, repeat: int) -> int:
 def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
               ) -> tuple[float, float, list[tuple]]:
     """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
-    from ngpm_runtime.likelihood import ShapeLikelihood, similarity
-    from ngpm_runtime.raster import rasterize
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood, similarity
+    from ngpm_runtime.inference.smc import smc
 
     vp = program.viewport
     like = ShapeLikelihood(target.mask, vp)
@@ -91,7 +91,7 @@ _W: dict[str, Any] = {}
 
 def _init(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str]) -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from ngpm_runtime.guide import Guide
+    from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.traces import load_grammar
 

@@ -1,4 +1,4 @@
-"""Export a trained guide (model.pt) to ONE .onnx file that ngpm_runtime.guide.Guide loads.
+"""Export a trained guide (model.pt) to ONE .onnx file that ngpm_runtime.inference.guide loads.
 
 The graph holds every site network side by side: per site an input `f_<index>` (raw feature
 rows, float32, batch dimension `n_<index>`) and an output `p_<index>` (section-5 proposal

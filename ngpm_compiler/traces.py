@@ -79,7 +79,7 @@ def load_grammar(path: str | Path) -> Program:
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
     """The dataset's targets, plus mirrored copies of those without one when `mirror`."""
-    from ngpm_runtime.targets import load_dataset
+    from ngpm_runtime.image.targets import load_dataset
 
     targets = list(load_dataset(directory, size=size))
     if mirror:
@@ -103,8 +103,8 @@ def run_job(program: Program, target: Any, seed: int, particles: int
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
     from ngpm_runtime.errors import ProgramError
-    from ngpm_runtime.likelihood import ShapeLikelihood
-    from ngpm_runtime.smc import replay, smc
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood
+    from ngpm_runtime.inference.smc import replay, smc
 
     viewport = program.viewport
     start = target.start_pose(viewport)
@@ -123,7 +123,7 @@ def run_job(program: Program, target: Any, seed: int, particles: int
 
 def site_layouts(program: Program, target_mask: np.ndarray | None) -> dict[int, dict[str, slice]]:
     """FeatureMaker.layout for every site."""
-    from ngpm_runtime.features import FeatureMaker
+    from ngpm_runtime.image.features import FeatureMaker
 
     fm = FeatureMaker(program, program.viewport, target_mask)
     return {s.index: fm.layout(s) for s in program.sites}

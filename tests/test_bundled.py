@@ -13,7 +13,7 @@ import pytest
 from blocked_imports import run_blocked
 from ngpm_runtime import bundled
 from ngpm_runtime.errors import GuideError, ProgramError, TargetError
-from ngpm_runtime.guide import Guide
+from ngpm_runtime.inference.guide import Guide
 
 REPO = Path(__file__).resolve().parents[1]
 VINES = REPO / "grammars" / "vines.lsys"
@@ -30,7 +30,7 @@ def vines_hash() -> str:
 
 def test_data_folder_is_flat_so_pyproject_ships_it() -> None:
     # pyproject's package-data is `data/*`: files in subfolders would not be installed
-    assert bundled.DATA_DIR == REPO / "runtime" / "data"
+    assert bundled.DATA_DIR == REPO / "runtime" / "ngpm_runtime" / "data"
     assert not [p for p in bundled.DATA_DIR.iterdir() if p.is_dir() and p.name != "__pycache__"]
     assert 'ngpm_runtime = ["data/*"]' in (REPO / "pyproject.toml").read_text()
 
@@ -39,8 +39,8 @@ def test_bundled_sampler_is_up_to_date_with_vines_lsys() -> None:
     program = bundled.bundled_program()
     assert program.name == "vines"
     assert program.grammar_hash == vines_hash(), (
-        "runtime/data/vines_sampler.py is stale: run "
-        "`ngpmc compile grammars/vines.lsys -o runtime/data`")
+        "runtime/ngpm_runtime/data/vines_sampler.py is stale: run "
+        "`ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`")
 
 
 def test_bundled_sites_match_a_fresh_compile() -> None:
@@ -59,7 +59,7 @@ def test_bundled_sites_match_a_fresh_compile() -> None:
 
 
 def test_bundled_program_is_cached_and_samples() -> None:
-    from ngpm_runtime.smc import forward
+    from ngpm_runtime.inference.smc import forward
 
     assert bundled.bundled_program() is bundled.bundled_program()
     a = forward(bundled.bundled_program(), seed=3)
@@ -142,8 +142,8 @@ def test_unknown_demo_target() -> None:
 SCRIPT = textwrap.dedent(
     """
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
-    from ngpm_runtime.likelihood import ShapeLikelihood
-    from ngpm_runtime.smc import smc
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood
+    from ngpm_runtime.inference.smc import smc
 
     program = bundled_program()
     guide = bundled_guide(program)

@@ -63,8 +63,8 @@ def test_console_script_runs(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("suffix", [".png", ".svg"])
 def test_sample_renders(tmp_path: Path, suffix: str, capsys: pytest.CaptureFixture[str]) -> None:
-    pytest.importorskip("ngpm_runtime.render")
-    pytest.importorskip("ngpm_runtime.smc")
+    pytest.importorskip("ngpm_runtime.image.render")
+    pytest.importorskip("ngpm_runtime.inference.smc")
     out = tmp_path / f"vines{suffix}"
     assert main(["sample", str(VINES), "--seed", "3", "-o", str(out), "--size", "64"]) == 0
     assert out.is_file() and out.stat().st_size > 0

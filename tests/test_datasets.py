@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.targets import Target, load_dataset, load_target
+from ngpm_runtime.image.targets import Target, load_dataset, load_target
 from PIL import Image, ImageFont
 from skimage.measure import label
 from skimage.morphology import skeletonize

@@ -11,11 +11,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 
 from fixtures.tiny_programs import make_program  # noqa: E402
-from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
 from ngpm_runtime.errors import ProgramError  # noqa: E402
+from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
+from ngpm_runtime.geometry.turtle import prim_bbox  # noqa: E402
+from ngpm_runtime.inference.smc import forward, smc  # noqa: E402
 from ngpm_runtime.program import Site, load_program  # noqa: E402
-from ngpm_runtime.smc import forward, smc  # noqa: E402
-from ngpm_runtime.turtle import prim_bbox  # noqa: E402
 
 VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
 

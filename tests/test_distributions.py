@@ -2,14 +2,14 @@
 
 import numpy as np
 import pytest
-from ngpm_runtime.distributions import (
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.inference.distributions import (
     prior_logpdf,
     prior_sample,
     proposal_draw,
     proposal_logpdf,
     proposal_sample,
 )
-from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Site
 
 NORMAL = Site(index=0, id="n", kind="normal")
@@ -142,7 +142,7 @@ def test_discrete_proposals() -> None:
 
 
 def test_prior_draw_log_density_matches_prior_logpdf() -> None:
-    from ngpm_runtime.distributions import prior_draw
+    from ngpm_runtime.inference.distributions import prior_draw
 
     cases = [
         (NORMAL, np.array([[1.0, 2.0], [0.0, 0.0], [3.0, -0.5]] * 10)),

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ngpm_runtime.targets import Target
+from ngpm_runtime.image.targets import Target
 
 from ngpm_compiler.eval_extra import chain_arc, circuit_score
 from ngpm_compiler.eval_models import subset
@@ -122,8 +122,8 @@ def vines():
 
 
 def test_grow_once_scores_the_best_particle(vines) -> None:
-    from ngpm_runtime.likelihood import similarity
-    from ngpm_runtime.raster import rasterize
+    from ngpm_runtime.image.raster import rasterize
+    from ngpm_runtime.inference.likelihood import similarity
 
     t = _disk_target()
     sim, secs, prims = grow_once(vines, t, None, 8, seed=5)

@@ -23,11 +23,11 @@ from fixtures.tiny_programs import (  # noqa: E402
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
-from ngpm_runtime.distributions import prior_logpdf  # noqa: E402
-from ngpm_runtime.proposals import FixedProposal  # noqa: E402
-from ngpm_runtime.smc import smc  # noqa: E402
-from ngpm_runtime.turtle import cons_to_list  # noqa: E402
+from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
+from ngpm_runtime.geometry.turtle import cons_to_list  # noqa: E402
+from ngpm_runtime.inference.distributions import prior_logpdf  # noqa: E402
+from ngpm_runtime.inference.proposals import FixedProposal  # noqa: E402
+from ngpm_runtime.inference.smc import smc  # noqa: E402
 
 
 def enumerate_program(program):

@@ -9,7 +9,7 @@ import onnx
 import pytest
 import torch
 from ngpm_runtime.errors import GuideError
-from ngpm_runtime.guide import Guide
+from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.program import Program, Site
 
 from ngpm_compiler.export import build_onnx, write_onnx

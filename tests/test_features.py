@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ngpm_runtime.features import FeatureMaker
+from ngpm_runtime.image.features import FeatureMaker
+from ngpm_runtime.image.raster import Canvas
 from ngpm_runtime.program import Program, Site
-from ngpm_runtime.raster import Canvas
 
 VP = (-12.0, 12.0, -22.0, 2.0)
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ngpm_runtime.distributions import prior_logpdf, proposal_logpdf
-from ngpm_runtime.guide import Guide
-from ngpm_runtime.smc import smc
+from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
+from ngpm_runtime.inference.guide import Guide
+from ngpm_runtime.inference.smc import smc
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.export import write_onnx

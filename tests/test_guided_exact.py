@@ -20,10 +20,10 @@ from fixtures.tiny_programs import (  # noqa: E402
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
-from ngpm_runtime.features import FeatureMaker  # noqa: E402
-from ngpm_runtime.guide import Guide  # noqa: E402
-from ngpm_runtime.smc import smc  # noqa: E402
+from ngpm_runtime.image.features import FeatureMaker  # noqa: E402
+from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
+from ngpm_runtime.inference.guide import Guide  # noqa: E402
+from ngpm_runtime.inference.smc import smc  # noqa: E402
 from test_exact import check, exact, gauss_exact, pooled, tv  # noqa: E402
 
 from ngpm_compiler.export import write_onnx  # noqa: E402

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.likelihood import (
+from ngpm_runtime.image.raster import Canvas
+from ngpm_runtime.inference.likelihood import (
     CircuitLikelihood,
     NullLikelihood,
     ShapeLikelihood,
@@ -17,7 +18,6 @@ from ngpm_runtime.likelihood import (
     similarity,
     sobel,
 )
-from ngpm_runtime.raster import Canvas
 
 VP = (-12.0, 12.0, -22.0, 2.0)
 KX = [[-1, 0, 1], [-2, 0, 2], [-1, 0, 1]]
@@ -169,7 +169,7 @@ def test_null_and_empty_target() -> None:
 
 
 def test_drawbatch_without_hit_list_gives_same_increments() -> None:
-    from ngpm_runtime.raster import DrawBatch
+    from ngpm_runtime.image.raster import DrawBatch
 
     t = np.zeros((30, 30), dtype=bool)
     t[5:25, 10:20] = True

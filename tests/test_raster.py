@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from ngpm_runtime.raster import Canvas, prim_mask, pyramid, rasterize, viewport_of
+from ngpm_runtime.image.raster import Canvas, prim_mask, pyramid, rasterize, viewport_of
 
 VP = (-12.0, 12.0, -22.0, 2.0)
 
@@ -178,7 +178,7 @@ def test_degenerate_primitives() -> None:
 
 
 def test_bbox_of_matches_draw_boxes() -> None:
-    from ngpm_runtime.raster import bbox_of
+    from ngpm_runtime.image.raster import bbox_of
 
     rng = np.random.default_rng(11)
     prims = [_random_prim(rng) for _ in range(20)]

@@ -7,7 +7,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 from ngpm_runtime.errors import NgpmError
-from ngpm_runtime.render import (
+from ngpm_runtime.image.render import (
     BACKGROUND,
     BRANCH_THICK,
     FLOWER,

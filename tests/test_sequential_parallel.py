@@ -3,7 +3,7 @@ rewriting for context-free grammars.
 
 Parallel rewriting is implemented here, from the generated production functions and a ctx
 that samples the prior; the drawn primitives of several thousand prior samples are compared
-with those of `ngpm_runtime.smc.forward` by a chi-square test of homogeneity."""
+with those of `ngpm_runtime.inference.smc.forward` by a chi-square test of homogeneity."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from scipy.stats import chi2_contingency
 
 from ngpm_compiler.compile import compile_grammar
 
-smc = pytest.importorskip("ngpm_runtime.smc")
+smc = pytest.importorskip("ngpm_runtime.inference.smc")
 
 N = 2000  # samples per side
 P_MIN = 1e-3

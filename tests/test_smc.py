@@ -9,14 +9,14 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 
 from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program  # noqa: E402
-from ngpm_runtime import features as features_module  # noqa: E402
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
-from ngpm_runtime.likelihood import NullLikelihood, ShapeLikelihood  # noqa: E402
+from ngpm_runtime.image import features as features_module  # noqa: E402
+from ngpm_runtime.image.raster import rasterize  # noqa: E402
+from ngpm_runtime.inference.likelihood import NullLikelihood, ShapeLikelihood  # noqa: E402
+from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
+from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
+from ngpm_runtime.inference.smc import SiteOrder, SMCOptionError, forward, replay, smc  # noqa: E402
 from ngpm_runtime.program import load_program  # noqa: E402
-from ngpm_runtime.proposals import PriorProposal  # noqa: E402
-from ngpm_runtime.raster import rasterize  # noqa: E402
-from ngpm_runtime.resample import SCHEMES, resample  # noqa: E402
-from ngpm_runtime.smc import SiteOrder, SMCOptionError, forward, replay, smc  # noqa: E402
 
 VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
 
@@ -65,7 +65,7 @@ def test_likelihood_increments_sum_to_full_loglik(vines) -> None:
     r = run_vines(vines, n=30, seed=2)
     for p in r.particles[:10]:
         img = rasterize(p.primitives, vines.viewport, 50, 50)
-        from ngpm_runtime.turtle import prim_bbox
+        from ngpm_runtime.geometry.turtle import prim_bbox
 
         boxes = np.array([prim_bbox(q) for q in p.primitives])
         bbox = np.array([boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(),

@@ -1,4 +1,4 @@
-"""Tests for ngpm_runtime.targets: formats, resizing, sidecars, mirroring, auto start."""
+"""Tests for ngpm_runtime.image.targets: formats, resizing, sidecars, mirroring, auto start."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from ngpm_runtime.errors import NgpmError, TargetError
-from ngpm_runtime.targets import (
+from ngpm_runtime.image.targets import (
     Target,
     auto_start,
     image_to_mask,

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ngpm_runtime.targets import Target, save_target
+from ngpm_runtime.image.targets import Target, save_target
 
 from ngpm_compiler.cmd_guide import FEATURE_SETS
 from ngpm_compiler.nets import FEATURE_SETS as NET_FEATURE_SETS

@@ -1,11 +1,12 @@
 """Package data: the vines model, its pretrained guide and the demo targets.
 
-Everything lives in `ngpm_runtime/data/` (the `runtime/data/` folder of the repository):
+Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the repository):
 
-- `vines_sampler.py`, `vines_sites.json`: `ngpmc compile grammars/vines.lsys -o runtime/data`
+- `vines_sampler.py`, `vines_sites.json`:
+  `ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`
 - `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
 - `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), made by
-  `ngpm_compiler.cmd_demo.write_demo_targets("runtime/data")`
+  `ngpm_compiler.cmd_demo.write_demo_targets("runtime/ngpm_runtime/data")`
 
 Only numpy / onnxruntime code is imported here: no torch, no lark, no compiler.
 """
@@ -58,17 +59,18 @@ def bundled_program() -> Program:
     path = sampler_path()
     if not path.is_file():
         raise ProgramError(f"{path}: the bundled vines sampler is missing "
-                           "(regenerate: ngpmc compile grammars/vines.lsys -o runtime/data)")
+                           "(regenerate: ngpmc compile grammars/vines.lsys "
+                           "-o runtime/ngpm_runtime/data)")
     return _cached_program(str(path), path.stat().st_mtime)
 
 
 def bundled_guide(program: Program | None = None) -> Any:
-    """The pretrained vines guide (a `ngpm_runtime.guide.Guide`) for `program`.
+    """The pretrained vines guide (a `ngpm_runtime.inference.guide.Guide`) for `program`.
 
     `program` defaults to `bundled_program()`; any Program compiled from the same
     grammars/vines.lsys works (the guide checks the grammar hash and the site table).
     """
-    from ngpm_runtime.guide import Guide
+    from ngpm_runtime.inference.guide import Guide
 
     path = guide_path()
     if not path.is_file():
@@ -79,8 +81,8 @@ def bundled_guide(program: Program | None = None) -> Any:
 
 
 def demo_targets(size: int = 50) -> list[Any]:
-    """The built-in demo targets (`ngpm_runtime.targets.Target`), in DEMO_TARGETS order."""
-    from ngpm_runtime.targets import Target, load_target
+    """The built-in demo targets (`ngpm_runtime.image.targets.Target`), in DEMO_TARGETS order."""
+    from ngpm_runtime.image.targets import Target, load_target
 
     targets = []
     for name in DEMO_TARGETS:

@@ -18,6 +18,7 @@ import math
 from itertools import accumulate
 
 import numpy as np
+
 from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Site
 

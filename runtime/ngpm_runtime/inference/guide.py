@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 import onnxruntime as ort
-from ngpm_runtime import distributions as dist
+
 from ngpm_runtime.errors import GuideError
+from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.program import Program, Site
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"

@@ -11,9 +11,10 @@ normalized image position (u right, v down from ymax).
 from __future__ import annotations
 
 import numpy as np
+
 from ngpm_runtime.errors import TargetError
+from ngpm_runtime.image.raster import N_LEVELS, Canvas, Viewport, pyramid
 from ngpm_runtime.program import Program, Site
-from ngpm_runtime.raster import N_LEVELS, Canvas, Viewport, pyramid
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image

@@ -13,9 +13,10 @@ import math
 from pathlib import Path
 
 import numpy as np
+
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.raster import Viewport, prim_mask, viewport_of
+from ngpm_runtime.image.raster import Viewport, prim_mask, viewport_of
 
 BACKGROUND = (255, 255, 255)
 TARGET = (222, 226, 236)

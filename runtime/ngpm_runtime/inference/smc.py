@@ -18,14 +18,15 @@ from itertools import chain
 from typing import Any
 
 import numpy as np
-from ngpm_runtime.derive import DONE, DRAWN, NEED, Deriver, Particle
-from ngpm_runtime.distributions import prior_logpdf
+
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
+from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver, Particle
+from ngpm_runtime.geometry.turtle import cons_to_list, prim_bbox
+from ngpm_runtime.inference.distributions import prior_logpdf
+from ngpm_runtime.inference.proposals import PriorProposal
+from ngpm_runtime.inference.resample import SCHEMES
+from ngpm_runtime.inference.resample import resample as draw_ancestors
 from ngpm_runtime.program import Program
-from ngpm_runtime.proposals import PriorProposal
-from ngpm_runtime.resample import SCHEMES
-from ngpm_runtime.resample import resample as draw_ancestors
-from ngpm_runtime.turtle import cons_to_list, prim_bbox
 
 
 class SMCOptionError(NgpmError):
@@ -141,12 +142,12 @@ def smc(
         if viewport is None:
             raise ProgramError(f"program {program.name} has no viewport: "
                                "cannot rasterize for the likelihood or features")
-        from ngpm_runtime.raster import Canvas
+        from ngpm_runtime.image.raster import Canvas
 
         canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]), viewport)
     fmaker = None
     if need_features:
-        from ngpm_runtime.features import FeatureMaker
+        from ngpm_runtime.image.features import FeatureMaker
 
         fmaker = FeatureMaker(program, viewport, target_mask)
     like_state = likelihood.start(n) if likelihood is not None else {}
@@ -350,7 +351,7 @@ def replay(
 ) -> FinalParticle:
     """The one derivation that makes the given (site, value) choices, with its full trace
     (features as `smc(..., record_trace=True)` computes them); no likelihood."""
-    from ngpm_runtime.proposals import ReplayProposal
+    from ngpm_runtime.inference.proposals import ReplayProposal
 
     proposal = ReplayProposal(values)
     res = smc(program, None, 1, proposal=proposal, record_trace=True, start=start,
@@ -372,7 +373,7 @@ def _blank_loglik(likelihood: Any, canvas: Any) -> float | None:
 
 
 def _is_null(likelihood: Any) -> bool:
-    from ngpm_runtime.likelihood import NullLikelihood
+    from ngpm_runtime.inference.likelihood import NullLikelihood
 
     return isinstance(likelihood, NullLikelihood)
 

@@ -18,8 +18,8 @@ import re
 from collections.abc import Callable
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, interpret
 from ngpm_runtime.program import Program
-from ngpm_runtime.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, interpret
 
 MAX_INTERP_DEPTH = 64
 DEFAULT_MAX_OPS = 2_000_000  # modules popped by one particle in one step before "limit"

@@ -15,8 +15,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.raster import Canvas, DrawBatch, Viewport
+from ngpm_runtime.image.raster import Canvas, DrawBatch, Viewport
 
 SHAPE_SIGMA = 0.02
 FLAT = 1.0 / 1.5

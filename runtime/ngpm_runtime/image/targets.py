@@ -20,13 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from ngpm_runtime.errors import TargetError
-from ngpm_runtime.files import atomic_write
 from PIL import Image, ImageOps, PngImagePlugin, UnidentifiedImageError
 from scipy.ndimage import convolve, distance_transform_edt
 from skimage.filters import threshold_otsu
 from skimage.measure import label
 from skimage.morphology import skeletonize
+
+from ngpm_runtime.errors import TargetError
+from ngpm_runtime.files import atomic_write
 
 Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
 

@@ -11,13 +11,14 @@ from collections.abc import Mapping
 from typing import Protocol
 
 import numpy as np
-from ngpm_runtime.distributions import (
+
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.inference.distributions import (
     prior_draw,
     prior_logpdf,
     prior_sample,
     proposal_draw,
 )
-from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.program import Site
 
 

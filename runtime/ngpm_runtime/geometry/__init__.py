@@ -1,0 +1,1 @@
+"""Derivation and turtle geometry: one turtle semantics, one bounding box."""

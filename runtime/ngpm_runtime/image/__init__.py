@@ -1,0 +1,1 @@
+"""Images: rasterizing primitives, guide features, rendering, target masks."""

@@ -1,0 +1,1 @@
+"""Guided SMC: the sampler, site order, resampling, distributions, proposals, guide, likelihoods."""
