@@ -17,12 +17,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from ngpm_runtime.grow import grow
 from ngpm_runtime.inference.guide import Guide
 
-from ngpm_compiler.cmd_guide import grow
-from ngpm_compiler.datasets import build_dataset
-from ngpm_compiler.export import write_onnx
-from ngpm_compiler.traces import (
+from ngpm_compiler.datasets.build import build_dataset
+from ngpm_compiler.learning.export import write_onnx
+from ngpm_compiler.learning.traces import (
     TraceConfig,
     generate_traces,
     job_spec,
@@ -31,7 +31,7 @@ from ngpm_compiler.traces import (
     load_traces,
     run_job,
 )
-from ngpm_compiler.train import TrainConfig, train_guide
+from ngpm_compiler.learning.train import TrainConfig, train_guide
 
 ROOT = Path(__file__).resolve().parents[1]
 

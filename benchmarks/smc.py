@@ -35,7 +35,7 @@ def vines_program():
     from ngpm_runtime.program import load_program
 
     try:
-        from ngpm_compiler.compile import compile_grammar
+        from ngpm_compiler.language.compile import compile_grammar
     except ImportError:
         return load_program(ROOT / "tests" / "fixtures" / "vines_sampler.py"), "fixture"
     return compile_grammar(str(ROOT / "grammars" / "vines.lsys")).program(), "compiled"
@@ -117,7 +117,7 @@ def glyph_targets(count: int) -> list:
 
     from ngpm_runtime.image.targets import load_dataset
 
-    from ngpm_compiler.datasets import build_dataset
+    from ngpm_compiler.datasets.build import build_dataset
 
     with tempfile.TemporaryDirectory() as tmp:
         build_dataset("glyphs", tmp, count=count, seed=0)
@@ -177,7 +177,7 @@ def trace_jobs(program, targets: list) -> None:
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
     from ngpm_runtime.inference.smc import smc
 
-    from ngpm_compiler.traces import run_job
+    from ngpm_compiler.learning.traces import run_job
 
     vp = program.viewport
     job, full = [], []

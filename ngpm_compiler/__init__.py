@@ -14,11 +14,11 @@ from importlib import import_module
 from typing import Any
 
 _EXPORTS = {
-    "compile_grammar": "ngpm_compiler.compile",
-    "CompiledGrammar": "ngpm_compiler.compile",
-    "write_compiled": "ngpm_compiler.compile",
-    "GrammarError": "ngpm_compiler.errors",
-    "load_grammar": "ngpm_compiler.traces",
+    "compile_grammar": "ngpm_compiler.language.compile",
+    "CompiledGrammar": "ngpm_compiler.language.compile",
+    "write_compiled": "ngpm_compiler.language.compile",
+    "GrammarError": "ngpm_compiler.language.errors",
+    "load_grammar": "ngpm_compiler.learning.traces",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -44,7 +44,7 @@ def test_bundled_sampler_is_up_to_date_with_vines_lsys() -> None:
 
 
 def test_bundled_sites_match_a_fresh_compile() -> None:
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     compiled = compile_grammar(VINES)
     assert compiled.grammar_hash == vines_hash()
@@ -87,14 +87,14 @@ def test_bundled_guide_belongs_to_vines_lsys_and_was_trained() -> None:
 
 
 def test_bundled_guide_accepts_a_freshly_compiled_program() -> None:
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     guide = bundled.bundled_guide(compile_grammar(VINES).program())
     assert guide.program.name == "vines"
 
 
 def test_bundled_guide_rejects_another_grammar() -> None:
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     other = compile_grammar(REPO / "grammars" / "chain.lsys").program()
     with pytest.raises(GuideError, match="trained for grammar 'vines'"):
@@ -123,7 +123,7 @@ def test_demo_targets_load_in_order() -> None:
 
 
 def test_demo_targets_are_the_ones_the_project_makes() -> None:
-    from ngpm_compiler.cmd_demo import make_demo_targets
+    from ngpm_compiler.cli.demo import make_demo_targets
 
     made = make_demo_targets()
     assert list(made) == list(bundled.DEMO_TARGETS)

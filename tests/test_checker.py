@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from ngpm_compiler.compile import compile_grammar
-from ngpm_compiler.errors import GrammarError
+from ngpm_compiler.language.compile import compile_grammar
+from ngpm_compiler.language.errors import GrammarError
 
 ROOT = Path(__file__).resolve().parent.parent
 VINES = (ROOT / "grammars" / "vines.lsys").read_text()

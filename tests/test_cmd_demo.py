@@ -14,7 +14,7 @@ from blocked_imports import run_blocked
 from ngpm_runtime import bundled
 from PIL import Image
 
-from ngpm_compiler import cmd_demo
+from ngpm_compiler.cli import demo as cmd_demo
 from ngpm_compiler.cli import main
 
 ROW_RE = re.compile(r"^\| (\w+) \| ([-\d.]+) \| ([\d.]+) \| ([-\d.]+) \| ([\d.]+) \|$")

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.evaluate import RUN_FIELDS, SUMMARY_FIELDS
+from ngpm_compiler.experiments.evaluate import RUN_FIELDS, SUMMARY_FIELDS
 
 ROOT = Path(__file__).resolve().parents[1]
 PNGS = ("fig4a_similarity.png", "fig4b_time.png", "fig5a_mixture.png", "fig5b_trainset.png",

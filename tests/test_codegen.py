@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from ngpm_runtime.program import Program, load_program
 
-from ngpm_compiler.compile import compile_grammar, write_compiled
+from ngpm_compiler.language.compile import compile_grammar, write_compiled
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).parent / "golden"

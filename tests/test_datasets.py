@@ -1,4 +1,4 @@
-"""Tests for ngpm_compiler.datasets: scribbles, glyphs, silhouettes, builds, sheets."""
+"""Tests for ngpm_compiler.datasets.build: scribbles, glyphs, silhouettes, builds, sheets."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from PIL import Image, ImageFont
 from skimage.measure import label
 from skimage.morphology import skeletonize
 
-from ngpm_compiler import datasets
-from ngpm_compiler.datasets import (
+from ngpm_compiler.datasets import build as datasets
+from ngpm_compiler.datasets.build import (
     DatasetError,
     DatasetWarning,
     build_dataset,

@@ -259,7 +259,7 @@ def test_vines_fixture_forward() -> None:
 
 
 def test_compiled_vines_matches_hand_written_fixture() -> None:
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     compiled = compile_grammar(str(Path(__file__).parents[1] / "grammars" / "vines.lsys"))
     prog = compiled.program()

@@ -9,10 +9,7 @@ import numpy as np
 import pytest
 from ngpm_runtime.image.targets import Target
 
-from ngpm_compiler.eval_extra import chain_arc, circuit_score
-from ngpm_compiler.eval_models import subset
-from ngpm_compiler.eval_shape import equal_time_n, pick
-from ngpm_compiler.evaluate import (
+from ngpm_compiler.experiments.evaluate import (
     RUN_FIELDS,
     UNGUIDED,
     grow_once,
@@ -26,7 +23,10 @@ from ngpm_compiler.evaluate import (
     time_to_reach,
     write_csv,
 )
-from ngpm_compiler.traces import SiteData
+from ngpm_compiler.experiments.extra import chain_arc, circuit_score
+from ngpm_compiler.experiments.models import subset
+from ngpm_compiler.experiments.shape import equal_time_n, pick
+from ngpm_compiler.learning.traces import SiteData
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -116,7 +116,7 @@ def _disk_target() -> Target:
 
 @pytest.fixture(scope="module")
 def vines():
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     return load_grammar(ROOT / "grammars" / "vines.lsys")
 
@@ -177,7 +177,7 @@ def test_circuit_score() -> None:
 
 
 def test_chain_arc_starts_at_the_program_start() -> None:
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     chain = load_grammar(ROOT / "grammars" / "chain.lsys")
     t = chain_arc(np.random.default_rng(0), chain)

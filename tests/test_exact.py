@@ -218,7 +218,7 @@ endlsystem
                                                      ("systematic", 0.5, "q")])
 def test_compiled_grammar_posterior_and_evidence(scheme, ess, prop) -> None:
     # groups, a categorical, flips, cut, halt and a random interpretation rule, compiled
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     prog = compile_grammar(TINY_LSYS, filename="tiny.lsys").program()
     assert [s.id for s in prog.sites][-1] == "interp:L/0/bernoulli0"

@@ -12,8 +12,8 @@ from ngpm_runtime.errors import GuideError
 from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.program import Program, Site
 
-from ngpm_compiler.export import build_onnx, write_onnx
-from ngpm_compiler.nets import GuideModel, NetSpec, SiteNet, select_columns
+from ngpm_compiler.learning.export import build_onnx, write_onnx
+from ngpm_compiler.learning.nets import GuideModel, NetSpec, SiteNet, select_columns
 
 N_F = 12
 LAYOUT = {"local": slice(0, 6), "target": slice(6, 9), "partial": slice(9, 12)}

@@ -9,8 +9,8 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ngpm_compiler.compile import compile_grammar
-from ngpm_compiler.errors import GrammarError
+from ngpm_compiler.language.compile import compile_grammar
+from ngpm_compiler.language.errors import GrammarError
 
 ROOT = Path(__file__).resolve().parent.parent
 SOURCES = [p.read_text() for p in sorted((ROOT / "grammars").glob("*.lsys"))]

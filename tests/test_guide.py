@@ -13,7 +13,7 @@ from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import smc
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.export import write_onnx
+from ngpm_compiler.learning.export import write_onnx
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_export import N_F, SITES, fake_program, random_model  # noqa: E402
@@ -100,7 +100,7 @@ def test_const_guide_needs_no_features(tmp_path):
 
 def test_one_call_per_site_per_round_in_smc(tmp_path):
     """Run SMC with a guide on the chain grammar and count onnxruntime calls."""
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     program = load_grammar(CHAIN)
     out = tmp_path / "m"

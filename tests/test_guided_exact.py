@@ -26,9 +26,9 @@ from ngpm_runtime.inference.guide import Guide  # noqa: E402
 from ngpm_runtime.inference.smc import smc  # noqa: E402
 from test_exact import check, exact, gauss_exact, pooled, tv  # noqa: E402
 
-from ngpm_compiler.export import write_onnx  # noqa: E402
-from ngpm_compiler.traces import SiteData, prior_arg_columns  # noqa: E402
-from ngpm_compiler.train import TrainConfig, train_guide  # noqa: E402
+from ngpm_compiler.learning.export import write_onnx  # noqa: E402
+from ngpm_compiler.learning.traces import SiteData, prior_arg_columns  # noqa: E402
+from ngpm_compiler.learning.train import TrainConfig, train_guide  # noqa: E402
 
 VIEWPORT = (-4.0, 4.0, -4.0, 4.0)
 

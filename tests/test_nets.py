@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from ngpm_compiler.nets import NetSpec, SiteNet, continuous_z, select_columns
+from ngpm_compiler.learning.nets import NetSpec, SiteNet, continuous_z, select_columns
 
 LAYOUT = {"local": slice(0, 4), "target": slice(4, 10), "partial": slice(10, 16)}
 

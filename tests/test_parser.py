@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from ngpm_compiler.errors import GrammarError
-from ngpm_compiler.nodes import Binary, Call, Num, Unary, Var
-from ngpm_compiler.parser import parse
+from ngpm_compiler.language.errors import GrammarError
+from ngpm_compiler.language.nodes import Binary, Call, Num, Unary, Var
+from ngpm_compiler.language.parser import parse
 
 
 def err(text: str) -> GrammarError:

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2_contingency
 
-from ngpm_compiler.compile import compile_grammar
+from ngpm_compiler.language.compile import compile_grammar
 
 smc = pytest.importorskip("ngpm_runtime.inference.smc")
 

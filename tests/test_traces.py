@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from ngpm_runtime.image.targets import Target, save_target
 
-from ngpm_compiler.cmd_guide import FEATURE_SETS
-from ngpm_compiler.nets import FEATURE_SETS as NET_FEATURE_SETS
-from ngpm_compiler.traces import (
+from ngpm_compiler.cli.guide import FEATURE_SETS
+from ngpm_compiler.learning.nets import FEATURE_SETS as NET_FEATURE_SETS
+from ngpm_compiler.learning.traces import (
     TraceConfig,
     TraceError,
     TraceStore,
@@ -140,7 +140,7 @@ def test_resume_refuses_other_configuration(tmp_path):
 
 
 def test_mirror_adds_missing_copies(tmp_path):
-    from ngpm_compiler.traces import load_targets
+    from ngpm_compiler.learning.traces import load_targets
 
     data = make_dataset(tmp_path / "data", 2)
     names = [t.name for t in load_targets(data, 50, mirror=True)]
@@ -154,7 +154,7 @@ def test_mirror_adds_missing_copies(tmp_path):
 def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
     from ngpm_runtime.errors import SMCFailed
 
-    import ngpm_compiler.traces as traces_mod
+    import ngpm_compiler.learning.traces as traces_mod
 
     real = traces_mod.run_job
 

@@ -8,7 +8,7 @@ import torch
 from ngpm_runtime.program import Site
 from scipy.special import expit, softmax
 
-from ngpm_compiler.train import (
+from ngpm_compiler.learning.train import (
     SiteData,
     TrainConfig,
     _nll,

@@ -21,13 +21,16 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageOps, PngImagePlugin, UnidentifiedImageError
-from scipy.ndimage import convolve, distance_transform_edt
-from skimage.filters import threshold_otsu
-from skimage.measure import label
-from skimage.morphology import skeletonize
 
 from ngpm_runtime.errors import TargetError
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.image.morphology import (
+    label,
+    max_edt,
+    neighbor_count,
+    otsu_threshold,
+    skeletonize,
+)
 
 Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
 
@@ -174,7 +177,7 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     gray = _gray(img)
     if int(gray.max()) - int(gray.min()) <= 16:
         raise TargetError(f"{name}: image is one flat color, so it holds no shape")
-    dark = gray <= threshold_otsu(gray)
+    dark = gray <= otsu_threshold(gray)
     if polarity == "dark":
         return dark
     if polarity == "light":
@@ -342,14 +345,14 @@ def auto_start(mask: np.ndarray) -> Start:
     if not mask.any():
         raise TargetError("cannot annotate an empty mask")
     h, w = mask.shape
-    labels = label(mask, connectivity=2)
+    labels = label(mask)
     counts = np.bincount(labels.ravel())
     counts[0] = 0
     comp = labels == int(np.argmax(counts))
     skel = skeletonize(comp)
     if not skel.any():
         skel = comp.copy()
-    half = int(math.ceil(float(distance_transform_edt(comp).max())))
+    half = int(math.ceil(max_edt(comp)))
     skel = _prune(skel, half)
     rows, cols = np.nonzero(skel)
     center = float(np.nonzero(comp)[1].mean())
@@ -375,10 +378,8 @@ _RING = ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1))
 
 def _prune(skel: np.ndarray, times: int) -> np.ndarray:
     """Remove end pixels (at most one 8-neighbor) `times` times; never empties it."""
-    kernel = np.ones((3, 3), dtype=np.int32)
-    kernel[1, 1] = 0
     for _ in range(times):
-        nb = convolve(skel.astype(np.int32), kernel, mode="constant")
+        nb = neighbor_count(skel)
         ends = skel & (nb <= 1)
         if not ends.any() or ends.sum() == skel.sum():
             break

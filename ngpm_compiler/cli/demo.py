@@ -59,7 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 @dataclass
 class DemoRow:
     target: Target
-    guided_runs: list[Any]  # cmd_guide.GrowResult per seed
+    guided_runs: list[Any]  # ngpm_runtime.grow.GrowResult per seed
     unguided_runs: list[Any]
 
     @property
@@ -83,8 +83,7 @@ def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
 
     program and guide default to the bundled vines model and guide."""
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
-
-    from ngpm_compiler.cmd_guide import grow
+    from ngpm_runtime.grow import grow
 
     program = bundled_program() if program is None else program
     guide = bundled_guide(program) if guide is None else guide
@@ -224,7 +223,7 @@ def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> n
 
 def target_picture(target: Target, size: int) -> np.ndarray:
     """The target mask (dark gray on white) with its start as a red arrow from a green dot."""
-    from ngpm_compiler.datasets import draw_start
+    from ngpm_compiler.datasets.build import draw_start
 
     tile = np.where(target.mask, 70, 255).astype(np.uint8)
     img = Image.fromarray(tile, mode="L").resize((size, size), Image.Resampling.NEAREST)
@@ -319,7 +318,7 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
     and a spiral drawn here; all framed like the datasets' silhouettes, automatic start."""
     from skimage.data import horse
 
-    from ngpm_compiler.datasets import SUPERSAMPLE, default_font, fit_mask, render_glyph
+    from ngpm_compiler.datasets.build import SUPERSAMPLE, default_font, fit_mask, render_glyph
 
     face = ImageFont.truetype(str(default_font()), size * SUPERSAMPLE)
     masks = {

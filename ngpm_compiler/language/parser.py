@@ -8,8 +8,8 @@ from pathlib import Path
 from lark import Lark, Token, Tree
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
-from ngpm_compiler.errors import ErrorSink, GrammarError
-from ngpm_compiler.nodes import (
+from ngpm_compiler.language.errors import ErrorSink, GrammarError
+from ngpm_compiler.language.nodes import (
     Binary,
     Call,
     Define,

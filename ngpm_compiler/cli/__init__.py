@@ -1,5 +1,6 @@
-"""The `ngpmc` command line. Each command family lives in its own `cmd_*.py` module that
-defines `register(subparsers)`; handlers return an exit code."""
+"""The `ngpmc` command line. Each command family lives in its own module of this package
+that defines `register(subparsers)`; handlers parse arguments, call library functions and
+return an exit code."""
 
 from __future__ import annotations
 
@@ -11,11 +12,11 @@ from ngpm_runtime.errors import NgpmError
 
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
-    "ngpm_compiler.cmd_grammar",  # compile, check, sample
-    "ngpm_compiler.cmd_guide",  # traces, train, export, grow
-    "ngpm_compiler.cmd_targets",  # targets build, list, show
-    "ngpm_compiler.cmd_eval",  # eval
-    "ngpm_compiler.cmd_demo",  # demo
+    "ngpm_compiler.cli.grammar",  # compile, check, sample
+    "ngpm_compiler.cli.guide",  # traces, train, export, grow
+    "ngpm_compiler.cli.targets",  # targets build, list, show
+    "ngpm_compiler.cli.evaluate",  # eval
+    "ngpm_compiler.cli.demo",  # demo
 ]
 
 
@@ -47,7 +48,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
               file=sys.stderr)
         return 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

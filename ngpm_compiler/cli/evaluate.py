@@ -20,8 +20,8 @@ from typing import Any
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.eval_config import EvalConfig, quick_config
-from ngpm_compiler.evaluate import atomic_write
+from ngpm_compiler.experiments.config import EvalConfig, quick_config
+from ngpm_compiler.experiments.evaluate import atomic_write
 
 STAGES = ("shape", "grids", "circuit", "chain", "report")
 
@@ -94,7 +94,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         v = getattr(cfg, key)
         if v is not None and not Path(v).exists():
             raise EvalError(f"--{key.replace('_', '-')} {v}: no such file or directory")
-    root = Path(__file__).resolve().parents[1]  # the repository, for the bundled grammars
+    root = Path(__file__).resolve().parents[2]  # the repository, for the bundled grammars
     for key in ("grammar", "chain_grammar"):
         path = Path(getattr(cfg, key))
         if not path.is_file() and (root / path).is_file():
@@ -117,7 +117,7 @@ def log_line(text: str) -> None:
 
 def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[str, Any]:
     """Run the selected stages; returns what they produced (for tests)."""
-    from ngpm_compiler import eval_extra, eval_report, eval_shape
+    from ngpm_compiler.experiments import extra, report, shape
 
     t0 = time.perf_counter()
     out, work = Path(cfg.out), Path(cfg.work)
@@ -133,31 +133,31 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     result: dict[str, Any] = {}
     need_shape = any(s in cfg.stages for s in ("shape", "grids"))
     if need_shape:
-        from ngpm_compiler.traces import load_traces
+        from ngpm_compiler.learning.traces import load_traces
 
-        targets = eval_shape.test_targets(cfg)
+        targets = shape.test_targets(cfg)
         settings["test_targets"] = {k: len(v) for k, v in targets.items()}
         settings["test_target_names"] = {k: [t.name for t in v] for k, v in targets.items()}
-        traces = cfg.traces or eval_shape.tiny_traces(cfg)
+        traces = cfg.traces or shape.tiny_traces(cfg)
         kept = len(load_traces(traces).kept_jobs)
         if kept < 2:
             raise EvalError(f"{traces}: needs at least 2 kept traces, has {kept}")
         settings.update(traces=traces, kept_traces=kept)
         _save_settings(settings_path, settings)
-        guides = eval_shape.prepare_guides(cfg, traces, kept, log)
+        guides = shape.prepare_guides(cfg, traces, kept, log)
         if "shape" in cfg.stages:
-            rows = eval_shape.run_shape(cfg, targets, guides, kept, log)
+            rows = shape.run_shape(cfg, targets, guides, kept, log)
         else:
-            rows = eval_shape.load_rows(cfg)
-        result.update(eval_shape.analyze_shape(cfg, rows, kept))
+            rows = shape.load_rows(cfg)
+        result.update(shape.analyze_shape(cfg, rows, kept))
         log(f"shape study done ({len(rows)} runs)")
         if "grids" in cfg.stages:
-            result["grids"] = eval_shape.run_grids(cfg, targets, guides, result["summary"], log)
+            result["grids"] = shape.run_grids(cfg, targets, guides, result["summary"], log)
     if "circuit" in cfg.stages:
-        result["circuit"] = eval_extra.run_circuit(cfg, log)
+        result["circuit"] = extra.run_circuit(cfg, log)
         log("circuit study done")
     if "chain" in cfg.stages:
-        result["chain"] = eval_extra.run_chain(cfg, log)
+        result["chain"] = extra.run_chain(cfg, log)
         log("chain study done")
     if command and cfg.stages != ("report",):
         settings.setdefault("commands", {})[",".join(cfg.stages)] = command
@@ -167,7 +167,7 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = log_line) -> dict[st
     settings["wall_minutes"] = round(sum(stage_min.values()), 1)
     _save_settings(settings_path, settings)
     if "report" in cfg.stages:
-        readme, report = eval_report.write_reports(
+        readme, report = report.write_reports(
             out, command if cfg.stages != ("report",) else "")
         log(f"wrote {readme} and {report}")
     result["files"] = sorted(p.name for p in out.iterdir() if p.is_file())

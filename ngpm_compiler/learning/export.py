@@ -21,7 +21,14 @@ import torch
 from ngpm_runtime.files import atomic_write
 from onnx import TensorProto, helper, numpy_helper
 
-from ngpm_compiler.nets import LOGIT_BOUND, LOGSD_BOUND, MEAN_BOUND, GuideModel, NetSpec, SiteNet
+from ngpm_compiler.learning.nets import (
+    LOGIT_BOUND,
+    LOGSD_BOUND,
+    MEAN_BOUND,
+    GuideModel,
+    NetSpec,
+    SiteNet,
+)
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
 OPSET = 17

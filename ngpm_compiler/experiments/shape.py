@@ -18,10 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from ngpm_compiler import eval_plots as plots
-from ngpm_compiler.eval_config import SHAPE_MODELS, EvalConfig
-from ngpm_compiler.eval_models import ModelSpec, model_info, train_models
-from ngpm_compiler.evaluate import (
+from ngpm_compiler.experiments import plots
+from ngpm_compiler.experiments.config import SHAPE_MODELS, EvalConfig
+from ngpm_compiler.experiments.evaluate import (
     RUN_FIELDS,
     SUMMARY_FIELDS,
     UNGUIDED,
@@ -36,6 +35,7 @@ from ngpm_compiler.evaluate import (
     summarize,
     write_csv,
 )
+from ngpm_compiler.experiments.models import ModelSpec, model_info, train_models
 
 TEST_SETS = ("glyphs", "silhouettes")
 
@@ -52,7 +52,7 @@ def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:
     """The held-out test targets: evenly spread glyphs and silhouettes (built if needed)."""
     from ngpm_runtime.image.targets import load_dataset
 
-    from ngpm_compiler.datasets import build_dataset
+    from ngpm_compiler.datasets.build import build_dataset
 
     out = {}
     for name, given, k in (("glyphs", cfg.glyphs, cfg.n_glyphs),
@@ -69,8 +69,8 @@ def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:
 
 def tiny_traces(cfg: EvalConfig) -> str:
     """A few unguided-SMC traces on a few scribbles (quick mode / no canonical traces)."""
-    from ngpm_compiler.datasets import build_dataset
-    from ngpm_compiler.traces import TraceConfig, generate_traces
+    from ngpm_compiler.datasets.build import build_dataset
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     w = Path(cfg.work)
     scr = w / "scribbles"
@@ -243,7 +243,7 @@ def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     program = load_grammar(cfg.grammar)
     guide = Guide.load(guides["all"], program)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.compile import CompiledGrammar, compile_grammar, write_compiled
+from ngpm_compiler.language.compile import CompiledGrammar, compile_grammar, write_compiled
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

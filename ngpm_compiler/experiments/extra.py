@@ -1,7 +1,7 @@
 """The circuit study (vines under equation 2, no target) and the chain of paper Figure 1.
 
 Circuit: traces are the best particles of unguided SMC under CircuitLikelihood, written as
-a traces directory that `traces.load_traces` reads, so eval_models trains on them as usual.
+a traces directory that `traces.load_traces` reads, so experiments.models trains on them as usual.
 Score of a result: the argument of equation 2's Gaussian, edge(I) * (1 - relerr(fill(I))).
 Files: circuit_runs.csv, circuit.png.
 
@@ -13,17 +13,17 @@ and guide-only samples on held-out arcs. Files: chain_runs.csv, chain.png.
 from __future__ import annotations
 
 import math
-import multiprocessing as mp
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ngpm_compiler import eval_plots as plots
-from ngpm_compiler.eval_config import EvalConfig
-from ngpm_compiler.eval_models import ModelSpec, train_models
-from ngpm_compiler.evaluate import grow_once, run_seed, t_interval, write_csv
+from ngpm_compiler.experiments import plots
+from ngpm_compiler.experiments.config import EvalConfig
+from ngpm_compiler.experiments.evaluate import grow_once, run_seed, t_interval, write_csv
+from ngpm_compiler.experiments.models import ModelSpec, train_models
+from ngpm_compiler.learning import pool
 
 # --------------------------------------------------------------------------- circuit
 
@@ -48,37 +48,32 @@ def circuit_score(image: np.ndarray) -> float:
 def circuit_once(program: Any, proposal: Any, n: int, seed: int, record: bool = False
                  ) -> tuple[float, float, Any]:
     """SMC under the circuit likelihood; (score of the best particle, seconds, best)."""
-    from ngpm_runtime.image.raster import rasterize
-    from ngpm_runtime.inference.likelihood import CircuitLikelihood
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.grow import grow
 
-    vp = program.viewport
-    t0 = time.perf_counter()
-    res = smc(program, CircuitLikelihood(vp), n, proposal=proposal, seed=seed,
-              record_trace=record, start=circuit_start(vp), canvas_size=CIRCUIT_SIZE)
-    secs = time.perf_counter() - t0
-    img = rasterize(list(res.best.primitives), vp, *CIRCUIT_SIZE)
-    return circuit_score(img), secs, res.best
+    res = grow(program, None, proposal, n, seed, "circuit", record_trace=record,
+               start=circuit_start(program.viewport), canvas_size=CIRCUIT_SIZE)
+    return circuit_score(res.image), res.seconds, res.smc.best
 
 
-_CW: dict[str, Any] = {}
+def _circuit_setup(grammar: str) -> dict[str, Any]:
+    from ngpm_compiler.learning.traces import load_grammar
+
+    return {"program": load_grammar(grammar)}
 
 
-def _circuit_job(args: tuple[str, int, int, int]) -> dict[str, np.ndarray]:
-    from ngpm_compiler.traces import MIN_PRIMITIVES, job_arrays, load_grammar
+def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
+    from ngpm_compiler.learning.traces import MIN_PRIMITIVES, job_arrays
 
-    grammar, job, base_seed, particles = args
-    if "program" not in _CW:
-        _CW["program"] = load_grammar(grammar)
+    job, base_seed, particles = args
     seed = run_seed(base_seed, job, particles, 99)
-    _, _, best = circuit_once(_CW["program"], None, particles, seed, record=True)
+    _, _, best = circuit_once(pool.state()["program"], None, particles, seed, record=True)
     n_prims = len(best.primitives)
     return job_arrays(job, 0, seed, list(best.trace or []), n_prims, n_prims >= MIN_PRIMITIVES)
 
 
 def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
     """Unguided circuit-SMC traces (kept: >= 10 primitives) as a traces directory."""
-    from ngpm_compiler.traces import (
+    from ngpm_compiler.learning.traces import (
         TRACE_FORMAT,
         TraceStore,
         load_grammar,
@@ -97,20 +92,19 @@ def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
     t0 = time.perf_counter()
     parts: list[dict[str, np.ndarray]] = []
     kept, job = 0, 0
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(max(1, cfg.workers)) as pool:
+    with pool.spawn_pool(max(1, cfg.workers), _circuit_setup, (cfg.grammar,)) as procs:
         while kept < cfg.circuit_traces:
-            batch = [(cfg.grammar, j, cfg.seed, cfg.circuit_particles)
+            batch = [(j, cfg.seed, cfg.circuit_particles)
                      for j in range(job, job + max(4, cfg.circuit_traces - kept))]
             job += len(batch)
-            for arr in pool.imap(_circuit_job, batch):
+            for arr in procs.imap(_circuit_job, batch):
                 if bool(arr["kept"][0]) and kept < cfg.circuit_traces:
                     kept += 1
                     parts.append(arr)
             log(f"circuit traces: {kept}/{cfg.circuit_traces} kept after {job} jobs")
             if job > 20 * cfg.circuit_traces + 20:
                 break
-    from ngpm_compiler.traces import _save_npz  # the store's own atomic npz writer
+    from ngpm_compiler.learning.traces import _save_npz  # the store's own atomic npz writer
 
     if parts:
         _save_npz(store.dir / "shard_00000000.npz", merge_arrays(parts))
@@ -132,7 +126,7 @@ def run_circuit(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     work = Path(cfg.work)
     traces = circuit_traces(cfg, str(work / "circuit_traces"), log)
@@ -229,7 +223,7 @@ def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     from ngpm_runtime.inference.guide import Guide
     from ngpm_runtime.inference.smc import forward
 
-    from ngpm_compiler.traces import TraceConfig, generate_traces, load_grammar
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_grammar
 
     work = Path(cfg.work) / "chain"
     program = load_grammar(cfg.chain_grammar)

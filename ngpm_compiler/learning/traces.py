@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import io
 import json
-import multiprocessing as mp
 import signal
 import sys
 import threading
@@ -34,6 +33,8 @@ from ngpm_runtime.errors import NgpmError, SMCFailed
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site, load_program
 from tqdm import tqdm
+
+from ngpm_compiler.learning import pool
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
@@ -72,7 +73,7 @@ def load_grammar(path: str | Path) -> Program:
     path = Path(path)
     if path.suffix == ".py":
         return load_program(path)
-    from ngpm_compiler.compile import compile_grammar
+    from ngpm_compiler.language.compile import compile_grammar
 
     return compile_grammar(path).program()
 
@@ -103,15 +104,11 @@ def run_job(program: Program, target: Any, seed: int, particles: int
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
     from ngpm_runtime.errors import ProgramError
-    from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import replay, smc
+    from ngpm_runtime.grow import grow
+    from ngpm_runtime.inference.smc import replay
 
-    viewport = program.viewport
-    start = target.start_pose(viewport)
-    result = smc(program, ShapeLikelihood(target.mask, viewport), particles, seed=seed,
-                 record_trace="values", start=start, canvas_size=target.size,
-                 target_mask=target.mask)
-    best = result.best
+    start = target.start_pose(program.viewport)
+    best = grow(program, target, None, particles, seed, record_trace="values").smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,
                    target_mask=target.mask)
@@ -240,21 +237,17 @@ class TraceStore:
 
 # --------------------------------------------------------------------------- workers
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(grammar: str, targets: str, size: int, mirror: bool) -> None:
-    _WORKER["program"] = load_grammar(grammar)
-    _WORKER["targets"] = load_targets(targets, size, mirror)
+def _worker_setup(grammar: str, targets: str, size: int, mirror: bool) -> dict[str, Any]:
+    return {"program": load_grammar(grammar), "targets": load_targets(targets, size, mirror)}
 
 
 def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], float]:
     job, base_seed, particles, min_prims = args
     t0 = time.perf_counter()
-    targets = _WORKER["targets"]
+    targets = pool.state()["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles)
+        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -340,19 +333,18 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     ids = next_ids()
     try:
         if cfg.workers <= 1:
-            _init_worker(cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
+            pool.setup_here(_worker_setup, cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
             while kept < cfg.n:
                 finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives)))
         else:
-            ctx = mp.get_context("spawn")
             _exit_on_sigterm()
-            with ctx.Pool(cfg.workers, initializer=_init_worker,
-                          initargs=(cfg.grammar, cfg.targets, cfg.size, cfg.mirror)) as pool:
+            with pool.spawn_pool(cfg.workers, _worker_setup, (cfg.grammar, cfg.targets,
+                                                              cfg.size, cfg.mirror)) as workers:
                 running: list[Any] = []
                 while kept < cfg.n or running:
                     while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
                         job = next(ids)
-                        running.append(pool.apply_async(
+                        running.append(workers.apply_async(
                             _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives),)))
                     ready = [r for r in running if r.ready()]
                     if not ready:

@@ -22,7 +22,7 @@ from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Site
 from tqdm import tqdm
 
-from ngpm_compiler.nets import (
+from ngpm_compiler.learning.nets import (
     FEATURE_SETS,
     GuideModel,
     NetSpec,
@@ -30,7 +30,7 @@ from ngpm_compiler.nets import (
     continuous_z,
     select_columns,
 )
-from ngpm_compiler.traces import SiteData
+from ngpm_compiler.learning.traces import SiteData
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
 

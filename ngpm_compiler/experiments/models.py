@@ -8,14 +8,14 @@ Finished .onnx files are reused when their sidecar JSON records the same spec an
 from __future__ import annotations
 
 import json
-import multiprocessing as mp
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ngpm_compiler.evaluate import atomic_write
+from ngpm_compiler.experiments.evaluate import atomic_write
+from ngpm_compiler.learning import pool
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class ModelSpec:
 
 def subset(data: dict[int, Any], kept_jobs: np.ndarray, n: int | None) -> dict[int, Any]:
     """Site data restricted to the first `n` kept jobs (by job id)."""
-    from ngpm_compiler.traces import SiteData
+    from ngpm_compiler.learning.traces import SiteData
 
     if n is None or n >= len(kept_jobs):
         return dict(data)
@@ -50,9 +50,9 @@ def _key(spec: ModelSpec, traces_dir: str, manifest: dict[str, Any]) -> dict[str
 
 def train_one(spec: ModelSpec, traces_dir: str, out_dir: str, seed: int = 0) -> str:
     """Train and export one model; returns the .onnx path (reused when up to date)."""
-    from ngpm_compiler.export import write_onnx
-    from ngpm_compiler.traces import load_traces
-    from ngpm_compiler.train import TrainConfig, train_guide
+    from ngpm_compiler.learning.export import write_onnx
+    from ngpm_compiler.learning.traces import load_traces
+    from ngpm_compiler.learning.train import TrainConfig, train_guide
 
     out = Path(out_dir) / f"{spec.name}.onnx"
     meta_path = out.with_suffix(".json")
@@ -93,8 +93,8 @@ def train_models(specs: list[ModelSpec], traces_dir: str, out_dir: str, workers:
         return dict(_train_job(j) for j in jobs)
     # biggest first, so the pool ends together
     jobs.sort(key=lambda j: -(j[0].traces or 10**9))
-    with mp.get_context("spawn").Pool(workers) as pool:
-        return dict(pool.imap_unordered(_train_job, jobs))
+    with pool.spawn_pool(workers) as procs:
+        return dict(procs.imap_unordered(_train_job, jobs))
 
 
 def model_info(onnx_path: str) -> dict[str, Any]:

@@ -10,10 +10,16 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ngpm_compiler.eval_config import SHAPE_MODELS
-from ngpm_compiler.eval_extra import chain_table, circuit_table
-from ngpm_compiler.eval_plots import label
-from ngpm_compiler.evaluate import UNGUIDED, atomic_write, curve, read_csv, time_to_reach
+from ngpm_compiler.experiments.config import SHAPE_MODELS
+from ngpm_compiler.experiments.evaluate import (
+    UNGUIDED,
+    atomic_write,
+    curve,
+    read_csv,
+    time_to_reach,
+)
+from ngpm_compiler.experiments.extra import chain_table, circuit_table
+from ngpm_compiler.experiments.plots import label
 
 FIGURES = [
     ("fig4a_similarity.png", "Similarity vs particles, five models (paper Fig. 4a)"),

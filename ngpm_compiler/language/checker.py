@@ -9,14 +9,9 @@ from dataclasses import dataclass, field
 
 from ngpm_runtime.program import Site
 
-from ngpm_compiler.codegen import (
-    BUILTIN_NAMES,
-    FUNCTION_ARITY,
-    RANDOM_CALLS,
-    ExprPrinter,
-)
-from ngpm_compiler.errors import ErrorSink, GrammarError
-from ngpm_compiler.nodes import (
+from ngpm_compiler.language.errors import ErrorSink, GrammarError
+from ngpm_compiler.language.expr import ExprPrinter
+from ngpm_compiler.language.nodes import (
     Binary,
     Call,
     Expr,
@@ -29,16 +24,14 @@ from ngpm_compiler.nodes import (
     Var,
     walk,
 )
+from ngpm_compiler.language.tables import (
+    BUILTIN_NAMES,
+    FUNCTION_ARITY,
+    RANDOM_CALLS,
+    REWRITABLE_TURTLE,
+    TURTLE,
+)
 
-# Turtle symbols: (min args, max args, defaults of the optional ones). "angle" stands for the
-# `angle:` header's value.
-TURTLE: dict[str, tuple[int, int, tuple[float | str, ...]]] = {
-    "F": (0, 1, (1.0,)), "f": (0, 1, (1.0,)), "+": (0, 1, ("angle",)), "-": (0, 1, ("angle",)),
-    "|": (0, 0, ()), "[": (0, 0, ()), "]": (0, 0, ()), "!": (1, 1, ()),
-    "~l": (0, 2, (1.0, 1.0)), "@O": (0, 1, (1.0,)), "{": (0, 0, ()), ".": (0, 0, ()),
-    "}": (0, 0, ()), "%": (0, 0, ()), "halt": (0, 0, ()),
-}
-REWRITABLE_TURTLE = {"F", "f"}  # turtle symbols a rule may rewrite
 PROB_TOLERANCE = 1e-6
 DEFAULT_DERIVATION_LENGTH = 1_000_000
 DEFAULT_MAX_PRIMITIVES = 5000

@@ -6,8 +6,8 @@ time of the SMC call. Runs go to worker processes in a shuffled order, so a load
 machine touches every model alike. The statistics follow the paper: the median over repeats
 per target, then the mean over targets with a 95% t interval.
 
-The other eval_*.py modules build models (eval_models), plot (eval_plots), run the circuit and
-chain studies (eval_extra) and write the report (eval_report); cmd_eval.py drives them.
+The other modules of this package build models (models), plot (plots), run the circuit and
+chain studies (extra) and write the report (report); cli/evaluate.py drives them.
 """
 
 from __future__ import annotations
@@ -15,9 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-import multiprocessing as mp
 import os
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +23,8 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.files import atomic_write
+
+from ngpm_compiler.learning import pool
 
 __all__ = ["atomic_write"]  # re-exported for the other eval_* modules
 
@@ -69,42 +69,31 @@ def run_seed(base: int, target: int, n: int, repeat: int) -> int:
 def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
               ) -> tuple[float, float, list[tuple]]:
     """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
-    from ngpm_runtime.image.raster import rasterize
-    from ngpm_runtime.inference.likelihood import ShapeLikelihood, similarity
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.grow import grow
 
-    vp = program.viewport
-    like = ShapeLikelihood(target.mask, vp)
-    t0 = time.perf_counter()
-    res = smc(program, like, n, proposal=proposal, seed=seed, start=target.start_pose(vp),
-              canvas_size=target.size, target_mask=target.mask)
-    seconds = time.perf_counter() - t0
-    prims = list(res.best.primitives)
-    image = rasterize(prims, vp, *target.size)
-    return float(similarity(image, target.mask)), seconds, prims
+    res = grow(program, target, proposal, n, seed)
+    return res.similarity, res.seconds, res.primitives
 
 
 # --------------------------------------------------------------------------- workers
 
-_W: dict[str, Any] = {}
-
-
-def _init(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str]) -> None:
+def _worker_setup(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str]
+                  ) -> dict[str, Any]:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     program = load_grammar(grammar)
-    _W["program"] = program
-    _W["targets"] = targets
-    _W["guides"] = {name: Guide.load(path, program) for name, path in guides.items()}
+    return {"program": program, "targets": targets,
+            "guides": {name: Guide.load(path, program) for name, path in guides.items()}}
 
 
 def _run(task: RunTask) -> RunResult:
-    target = _W["targets"][task.dataset][task.target]
-    proposal = None if task.model == UNGUIDED else _W["guides"][task.model]
-    sim, seconds, prims = grow_once(_W["program"], target, proposal, task.n, task.seed)
+    w = pool.state()
+    target = w["targets"][task.dataset][task.target]
+    proposal = None if task.model == UNGUIDED else w["guides"][task.model]
+    sim, seconds, prims = grow_once(w["program"], target, proposal, task.n, task.seed)
     return RunResult(task, target.name, sim, seconds, prims)
 
 
@@ -116,16 +105,15 @@ def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str
     shuffled = [tasks[i] for i in order]
     out: dict[RunTask, RunResult] = {}
     if workers <= 1:
-        _init(grammar, targets, guides)
+        pool.setup_here(_worker_setup, grammar, targets, guides)
         for t in shuffled:
             r = _run(t)
             out[t] = r
             if on_result:
                 on_result(r)
     else:
-        ctx = mp.get_context("spawn")
-        with ctx.Pool(workers, initializer=_init, initargs=(grammar, targets, guides)) as pool:
-            for r in pool.imap_unordered(_run, shuffled, chunksize=1):
+        with pool.spawn_pool(workers, _worker_setup, (grammar, targets, guides)) as procs:
+            for r in procs.imap_unordered(_run, shuffled, chunksize=1):
                 out[r.task] = r
                 if on_result:
                     on_result(r)

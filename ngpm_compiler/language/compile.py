@@ -14,10 +14,10 @@ from typing import Any
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
 
-from ngpm_compiler.checker import Checked, check
-from ngpm_compiler.codegen import generate
-from ngpm_compiler.errors import GrammarError
-from ngpm_compiler.parser import parse
+from ngpm_compiler.language.checker import Checked, check
+from ngpm_compiler.language.codegen import generate
+from ngpm_compiler.language.errors import GrammarError
+from ngpm_compiler.language.parser import parse
 
 
 @dataclass

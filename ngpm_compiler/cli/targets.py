@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 
-from ngpm_compiler.datasets import DATASETS, DatasetWarning, build_dataset, contact_sheet
+from ngpm_compiler.datasets.build import DATASETS, DatasetWarning, build_dataset, contact_sheet
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -84,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def cmd_traces(args: argparse.Namespace) -> int:
-    from ngpm_compiler.traces import TraceConfig, generate_traces
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     if args.n < 1 or args.particles < 1 or args.workers < 1:
         raise NgpmError("-n, --particles and --workers must be at least 1")
@@ -101,8 +99,8 @@ def cmd_traces(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from ngpm_compiler.traces import load_traces
-    from ngpm_compiler.train import TrainConfig, save_model, train_guide
+    from ngpm_compiler.learning.traces import load_traces
+    from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
 
     ts = load_traces(args.traces)
     if not ts.data:
@@ -136,7 +134,7 @@ def _print_epoch(row: dict[str, Any]) -> None:
 
 
 def load_model_file(path: str) -> Any:
-    from ngpm_compiler.train import load_model
+    from ngpm_compiler.learning.train import load_model
 
     if not Path(path).is_file():
         raise GuideFileError(f"{path}: no such model file")
@@ -148,7 +146,7 @@ def load_model_file(path: str) -> Any:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from ngpm_compiler.export import write_onnx
+    from ngpm_compiler.learning.export import write_onnx
 
     model = load_model_file(args.model)
     path = write_onnx(model, args.out)
@@ -161,79 +159,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- grow
-
-
-@dataclass
-class GrowResult:
-    similarity: float  # to the target; nan when there is none
-    seconds: float
-    particles: int
-    primitives: list[tuple]
-    image: np.ndarray  # (H, W) uint8 raster of the best particle
-    smc: Any  # the SMCResult
-
-
-class _Ticking:
-    """A likelihood that ticks a progress bar once per SMC step, then defers to `inner`."""
-
-    def __init__(self, inner: Any, bar: Any) -> None:
-        self.inner = inner
-        self.bar = bar
-
-    def start(self, n: int) -> dict[str, np.ndarray]:
-        return self.inner.start(n)
-
-    def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
-        self.bar.update(1)
-        return self.inner.increment(state, canvas, draw)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
-def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10,
-         seed: int = 0, likelihood: str = "shape", progress: bool = False) -> GrowResult:
-    """SMC (guided when `guide` is given) into `target`; the best particle and its score.
-
-    likelihood: "shape" (match the target) or "circuit" (the target, optional, only gives
-    the start pose and the target features). `progress` shows a bar on runs over a second.
-    """
-    from ngpm_runtime.image.raster import rasterize
-    from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
-    from ngpm_runtime.inference.smc import smc
-
-    viewport = program.viewport
-    if viewport is None:
-        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
-    if likelihood == "shape":
-        if target is None:
-            raise NgpmError("the shape likelihood needs a target image")
-        like: Any = ShapeLikelihood(target.mask, viewport)
-    elif likelihood == "circuit":
-        like = CircuitLikelihood(viewport)
-    else:
-        raise NgpmError(f"unknown likelihood {likelihood!r}; choose shape or circuit")
-    size = target.size if target is not None else (50, 50)
-    start = target.start_pose(viewport) if target is not None else None
-    mask = target.mask if target is not None else None
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None)
-        like = _Ticking(like, bar)
-    t0 = time.perf_counter()
-    try:
-        result = smc(program, like, n_particles, proposal=guide, seed=seed, start=start,
-                     canvas_size=size, target_mask=mask)
-    finally:
-        if bar is not None:
-            bar.close()
-    seconds = time.perf_counter() - t0
-    prims = list(result.best.primitives)
-    image = rasterize(prims, viewport, *size)
-    sim = float(similarity(image, mask)) if mask is not None else float("nan")
-    return GrowResult(sim, seconds, n_particles, prims, image, result)
 
 
 def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
@@ -330,7 +255,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_runtime import bundled
     from ngpm_runtime.image.targets import load_target
 
-    from ngpm_compiler.traces import load_grammar
+    from ngpm_compiler.learning.traces import load_grammar
 
     if args.particles < 1:
         raise NgpmError("-N must be at least 1")
@@ -350,8 +275,12 @@ def cmd_grow(args: argparse.Namespace) -> int:
         ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
         print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
               f"prior: {ids}")
-    res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-               progress=True)
+    from ngpm_runtime.grow import grow
+    from tqdm import tqdm
+
+    with tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None) as bar:
+        res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
+                   on_step=lambda: bar.update(1))
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
     score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else

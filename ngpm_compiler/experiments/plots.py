@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ngpm_compiler.evaluate import UNGUIDED, atomic_write, curve
+from ngpm_compiler.experiments.evaluate import UNGUIDED, atomic_write, curve
 
 COLORS = {UNGUIDED: "#444444", "const": "#1f77b4", "local": "#ff7f0e",
           "local+target": "#2ca02c", "all": "#d62728", "all_k1": "#9467bd"}

@@ -1,0 +1,1 @@
+"""Target datasets: glyphs, silhouettes, scribbles; building, contact sheets."""

@@ -1,0 +1,1 @@
+"""Experiments: the evaluation of guided against unguided SMC, plots and reports."""

@@ -1,0 +1,1 @@
+"""The .lsys language: grammar, parser, syntax nodes, built-in tables, checker, code generator."""

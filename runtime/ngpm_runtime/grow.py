@@ -1,0 +1,100 @@
+"""grow(): a target in, a vine out. The one place that runs SMC into a target.
+
+The CLI (`ngpmc grow`), trace recording and the evaluation all call `grow`, so a run with
+the same program, target, guide, particle count and seed gives the same vine everywhere.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.image.raster import rasterize
+from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
+from ngpm_runtime.inference.smc import SMCResult, smc
+from ngpm_runtime.program import Program
+
+LIKELIHOODS = ("shape", "circuit")
+DEFAULT_CANVAS = (50, 50)  # raster size when there is no target
+
+
+@dataclass
+class GrowResult:
+    """The best particle of one SMC run into a target."""
+
+    similarity: float  # of the best particle's raster to the target; nan without a target
+    seconds: float  # time in SMC (not counting the final raster)
+    particles: int
+    primitives: list[tuple]
+    image: np.ndarray  # (H, W) uint8 raster of the best particle
+    smc: SMCResult
+
+
+class _Ticking:
+    """A likelihood that calls `on_step` once per SMC step, then defers to `inner`."""
+
+    def __init__(self, inner: Any, on_step: Callable[[], None]) -> None:
+        self.inner = inner
+        self.on_step = on_step
+
+    def start(self, n: int) -> dict[str, np.ndarray]:
+        return self.inner.start(n)
+
+    def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
+        self.on_step()
+        return self.inner.increment(state, canvas, draw)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def make_likelihood(kind: str, program: Program, target: Any = None) -> Any:
+    """The likelihood named `kind` ("shape": match the target's mask; "circuit")."""
+    viewport = program.viewport
+    if kind == "shape":
+        if target is None:
+            raise NgpmError("the shape likelihood needs a target image")
+        return ShapeLikelihood(target.mask, viewport)
+    if kind == "circuit":
+        return CircuitLikelihood(viewport)
+    raise NgpmError(f"unknown likelihood {kind!r}; choose {' or '.join(LIKELIHOODS)}")
+
+
+def grow(program: Program, target: Any = None, guide: Any = None, n_particles: int = 10,
+         seed: int = 0, likelihood: str = "shape", *,
+         on_step: Callable[[], None] | None = None, record_trace: bool | str = False,
+         start: tuple[float, float, float] | None = None,
+         canvas_size: tuple[int, int] | None = None) -> GrowResult:
+    """SMC (guided when `guide` is given) into `target`; the best particle and its score.
+
+    target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
+    circuit likelihood. likelihood: "shape" (match the target) or "circuit" (the target,
+    optional, only gives the start pose and the target features). on_step: called once per
+    SMC step (a progress bar). record_trace, start (world pose overriding the target's)
+    and canvas_size (default: the target's size) are passed to `smc`.
+    """
+    viewport = program.viewport
+    if viewport is None:
+        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
+    like = make_likelihood(likelihood, program, target)
+    if on_step is not None:
+        like = _Ticking(like, on_step)
+    mask = target.mask if target is not None else None
+    if canvas_size is None:
+        canvas_size = target.size if target is not None else DEFAULT_CANVAS
+    if start is None and target is not None:
+        start = target.start_pose(viewport)
+    t0 = time.perf_counter()
+    result = smc(program, like, n_particles, proposal=guide, seed=seed,
+                 record_trace=record_trace, start=start, canvas_size=canvas_size,
+                 target_mask=mask)
+    seconds = time.perf_counter() - t0
+    prims = list(result.best.primitives)
+    image = rasterize(prims, viewport, *canvas_size)
+    sim = float(similarity(image, mask)) if mask is not None else float("nan")
+    return GrowResult(sim, seconds, n_particles, prims, image, result)
