@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 from PIL import Image
+from repo_paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 API_MD = REPO / "docs" / "api.md"
 
 

@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 from ngpm_runtime import bundled
 from PIL import Image
+from repo_paths import REPO
 
 from ngpm_compiler.cli import build_parser, main
 
-REPO = Path(__file__).resolve().parents[1]
 README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [
     'pip install torch==2.13.0 && pip install -e ".[train,dev]" && ngpmc demo -o demo_out',

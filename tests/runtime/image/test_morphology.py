@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from ngpm_runtime.image import morphology as m
 from ngpm_runtime.image.targets import auto_start, load_target
+from repo_paths import DATA
 from scipy.ndimage import convolve, distance_transform_edt
 from skimage.filters import threshold_otsu
 from skimage.measure import label
 from skimage.morphology import skeletonize
-
-DATA = Path(__file__).resolve().parents[3] / "runtime" / "ngpm_runtime" / "data"
 
 
 def random_masks(seed: int, count: int) -> list[np.ndarray]:

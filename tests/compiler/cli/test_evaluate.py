@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from repo_paths import REPO
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.experiments.evaluate import RUN_FIELDS, SUMMARY_FIELDS
 
-ROOT = Path(__file__).resolve().parents[1]
 PNGS = ("fig4a_similarity.png", "fig4b_time.png", "fig5a_mixture.png", "fig5b_trainset.png",
         "grid_glyphs.png", "grid_silhouettes.png", "circuit.png", "chain.png")
 MODELS = {"unguided", "const", "local", "local+target", "all", "all_k1"}
@@ -29,7 +29,7 @@ def _csv(path: Path) -> list[dict[str, str]]:
 def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("eval") / "results"
     cwd = os.getcwd()
-    os.chdir(ROOT)  # the default grammar paths are relative to the repository root
+    os.chdir(REPO)  # the default grammar paths are relative to the repository root
     try:
         assert main(["eval", "--quick", "-o", str(out)]) == 0
     finally:
@@ -117,14 +117,14 @@ def test_reports_embed_figures_and_numbers(quick: Path) -> None:
 
 def test_report_stage_alone_reuses_csvs(quick: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     (quick / "notes.md").write_text("Hand-written discussion.\n")
-    monkeypatch.chdir(ROOT)
+    monkeypatch.chdir(REPO)
     assert main(["eval", "--quick", "-o", str(quick), "--stages", "report"]) == 0
     assert "Hand-written discussion." in (quick / "README.md").read_text()
 
 
 def test_bad_options_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.chdir(ROOT)
+    monkeypatch.chdir(REPO)
     assert main(["eval", "--quick", "-o", str(tmp_path), "--stages", "shape,nope"]) != 0
     err = capsys.readouterr().err
     assert "unknown stage(s) nope" in err and err.count("\n") == 1

@@ -1,13 +1,8 @@
 """SMC mechanics: determinism, batching, resampling, traces, features, failures, options."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program  # noqa: E402
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
 from ngpm_runtime.image import features as features_module  # noqa: E402
@@ -17,8 +12,9 @@ from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
 from ngpm_runtime.inference.smc import SiteOrder, SMCOptionError, forward, replay, smc  # noqa: E402
 from ngpm_runtime.program import load_program  # noqa: E402
+from repo_paths import VINES_SAMPLER
 
-VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
+VINES = VINES_SAMPLER
 
 
 @pytest.fixture(scope="module")

@@ -8,11 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
+from repo_paths import REPO
 
 from ngpm_compiler.cli import main
 
-ROOT = Path(__file__).resolve().parent.parent
-VINES = ROOT / "grammars" / "vines.lsys"
+VINES = REPO / "grammars" / "vines.lsys"
 
 
 def test_check_prints_ok_and_site_table(capsys: pytest.CaptureFixture[str]) -> None:

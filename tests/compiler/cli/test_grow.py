@@ -12,10 +12,10 @@ from pathlib import Path
 import pytest
 from ngpm_runtime import bundled
 from PIL import Image
+from repo_paths import REPO
 
 from ngpm_compiler.cli import main
 
-REPO = Path(__file__).resolve().parents[1]
 VINES = str(REPO / "grammars" / "vines.lsys")
 CHAIN = str(REPO / "grammars" / "chain.lsys")
 LINE_RE = re.compile(r"^(\w+): similarity (-?[\d.]+), (\d+) particles \((guided|unguided)\), "

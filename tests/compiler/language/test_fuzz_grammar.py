@@ -4,16 +4,15 @@ GrammarError -- never any other exception."""
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from repo_paths import REPO
 
 from ngpm_compiler.language.compile import compile_grammar
 from ngpm_compiler.language.errors import GrammarError
 
-ROOT = Path(__file__).resolve().parent.parent
-SOURCES = [p.read_text() for p in sorted((ROOT / "grammars").glob("*.lsys"))]
+SOURCES = [p.read_text() for p in sorted((REPO / "grammars").glob("*.lsys"))]
 TOKEN = re.compile(r"\s+|[A-Za-z_][A-Za-z0-9_]*|\d+\.?\d*|-->|.", re.S)
 ALPHABET = "()[]{}+-*/%^|!.,:<>=&$\\~@#\n\t 0123456789xwFfABLSOhalt"
 SNIPPETS = ["-->", ":", "|", "(", ")", "gauss(0, 1)", "flip(", "*", "/ 0", "1/3", "\n",

@@ -2,22 +2,18 @@
 replay and error reporting."""
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from fixtures.tiny_programs import make_program  # noqa: E402
 from ngpm_runtime.errors import ProgramError  # noqa: E402
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
 from ngpm_runtime.geometry.turtle import prim_bbox  # noqa: E402
 from ngpm_runtime.inference.smc import forward, smc  # noqa: E402
 from ngpm_runtime.program import Site, load_program  # noqa: E402
+from repo_paths import REPO, VINES_SAMPLER
 
-VINES = Path(__file__).parent / "fixtures" / "vines_sampler.py"
+VINES = VINES_SAMPLER
 
 
 def prims_of(program, **kw):
@@ -261,7 +257,7 @@ def test_vines_fixture_forward() -> None:
 def test_compiled_vines_matches_hand_written_fixture() -> None:
     from ngpm_compiler.language.compile import compile_grammar
 
-    compiled = compile_grammar(str(Path(__file__).parents[1] / "grammars" / "vines.lsys"))
+    compiled = compile_grammar(str(REPO / "grammars" / "vines.lsys"))
     prog = compiled.program()
     fixture = load_program(VINES)
     assert [s.id for s in prog.sites] == [s.id for s in fixture.sites]

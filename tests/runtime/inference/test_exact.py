@@ -3,15 +3,10 @@ and a conjugate gaussian case, for every resampling scheme, ESS-triggered resamp
 proposal and deliberately different proposals."""
 
 import math
-import sys
 from collections import defaultdict
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from fixtures.tiny_programs import (  # noqa: E402
     M1,
     M2,

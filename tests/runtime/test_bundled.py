@@ -14,8 +14,8 @@ from blocked_imports import run_blocked
 from ngpm_runtime import bundled
 from ngpm_runtime.errors import GuideError, ProgramError, TargetError
 from ngpm_runtime.inference.guide import Guide
+from repo_paths import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 VINES = REPO / "grammars" / "vines.lsys"
 MIN_TRACES = 500  # the bundled guide comes from scripts/train_vines_guide.sh (1000 traces)
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ngpm_runtime.image.targets import Target, save_target
+from repo_paths import REPO
 
 from ngpm_compiler.cli.guide import FEATURE_SETS
 from ngpm_compiler.learning.nets import FEATURE_SETS as NET_FEATURE_SETS
@@ -26,8 +27,7 @@ from ngpm_compiler.learning.traces import (
     load_traces,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
-CHAIN = str(ROOT / "grammars" / "chain.lsys")
+CHAIN = str(REPO / "grammars" / "chain.lsys")
 
 
 def make_dataset(directory: Path, n: int = 3) -> Path:
@@ -77,7 +77,7 @@ def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.
     cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
            "-n", str(n), "--particles", "8", "-o", str(out), "--workers", str(workers),
            "--seed", "3", "--shard-size", "4"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             start_new_session=True, **kw)
 

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from ngpm_runtime.image.targets import Target
+from repo_paths import REPO
 
 from ngpm_compiler.experiments.evaluate import (
     RUN_FIELDS,
@@ -27,8 +28,6 @@ from ngpm_compiler.experiments.extra import chain_arc, circuit_score
 from ngpm_compiler.experiments.models import subset
 from ngpm_compiler.experiments.shape import equal_time_n, pick
 from ngpm_compiler.learning.traces import SiteData
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_t_interval_matches_formula() -> None:
@@ -118,7 +117,7 @@ def _disk_target() -> Target:
 def vines():
     from ngpm_compiler.learning.traces import load_grammar
 
-    return load_grammar(ROOT / "grammars" / "vines.lsys")
+    return load_grammar(REPO / "grammars" / "vines.lsys")
 
 
 def test_grow_once_scores_the_best_particle(vines) -> None:
@@ -136,7 +135,7 @@ def test_grow_once_scores_the_best_particle(vines) -> None:
 def test_run_tasks_returns_results_in_task_order() -> None:
     t = _disk_target()
     tasks = shape_tasks([UNGUIDED], {"x": 1}, [1, 4], 2)
-    res = run_tasks(str(ROOT / "grammars" / "vines.lsys"), {"x": [t]}, {}, tasks, workers=1,
+    res = run_tasks(str(REPO / "grammars" / "vines.lsys"), {"x": [t]}, {}, tasks, workers=1,
                     shuffle_seed=1)
     assert [r.task for r in res] == tasks
     assert all(r.target_name == "disk" and -1.0 <= r.similarity <= 1.0 for r in res)
@@ -179,7 +178,7 @@ def test_circuit_score() -> None:
 def test_chain_arc_starts_at_the_program_start() -> None:
     from ngpm_compiler.learning.traces import load_grammar
 
-    chain = load_grammar(ROOT / "grammars" / "chain.lsys")
+    chain = load_grammar(REPO / "grammars" / "chain.lsys")
     t = chain_arc(np.random.default_rng(0), chain)
     assert t.mask.any()
     x, y, h = t.start_pose(chain.viewport)

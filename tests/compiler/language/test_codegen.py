@@ -9,12 +9,12 @@ from pathlib import Path
 
 import pytest
 from ngpm_runtime.program import Program, load_program
+from repo_paths import REPO
 
 from ngpm_compiler.language.compile import compile_grammar, write_compiled
 
-ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = Path(__file__).parent / "golden"
-GRAMMARS = sorted(p.stem for p in (ROOT / "grammars").glob("*.lsys"))
+GRAMMARS = sorted(p.stem for p in (REPO / "grammars").glob("*.lsys"))
 
 
 class FixedCtx:
@@ -45,7 +45,7 @@ class FixedCtx:
 
 
 def compiled(name: str):
-    return compile_grammar(ROOT / "grammars" / f"{name}.lsys", filename=f"grammars/{name}.lsys")
+    return compile_grammar(REPO / "grammars" / f"{name}.lsys", filename=f"grammars/{name}.lsys")
 
 
 @pytest.mark.parametrize("name", GRAMMARS)
@@ -184,7 +184,7 @@ def test_interpretation_rules() -> None:
 def test_generated_code_is_ruff_clean(tmp_path: Path) -> None:
     for name in GRAMMARS:
         write_compiled(compiled(name), tmp_path)
-    cfg = ROOT / "pyproject.toml"
+    cfg = REPO / "pyproject.toml"
     res = subprocess.run(["ruff", "check", "--config", str(cfg), "--no-cache", str(tmp_path)],
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr

@@ -3,7 +3,6 @@ round; and the CLI pipeline traces -> train -> export -> grow on a small grammar
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,13 +10,11 @@ import pytest
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import smc
+from test_export import N_F, SITES, fake_program, random_model  # noqa: E402
+from test_traces import CHAIN, make_dataset  # noqa: E402
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.learning.export import write_onnx
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_export import N_F, SITES, fake_program, random_model  # noqa: E402
-from test_traces import CHAIN, make_dataset  # noqa: E402
 
 
 class CountingSession:

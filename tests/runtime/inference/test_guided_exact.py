@@ -6,14 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from fixtures.tiny_programs import (  # noqa: E402
     EndPointLikelihood,
     SumXLikelihood,

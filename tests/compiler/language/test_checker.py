@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
+from repo_paths import REPO
 
 from ngpm_compiler.language.compile import compile_grammar
 from ngpm_compiler.language.errors import GrammarError
 
-ROOT = Path(__file__).resolve().parent.parent
-VINES = (ROOT / "grammars" / "vines.lsys").read_text()
+VINES = (REPO / "grammars" / "vines.lsys").read_text()
 
 
 def err(text: str) -> GrammarError:

@@ -1,0 +1,42 @@
+"""The runtime must work with torch, lark, scipy, scikit-image, matplotlib, tqdm and the
+compiler unimportable."""
+
+import textwrap
+from pathlib import Path
+
+from blocked_imports import run_blocked
+from repo_paths import VINES_SAMPLER
+
+BLOCKED = ("torch", "lark", "ngpm_compiler", "scipy", "skimage", "matplotlib", "tqdm")
+
+SCRIPT = textwrap.dedent(
+    """
+    import importlib, pkgutil
+
+    import ngpm_runtime
+    for info in pkgutil.walk_packages(ngpm_runtime.__path__, "ngpm_runtime."):
+        importlib.import_module(info.name)
+    from ngpm_runtime import forward, load_program, smc, PriorProposal, SMCResult
+    program = load_program(sys.argv[1])
+    particle = forward(program, seed=1)
+    assert particle.primitives, particle
+    result = smc(program, None, 8, proposal=PriorProposal(), seed=2)
+    assert isinstance(result, SMCResult)
+    from ngpm_runtime import bundled, grow
+    target = bundled.demo_targets()[2]
+    res = grow(bundled.bundled_program(), target, bundled.bundled_guide(), 3, seed=1)
+    assert res.primitives and 0.0 <= res.similarity <= 1.0
+    """
+)
+
+
+def test_runtime_imports_without_torch_lark_or_compiler(tmp_path: Path) -> None:
+    proc = run_blocked(SCRIPT, tmp_path, str(VINES_SAMPLER), blocked=BLOCKED, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().endswith("ok")
+
+
+def test_blocker_really_blocks(tmp_path: Path) -> None:
+    proc = run_blocked(SCRIPT + "import lark\n", tmp_path, str(VINES_SAMPLER), blocked=BLOCKED,
+                       timeout=120)
+    assert proc.returncode != 0 and "blocked: lark" in proc.stderr
