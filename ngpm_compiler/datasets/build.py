@@ -268,7 +268,9 @@ def silhouette_from_image(path: Path, size: int, polarity: str = "auto") -> Targ
 def _shape_parts(kind: str, rng: np.random.Generator) -> list[tuple]:
     """Primitives of a procedural silhouette in unit coordinates (y down), jittered:
     ("e", cx, cy, rx, ry, angle) ellipses, ("p", [(x, y), ...]) polygons,
-    ("l", [(x, y), ...], width) thick polylines."""
+    ("l", [(x, y), ...], width) thick polylines.
+
+    Long because it is a table of shape recipes, one branch per kind."""
     def j(v: float, amount: float = 0.06) -> float:
         return float(v * (1 + amount * rng.normal()))
 

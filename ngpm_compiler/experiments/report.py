@@ -140,6 +140,9 @@ def r_bound(r: dict[str, Any]) -> str:
 
 
 def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
+    """Write the results folder's report and README from its CSVs and settings.
+
+    Long because it is the report's text, section by section, in reading order."""
     out = Path(out_dir)
     settings = json.loads((out / "settings.json").read_text()) if (
         out / "settings.json").is_file() else {}

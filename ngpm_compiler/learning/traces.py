@@ -270,7 +270,10 @@ def _exit_on_sigterm() -> None:
 
 def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True,
                     on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
-    """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest."""
+    """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest.
+
+    Long because the serial and pooled paths share one try/finally that writes the finished
+    jobs' manifest on any exit (done, Ctrl-C, SIGTERM)."""
     store = TraceStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     program = load_grammar(cfg.grammar)

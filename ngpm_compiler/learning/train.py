@@ -136,7 +136,10 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
                 grammar_hash: str = "", checkpoint: str | Path | None = None,
                 progress: bool = False,
                 on_epoch: Callable[[dict[str, Any]], None] | None = None) -> GuideModel:
-    """Fit one network per visited site; returns the best epoch's model with a summary."""
+    """Fit one network per visited site; returns the best epoch's model with a summary.
+
+    Long because the epoch loop, early stopping and checkpoint resumption share the
+    optimizer and best-epoch state."""
     torch.set_num_threads(max(1, config.threads))
     start = time.perf_counter()
     all_jobs = np.concatenate([d.jobs for d in data.values()]) if data else np.zeros(0, int)

@@ -223,7 +223,11 @@ class Deriver:
         After drawing, the particle looks ahead: it goes on with its deterministic work up
         to its next request (then `p.need` is set), its next drawing symbol or its end (then
         `p.stack` is None), and still returns DRAWN; done before resampling, this work is
-        shared by the copies. With `peek`, it stops before drawing anything (PAUSED)."""
+        shared by the copies. With `peek`, it stops before drawing anything (PAUSED).
+
+        Long because it is the derivation's hot loop: productions, interpretation and the
+        common turtle moves are inlined with `turtle.interpret`'s formulas (it handles every
+        other case)."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
         pcache, icache, memo = self.pcache, self.icache, self._memo
         dispatch = self.dispatch
