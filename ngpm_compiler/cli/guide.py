@@ -13,10 +13,6 @@ from ngpm_runtime.program import Program
 FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS (no torch here)
 
 
-class GuideFileError(NgpmError):
-    """A model.pt file cannot be read."""
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("traces", help="record training traces with unguided SMC")
     p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
@@ -133,20 +129,9 @@ def _print_epoch(row: dict[str, Any]) -> None:
                f"validation NLL {row['val_nll']:.3f} per trace")
 
 
-def load_model_file(path: str) -> Any:
-    from ngpm_compiler.learning.train import load_model
-
-    if not Path(path).is_file():
-        raise GuideFileError(f"{path}: no such model file")
-    try:
-        return load_model(path)
-    except Exception as err:  # torch raises many types for foreign files
-        raise GuideFileError(f"{path}: not a model written by `ngpmc train` "
-                             f"({err.__class__.__name__})") from None
-
-
 def cmd_export(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.export import write_onnx
+    from ngpm_compiler.learning.train import load_model_file
 
     model = load_model_file(args.model)
     path = write_onnx(model, args.out)
@@ -159,30 +144,6 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------------------- grow
-
-
-def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Any,
-                   target_mask: np.ndarray | None = None, size: int = 256,
-                   max_frames: int = 60) -> Path:
-    """An animated GIF of the growth: the primitives in drawing order, a few per frame."""
-    import io
-
-    from ngpm_runtime.files import atomic_write
-    from ngpm_runtime.image.render import render_array
-    from PIL import Image
-
-    path = Path(path)
-    n = len(prims)
-    ks = sorted({int(k) for k in np.linspace(0, n, min(n, max_frames - 1) + 1).round()})
-    frames = [Image.fromarray(render_array(prims[:k], viewport, size, target_mask))
-              for k in ks]
-    durations = [80] * len(frames)
-    durations[-1] = 2000
-    buf = io.BytesIO()
-    frames[0].save(buf, format="GIF", save_all=True, append_images=frames[1:],
-                   duration=durations, loop=0)
-    atomic_write(path, buf.getvalue())
-    return path
 
 
 def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
@@ -289,7 +250,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
           f"{len(res.primitives)} primitives")
     if guide is not None:
         print(f"guide: {guide.path}")
-    from ngpm_runtime.image.render import save_render
+    from ngpm_runtime.image.render import save_render, save_steps_gif
 
     mask = target.mask if target is not None else None
     for path in (out, svg):

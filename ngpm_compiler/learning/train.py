@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Site
 from tqdm import tqdm
@@ -216,3 +217,17 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
         "config": asdict(config),
     }
     return model
+
+
+class GuideFileError(NgpmError):
+    """A model.pt file cannot be read."""
+
+
+def load_model_file(path: str) -> Any:
+    if not Path(path).is_file():
+        raise GuideFileError(f"{path}: no such model file")
+    try:
+        return load_model(path)
+    except Exception as err:  # torch raises many types for foreign files
+        raise GuideFileError(f"{path}: not a model written by `ngpmc train` "
+                             f"({err.__class__.__name__})") from None

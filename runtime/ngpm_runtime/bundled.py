@@ -6,7 +6,7 @@ Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the re
   `ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`
 - `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
 - `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), made by
-  `ngpm_compiler.cli.demo.write_demo_targets("runtime/ngpm_runtime/data")`
+  `ngpm_compiler.datasets.demo_targets.write_demo_targets("runtime/ngpm_runtime/data")`
 
 Only numpy / onnxruntime code is imported here: no torch, no lark, no compiler.
 """

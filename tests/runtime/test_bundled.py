@@ -123,7 +123,7 @@ def test_demo_targets_load_in_order() -> None:
 
 
 def test_demo_targets_are_the_ones_the_project_makes() -> None:
-    from ngpm_compiler.cli.demo import make_demo_targets
+    from ngpm_compiler.datasets.demo_targets import make_demo_targets
 
     made = make_demo_targets()
     assert list(made) == list(bundled.DEMO_TARGETS)

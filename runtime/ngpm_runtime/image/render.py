@@ -156,3 +156,23 @@ def save_render(prims: list[tuple], path: str | Path, viewport: Viewport | None 
     except OSError as err:
         raise RenderError(f"{path}: cannot write render: {err.strerror or err}") from None
     return path
+
+
+def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Viewport,
+                   target_mask: np.ndarray | None = None, size: int = 256,
+                   max_frames: int = 60) -> Path:
+    """An animated GIF of the growth: the primitives in drawing order, a few per frame."""
+    from PIL import Image
+
+    path = Path(path)
+    n = len(prims)
+    ks = sorted({int(k) for k in np.linspace(0, n, min(n, max_frames - 1) + 1).round()})
+    frames = [Image.fromarray(render_array(prims[:k], viewport, size, target_mask))
+              for k in ks]
+    durations = [80] * len(frames)
+    durations[-1] = 2000
+    buf = io.BytesIO()
+    frames[0].save(buf, format="GIF", save_all=True, append_images=frames[1:],
+                   duration=durations, loop=0)
+    atomic_write(path, buf.getvalue())
+    return path

@@ -14,8 +14,8 @@ from blocked_imports import run_blocked
 from ngpm_runtime import bundled
 from PIL import Image
 
-from ngpm_compiler.cli import demo as cmd_demo
 from ngpm_compiler.cli import main
+from ngpm_compiler.experiments import demo as cmd_demo
 
 ROW_RE = re.compile(r"^\| (\w+) \| ([-\d.]+) \| ([\d.]+) \| ([-\d.]+) \| ([\d.]+) \|$")
 

@@ -8,47 +8,12 @@ import numpy as np
 import onnx
 import pytest
 import torch
+from fixtures.guides import N_F, SITES, fake_program, random_model
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.inference.guide import Guide
-from ngpm_runtime.program import Program, Site
+from ngpm_runtime.program import Site
 
 from ngpm_compiler.learning.export import build_onnx, write_onnx
-from ngpm_compiler.learning.nets import GuideModel, NetSpec, SiteNet, select_columns
-
-N_F = 12
-LAYOUT = {"local": slice(0, 6), "target": slice(6, 9), "partial": slice(9, 12)}
-SITES = [
-    Site(index=0, id="A/0/normal0", kind="normal"),
-    Site(index=1, id="A/0/uniform0", kind="uniform"),
-    Site(index=2, id="A/0/bernoulli0", kind="bernoulli"),
-    Site(index=3, id="A/choice", kind="categorical", k=3, probs=(0.2, 0.3, 0.5)),
-]
-
-
-def fake_program(sites: list[Site] = SITES, grammar_hash: str = "sha256:abc") -> Program:
-    return Program(name="fake", sites=sites, axiom=lambda ctx: [], productions={},
-                   grammar_hash=grammar_hash)
-
-
-def random_model(K: int, feature_set: str, seed: int = 0, skip: tuple[int, ...] = ()) -> GuideModel:
-    torch.manual_seed(seed)
-    nets = {}
-    for site in SITES:
-        if site.index in skip:
-            continue
-        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=N_F, K=K, k=site.k,
-                       cols=select_columns(LAYOUT, feature_set))
-        rng = np.random.default_rng(seed + site.index)
-        net = SiteNet(spec, mean=rng.normal(size=len(spec.cols)),
-                      std=rng.uniform(0.5, 2, size=len(spec.cols)), prior_probs=site.probs)
-        with torch.no_grad():
-            for name, p in net.named_parameters():
-                p.add_(torch.randn_like(p) * (3.0 if name == "const" else 1.0))
-        nets[site.index] = net
-    layouts = {s.index: {k: [v.start, v.stop] for k, v in LAYOUT.items()} for s in SITES}
-    return GuideModel(grammar="fake", grammar_hash="sha256:abc",
-                      sites=[s.to_json() for s in SITES], feature_set=feature_set, K=K,
-                      nets=nets, layouts=layouts, summary={"epochs": 0})
 
 
 @pytest.mark.parametrize("K", [1, 4])

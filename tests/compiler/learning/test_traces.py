@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ngpm_runtime.image.targets import Target, save_target
+from fixtures.datasets import CHAIN, make_dataset
+from ngpm_runtime.image.targets import save_target
 from repo_paths import REPO
 
 from ngpm_compiler.cli.guide import FEATURE_SETS
@@ -26,17 +27,6 @@ from ngpm_compiler.learning.traces import (
     job_spec,
     load_traces,
 )
-
-CHAIN = str(REPO / "grammars" / "chain.lsys")
-
-
-def make_dataset(directory: Path, n: int = 3) -> Path:
-    directory.mkdir(parents=True, exist_ok=True)
-    for i in range(n):
-        mask = np.zeros((50, 50), bool)
-        mask[5:45, 22 + 2 * i:27 + 2 * i] = True
-        save_target(Target(mask, (0.5, 0.9, 0.0, -1.0), f"bar{i}"), directory / f"bar{i}.png")
-    return directory
 
 
 def test_feature_set_names_agree():

@@ -3,85 +3,20 @@ and a conjugate gaussian case, for every resampling scheme, ESS-triggered resamp
 proposal and deliberately different proposals."""
 
 import math
-from collections import defaultdict
 
 import numpy as np
 import pytest
+from fixtures.exact import check, enumerate_program, exact, gauss_exact, pooled, tv
 from fixtures.tiny_programs import (  # noqa: E402
-    M1,
-    M2,
-    S1,
-    S2,
     EndPointLikelihood,
     SumXLikelihood,
     branch_program,
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
-from ngpm_runtime.geometry.turtle import cons_to_list  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf  # noqa: E402
 from ngpm_runtime.inference.proposals import FixedProposal  # noqa: E402
 from ngpm_runtime.inference.smc import smc  # noqa: E402
-
-
-def enumerate_program(program):
-    """Every complete derivation of a program with discrete sites: (primitives, log prior)."""
-    d = Deriver(program)
-    out = []
-
-    def rec(p, lp):
-        while True:
-            code = d.advance(p)
-            if code == DRAWN:
-                continue
-            if code == DONE:
-                out.append((tuple(cons_to_list(p.prims)), lp))
-                return
-            assert code == NEED
-            s, args = p.need
-            site = program.sites[s]
-            support = range(len(args)) if site.kind == "categorical" else (0, 1)
-            for v in support:
-                lpv = prior_logpdf(site, np.array([args], dtype=float), np.array([float(v)]))[0]
-                if lpv == -np.inf:
-                    continue
-                q = p.copy()
-                q.values += (float(v),)
-                q.sites += (s,)
-                q.need = None
-                rec(q, lp + lpv)
-            return
-
-    rec(d.start((*program.start, 1.0)), 0.0)
-    return out
-
-
-def exact(program, like):
-    post = defaultdict(float)
-    terms = []
-    for prims, lp in enumerate_program(program):
-        lw = lp + like.total(prims)
-        terms.append(lw)
-        post[prims] += math.exp(lw)
-    log_z = float(np.logaddexp.reduce(terms))
-    z = math.exp(log_z)
-    return {k: v / z for k, v in post.items()}, log_z
-
-
-def estimate(result):
-    w = np.exp(result.log_weights - np.max(result.log_weights))
-    w /= w.sum()
-    post = defaultdict(float)
-    for p, wi in zip(result.particles, w, strict=True):
-        post[tuple(p.primitives)] += wi
-    return post
-
-
-def tv(p, q):
-    keys = set(p) | set(q)
-    return 0.5 * sum(abs(p.get(k, 0.0) - q.get(k, 0.0)) for k in keys)
-
 
 # A proposal far from the prior at every discrete site of each grammar.
 DISCRETE_Q = FixedProposal({0: [0.2, 0.8], 1: [0.6, 0.1, 0.3], 2: [0.8]})
@@ -105,22 +40,8 @@ def test_enumeration_is_a_distribution() -> None:
         assert len(runs) > 5
 
 
-def pooled(prog, like, proposal, scheme, ess, n=3000, runs=4, seed=0):
-    """Posterior and log Z from `runs` independent runs (posteriors averaged, Z averaged)."""
-    post = defaultdict(float)
-    log_zs = []
-    for r in range(runs):
-        res = smc(prog, like, n, proposal=proposal, seed=seed + r, resample=scheme,
-                  ess_threshold=ess)
-        for k, v in estimate(res).items():
-            post[k] += v / runs
-        log_zs.append(res.log_evidence)
-    return post, float(np.logaddexp.reduce(log_zs) - math.log(runs))
 
 
-def check(post, log_z, want_post, want_log_z, tol_z):
-    sup = max(abs(post.get(k, 0.0) - want_post.get(k, 0.0)) for k in set(post) | set(want_post))
-    return sup < 0.03 and tv(post, want_post) < 0.06 and abs(log_z - want_log_z) < tol_z
 
 
 @pytest.mark.parametrize(("scheme", "ess", "prop"), CASES)
@@ -166,15 +87,6 @@ def test_smc_weights_are_all_equal_to_evidence_without_likelihood() -> None:
     assert abs(r.log_evidence) < 0.05
 
 
-def gauss_exact(obs, sd):
-    """Posterior mean of the first length and log Z for x1 = L1, x2 = L1 + L2."""
-    mean = np.array([M1, M1 + M2])
-    cov = np.array([[S1**2, S1**2], [S1**2, S1**2 + S2**2]])
-    c = cov + np.diag(np.square(sd))
-    r = np.asarray(obs) - mean
-    log_z = -0.5 * r @ np.linalg.solve(c, r) - 0.5 * np.log(np.linalg.det(2 * np.pi * c))
-    gain = np.array([S1**2, S1**2]) @ np.linalg.inv(c)
-    return M1 + gain @ r, float(log_z)
 
 
 @pytest.mark.parametrize("prop", [None, "q"])

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures.datasets import CHAIN, make_dataset  # noqa: E402
+from fixtures.guides import N_F, SITES, fake_program, random_model  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import smc
-from test_export import N_F, SITES, fake_program, random_model  # noqa: E402
-from test_traces import CHAIN, make_dataset  # noqa: E402
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.learning.export import write_onnx

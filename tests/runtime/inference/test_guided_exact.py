@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from fixtures.exact import check, exact, gauss_exact, pooled, tv  # noqa: E402
 from fixtures.tiny_programs import (  # noqa: E402
     EndPointLikelihood,
     SumXLikelihood,
@@ -19,7 +20,6 @@ from ngpm_runtime.image.features import FeatureMaker  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
 from ngpm_runtime.inference.guide import Guide  # noqa: E402
 from ngpm_runtime.inference.smc import smc  # noqa: E402
-from test_exact import check, exact, gauss_exact, pooled, tv  # noqa: E402
 
 from ngpm_compiler.learning.export import write_onnx  # noqa: E402
 from ngpm_compiler.learning.traces import SiteData, prior_arg_columns  # noqa: E402

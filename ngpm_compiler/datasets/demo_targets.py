@@ -1,0 +1,63 @@
+"""The demo's built-in targets (shipped in runtime/ngpm_runtime/data/): a glyph, a horse, a
+heart and a spiral. `write_demo_targets(dir)` (re)makes them."""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from ngpm_runtime.image.targets import Target, auto_start, save_target
+from PIL import Image, ImageDraw, ImageFont
+
+SIZE = 50
+SUPER = 8  # supersampling of the drawn shapes
+
+
+def _heart_mask(n: int) -> np.ndarray:
+    t = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
+    x = 16 * np.sin(t) ** 3
+    y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
+    pts = [(n / 2 + n * 0.028 * float(a), n / 2 - n * 0.028 * float(b)) for a, b in zip(x, y,
+                                                                                       strict=True)]
+    img = Image.new("L", (n, n), 0)
+    ImageDraw.Draw(img).polygon(pts, fill=255)
+    return np.asarray(img) >= 128
+
+
+def _spiral_mask(n: int) -> np.ndarray:
+    th = np.linspace(0.0, 2.6 * math.pi, 600)
+    r = n * (0.05 + 0.135 * th / math.pi)
+    pts = [(n / 2 + float(rr * math.cos(a)), n / 2 - float(rr * math.sin(a)))
+           for rr, a in zip(r, th, strict=True)]
+    img = Image.new("L", (n, n), 0)
+    draw = ImageDraw.Draw(img)
+    wid = int(round(0.075 * n))
+    draw.line(pts, fill=255, width=wid, joint="curve")
+    for x, y in (pts[0], pts[-1]):
+        draw.ellipse((x - wid / 2, y - wid / 2, x + wid / 2, y + wid / 2), fill=255)
+    return np.asarray(img) >= 128
+
+
+def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
+    """The demo's targets: a glyph (DejaVu Sans Bold 'S'), scikit-image's horse, and a heart
+    and a spiral drawn here; all framed like the datasets' silhouettes, automatic start."""
+    from skimage.data import horse
+
+    from ngpm_compiler.datasets.build import SUPERSAMPLE, default_font, fit_mask, render_glyph
+
+    face = ImageFont.truetype(str(default_font()), size * SUPERSAMPLE)
+    masks = {
+        "glyph": render_glyph(face, "S", size),
+        "horse": fit_mask(~horse(), size)[0],
+        "heart": fit_mask(_heart_mask(size * SUPER), size)[0],
+        "spiral": fit_mask(_spiral_mask(size * SUPER), size)[0],
+    }
+    return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
+
+
+def write_demo_targets(out_dir: str | os.PathLike) -> list[Path]:
+    """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
+    return [save_target(t, Path(out_dir) / f"demo_{name}.png")
+            for name, t in make_demo_targets().items()]
