@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ngpm_runtime.errors import ProgramError
 
 Turtle = tuple  # (x, y, heading, width)
@@ -110,6 +112,43 @@ def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
         ys = [v[1] for v in prim[1]]
         return min(xs), min(ys), max(xs), max(ys)
     raise ValueError(f"unknown primitive {kind!r}")
+
+
+def prim_params(prims: list[tuple]) -> np.ndarray:
+    """The parameters of primitives of one kind (all but the kind), one row each."""
+    return np.array([p[1:] for p in prims], dtype=np.float64)
+
+
+def prim_bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray | None]:
+    """World boxes (g, 4) as (xmin, ymin, xmax, ymax) of primitives of one kind, plus the
+    kind's parameter array: `prim_bbox` for many primitives at once (the same formulas)."""
+    if kind == "poly":
+        out = np.empty((len(prims), 4))
+        for k, p in enumerate(prims):
+            v = np.asarray(p[1], dtype=np.float64).reshape(-1, 2)
+            out[k] = v[:, 0].min(), v[:, 1].min(), v[:, 0].max(), v[:, 1].max()
+        return out, None
+    P = prim_params(prims)
+    if kind == "seg":
+        x0, y0, x1, y1, w = P.T
+        r = np.abs(w) / 2.0
+        box = [np.minimum(x0, x1) - r, np.minimum(y0, y1) - r,
+               np.maximum(x0, x1) + r, np.maximum(y0, y1) + r]
+    elif kind == "disk":
+        x, y, r = P.T
+        r = np.abs(r)
+        box = [x - r, y - r, x + r, y + r]
+    elif kind == "leaf":
+        x, y, h, length, width = P.T
+        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
+        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
+        cx, cy = x + length / 2.0 * c, y + length / 2.0 * s
+        ex = np.sqrt((a * c) ** 2 + (b * s) ** 2)
+        ey = np.sqrt((a * s) ** 2 + (b * c) ** 2)
+        box = [cx - ex, cy - ey, cx + ex, cy + ey]
+    else:
+        raise ValueError(f"unknown primitive kind {kind!r}")
+    return np.stack(box, axis=1), P
 
 
 def cons_to_list(node: tuple | None) -> list:

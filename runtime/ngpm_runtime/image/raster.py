@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ngpm_runtime.geometry.turtle import prim_bboxes
+
 Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 N_LEVELS = 4
 _EPS = 1e-9
@@ -65,41 +67,6 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 
 
 # ---------------------------------------------------------------- geometry per kind
-
-
-def _params(prims: list[tuple]) -> np.ndarray:
-    return np.array([p[1:] for p in prims], dtype=np.float64)
-
-
-def _bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray | None]:
-    """World boxes (g, 4) as (xmin, ymin, xmax, ymax), plus the kind's parameter array."""
-    if kind == "poly":
-        out = np.empty((len(prims), 4))
-        for k, p in enumerate(prims):
-            v = np.asarray(p[1], dtype=np.float64).reshape(-1, 2)
-            out[k] = v[:, 0].min(), v[:, 1].min(), v[:, 0].max(), v[:, 1].max()
-        return out, None
-    P = _params(prims)
-    if kind == "seg":
-        x0, y0, x1, y1, w = P.T
-        r = np.abs(w) / 2.0
-        box = [np.minimum(x0, x1) - r, np.minimum(y0, y1) - r,
-               np.maximum(x0, x1) + r, np.maximum(y0, y1) + r]
-    elif kind == "disk":
-        x, y, r = P.T
-        r = np.abs(r)
-        box = [x - r, y - r, x + r, y + r]
-    elif kind == "leaf":
-        x, y, h, length, width = P.T
-        c, s = np.cos(np.radians(h)), np.sin(np.radians(h))
-        a, b = np.abs(length) / 2.0, np.abs(width) / 2.0
-        cx, cy = x + length / 2.0 * c, y + length / 2.0 * s
-        ex = np.sqrt((a * c) ** 2 + (b * s) ** 2)
-        ey = np.sqrt((a * s) ** 2 + (b * c) ** 2)
-        box = [cx - ex, cy - ey, cx + ex, cy + ey]
-    else:
-        raise ValueError(f"unknown primitive kind {kind!r}")
-    return np.stack(box, axis=1), P
 
 
 def _cover(kind: str, P: np.ndarray | None, prims: list[tuple],
@@ -234,7 +201,7 @@ class _Grid:
         params: dict[str, np.ndarray | None] = {}
         for kind, pos in groups.items():
             sel = prims if len(pos) == n else [prims[k] for k in pos]
-            b, params[kind] = _bboxes(kind, sel)
+            b, params[kind] = prim_bboxes(kind, sel)
             if len(pos) == n:
                 bbox[:] = b
             else:
@@ -367,7 +334,7 @@ def bbox_of(prims: list[tuple]) -> np.ndarray:
     for p in prims:
         groups.setdefault(p[0], []).append(p)
     for kind, group in groups.items():
-        b = _bboxes(kind, group)[0]
+        b = prim_bboxes(kind, group)[0]
         out[:2] = np.minimum(out[:2], b[:, :2].min(axis=0))
         out[2:] = np.maximum(out[2:], b[:, 2:].max(axis=0))
     return out
@@ -377,7 +344,7 @@ def viewport_of(prims: list[tuple], margin: float = 0.05) -> Viewport:
     """A square viewport fitting every primitive, with a relative margin."""
     if not prims:
         return (-1.0, 1.0, -1.0, 1.0)
-    boxes = [_bboxes(p[0], [p])[0][0] for p in prims]
+    boxes = [prim_bboxes(p[0], [p])[0][0] for p in prims]
     b = np.array(boxes)
     b = b[np.isfinite(b).all(axis=1)]
     if len(b) == 0:

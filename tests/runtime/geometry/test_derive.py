@@ -265,3 +265,16 @@ def test_compiled_vines_matches_hand_written_fixture() -> None:
         a = forward(prog, seed=seed, start=(0.0, -16.0, 90.0))
         b = forward(fixture, seed=seed, start=(0.0, -16.0, 90.0))
         assert a.primitives == b.primitives and a.log_prior == b.log_prior
+
+
+def test_one_bbox_scalar_and_batched_agree() -> None:
+    from ngpm_runtime.geometry.turtle import prim_bboxes
+
+    rng = np.random.default_rng(0)
+    prims = [("seg", *rng.normal(size=4), abs(rng.normal())) for _ in range(50)]
+    prims += [("disk", *rng.normal(size=2), rng.normal()) for _ in range(50)]
+    prims += [("leaf", *rng.normal(size=2), rng.uniform(-720, 720), *rng.normal(size=2))
+              for _ in range(200)]
+    prims += [("poly", tuple(map(tuple, rng.normal(size=(5, 2))))) for _ in range(20)]
+    for p in prims:
+        assert prim_bboxes(p[0], [p])[0][0].tolist() == list(prim_bbox(p))
