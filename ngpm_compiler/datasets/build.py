@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from ngpm_runtime.errors import NgpmError, TargetError
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.image.morphology import label
 from ngpm_runtime.image.targets import (
     IMAGE_SUFFIXES,
     Target,
@@ -33,7 +34,6 @@ from ngpm_runtime.image.targets import (
     sidecar_path,
 )
 from PIL import Image, ImageDraw, ImageFont
-from skimage.measure import label
 
 SUPERSAMPLE = 4  # drawings are made at 4x the working size, then area-averaged
 MIN_GLYPH_FRACTION = 0.04  # a glyph must cover at least 4% of the image (100 px at 50 x 50)
@@ -121,7 +121,7 @@ def _try_scribble(rng: np.random.Generator, size: int) -> Target | None:
         draw.polygon(_ellipse_poly(bx * k, by * k, ra * k, rb * k, ang), fill=255)
     mask = resize_mask(np.asarray(img) >= 128, size)
     frac = mask.mean()
-    if not (0.03 <= frac <= 0.45) or label(mask, connectivity=2).max() != 1:
+    if not (0.03 <= frac <= 0.45) or label(mask).max() != 1:
         return None
     row, col = min(int(start[1] * size), size - 1), min(int(start[0] * size), size - 1)
     if not mask[row, col]:
@@ -190,7 +190,7 @@ def glyph_ok(mask: np.ndarray) -> str | None:
     component, 8-connectivity, and enough pixels)."""
     if mask.mean() < MIN_GLYPH_FRACTION:
         return f"fewer than {MIN_GLYPH_FRACTION:.0%} of the pixels"
-    n = int(label(mask, connectivity=2).max())
+    n = int(label(mask).max())
     if n != 1:
         return f"{n} connected components"
     return None
@@ -245,7 +245,7 @@ def fit_mask(mask: np.ndarray, size: int, margin: float = FIT_MARGIN,
 
 def drop_specks(mask: np.ndarray, fraction: float = 0.02) -> np.ndarray:
     """Remove connected components smaller than `fraction` of the foreground."""
-    labels = label(mask, connectivity=2)
+    labels = label(mask)
     counts = np.bincount(labels.ravel())
     counts[0] = 0
     keep = counts >= fraction * counts.sum()
