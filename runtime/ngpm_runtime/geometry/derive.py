@@ -13,7 +13,6 @@ derivation; `ilevel` > 0 a module produced by interpretation rules at that nesti
 
 from __future__ import annotations
 
-import math
 import re
 from collections.abc import Callable
 
@@ -29,7 +28,6 @@ DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
 
 # dispatch codes per module name
 _IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
-_RAD = math.pi / 180.0
 
 _LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")
 
@@ -225,9 +223,9 @@ class Deriver:
         `p.stack` is None), and still returns DRAWN; done before resampling, this work is
         shared by the copies. With `peek`, it stops before drawing anything (PAUSED).
 
-        Long because it is the derivation's hot loop: productions, interpretation and the
-        common turtle moves are inlined with `turtle.interpret`'s formulas (it handles every
-        other case)."""
+        Long because it is the derivation's hot loop: productions, interpretation rules and
+        memoization are inlined; every turtle symbol goes through `turtle.interpret`, the one
+        turtle semantics."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
         pcache, icache, memo = self.pcache, self.icache, self._memo
         dispatch = self.dispatch
@@ -235,7 +233,7 @@ class Deriver:
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
         max_ops = self.max_ops
-        cos, sin = math.cos, math.sin
+        angle = self.angle
         mod: tuple = ()
         drew = False
         try:
@@ -306,43 +304,9 @@ class Deriver:
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                         return DRAWN if drew else PAUSED
                     stack = rest
-                    if name == "F":
-                        x, y, h, w = turtle
-                        step = mod[1] if len(mod) > 1 else 1.0
-                        x1 = x + step * cos(h * _RAD)
-                        y1 = y + step * sin(h * _RAD)
-                        turtle = (x1, y1, h, w)
-                        prim = ("seg", x, y, x1, y1, w)
-                    elif name == "+" and len(mod) > 1:
-                        turtle = (turtle[0], turtle[1], turtle[2] + mod[1], turtle[3])
+                    turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly, angle)
+                    if prim is None:
                         continue
-                    elif name == "-" and len(mod) > 1:
-                        turtle = (turtle[0], turtle[1], turtle[2] - mod[1], turtle[3])
-                        continue
-                    elif name == "[":
-                        tstack = (turtle, tstack)
-                        continue
-                    elif name == "]" and tstack is not None:
-                        turtle, tstack = tstack
-                        continue
-                    elif name == "!" and len(mod) > 1:
-                        turtle = (turtle[0], turtle[1], turtle[2], float(mod[1]))
-                        continue
-                    elif name == "f" and len(mod) > 1:
-                        x, y, h, w = turtle
-                        step = mod[1]
-                        turtle = (x + step * cos(h * _RAD), y + step * sin(h * _RAD), h, w)
-                        continue
-                    elif name == "~l" and len(mod) == 3:
-                        prim = ("leaf", turtle[0], turtle[1], turtle[2], float(mod[1]),
-                                float(mod[2]))
-                    elif name == "@O" and len(mod) == 2:
-                        prim = ("disk", turtle[0], turtle[1], float(mod[1]))
-                    else:
-                        turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly,
-                                                               self.angle)
-                        if prim is None:
-                            continue
                     p.last = prim
                     p.prims = (prim, p.prims)
                     p.n_prims += 1
