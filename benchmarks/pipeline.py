@@ -21,12 +21,12 @@ from ngpm_runtime.grow import grow
 from ngpm_runtime.inference.guide import Guide
 
 from ngpm_compiler.datasets.build import build_dataset
+from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.export import write_onnx
 from ngpm_compiler.learning.traces import (
     TraceConfig,
     generate_traces,
     job_spec,
-    load_grammar,
     load_targets,
     load_traces,
     run_job,

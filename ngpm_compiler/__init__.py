@@ -18,7 +18,7 @@ _EXPORTS = {
     "CompiledGrammar": "ngpm_compiler.language.compile",
     "write_compiled": "ngpm_compiler.language.compile",
     "GrammarError": "ngpm_compiler.language.errors",
-    "load_grammar": "ngpm_compiler.learning.traces",
+    "load_grammar": "ngpm_compiler.language.compile",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -216,7 +216,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_runtime import bundled
     from ngpm_runtime.image.targets import load_target
 
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     if args.particles < 1:
         raise NgpmError("-N must be at least 1")

@@ -82,7 +82,7 @@ def _worker_setup(grammar: str, targets: dict[str, list[Any]], guides: dict[str,
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(grammar)
     return {"program": program, "targets": targets,

@@ -56,7 +56,7 @@ def circuit_once(program: Any, proposal: Any, n: int, seed: int, record: bool = 
 
 
 def _circuit_setup(grammar: str) -> dict[str, Any]:
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     return {"program": load_grammar(grammar)}
 
@@ -73,10 +73,10 @@ def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
 
 def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
     """Unguided circuit-SMC traces (kept: >= 10 primitives) as a traces directory."""
+    from ngpm_compiler.language.compile import load_grammar
     from ngpm_compiler.learning.traces import (
         TRACE_FORMAT,
         TraceStore,
-        load_grammar,
         merge_arrays,
         site_layouts,
     )
@@ -126,7 +126,7 @@ def run_circuit(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     work = Path(cfg.work)
     traces = circuit_traces(cfg, str(work / "circuit_traces"), log)
@@ -223,7 +223,8 @@ def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     from ngpm_runtime.inference.guide import Guide
     from ngpm_runtime.inference.smc import forward
 
-    from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_grammar
+    from ngpm_compiler.language.compile import load_grammar
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     work = Path(cfg.work) / "chain"
     program = load_grammar(cfg.chain_grammar)

@@ -243,7 +243,7 @@ def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
 
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(cfg.grammar)
     guide = Guide.load(guides["all"], program)

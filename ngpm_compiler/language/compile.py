@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.program import Program, Site
+from ngpm_runtime.program import Program, Site, load_program
 
 from ngpm_compiler.language.checker import Checked, check
 from ngpm_compiler.language.codegen import generate
@@ -91,3 +91,11 @@ def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike) -> tup
     atomic_write(sampler, compiled.source_code)
     atomic_write(sites, json.dumps(compiled.sites_json(), indent=2) + "\n")
     return sampler, sites
+
+
+def load_grammar(path: str | Path) -> Program:
+    """A Program from a .lsys grammar (compiled here) or a generated sampler module."""
+    path = Path(path)
+    if path.suffix == ".py":
+        return load_program(path)
+    return compile_grammar(path).program()

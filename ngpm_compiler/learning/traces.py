@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.errors import NgpmError, SMCFailed
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.program import Program, Site, load_program
+from ngpm_runtime.program import Program, Site
 from tqdm import tqdm
 
 from ngpm_compiler.learning import pool
@@ -66,16 +66,6 @@ class TraceConfig:
     size: int = 50  # target size (pixels)
     min_primitives: int = MIN_PRIMITIVES
     shard_size: int = 50
-
-
-def load_grammar(path: str | Path) -> Program:
-    """A Program from a .lsys grammar (compiled here) or a generated sampler module."""
-    path = Path(path)
-    if path.suffix == ".py":
-        return load_program(path)
-    from ngpm_compiler.language.compile import compile_grammar
-
-    return compile_grammar(path).program()
 
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
@@ -238,6 +228,8 @@ class TraceStore:
 # --------------------------------------------------------------------------- workers
 
 def _worker_setup(grammar: str, targets: str, size: int, mirror: bool) -> dict[str, Any]:
+    from ngpm_compiler.language.compile import load_grammar
+
     return {"program": load_grammar(grammar), "targets": load_targets(targets, size, mirror)}
 
 
@@ -274,6 +266,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
 
     Long because the serial and pooled paths share one try/finally that writes the finished
     jobs' manifest on any exit (done, Ctrl-C, SIGTERM)."""
+    from ngpm_compiler.language.compile import load_grammar
+
     store = TraceStore(out_dir)
     store.dir.mkdir(parents=True, exist_ok=True)
     program = load_grammar(cfg.grammar)

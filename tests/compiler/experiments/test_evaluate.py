@@ -115,7 +115,7 @@ def _disk_target() -> Target:
 
 @pytest.fixture(scope="module")
 def vines():
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     return load_grammar(REPO / "grammars" / "vines.lsys")
 
@@ -176,7 +176,7 @@ def test_circuit_score() -> None:
 
 
 def test_chain_arc_starts_at_the_program_start() -> None:
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     chain = load_grammar(REPO / "grammars" / "chain.lsys")
     t = chain_arc(np.random.default_rng(0), chain)

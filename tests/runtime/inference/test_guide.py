@@ -97,7 +97,7 @@ def test_const_guide_needs_no_features(tmp_path):
 
 def test_one_call_per_site_per_round_in_smc(tmp_path):
     """Run SMC with a guide on the chain grammar and count onnxruntime calls."""
-    from ngpm_compiler.learning.traces import load_grammar
+    from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(CHAIN)
     out = tmp_path / "m"
