@@ -4,39 +4,55 @@
 model, its pretrained guide and demo targets. Packages: `geometry` (derivation, turtle),
 `image` (raster, features, render, targets), `inference` (SMC, proposals, guide,
 likelihoods).
+
+`grow` is imported here (the module `ngpm_runtime.grow` has the function's name, so the
+package binds the function after importing it); the other names below are imported on
+first use, so the guide's onnxruntime loads only when a guide is used.
 """
 
-from ngpm_runtime.errors import GuideError, NgpmError, ProgramError, SMCFailed, TargetError
-from ngpm_runtime.grow import GrowResult, grow
-from ngpm_runtime.image.targets import Target, load_target
-from ngpm_runtime.inference.guide import Guide
-from ngpm_runtime.inference.likelihood import CircuitLikelihood, NullLikelihood, ShapeLikelihood
-from ngpm_runtime.inference.proposals import FixedProposal, PriorProposal
-from ngpm_runtime.inference.smc import FinalParticle, SMCOptionError, SMCResult, forward, smc
-from ngpm_runtime.program import Program, Site, load_program
+from __future__ import annotations
 
-__all__ = [
-    "NgpmError",
-    "SMCFailed",
-    "TargetError",
-    "GuideError",
-    "ProgramError",
-    "SMCOptionError",
-    "Program",
-    "Site",
-    "load_program",
-    "grow",
-    "GrowResult",
-    "Target",
-    "load_target",
-    "Guide",
-    "ShapeLikelihood",
-    "CircuitLikelihood",
-    "NullLikelihood",
-    "forward",
-    "smc",
-    "SMCResult",
-    "FinalParticle",
-    "PriorProposal",
-    "FixedProposal",
-]
+from importlib import import_module
+from typing import Any
+
+from ngpm_runtime.grow import GrowResult as GrowResult
+from ngpm_runtime.grow import grow as grow
+
+_EXPORTS = {
+    "NgpmError": "ngpm_runtime.errors",
+    "SMCFailed": "ngpm_runtime.errors",
+    "TargetError": "ngpm_runtime.errors",
+    "GuideError": "ngpm_runtime.errors",
+    "ProgramError": "ngpm_runtime.errors",
+    "Program": "ngpm_runtime.program",
+    "Site": "ngpm_runtime.program",
+    "load_program": "ngpm_runtime.program",
+    "Target": "ngpm_runtime.image.targets",
+    "load_target": "ngpm_runtime.image.targets",
+    "Guide": "ngpm_runtime.inference.guide",
+    "ShapeLikelihood": "ngpm_runtime.inference.likelihood",
+    "CircuitLikelihood": "ngpm_runtime.inference.likelihood",
+    "NullLikelihood": "ngpm_runtime.inference.likelihood",
+    "PriorProposal": "ngpm_runtime.inference.proposals",
+    "FixedProposal": "ngpm_runtime.inference.proposals",
+    "forward": "ngpm_runtime.inference.smc",
+    "smc": "ngpm_runtime.inference.smc",
+    "SMCResult": "ngpm_runtime.inference.smc",
+    "FinalParticle": "ngpm_runtime.inference.smc",
+    "SMCOptionError": "ngpm_runtime.inference.smc",
+}
+
+__all__ = sorted([*_EXPORTS, "grow", "GrowResult"])
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ngpm_runtime' has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -40,3 +40,11 @@ def test_blocker_really_blocks(tmp_path: Path) -> None:
     proc = run_blocked(SCRIPT + "import lark\n", tmp_path, str(VINES_SAMPLER), blocked=BLOCKED,
                        timeout=120)
     assert proc.returncode != 0 and "blocked: lark" in proc.stderr
+
+
+def test_package_grow_is_the_function_not_the_module() -> None:
+    import ngpm_runtime
+    import ngpm_runtime.grow  # noqa: F401  (importing the submodule must not rebind the name)
+    from ngpm_runtime import grow
+
+    assert callable(grow) and grow is ngpm_runtime.grow and grow.__module__ == "ngpm_runtime.grow"
