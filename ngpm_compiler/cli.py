@@ -16,6 +16,7 @@ COMMAND_MODULES = [
     "ngpm_compiler.cmd_targets",  # targets build, list, show
     "ngpm_compiler.cmd_eval",  # eval
     "ngpm_compiler.cmd_demo",  # demo
+    "ngpm_compiler.cmd_serve",  # serve (needs the [web] extra)
 ]
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -174,29 +175,39 @@ class GrowResult:
 
 
 class _Ticking:
-    """A likelihood that ticks a progress bar once per SMC step, then defers to `inner`."""
+    """A likelihood that ticks a progress bar (if any) once per SMC step, defers to `inner`,
+    then calls `on_step(state, canvas, draw)` (if any)."""
 
-    def __init__(self, inner: Any, bar: Any) -> None:
+    def __init__(self, inner: Any, bar: Any, on_step: Callable[..., None] | None = None) -> None:
         self.inner = inner
         self.bar = bar
+        self.on_step = on_step
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return self.inner.start(n)
 
     def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
-        self.bar.update(1)
-        return self.inner.increment(state, canvas, draw)
+        if self.bar is not None:
+            self.bar.update(1)
+        inc = self.inner.increment(state, canvas, draw)
+        if self.on_step is not None:
+            self.on_step(state, canvas, draw)
+        return inc
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
 
 
 def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10,
-         seed: int = 0, likelihood: str = "shape", progress: bool = False) -> GrowResult:
+         seed: int = 0, likelihood: str = "shape", progress: bool = False,
+         on_step: Callable[..., None] | None = None) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
     likelihood: "shape" (match the target) or "circuit" (the target, optional, only gives
     the start pose and the target features). `progress` shows a bar on runs over a second.
+    `on_step(state, canvas, draw)`, when given, is called after every SMC step's likelihood
+    increment (the likelihood's per-particle state, the canvas, the step's draw batch with
+    `.idx` and `.prims`); it may raise to stop the run.
     """
     from ngpm_runtime.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
     from ngpm_runtime.raster import rasterize
@@ -221,7 +232,8 @@ def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10
         from tqdm import tqdm
 
         bar = tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None)
-        like = _Ticking(like, bar)
+    if bar is not None or on_step is not None:
+        like = _Ticking(like, bar, on_step)
     t0 = time.perf_counter()
     try:
         result = smc(program, like, n_particles, proposal=guide, seed=seed, start=start,
