@@ -697,9 +697,27 @@ def bind(port: int, host: str = "127.0.0.1") -> socket.socket:
     return sock
 
 
+def warm_up(config: WebConfig) -> None:
+    """A tiny run on a demo picture with each grammar's first guide, so that the first
+    visitor does not wait for imports and onnxruntime's first calls."""
+    from ngpm_runtime import bundled
+    from ngpm_runtime.targets import load_target
+
+    try:
+        target = load_target(bundled.demo_target_path("heart"), config.limits.target_size)
+        for g in config.grammars:
+            job = Job(g, g.guides[0] if g.guides else None, target, 2, 0)
+            done_event(job, _grow(job, lambda *_: None), 0)
+    except Exception as err:  # a warm-up problem is not worth refusing to start over
+        log.warning("warm-up run failed: %s", err)
+
+
 def make_server(config: WebConfig, sock: socket.socket, log_level: str = "warning") -> Any:
-    """A uvicorn Server for the app; run it with `server.run(sockets=[sock])`."""
+    """A uvicorn Server for the app (after a warm-up run); run it with
+    `server.run(sockets=[sock])`."""
     import uvicorn
+
+    warm_up(config)
 
     host, port = sock.getsockname()[:2]
     hosts = tuple(sorted(set(HOSTS) | {host}))
