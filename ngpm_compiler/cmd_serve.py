@@ -63,6 +63,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         webbrowser.open(url)
     try:
         make_server(config, sock).run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn shut down cleanly, then passes Ctrl-C on
+        pass
     finally:
         sock.close()
+    print("ngpmc serve: stopped")
     return 0

@@ -8,7 +8,13 @@ from __future__ import annotations
 import base64
 import io
 import json
+import re
+import shutil
+import signal
 import socket
+import subprocess
+import sys
+import urllib.request
 import warnings
 from pathlib import Path
 from typing import Any
@@ -407,3 +413,25 @@ def test_serve_command_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -
         assert main(["serve", "--port", str(port)]) == 1
     err = capsys.readouterr().err
     assert "cannot listen on 127.0.0.1" in err and "Traceback" not in err
+
+
+def test_serve_prints_the_url_answers_and_stops_on_ctrl_c() -> None:
+    pytest.importorskip("uvicorn", reason="ngpmc serve needs the [web] extra (uvicorn)")
+    exe = shutil.which("ngpmc")
+    cmd = [exe] if exe else [sys.executable, "-m", "ngpm_compiler.cli"]
+    proc = subprocess.Popen([*cmd, "serve", "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [proc.stdout.readline(), proc.stdout.readline()]
+        assert lines[0].startswith("ngpmc serve: vines (1 guide)"), lines
+        url = re.search(r"open (http://127\.0\.0\.1:\d+/)", lines[1]).group(1)
+        with urllib.request.urlopen(url + "api/options", timeout=30) as resp:
+            assert json.load(resp)["grammars"][0]["id"] == "vines"
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "stopped" in out and "Traceback" not in err

@@ -397,10 +397,16 @@ async function grow() {
   setStatus("Starting…");
   let finished = false;
   try {
-    const resp = await fetch("/api/grow", {
-      method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify(body), signal: controller.signal,
-    });
+    let resp;
+    for (let attempt = 0; ; attempt++) {
+      resp = await fetch("/api/grow", {
+        method: "POST", headers: { "Content-Type": "application/json" },
+        body: JSON.stringify(body), signal: controller.signal,
+      });
+      // 409: the run just stopped is still winding down on the server; ask again shortly
+      if (resp.status !== 409 || attempt >= 6) break;
+      await new Promise((r) => setTimeout(r, 250));
+    }
     if (!resp.ok) {
       const data = await resp.json().catch(() => ({ error: `${resp.status} ${resp.statusText}` }));
       throw new Error(data.error || resp.statusText);
