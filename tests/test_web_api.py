@@ -14,6 +14,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import urllib.request
 import warnings
 from pathlib import Path
@@ -341,6 +342,25 @@ def test_one_run_per_client_and_a_busy_server(config: Any) -> None:
         assert resp.status_code == 200
         assert events(resp)[-1][0] == "done"
     assert app.state.slots.active() == 0
+
+
+def test_two_clients_grow_at_once_as_they_would_alone(config: Any) -> None:
+    app = create_app(config)
+    alone = [grow(TestClient(app, base_url=BASE), seed=s, particles=6)[-1][1]["primitives"]
+             for s in (1, 2)]
+    results: dict[int, Any] = {}
+
+    def one(seed: int) -> None:
+        client = TestClient(app, base_url=BASE, headers={"x-client-id": f"client-{seed:08d}"})
+        results[seed] = grow(client, seed=seed, particles=6)[-1]
+
+    threads = [threading.Thread(target=one, args=(s,)) for s in (1, 2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert [results[s][0] for s in (1, 2)] == ["done", "done"]
+    assert [results[s][1]["primitives"] for s in (1, 2)] == alone  # shared guide, no crosstalk
 
 
 def test_a_run_over_its_time_limit_ends_with_an_error_event(config: Any) -> None:

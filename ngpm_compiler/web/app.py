@@ -643,10 +643,11 @@ def create_app(config: WebConfig, hosts: tuple[str, ...] = HOSTS) -> Starlette:
             raise ApiError(404, f"no example {name!r}; choose from "
                                 f"{', '.join(bundled.DEMO_TARGETS)}")
         try:
-            t = await asyncio.to_thread(load_target, bundled.demo_target_path(name), SHAPE_SIZE)
+            t = await asyncio.to_thread(load_target, bundled.demo_target_path(name), None)
         except TargetError as err:
             raise ApiError(500, str(err)) from None
-        return JSONResponse({"name": name, "mask": mask_data_url(t.mask, (0, 0, 0, 255)),
+        return JSONResponse({"name": name,
+                             "mask": mask_data_url(shape_mask(t.mask), (0, 0, 0, 255)),
                              "start": [round(v, 5) for v in t.start]})
 
     routes = [
@@ -669,12 +670,29 @@ def create_app(config: WebConfig, hosts: tuple[str, ...] = HOSTS) -> Starlette:
     return app
 
 
+def shape_mask(mask: np.ndarray, size: int = SHAPE_SIZE) -> np.ndarray:
+    """A square mask at size x size: area-averaged down, or smoothly (bicubic) up, so that a
+    small picture does not land on the canvas as big square pixels."""
+    from ngpm_runtime.targets import resize_mask
+
+    if mask.shape[0] >= size:
+        return resize_mask(mask, size)
+    from PIL import ImageFilter
+
+    img = Image.fromarray(np.asarray(mask, dtype=np.uint8) * 255)
+    big = img.resize((size, size), Image.Resampling.BICUBIC)
+    big = big.filter(ImageFilter.GaussianBlur(0.6 * size / mask.shape[0]))
+    return np.asarray(big) >= 128
+
+
 def _shape(value: Any, polarity: str, limits: Limits) -> dict[str, Any]:
-    from ngpm_runtime.targets import mask_from_image
+    from ngpm_runtime.targets import check_mask, mask_from_image
 
     img = decode_image(value, limits)
     try:
-        mask, _ = mask_from_image(img, SHAPE_SIZE, polarity, "picture")
+        mask, _ = mask_from_image(img, None, polarity, "picture")
+        mask = shape_mask(mask)
+        check_mask(mask, "picture")
     except TargetError as err:
         raise ApiError(422, _target_message(err)) from None
     return {"mask": mask_data_url(mask, (0, 0, 0, 255)), "size": list(mask.shape)}
