@@ -117,6 +117,12 @@ def test_draw_a_stroke_grow_and_see_the_vine(page: Any) -> None:
     draw_stroke(page, [(0.5, 0.55), (0.72, 0.22)])
     assert page.is_hidden("#hint") and painted_pixels(page, "ink") > 1000
     assert painted_pixels(page, "vine") == 0
+    # place the start: click at the foot of the stroke, drag upward
+    page.click("[data-tool='start']")
+    draw_stroke(page, [(0.5, 0.86), (0.5, 0.7)])
+    assert not page.is_checked("#auto-start") and painted_pixels(page, "marks") > 0
+    assert "placed at (0.50, 0.86), heading 90°" in page.inner_text("#start-note")
+    page.click("[data-tool='brush']")
     page.click("#grow")
     page.wait_for_selector("#result[data-state='done']", timeout=60000)
     assert painted_pixels(page, "vine") > 500  # the vine is drawn over the shape

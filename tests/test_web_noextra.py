@@ -1,4 +1,4 @@
-"""Without the [web] extra, `ngpmc` still works and `ngpmc serve` says what to install."""
+"""Without the [web] extra, `ngpmc` imports without it and `ngpmc serve` says what to install."""
 
 from __future__ import annotations
 
