@@ -19,8 +19,8 @@ from ngpm_compiler.cli import build_parser, main
 
 README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [
-    'pip install torch==2.13.0 && pip install -e ".[train,dev]" && ngpmc demo -o demo_out',
-    'pip install torch==2.13.0 && pip install -e ".[train,dev]" && python3 -m pytest',
+    'pip install torch==2.13.0 && pip install -e ".[train,dev,web]" && ngpmc demo -o demo_out',
+    'pip install torch==2.13.0 && pip install -e ".[train,dev,web]" && python3 -m pytest',
 ]
 # the tour, scaled down so that it runs in seconds
 SMALLER = {"--count": "3", "-n": "3", "--particles": "8"}

@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "ngpm_compiler.cli.targets",  # targets build, list, show
     "ngpm_compiler.cli.evaluate",  # eval
     "ngpm_compiler.cli.demo",  # demo
+    "ngpm_compiler.cli.serve",  # serve (needs the [web] extra)
 ]
 
 

@@ -241,7 +241,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
 
     with tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None) as bar:
         res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-                   on_step=lambda: bar.update(1))
+                   on_step=lambda *_: bar.update(1))
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
     score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else

@@ -36,9 +36,9 @@ class GrowResult:
 
 
 class _Ticking:
-    """A likelihood that calls `on_step` once per SMC step, then defers to `inner`."""
+    """A likelihood that defers to `inner`, then calls `on_step(state, canvas, draw)`."""
 
-    def __init__(self, inner: Any, on_step: Callable[[], None]) -> None:
+    def __init__(self, inner: Any, on_step: Callable[..., None]) -> None:
         self.inner = inner
         self.on_step = on_step
 
@@ -46,8 +46,9 @@ class _Ticking:
         return self.inner.start(n)
 
     def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
-        self.on_step()
-        return self.inner.increment(state, canvas, draw)
+        inc = self.inner.increment(state, canvas, draw)
+        self.on_step(state, canvas, draw)
+        return inc
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
@@ -67,16 +68,18 @@ def make_likelihood(kind: str, program: Program, target: Any = None) -> Any:
 
 def grow(program: Program, target: Any = None, guide: Any = None, n_particles: int = 10,
          seed: int = 0, likelihood: str = "shape", *,
-         on_step: Callable[[], None] | None = None, record_trace: bool | str = False,
+         on_step: Callable[..., None] | None = None, record_trace: bool | str = False,
          start: tuple[float, float, float] | None = None,
          canvas_size: tuple[int, int] | None = None) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
     target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
     circuit likelihood. likelihood: "shape" (match the target) or "circuit" (the target,
-    optional, only gives the start pose and the target features). on_step: called once per
-    SMC step (a progress bar). record_trace, start (world pose overriding the target's)
-    and canvas_size (default: the target's size) are passed to `smc`.
+    optional, only gives the start pose and the target features). on_step: called after
+    every SMC step's likelihood increment as `on_step(state, canvas, draw)` (the likelihood's
+    per-particle state, the canvas, the step's draw batch with `.idx` and `.prims`); it may
+    raise to stop the run (a progress bar, live frames). record_trace, start (world pose
+    overriding the target's) and canvas_size (default: the target's size) go to `smc`.
     """
     viewport = program.viewport
     if viewport is None:

@@ -1,0 +1,456 @@
+"""`ngpmc serve`'s API through Starlette's test client: the page and its files, options,
+/api/grow's event stream (target, frames that rebuild the growing vine, done), /api/shape,
+the examples, and bad input: every refusal is JSON `{"error": ...}` with a fitting status,
+one run per client, a busy server, the time limit."""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import urllib.request
+import warnings
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("starlette", reason="ngpmc serve needs the [web] extra: "
+                                        'pip install -e ".[web]"')
+with warnings.catch_warnings():  # Starlette 1.x prefers httpx2 and warns about httpx
+    warnings.simplefilter("ignore")
+    try:
+        from starlette.testclient import TestClient
+    except (ImportError, RuntimeError):
+        pytest.skip("Starlette's test client needs httpx (pip install httpx)",
+                    allow_module_level=True)
+
+from ngpm_runtime import bundled  # noqa: E402
+from PIL import Image, ImageDraw  # noqa: E402
+from repo_paths import REPO  # noqa: E402
+
+from ngpm_compiler.cli import main  # noqa: E402
+from ngpm_compiler.web.app import (  # noqa: E402
+    FrameStream,
+    Limits,
+    Run,
+    RunStopped,
+    create_app,
+    load_config,
+)
+
+BASE = "http://127.0.0.1"
+
+
+def png_url(img: Image.Image, fmt: str = "PNG") -> str:
+    buf = io.BytesIO()
+    img.save(buf, format=fmt)
+    mime = {"PNG": "png", "JPEG": "jpeg", "PPM": "x-portable-pixmap"}.get(fmt, fmt.lower())
+    return f"data:image/{mime};base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def drawing(size: int = 320) -> Image.Image:
+    """A thick Y, dark on white, as the page sends its canvas."""
+    img = Image.new("RGB", (size, size), "white")
+    d = ImageDraw.Draw(img)
+    s = size / 320
+    d.line([(160 * s, 300 * s), (160 * s, 170 * s), (70 * s, 50 * s)], fill="black",
+           width=int(24 * s), joint="curve")
+    d.line([(160 * s, 170 * s), (250 * s, 50 * s)], fill="black", width=int(24 * s))
+    return img
+
+
+@pytest.fixture(scope="module")
+def config() -> Any:
+    return load_config()
+
+
+@pytest.fixture()
+def client(config: Any) -> TestClient:
+    return TestClient(create_app(config), base_url=BASE)
+
+
+def events(resp: Any) -> list[tuple[str, dict[str, Any]]]:
+    """The (event, data) pairs of a server-sent event stream."""
+    out: list[tuple[str, dict[str, Any]]] = []
+    event = None
+    for line in resp.iter_lines():
+        if line.startswith("event:"):
+            event = line[6:].strip()
+        elif line.startswith("data:"):
+            out.append((event or "message", json.loads(line[5:])))
+    return out
+
+
+def grow(client: TestClient, **body: Any) -> list[tuple[str, dict[str, Any]]]:
+    body.setdefault("image", png_url(drawing()))
+    with client.stream("POST", "/api/grow", json=body) as resp:
+        assert resp.status_code == 200, resp.read()
+        assert resp.headers["content-type"].startswith("text/event-stream")
+        return events(resp)
+
+
+def rebuild(frames: list[dict[str, Any]]) -> list[list[Any]]:
+    """The vine the page shows after the frames: `reset` replaces it, `append` extends it."""
+    prims: list[list[Any]] = []
+    for f in frames:
+        prims = list(f["prims"]) if f["mode"] == "reset" else prims + f["prims"]
+    return prims
+
+
+def decode_data_url(url: str, mime: str) -> bytes:
+    head, data = url.split(",", 1)
+    assert head == f"data:{mime};base64"
+    return base64.b64decode(data)
+
+
+def assert_error(resp: Any, status: int, *words: str) -> None:
+    assert resp.status_code == status, (resp.status_code, resp.text)
+    assert resp.headers["content-type"].startswith("application/json")
+    body = resp.json()
+    assert set(body) == {"error"} and isinstance(body["error"], str), body
+    assert "Traceback" not in body["error"]
+    for w in words:
+        assert w.lower() in body["error"].lower(), body["error"]
+
+
+# --------------------------------------------------------------------------- the page
+
+
+def test_page_sets_a_client_cookie_and_serves_its_files(client: TestClient) -> None:
+    resp = client.get("/")
+    assert resp.status_code == 200
+    assert "text/html" in resp.headers["content-type"]
+    assert 'id="ink"' in resp.text and 'id="grow"' in resp.text
+    assert "ngpm_client" in resp.cookies
+    for path, kind in (("/static/app.js", "javascript"), ("/static/style.css", "text/css")):
+        r = client.get(path)
+        assert r.status_code == 200 and kind in r.headers["content-type"]
+
+
+def test_options_list_the_bundled_vines_and_guide_and_the_limits(client: TestClient) -> None:
+    opts = client.get("/api/options").json()
+    vines = opts["grammars"][0]
+    assert (vines["id"], vines["source"]) == ("vines", "bundled")
+    assert [g["id"] for g in vines["guides"]] == ["bundled"]
+    assert opts["examples"] == list(bundled.DEMO_TARGETS)
+    assert opts["limits"]["max_particles"] == Limits().max_particles
+    assert opts["limits"]["default_particles"] == 10
+
+
+def test_unknown_paths_methods_and_hosts_are_refused(client: TestClient) -> None:
+    assert_error(client.get("/api/nothing"), 404, "no such page")
+    assert_error(client.get("/api/grow"), 405, "GET")
+    resp = client.get("/", headers={"host": "evil.example"})
+    assert resp.status_code == 400  # DNS rebinding: only 127.0.0.1 / localhost
+
+
+# --------------------------------------------------------------------------- growing
+
+
+def test_grow_streams_the_target_frames_and_the_result(client: TestClient) -> None:
+    evs = grow(client, particles=8, seed=1, polarity="dark")
+    kinds = [e for e, _ in evs]
+    assert kinds[0] == "target" and kinds[-1] == "done"
+    assert set(kinds[1:-1]) == {"frame"} and len(kinds) > 5
+    target = evs[0][1]
+    assert target["viewport"] == list(bundled.bundled_program().viewport)
+    assert target["guide"] == "bundled vines guide" and target["particles"] == 8
+    mask = Image.open(io.BytesIO(decode_data_url(target["mask"], "image/png")))
+    assert mask.size == (50, 50)
+    x, y, dx, dy = target["start"]
+    assert 0.4 < x < 0.6 and y > 0.7 and dy < -0.9  # automatic: the Y's foot, heading up
+
+    frames = [d for e, d in evs if e == "frame"]
+    assert frames[0]["mode"] == "append"
+    steps = [f["step"] for f in frames]
+    assert steps == sorted(steps)
+    vine = rebuild(frames)
+    assert vine and all(p[0] in ("seg", "leaf", "disk", "poly") for p in vine)
+
+    done = evs[-1][1]
+    assert done["guided"] is True and done["particles"] == 8
+    assert 0.2 < done["similarity"] <= 1.0 and done["seconds"] > 0
+    assert done["primitives"] and done["steps"] >= len(frames)
+    png = Image.open(io.BytesIO(decode_data_url(done["png"], "image/png")))
+    assert png.size == (512, 512)
+    svg = decode_data_url(done["svg"], "image/svg+xml").decode()
+    assert svg.startswith("<svg") and svg.count("<line") > 0
+
+
+def test_grow_is_reproducible_and_honors_guide_start_and_particles(client: TestClient) -> None:
+    a = grow(client, seed=3, particles=5, polarity="dark")[-1][1]
+    b = grow(client, seed=3, particles=5, polarity="dark")[-1][1]
+    assert a["primitives"] == b["primitives"] and a["similarity"] == b["similarity"]
+
+    start = {"x": 0.5, "y": 0.9, "dx": 0.0, "dy": -2.0}
+    evs = grow(client, guide=None, particles=3, start=start, polarity="dark")
+    assert evs[0][1]["guide"] is None and evs[0][1]["start"] == [0.5, 0.9, 0.0, -1.0]
+    assert evs[-1][0] == "done" and evs[-1][1]["guided"] is False
+
+    evs = grow(client, guide="bundled", particles=1, start=[0.5, 0.9, 0, -1])
+    assert evs[-1][0] == "done" and evs[-1][1]["particles"] == 1
+
+
+def test_a_picture_with_a_light_shape_on_dark_and_other_formats_grow(client: TestClient) -> None:
+    inverted = Image.eval(drawing(200).convert("L"), lambda v: 255 - v)
+    for fmt in ("JPEG", "GIF", "BMP", "WEBP"):
+        evs = grow(client, image=png_url(inverted.convert("RGB"), fmt), particles=2)
+        assert evs[-1][0] == "done", (fmt, evs[-1])
+
+
+def test_frame_stream_follows_the_best_particle_through_resampling() -> None:
+    sent: list[dict[str, Any]] = []
+    stream = FrameStream(lambda e, d: sent.append(d), Run("me", 60.0))
+
+    class Draw:
+        def __init__(self, idx: list[int], prims: list[tuple]) -> None:
+            self.idx, self.prims = np.array(idx), prims
+
+    seg = [("seg", float(i), 0.0, float(i), 1.0, 0.5) for i in range(6)]
+    state = {"ll": np.array([0.0, 1.0, 0.0])}
+    stream(state, None, Draw([0, 1, 2], seg[:3]))  # best: particle 1
+    state["ll"][:] = [2.0, 1.0, 0.0]
+    stream(state, None, Draw([0, 1], seg[3:5]))  # best: particle 0, another lineage
+    anc = np.array([0, 0, 2])  # resampling, as smc() does it to every state array
+    for key in state:
+        state[key] = state[key][anc]
+    state["ll"][:] = [2.0, 3.0, 0.0]
+    stream(state, None, Draw([1], seg[5:]))  # best: particle 1, a copy of 0 that grew
+    state["ll"][:] = [2.0, 3.0, 0.0]
+    stream(state, None, Draw([2], [seg[0]]))  # the best did not change: no frame
+    assert [(f["mode"], f["prims"]) for f in sent] == [
+        ("append", [list(seg[1])]),
+        ("reset", [list(seg[0]), list(seg[3])]),
+        ("append", [list(seg[5])]),
+    ]
+    assert rebuild(sent) == [list(seg[0]), list(seg[3]), list(seg[5])]
+
+
+def test_a_run_stops_when_cancelled_or_out_of_time() -> None:
+    run = Run("me", 60.0)
+    run.check()
+    run.cancel.set()
+    with pytest.raises(RunStopped, match="stopped"):
+        run.check()
+    with pytest.raises(RunStopped, match="time limit"):
+        Run("me", 0.0).check()
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def big_png(w: int, h: int) -> str:
+    return png_url(Image.new("1", (w, h), 1))
+
+
+BAD_GROW = [
+    ({"particles": 0}, 400, "'particles' must be from 1 to 500"),
+    ({"particles": 501}, 400, "from 1 to 500"),
+    ({"particles": "ten"}, 400, "whole number"),
+    ({"particles": True}, 400, "whole number"),
+    ({"particles": 2.5}, 400, "whole number"),
+    ({"seed": -1}, 400, "'seed'"),
+    ({"grammar": "oak"}, 400, "unknown grammar 'oak'"),
+    ({"grammar": 3}, 400, "unknown grammar"),
+    ({"guide": "mine"}, 400, "unknown guide 'mine'"),
+    ({"start": {"x": 1.5, "y": 0, "dx": 0, "dy": -1}}, 400, "[0, 1]"),
+    ({"start": {"x": 0.5, "y": 0.5, "dx": 0, "dy": 0}}, 400, "must not be zero"),
+    ({"start": [0.5, 0.5, 1]}, 400, "four numbers"),
+    ({"start": {"x": 0.5, "y": 0.5, "dx": 0, "dy": "up"}}, 400, "four numbers"),
+    ({"polarity": "purple"}, 400, "'polarity'"),
+    ({"colour": "green"}, 400, "unknown field(s): colour"),
+    ({"image": None}, 400, "data url"),
+    ({"image": "data:image/png,abc"}, 400, "base64 data url"),
+    ({"image": "data:image/png;base64,&&&"}, 400, "not valid base64"),
+    ({"image": "data:image/png;base64," + base64.b64encode(b"hello").decode()}, 415,
+     "not an image"),
+    ({"image": "data:image/png;base64," + base64.b64encode(b"\x89PNG\r\n\x1a\n" + b"\0" * 60)
+      .decode()}, 415, "not an image"),
+    ({"image": png_url(Image.new("RGB", (40, 40)), "PPM")}, 415, "PPM images are not accepted"),
+    ({"image": big_png(4097, 16)}, 413, "4097 x 16 px"),
+    ({"image": png_url(Image.new("RGB", (300, 300), "white"))}, 422, "holds no shape"),
+    ({"image": png_url(Image.new("RGB", (4, 4), "white"))}, 422, "tiny"),
+    ({"image": png_url(Image.new("RGB", (300, 300), "black"))}, 422, "holds no shape"),
+]
+
+
+@pytest.mark.parametrize("body, status, words", BAD_GROW,
+                         ids=[f"{i}-{s}" for i, (_, s, _) in enumerate(BAD_GROW)])
+def test_bad_grow_requests_get_a_clear_json_error(client: TestClient, body: dict[str, Any],
+                                                  status: int, words: str) -> None:
+    full = {"image": png_url(drawing(100)), **body}
+    assert_error(client.post("/api/grow", json=full), status, words)
+
+
+def test_a_truncated_image_and_a_shape_too_small_are_422_or_400(client: TestClient) -> None:
+    buf = io.BytesIO()
+    drawing(200).save(buf, format="PNG")
+    cut = "data:image/png;base64," + base64.b64encode(buf.getvalue()[:400]).decode()
+    assert_error(client.post("/api/grow", json={"image": cut}), 400, "cannot decode")
+    dot = Image.new("RGB", (500, 500), "white")
+    ImageDraw.Draw(dot).rectangle((10, 10, 14, 14), fill="black")
+    assert_error(client.post("/api/grow", json={"image": png_url(dot), "polarity": "dark"}),
+                 422, "no shape")
+
+
+def test_bodies_that_are_not_json_objects_are_refused(client: TestClient) -> None:
+    assert_error(client.post("/api/grow", content=b"image=1",
+                             headers={"content-type": "application/x-www-form-urlencoded"}),
+                 415, "json")
+    assert_error(client.post("/api/grow", content=b"{not json",
+                             headers={"content-type": "application/json"}), 400, "not valid json")
+    assert_error(client.post("/api/grow", json=[1, 2]), 400, "json object")
+    assert_error(client.post("/api/grow", json={}), 400, "'image' is missing")
+
+
+def test_oversized_requests_and_images_are_413(config: Any) -> None:
+    small = load_config(limits=Limits(max_body_bytes=2000, max_image_bytes=1000))
+    client = TestClient(create_app(small), base_url=BASE)
+    noisy = Image.fromarray(np.random.default_rng(0).integers(0, 255, (60, 60, 3), np.uint8))
+    assert_error(client.post("/api/grow", json={"image": png_url(noisy)}), 413,
+                 "larger than")
+    limited = load_config(limits=Limits(max_image_bytes=1000))
+    client = TestClient(create_app(limited), base_url=BASE)
+    assert_error(client.post("/api/grow", json={"image": png_url(noisy)}), 413,
+                 "image file is larger than")
+
+
+def test_one_run_per_client_and_a_busy_server(config: Any) -> None:
+    app = create_app(load_config(limits=Limits(max_runs=2)))
+    client = TestClient(app, base_url=BASE)
+    body = {"image": png_url(drawing(100)), "particles": 1}
+    mine = app.state.slots.acquire("client-aaaaaaaa")  # a run of this client is going
+    assert_error(client.post("/api/grow", json=body, headers={"x-client-id": "client-aaaaaaaa"}),
+                 409, "still going")
+    other = app.state.slots.acquire("client-bbbbbbbb")  # and a second client's: full
+    resp = client.post("/api/grow", json=body, headers={"x-client-id": "client-cccccccc"})
+    assert_error(resp, 503, "busy")
+    assert resp.headers["retry-after"] == "2"
+    app.state.slots.release(mine)
+    app.state.slots.release(other)
+    with client.stream("POST", "/api/grow", json=body,
+                       headers={"x-client-id": "client-aaaaaaaa"}) as resp:
+        assert resp.status_code == 200
+        assert events(resp)[-1][0] == "done"
+    assert app.state.slots.active() == 0
+
+
+def test_two_clients_grow_at_once_as_they_would_alone(config: Any) -> None:
+    app = create_app(config)
+    alone = [grow(TestClient(app, base_url=BASE), seed=s, particles=6)[-1][1]["primitives"]
+             for s in (1, 2)]
+    results: dict[int, Any] = {}
+
+    def one(seed: int) -> None:
+        client = TestClient(app, base_url=BASE, headers={"x-client-id": f"client-{seed:08d}"})
+        results[seed] = grow(client, seed=seed, particles=6)[-1]
+
+    threads = [threading.Thread(target=one, args=(s,)) for s in (1, 2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert [results[s][0] for s in (1, 2)] == ["done", "done"]
+    assert [results[s][1]["primitives"] for s in (1, 2)] == alone  # shared guide, no crosstalk
+
+
+def test_a_run_over_its_time_limit_ends_with_an_error_event(config: Any) -> None:
+    app = create_app(load_config(limits=Limits(timeout_s=1e-9)))
+    client = TestClient(app, base_url=BASE)
+    evs = grow(client, particles=4)
+    assert evs[-1][0] == "error" and "time limit" in evs[-1][1]["error"]
+    assert app.state.slots.active() == 0  # the slot is free again
+    assert grow(client, particles=4)[-1][0] == "error"
+
+
+# --------------------------------------------------------------------------- pictures in
+
+
+def test_shape_finds_the_shape_of_an_uploaded_picture(client: TestClient) -> None:
+    light_on_dark = Image.new("RGB", (400, 200), (20, 20, 40))
+    ImageDraw.Draw(light_on_dark).ellipse((150, 50, 250, 150), fill=(250, 240, 200))
+    out = client.post("/api/shape", json={"image": png_url(light_on_dark, "JPEG")}).json()
+    mask = np.asarray(Image.open(io.BytesIO(decode_data_url(out["mask"], "image/png"))))
+    assert mask.shape == (256, 256, 4) and out["size"] == [256, 256]
+    opaque = mask[..., 3] > 0
+    assert opaque[128, 128] and not opaque[5, 128] and not opaque[128, 5]
+    assert 0.05 < opaque.mean() < 0.3  # the disk, padded to a square
+    assert_error(client.post("/api/shape", json={"image": png_url(Image.new("L", (50, 50)))}),
+                 422, "no shape")
+    assert_error(client.post("/api/shape", json={"image": "x", "extra": 1}), 400, "extra")
+
+
+def test_examples_are_the_demo_pictures_with_their_starts(client: TestClient) -> None:
+    assert client.get("/api/examples").json()["examples"] == list(bundled.DEMO_TARGETS)
+    heart = client.get("/api/examples/heart").json()
+    assert heart["name"] == "heart" and len(heart["start"]) == 4
+    Image.open(io.BytesIO(decode_data_url(heart["mask"], "image/png"))).verify()
+    assert_error(client.get("/api/examples/tree"), 404, "no example 'tree'")
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def test_command_line_grammars_and_guides_are_offered() -> None:
+    vines_lsys = str(REPO / "grammars" / "vines.lsys")
+    cfg = load_config(vines_lsys)
+    assert [g.id for g in cfg.grammars] == ["cli", "vines"]
+    assert [c.id for c in cfg.grammars[0].guides] == ["bundled"]  # same grammar hash
+    cfg = load_config(str(REPO / "grammars" / "chain.lsys"))
+    assert cfg.grammars[0].guides == [] and "chain" in cfg.grammars[0].name
+    cfg = load_config(guide=str(bundled.guide_path()))
+    assert [c.id for c in cfg.grammars[0].guides] == ["cli", "bundled"]
+    assert load_config(guide="none").grammars[0].guides == []
+    client = TestClient(create_app(load_config(str(REPO / "grammars" / "chain.lsys"))),
+                        base_url=BASE)
+    opts = client.get("/api/options").json()
+    assert [g["id"] for g in opts["grammars"]] == ["cli", "vines"]
+    evs = grow(client, grammar="cli", particles=3)
+    assert evs[0][1]["guide"] is None and evs[-1][0] == "done"
+    assert_error(client.post("/api/grow", json={"image": png_url(drawing(100)),
+                                                "grammar": "cli", "guide": "bundled"}),
+                 400, "unknown guide")
+
+
+def test_serve_command_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["serve", "--port", "70000"]) == 1
+    assert "--port must be from 0 to 65535" in capsys.readouterr().err
+    assert main(["serve", "--grammar", "nope.lsys"]) == 1
+    assert "nope.lsys: no such grammar file" in capsys.readouterr().err
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        assert main(["serve", "--port", str(port)]) == 1
+    err = capsys.readouterr().err
+    assert "cannot listen on 127.0.0.1" in err and "Traceback" not in err
+
+
+def test_serve_prints_the_url_answers_and_stops_on_ctrl_c() -> None:
+    pytest.importorskip("uvicorn", reason="ngpmc serve needs the [web] extra (uvicorn)")
+    exe = shutil.which("ngpmc")
+    cmd = [exe] if exe else [sys.executable, "-m", "ngpm_compiler.cli"]
+    proc = subprocess.Popen([*cmd, "serve", "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = [proc.stdout.readline(), proc.stdout.readline()]
+        assert lines[0].startswith("ngpmc serve: vines (1 guide)"), lines
+        url = re.search(r"open (http://127\.0\.0\.1:\d+/)", lines[1]).group(1)
+        with urllib.request.urlopen(url + "api/options", timeout=30) as resp:
+            assert json.load(resp)["grammars"][0]["id"] == "vines"
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "stopped" in out and "Traceback" not in err
