@@ -9,6 +9,8 @@ import sys
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler import pipes
+
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
     "ngpm_compiler.cmd_grammar",  # compile, check, sample
@@ -35,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    stdout = pipes.install()
     try:
         return int(args.handler(args) or 0)
     except NgpmError as err:
@@ -47,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
               file=sys.stderr)
         return 1
+    finally:
+        pipes.restore(stdout)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from ngpm_runtime.files import atomic_write
 from ngpm_runtime.targets import Target, auto_start, save_target
 from PIL import Image, ImageDraw, ImageFont
 
+from ngpm_compiler import argtypes
+
 CELL = 220  # pixels per picture in demo.png
 CAPTION = 34  # caption height under each picture
 HEADER = 26
@@ -47,7 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"output folder (default: {DEFAULT_OUT})")
     p.add_argument("-N", "--particles", type=int, default=10,
                    help="particles per run, guided and unguided (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="first seed (default 0)")
     p.add_argument("--runs", type=int, default=3,
                    help="runs per target and kind, seeds seed, seed+1, ... (default 3)")
     p.set_defaults(handler=cmd_demo)

@@ -20,6 +20,7 @@ from typing import Any
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler import argtypes
 from ngpm_compiler.eval_config import EvalConfig, quick_config
 from ngpm_compiler.evaluate import atomic_write
 
@@ -63,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--circuit-repeats", type=int, help="circuit runs of each kind (default 5)")
     p.add_argument("--stages", default=",".join(STAGES),
                    help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_eval)
 
 

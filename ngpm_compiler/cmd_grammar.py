@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler import argtypes
 from ngpm_compiler.compile import CompiledGrammar, compile_grammar, write_compiled
 
 
@@ -22,9 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser("sample", help="draw one forward sample of a grammar's prior")
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--out", required=True, help="image to write (.png or .svg)")
-    p.add_argument("--size", type=int, default=512, help="image size in pixels (default 512)")
+    p.add_argument("--size", type=argtypes.render_size, default=512,
+                   help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
     p.set_defaults(handler=cmd_sample)
 
 

@@ -12,6 +12,8 @@ import numpy as np
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program
 
+from ngpm_compiler import argtypes
+
 FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS (no torch here)
 
 
@@ -27,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--particles", type=int, default=600, help="SMC particles (default 600)")
     p.add_argument("-o", "--out", required=True, help="traces directory (resumed if present)")
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.add_argument("--mirror", action="store_true",
                    help="add mirrored copies of targets that have none")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
@@ -44,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=256, help="site visits per step")
     p.add_argument("--lr", type=float, default=0.005, help="Adam step size (default 0.005)")
     p.add_argument("--patience", type=int, default=4, help="early-stopping patience (epochs)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.set_defaults(handler=cmd_train)
 
@@ -66,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
                                    "bundled vines guide when the grammar is vines.lsys)")
     p.add_argument("-N", "--particles", type=int, default=10, help="particles (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
     p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
                    help="shape: match the image (default); circuit: the paper's circuit-like "

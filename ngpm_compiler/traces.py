@@ -279,8 +279,11 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest."""
     store = TraceStore(out_dir)
-    store.dir.mkdir(parents=True, exist_ok=True)
     program = load_grammar(cfg.grammar)
+    if program.viewport is None:
+        raise TraceError(f"{cfg.grammar}: the grammar has no 'viewport:' line; traces draw "
+                         "into target images, so add one (e.g. 'viewport: -12 12 -22 2')")
+    store.dir.mkdir(parents=True, exist_ok=True)
     targets = load_targets(cfg.targets, cfg.size, cfg.mirror)
     key = _config_key(cfg, program, targets)
     old = store.manifest()
