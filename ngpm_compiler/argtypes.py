@@ -4,6 +4,7 @@ command line is parsed, with one line that names the option's rule."""
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 MAX_RENDER_SIZE = 8192  # pixels per side of a rendered image (`sample --size`)
 
@@ -39,3 +40,28 @@ def render_size(text: str) -> int:
         raise argparse.ArgumentTypeError(
             f"image sizes are 1 to {MAX_RENDER_SIZE} pixels, got {value}")
     return value
+
+
+def add_max_modules(parser: argparse.ArgumentParser) -> None:
+    """The `--max-modules N` run option (the grammar's `max modules:` cap, overridden)."""
+    parser.add_argument(
+        "--max-modules", type=positive, default=None, metavar="N",
+        help="modules one particle may expand or interpret between two drawings before "
+             "it stops with status limit (default: the grammar's 'max modules:', else "
+             "20000)")
+
+
+def limit_note(particle: Any, program: Any, max_modules: int | None) -> str | None:
+    """One line saying which cap stopped `particle`, and how to raise it; None if none did."""
+    if getattr(particle, "status", None) != "limit" or not getattr(particle, "limit", None):
+        return None
+    from ngpm_runtime.smc import module_cap
+
+    if particle.limit == "max modules":
+        return (f"status limit: max modules ({module_cap(program, max_modules)} modules "
+                "expanded in one step without drawing); raise it with --max-modules or a "
+                "'max modules:' line, or make the grammar draw sooner")
+    if particle.limit == "max primitives":
+        return (f"status limit: max primitives ({program.max_primitives} drawn); raise it "
+                "with a 'max primitives:' line")
+    return f"status limit: {particle.limit}"

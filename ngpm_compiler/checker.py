@@ -103,6 +103,7 @@ class Checked:
     viewport: tuple[float, float, float, float] | None
     start: tuple[float, float, float]
     max_primitives: int
+    max_modules: int | None = None  # 'max modules:' (None: the runtime's default)
 
 
 def safe_name(name: str, taken: set[str], prefix: str) -> str:
@@ -310,6 +311,8 @@ class Checker:
         self.derivation_length = self.integer(values, "derivation length", 0,
                                               DEFAULT_DERIVATION_LENGTH)
         self.max_primitives = self.integer(values, "max primitives", 1, DEFAULT_MAX_PRIMITIVES)
+        self.max_modules = (self.integer(values, "max modules", 1, 0)
+                            if "max modules" in values else None)
 
     def integer(self, values: dict[str, list[float]], kind: str, least: int,
                 default: int) -> int:
@@ -505,7 +508,7 @@ class Checker:
             self.g, self.name, self.constants, self.const_names, axiom, productions,
             interpretation, dict(self.arity), self.sites, self.call_sites,
             self.derivation_length, "derivation length" in self.g.headers, self.angle,
-            self.viewport, self.start, self.max_primitives,
+            self.viewport, self.start, self.max_primitives, max_modules=self.max_modules,
         )
 
 

@@ -27,6 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", required=True, help="image to write (.png or .svg)")
     p.add_argument("--size", type=argtypes.render_size, default=512,
                    help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_sample)
 
 
@@ -69,9 +70,12 @@ def cmd_sample(args: argparse.Namespace) -> int:
     if suffix not in (".png", ".svg"):
         raise NgpmError(f"{args.out}: the output must be a .png or .svg file")
     program = load(args.grammar).program()
-    particle = forward(program, seed=args.seed)
+    particle = forward(program, seed=args.seed, max_modules=args.max_modules)
     prims = list(particle.primitives)
     save_render(prims, args.out, viewport=program.viewport, size=args.size)
     print(f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
           f"log prior {particle.log_prior:.3f}, status {particle.status} -> {args.out}")
+    note = argtypes.limit_note(particle, program, args.max_modules)
+    if note:
+        print(note)
     return 0

@@ -34,6 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="add mirrored copies of targets that have none")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
     p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
@@ -79,6 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
                    help="also write an animation of the growth (default path: the -o file "
                         "with .gif)")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_grow)
 
 
@@ -92,7 +94,8 @@ def cmd_traces(args: argparse.Namespace) -> int:
         raise NgpmError("-n, --particles and --workers must be at least 1")
     cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
                       particles=args.particles, seed=args.seed, workers=args.workers,
-                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size))
+                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size),
+                      max_modules=args.max_modules)
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
@@ -194,11 +197,13 @@ class _Ticking:
 
 
 def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10,
-         seed: int = 0, likelihood: str = "shape", progress: bool = False) -> GrowResult:
+         seed: int = 0, likelihood: str = "shape", progress: bool = False,
+         max_modules: int | None = None) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
     likelihood: "shape" (match the target) or "circuit" (the target, optional, only gives
     the start pose and the target features). `progress` shows a bar on runs over a second.
+    `max_modules` overrides the grammar's "max modules" cap (smc).
     """
     from ngpm_runtime.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
     from ngpm_runtime.raster import rasterize
@@ -227,7 +232,7 @@ def grow(program: Program, target: Any, guide: Any = None, n_particles: int = 10
     t0 = time.perf_counter()
     try:
         result = smc(program, like, n_particles, proposal=guide, seed=seed, start=start,
-                     canvas_size=size, target_mask=mask)
+                     canvas_size=size, target_mask=mask, max_modules=max_modules)
     finally:
         if bar is not None:
             bar.close()
@@ -353,7 +358,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
         print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
               f"prior: {ids}")
     res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-               progress=True)
+               progress=True, max_modules=args.max_modules)
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
     score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else
@@ -362,6 +367,9 @@ def cmd_grow(args: argparse.Namespace) -> int:
           f"{len(res.primitives)} primitives")
     if guide is not None:
         print(f"guide: {guide.path}")
+    note = argtypes.limit_note(res.smc.best, program, args.max_modules)
+    if note:
+        print(note)
     from ngpm_runtime.render import save_render
 
     mask = target.mask if target is not None else None

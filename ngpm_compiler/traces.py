@@ -37,6 +37,9 @@ from tqdm import tqdm
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
+# A run stops when this many jobs in a row are dropped: the grammar (nearly) never draws
+# enough, and would otherwise run forever. At a drop rate of 50% it happens once in 10**15 jobs.
+MAX_DROPPED_IN_A_ROW = 50
 
 
 @dataclass
@@ -65,6 +68,7 @@ class TraceConfig:
     size: int = 50  # target size (pixels)
     min_primitives: int = MIN_PRIMITIVES
     shard_size: int = 50
+    max_modules: int | None = None  # the "max modules" cap (None: the grammar's or default)
 
 
 def load_grammar(path: str | Path) -> Program:
@@ -96,8 +100,8 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     return int(a) % n_targets, int(b)
 
 
-def run_job(program: Program, target: Any, seed: int, particles: int
-            ) -> tuple[list[tuple[int, np.ndarray, float]], int]:
+def run_job(program: Program, target: Any, seed: int, particles: int,
+            max_modules: int | None = None) -> tuple[list[tuple[int, np.ndarray, float]], int]:
     """Unguided SMC on one target; the best particle's trace and primitive count.
 
     The run records values only; the best particle alone is then replayed with its values
@@ -110,11 +114,11 @@ def run_job(program: Program, target: Any, seed: int, particles: int
     start = target.start_pose(viewport)
     result = smc(program, ShapeLikelihood(target.mask, viewport), particles, seed=seed,
                  record_trace="values", start=start, canvas_size=target.size,
-                 target_mask=target.mask)
+                 target_mask=target.mask, max_modules=max_modules)
     best = result.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,
-                   target_mask=target.mask)
+                   target_mask=target.mask, max_modules=max_modules)
     if again.primitives != best.primitives:
         raise ProgramError(f"program {program.name}: replaying the best particle's values "
                            "drew other primitives (generated code is not pure)")
@@ -248,13 +252,14 @@ def _init_worker(grammar: str, targets: str, size: int, mirror: bool) -> None:
     _WORKER["targets"] = load_targets(targets, size, mirror)
 
 
-def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], float]:
-    job, base_seed, particles, min_prims = args
+def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
+    job, base_seed, particles, min_prims = args[:4]
+    max_modules = args[4] if len(args) > 4 else None
     t0 = time.perf_counter()
     targets = _WORKER["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles)
+        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles, max_modules)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -262,10 +267,13 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[str, Any]:
-    return {"grammar_hash": program.grammar_hash, "grammar": program.name,
-            "targets": [t.name for t in targets], "particles": cfg.particles,
-            "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
-            "min_primitives": cfg.min_primitives}
+    key = {"grammar_hash": program.grammar_hash, "grammar": program.name,
+           "targets": [t.name for t in targets], "particles": cfg.particles,
+           "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
+           "min_primitives": cfg.min_primitives}
+    if cfg.max_modules is not None:  # only when set: older traces directories still resume
+        key["max_modules"] = cfg.max_modules
+    return key
 
 
 def _exit_on_sigterm() -> None:
@@ -313,19 +321,29 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     job_seconds: list[float] = list(old.get("job_seconds", [])) if old else []
 
     failed = int((done.get("n_prims", np.zeros(0)) < 0).sum())
+    in_a_row = 0  # jobs dropped since the last kept one (this run)
 
     def finish(arrays: dict[str, np.ndarray], seconds: float) -> None:
-        nonlocal kept, dropped, since_shard, failed
+        nonlocal kept, dropped, since_shard, failed, in_a_row
         store.write_pending(arrays)
         done_ids.add(int(arrays["jobs"][0]))
         job_seconds.append(seconds)
         if bool(arrays["kept"][0]):
             kept += 1
+            in_a_row = 0
             bar.update(1)
         else:
             dropped += 1
+            in_a_row += 1
             failed += int(arrays["n_prims"][0] < 0)
             bar.set_postfix(dropped=dropped)
+            if in_a_row >= MAX_DROPPED_IN_A_ROW:
+                raise TraceError(
+                    f"{cfg.grammar}: stopped after {in_a_row} jobs in a row were dropped: "
+                    f"their best particles drew fewer than {cfg.min_primitives} primitives "
+                    "(or none survived); make the grammar draw more (a longer axiom or "
+                    "derivation; try `ngpmc sample`) or raise its 'max modules:' cap if "
+                    "`ngpmc sample` reports that limit")
         since_shard += 1
         if since_shard >= cfg.shard_size:
             store.consolidate()
@@ -345,7 +363,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         if cfg.workers <= 1:
             _init_worker(cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
             while kept < cfg.n:
-                finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives)))
+                finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives,
+                                 cfg.max_modules)))
         else:
             ctx = mp.get_context("spawn")
             _exit_on_sigterm()
@@ -356,7 +375,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
                         job = next(ids)
                         running.append(pool.apply_async(
-                            _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives),)))
+                            _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives,
+                                       cfg.max_modules),)))
                     ready = [r for r in running if r.ready()]
                     if not ready:
                         running[0].wait(0.05)
