@@ -35,6 +35,8 @@ from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site, load_program
 from tqdm import tqdm
 
+from ngpm_compiler.pool_stop import stopping
+
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
 # A run stops when this many jobs in a row are dropped: the grammar (nearly) never draws
@@ -368,8 +370,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         else:
             ctx = mp.get_context("spawn")
             _exit_on_sigterm()
-            with ctx.Pool(cfg.workers, initializer=_init_worker,
-                          initargs=(cfg.grammar, cfg.targets, cfg.size, cfg.mirror)) as pool:
+            with stopping(ctx.Pool(cfg.workers, initializer=_init_worker,
+                          initargs=(cfg.grammar, cfg.targets, cfg.size, cfg.mirror))) as pool:
                 running: list[Any] = []
                 while kept < cfg.n or running:
                     while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
