@@ -32,6 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def load(path: str) -> CompiledGrammar:
+    if Path(path).is_dir():
+        raise NgpmError(f"{path}: is a folder, not a grammar file")
     if not Path(path).is_file():
         raise NgpmError(f"{path}: no such grammar file")
     return compile_grammar(Path(path), filename=path)
