@@ -40,6 +40,9 @@ def load(path: str) -> CompiledGrammar:
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
+    from ngpm_compiler.outpaths import check_output_folder
+
+    check_output_folder(args.out)
     compiled = load(args.grammar)
     sampler, sites = write_compiled(compiled, args.out)
     print(f"{args.grammar}: wrote {sampler} and {sites} ({len(compiled.sites)} sites)")

@@ -49,6 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--patience", type=int, default=4, help="early-stopping patience (epochs)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--allow-missing", action="store_true",
+                   help="train even if shards listed in the manifest are missing or unreadable")
     p.set_defaults(handler=cmd_train)
 
     p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
@@ -106,10 +108,12 @@ def cmd_traces(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    from ngpm_compiler.outpaths import check_output_file
     from ngpm_compiler.traces import load_traces
     from ngpm_compiler.train import TrainConfig, save_model, train_guide
 
-    ts = load_traces(args.traces)
+    check_output_file(args.out, "model file")
+    ts = load_traces(args.traces, allow_missing=args.allow_missing)
     if not ts.data:
         raise NgpmError(f"{args.traces}: holds no site visits to train on")
     cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,
@@ -154,7 +158,9 @@ def load_model_file(path: str) -> Any:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from ngpm_compiler.export import write_onnx
+    from ngpm_compiler.outpaths import check_output_file
 
+    check_output_file(args.out, "ONNX file")
     model = load_model_file(args.model)
     path = write_onnx(model, args.out)
     print(f"{path}: {len(model.nets)} site networks, features {model.feature_set}, "

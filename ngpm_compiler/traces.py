@@ -210,9 +210,17 @@ class TraceStore:
         self.pending.mkdir(parents=True, exist_ok=True)
         _save_npz(self.pending / f"job_{int(arrays['jobs'][0]):08d}.npz", arrays)
 
-    def finished(self) -> dict[str, np.ndarray]:
-        """Every finished job's arrays (shards, then pending), deduplicated by job id."""
-        parts = [_load_npz(p) for p in self.shard_paths()]
+    def finished(self, unreadable: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Every finished job's arrays (shards, then pending), deduplicated by job id.
+        With a list `unreadable`, shards that cannot be read are skipped and named there."""
+        parts = []
+        for path in self.shard_paths():
+            try:
+                parts.append(_load_npz(path))
+            except TraceError:
+                if unreadable is None:
+                    raise
+                unreadable.append(path.name)
         seen: set[int] = set()
         for part in parts:
             seen.update(int(j) for j in part["jobs"])
@@ -261,7 +269,8 @@ def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
     targets = _WORKER["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles, max_modules)
+        cap = {} if max_modules is None else {"max_modules": max_modules}
+        trace, n_prims = run_job(_WORKER["program"], targets[ti], seed, particles, **cap)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -410,15 +419,18 @@ class TraceSet:
     dropped: int
 
 
-def load_traces(directory: str | Path) -> TraceSet:
-    """The kept traces of a traces directory, as training data per site."""
+def load_traces(directory: str | Path, allow_missing: bool = False) -> TraceSet:
+    """The kept traces of a traces directory, as training data per site. TraceError when
+    shards that the manifest lists are missing or unreadable, unless `allow_missing`."""
     store = TraceStore(directory)
     manifest = store.manifest()
     if manifest is None or manifest.get("format") != TRACE_FORMAT:
         raise TraceError(f"{store.dir}: not a traces directory (no manifest.json from "
                          "`ngpmc traces`)")
-    done = store.finished()
+    unreadable: list[str] = []
+    done = store.finished(unreadable)
     kept_jobs = np.sort(done["jobs"][done["kept"]])
+    _check_complete(store, manifest, unreadable, len(kept_jobs), allow_missing)
     sites = [Site.from_json(s) for s in manifest["sites"]]
     layouts = {int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
                for i, lay in manifest["layouts"].items()}
@@ -432,3 +444,27 @@ def load_traces(directory: str | Path) -> TraceSet:
         data[site.index] = SiteData(f, v, args, j)
     return TraceSet(manifest, sites, layouts, data, kept_jobs,
                     int(len(done["jobs"]) - len(kept_jobs)))
+
+
+def _check_complete(store: TraceStore, manifest: dict[str, Any], unreadable: list[str],
+                    kept: int, allow_missing: bool) -> None:
+    """TraceError naming the shards the manifest lists that are gone or unreadable (and the
+    kept traces that are missing), unless `allow_missing`; then only a warning on stderr."""
+    present = {p.name for p in store.shard_paths()}
+    gone = [name for name in manifest.get("shards", []) if name not in present]
+    lost = max(0, int(manifest.get("kept", kept)) - kept)
+    if not (gone or unreadable or lost):
+        return
+    problems = []
+    if gone:
+        problems.append(f"missing {', '.join(gone)}")
+    if unreadable:
+        problems.append(f"unreadable {', '.join(unreadable)}")
+    text = (f"{store.dir}: {'; '.join(problems) or 'files missing'}: {kept} of the "
+            f"{kept + lost} kept traces are there")
+    if allow_missing:
+        print(f"ngpmc: warning: {text}; training on those (--allow-missing)", file=sys.stderr)
+        return
+    raise TraceError(f"{text}; restore the files, run `ngpmc traces` again with the same "
+                     "options to redo the lost jobs (after removing unreadable shards), or "
+                     "pass --allow-missing to train on what is there")

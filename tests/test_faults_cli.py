@@ -110,3 +110,131 @@ def test_grow_into_a_closed_pipe_still_writes_its_files(horse: Path) -> None:
     assert "Broken pipe" not in err and "Traceback" not in err and "Exception" not in err
     for suffix in (".png", ".svg", ".gif"):
         assert out.with_suffix(suffix).stat().st_size > 0
+
+
+# --------------------------------------------------------------------------- hangs
+
+
+def test_traces_stops_when_every_job_is_dropped(tmp_path: Path) -> None:
+    """`Axiom: F F F` never reaches the keep threshold (10 primitives): traces stops with a
+    message that says why and what to change, and keeps its manifest."""
+    g = write(tmp_path / "f3.lsys", "viewport: -10 10 -10 10\nAxiom: F F F\nendlsystem\n")
+    data = tmp_path / "sc"
+    assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
+    proc = cli("traces", g, "--targets", str(data), "-n", "3", "--particles", "4", "-o",
+               str(tmp_path / "tr"), "--workers", "1", timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "stopped after 50 jobs in a row were dropped" in last
+    assert "fewer than 10 primitives" in last and "make the grammar draw more" in last
+    assert (tmp_path / "tr" / "manifest.json").is_file()
+
+
+EXPONENTIAL = ("viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\nproduction:\n"
+               "A --> A A\nendlsystem\n")
+
+
+def test_exponential_grammar_stops_at_the_module_cap(tmp_path: Path, horse: Path) -> None:
+    g = write(tmp_path / "exp.lsys", EXPONENTIAL)
+    proc = cli("grow", str(horse), "--grammar", g, "-N", "10", "-o", str(tmp_path / "e.png"),
+               timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "0 primitives" in proc.stdout
+    assert "status limit: max modules (20000 modules" in proc.stdout
+    assert "--max-modules" in proc.stdout
+    proc = cli("sample", g, "--max-modules", "500", "-o", str(tmp_path / "s.png"), timeout=60)
+    assert proc.returncode == 0 and "status limit" in proc.stdout
+    assert "max modules (500 modules" in proc.stdout
+
+
+def test_max_modules_header_sets_the_cap(tmp_path: Path) -> None:
+    g = write(tmp_path / "exp.lsys", EXPONENTIAL.replace("Axiom", "max modules: 300\nAxiom"))
+    proc = cli("sample", g, "-o", str(tmp_path / "s.png"), timeout=60)
+    assert proc.returncode == 0 and "max modules (300 modules" in proc.stdout
+
+
+def test_traces_on_an_exponential_grammar_ends(tmp_path: Path) -> None:
+    g = write(tmp_path / "exp.lsys", EXPONENTIAL)
+    data = tmp_path / "sc"
+    assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
+    proc = cli("traces", g, "--targets", str(data), "-n", "2", "--particles", "3",
+               "--max-modules", "200", "-o", str(tmp_path / "tr"), "--workers", "1",
+               timeout=120)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "jobs in a row were dropped" in proc.stderr
+
+
+def test_module_cap_option_is_checked(capsys) -> None:
+    assert "must be at least 1" in error_line(capsys, "sample", VINES, "-o", "x.png",
+                                              "--max-modules", "0")
+
+
+def test_traces_killed_by_timeout_exits_promptly(tmp_path: Path) -> None:
+    """SIGTERM to the whole process group, as `timeout 60 ngpmc traces ...` sends it: the
+    main process exits within seconds (it used to hang in Pool.terminate) with the
+    manifest written."""
+    import os
+    import signal
+    import time
+
+    data = tmp_path / "sc"
+    assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
+    for i, delay in enumerate((4.0, 5.5)):
+        out = tmp_path / f"tr{i}"
+        proc = subprocess.Popen([*NGPMC, "traces", VINES, "--targets", str(data), "-n", "500",
+                                 "--particles", "30", "--shard-size", "3", "-o", str(out)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        time.sleep(delay)
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            _, err = proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            pytest.fail("ngpmc traces hung after SIGTERM")
+        assert proc.returncode != 0 and "Traceback" not in err
+        assert (out / "manifest.json").is_file()
+
+
+# --------------------------------------------------------------------------- data loss
+
+
+@pytest.fixture(scope="module")
+def traces_dir(tmp_path_factory) -> Path:
+    tmp = tmp_path_factory.mktemp("traces")
+    data = tmp / "sc"
+    assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
+    out = tmp / "tr"
+    proc = cli("traces", str(REPO / "grammars" / "chain.lsys"), "--targets", str(data), "-n",
+               "6", "--particles", "4", "--shard-size", "2", "--workers", "1", "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_train_stops_on_a_missing_shard(traces_dir: Path, tmp_path: Path, capsys) -> None:
+    tr = tmp_path / "tr"
+    shutil.copytree(traces_dir, tr)
+    shards = sorted(tr.glob("shard_*.npz"))
+    assert len(shards) >= 2
+    shards[0].unlink()
+    model = tmp_path / "m.pt"
+    line = error_line(capsys, "train", str(tr), "-o", str(model), "--epochs", "1")
+    assert f"missing {shards[0].name}" in line and "--allow-missing" in line
+    assert "kept traces are there" in line and not model.exists()
+    shards[1].write_bytes(b"not a shard")
+    line = error_line(capsys, "train", str(tr), "-o", str(model), "--epochs", "1")
+    assert f"unreadable {shards[1].name}" in line
+    code, _, err = run(capsys, "train", str(tr), "-o", str(model), "--epochs", "1",
+                       "--allow-missing")
+    assert code == 0 and "warning" in err and model.is_file()
+
+
+def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Path,
+                                                 capsys) -> None:
+    (tmp_path / "existing").mkdir()
+    line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "existing"))
+    assert "is a folder; -o wants the model file to write" in line
+    line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "no" / "m.pt"))
+    assert "cannot write there (no folder" in line
+    line = error_line(capsys, "export", "m.pt", "-o", str(tmp_path / "existing"))
+    assert "is a folder; -o wants the ONNX file to write" in line
