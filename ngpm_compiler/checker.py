@@ -265,7 +265,22 @@ class Checker:
                     self.check_expr(arg, params, what, random_ok=True)
                 self.use_arity(part.name, len(part.args), part)
                 out.append(Resolved(part.name, part.args + self.defaults(part), part))
+        self.check_brackets(out, what)
         return out
+
+    def check_brackets(self, modules: list[Resolved], what: str) -> None:
+        """Each `]` closes a `[` of the same successor, and each `[` is closed in it (the
+        turtle would otherwise pop an empty stack at run time)."""
+        opened: list[Resolved] = []
+        for m in modules:
+            if m.name == "[":
+                opened.append(m)
+            elif m.name == "]":
+                if not opened:
+                    raise self.err(f"unmatched ']' in {what}: no '[' before it", m.use)
+                opened.pop()
+        if opened:
+            raise self.err(f"unmatched '[' in {what}: no ']' closes it", opened[-1].use)
 
     def split(self, use: ModuleUse, known: set[str]) -> list[ModuleUse]:
         """`FF` is `F F` when it is not a module itself and each letter is a known module."""

@@ -56,3 +56,73 @@ def test_guide_of_a_future_format_names_the_version(tmp_path: Path) -> None:
 def test_intact_guide_still_loads() -> None:
     g = Guide.load(bundled.guide_path(), bundled.bundled_program())
     assert g.nets
+
+
+def test_stop_pool_returns_when_a_dead_worker_holds_the_queue_lock() -> None:
+    """Pool.terminate() waits forever for the task queue's lock when a worker died holding
+    it (SIGTERM to the process group); pool_stop gives up after its grace period."""
+    import multiprocessing as mp
+    import time
+
+    from ngpm_compiler.pool_stop import stop_pool
+
+    pool = mp.get_context("spawn").Pool(1)
+    pool._inqueue._rlock.acquire()  # as a worker killed mid-read leaves it
+    t0 = time.perf_counter()
+    assert stop_pool(pool, grace=1.0) is False
+    assert time.perf_counter() - t0 < 10
+    assert all(p.exitcode is not None for p in pool._pool)
+    pool._inqueue._rlock.release()  # let the left-behind terminate() thread finish
+
+
+# --------------------------------------------------------------------------- compile_grammar
+
+
+@pytest.mark.parametrize("arg, words", [
+    (None, "got NoneType"), (123, "got int"), (b"Axiom: F\n", "got bytes: decode them"),
+])
+def test_compile_grammar_says_what_it_wants(arg, words) -> None:
+    from ngpm_compiler import compile_grammar
+
+    with pytest.raises(TypeError, match="compile_grammar wants a path") as info:
+        compile_grammar(arg)
+    assert words in str(info.value)
+
+
+def test_compile_grammar_refuses_a_folder(tmp_path: Path) -> None:
+    from ngpm_compiler import GrammarError, compile_grammar
+
+    for arg in (str(tmp_path), tmp_path):
+        with pytest.raises(GrammarError, match="is a folder, not a grammar file"):
+            compile_grammar(arg)
+
+
+def test_compile_grammar_refuses_huge_grammars_at_once(tmp_path: Path) -> None:
+    import time
+
+    from ngpm_compiler import GrammarError, compile_grammar
+    from ngpm_compiler.compile import MAX_GRAMMAR_BYTES
+
+    rule = "A(x) : x > 0 --> F(x) [ +(gauss(10, 5)) A(x * 0.9) ] A(x - 0.1)\n"
+    text = "derivation length: 5\nAxiom: A(1)\nproduction:\n" + rule * (
+        MAX_GRAMMAR_BYTES // len(rule) + 1)
+    path = tmp_path / "huge.lsys"
+    path.write_text(text)
+    t0 = time.perf_counter()
+    for arg in (path, text):
+        with pytest.raises(GrammarError, match=r"the grammar is 25\d KiB; ngpm reads grammars "
+                                               r"of up to 256 KiB"):
+            compile_grammar(arg)
+    assert time.perf_counter() - t0 < 2
+
+
+def test_smc_rejects_a_fractional_particle_count_and_bad_seeds() -> None:
+    from ngpm_runtime.smc import SMCOptionError, smc
+
+    program = bundled.bundled_program()
+    with pytest.raises(SMCOptionError, match="particle count must be an integer, got 2.5"):
+        smc(program, None, 2.5)
+    with pytest.raises(SMCOptionError, match="seed must be a non-negative integer, got -1"):
+        smc(program, None, 2, seed=-1)
+    with pytest.raises(SMCOptionError, match="max_modules must be an integer >= 1"):
+        smc(program, None, 2, max_modules=0)

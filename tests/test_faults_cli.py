@@ -238,3 +238,22 @@ def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Pat
     assert "cannot write there (no folder" in line
     line = error_line(capsys, "export", "m.pt", "-o", str(tmp_path / "existing"))
     assert "is a folder; -o wants the ONNX file to write" in line
+
+
+# --------------------------------------------------------------------------- messages
+
+
+@pytest.mark.parametrize("successor, col, words", [
+    ("F ] B : 0.5 | F [ + B ] : 0.5", 9, "unmatched ']' in rule for B: no '[' before it"),
+    ("F B : 0.5 | F [ + B : 0.5", 15, "unmatched '[' in rule for B: no ']' closes it"),
+])
+def test_check_finds_unmatched_brackets(tmp_path: Path, successor: str, col: int,
+                                        words: str) -> None:
+    g = write(tmp_path / "br.lsys", "viewport: -10 10 -10 10\nderivation length: 4\n"
+              f"Axiom: B\nproduction:\nB --> {successor}\nendlsystem\n")
+    for command in (["check", g], ["sample", g, "-o", str(tmp_path / "s.png")]):
+        proc = cli(*command, timeout=60)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr
+        head, line, caret = proc.stderr.strip().splitlines()
+        assert head == f"ngpmc: error: {g}:5:{col}: {words}"
+        assert line == f"B --> {successor}" and caret == " " * (col - 1) + "^"
