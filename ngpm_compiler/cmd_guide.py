@@ -284,6 +284,9 @@ def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
     if len(pos) > 1:
         raise NgpmError(f"one target image at a time, got {len(pos)}: {' '.join(pos)}")
     image = pos[0] if pos else None
+    if image is not None and Path(image).is_dir():
+        raise NgpmError(f"{image} is a folder: grow wants one target image "
+                        "(ngpmc grow IMAGE -o vine.png), so run it once per image")
     if image is not None and Path(image).suffix.lower() in (".lsys", ".py"):
         raise NgpmError(f"{image} is a grammar, not an image: "
                         f"ngpmc grow IMAGE --grammar {image}")

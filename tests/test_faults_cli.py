@@ -245,7 +245,7 @@ def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Pat
 
 @pytest.mark.parametrize("successor, col, words", [
     ("F ] B : 0.5 | F [ + B ] : 0.5", 9, "unmatched ']' in rule for B: no '[' before it"),
-    ("F B : 0.5 | F [ + B : 0.5", 15, "unmatched '[' in rule for B: no ']' closes it"),
+    ("F B : 0.5 | F [ + B : 0.5", 21, "unmatched '[' in rule for B: no ']' closes it"),
 ])
 def test_check_finds_unmatched_brackets(tmp_path: Path, successor: str, col: int,
                                         words: str) -> None:
@@ -257,3 +257,73 @@ def test_check_finds_unmatched_brackets(tmp_path: Path, successor: str, col: int
         head, line, caret = proc.stderr.strip().splitlines()
         assert head == f"ngpmc: error: {g}:5:{col}: {words}"
         assert line == f"B --> {successor}" and caret == " " * (col - 1) + "^"
+
+
+@pytest.fixture()
+def bare_images(tmp_path: Path) -> Path:
+    """A folder of two pictures without sidecars and without index.json."""
+    folder = tmp_path / "pictures"
+    folder.mkdir()
+    for name in ("horse", "heart"):
+        shutil.copy(bundled.demo_target_path(name), folder / f"{name}.png")
+    return folder
+
+
+def test_folder_without_sidecars_loads_with_automatic_starts(bare_images: Path,
+                                                             tmp_path: Path, capsys) -> None:
+    from ngpm_runtime.targets import auto_start, load_dataset
+
+    targets = load_dataset(bare_images)
+    assert [t.name for t in targets] == ["heart", "horse"]
+    assert all(t.start == auto_start(t.mask) for t in targets)
+    code, out, err = run(capsys, "targets", "show", str(bare_images), "-o",
+                         str(tmp_path / "sheet.png"))
+    assert code == 0 and "2 of 2 targets" in out, err
+    proc = cli("traces", str(REPO / "grammars" / "chain.lsys"), "--targets", str(bare_images),
+               "-n", "2", "--particles", "4", "--workers", "1", "-o", str(tmp_path / "tr"))
+    assert proc.returncode == 0 and "2 traces kept" in proc.stdout, proc.stderr
+
+
+def test_grow_says_it_wants_an_image_not_a_folder(bare_images: Path, capsys) -> None:
+    line = error_line(capsys, "grow", str(bare_images), "-o", "x.png")
+    assert line == (f"ngpmc: error: {bare_images} is a folder: grow wants one target image "
+                    "(ngpmc grow IMAGE -o vine.png), so run it once per image")
+
+
+def test_errors_name_the_users_path_not_a_temp_file(tmp_path: Path, capsys) -> None:
+    from ngpm_runtime.files import atomic_write
+
+    target = tmp_path / "existing_dir.onnx"
+    target.mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        atomic_write(target, b"data")
+    assert info.value.filename == str(target) and ".tmp" not in str(info.value)
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_compile_o_wants_a_folder(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "vines_sampler.py"
+    out.write_text("# mine\n")
+    line = error_line(capsys, "compile", VINES, "-o", str(out))
+    assert line == (f"ngpmc: error: {out}: is a file; -o wants a folder (the outputs are "
+                    "named after the grammar)")
+    assert out.read_text() == "# mine\n"
+
+
+def test_animated_gif_uses_its_first_frame_with_a_shape(tmp_path: Path, horse: Path,
+                                                        capsys) -> None:
+    from ngpm_runtime.targets import load_target, read_image
+    from PIL import Image
+
+    shape = Image.open(horse).convert("RGB")
+    blank = Image.new("RGB", shape.size, (255, 255, 255))
+    gif = tmp_path / "anim.gif"
+    blank.save(gif, save_all=True, append_images=[shape], duration=100, loop=0)
+    assert read_image(gif).info["ngpm_frame"] == 1
+    assert load_target(gif).mask.any()
+    code, out, err = run(capsys, "grow", str(gif), "-N", "2", "-o", str(tmp_path / "g.png"))
+    assert code == 0 and "anim: similarity" in out, err
+    gray = Image.new("RGB", shape.size, (128, 128, 128))
+    blank.save(gif, save_all=True, append_images=[gray], duration=100, loop=0)
+    line = error_line(capsys, "grow", str(gif), "-o", str(tmp_path / "g.png"))
+    assert "none of the animation's 2 frames holds a shape" in line
