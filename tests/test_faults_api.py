@@ -126,3 +126,26 @@ def test_smc_rejects_a_fractional_particle_count_and_bad_seeds() -> None:
         smc(program, None, 2, seed=-1)
     with pytest.raises(SMCOptionError, match="max_modules must be an integer >= 1"):
         smc(program, None, 2, max_modules=0)
+
+
+def test_generate_traces_without_viewport(tmp_path: Path) -> None:
+    from ngpm_compiler.traces import TraceConfig, TraceError, generate_traces
+
+    g = tmp_path / "nv.lsys"
+    g.write_text("Axiom: F F\nendlsystem\n")
+    cfg = TraceConfig(grammar=str(g), targets=str(tmp_path), n=1, workers=1)
+    with pytest.raises(TraceError, match="no 'viewport:' line"):
+        generate_traces(cfg, tmp_path / "tr", progress=False)
+    assert not (tmp_path / "tr").exists()
+
+
+def test_grow_api_takes_the_module_cap(tmp_path: Path) -> None:
+    from ngpm_compiler.cmd_guide import grow
+    from ngpm_compiler.compile import compile_grammar
+
+    program = compile_grammar("viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\n"
+                              "production:\nA --> A A\nendlsystem\n").program()
+    target = bundled.demo_targets()[0]
+    res = grow(program, target, None, 3, max_modules=100)
+    assert res.primitives == [] and res.smc.best.limit == "max modules"
+    assert res.smc.info["limits"] == {"max modules": 3}

@@ -327,3 +327,25 @@ def test_animated_gif_uses_its_first_frame_with_a_shape(tmp_path: Path, horse: P
     blank.save(gif, save_all=True, append_images=[gray], duration=100, loop=0)
     line = error_line(capsys, "grow", str(gif), "-o", str(tmp_path / "g.png"))
     assert "none of the animation's 2 frames holds a shape" in line
+
+
+def test_grow_with_a_damaged_or_newer_guide(tmp_path: Path, horse: Path, capsys) -> None:
+    import onnx
+
+    model = onnx.load(str(bundled.guide_path()))
+    keep = [o for o in model.graph.output if o.name != "p_1"]
+    del model.graph.output[:]
+    model.graph.output.extend(keep)
+    damaged = tmp_path / "damaged.onnx"
+    onnx.save(model, str(damaged))
+    line = error_line(capsys, "grow", str(horse), "--guide", str(damaged))
+    assert line.startswith(f"ngpmc: error: {damaged}: the ONNX graph has no output p_1")
+    model = onnx.load(str(bundled.guide_path()))
+    for prop in model.metadata_props:
+        if prop.key == "ngpm_format":
+            prop.value = "ngpm-guide-onnx/7"
+    newer = tmp_path / "newer.onnx"
+    onnx.save(model, str(newer))
+    line = error_line(capsys, "grow", str(horse), "--guide", str(newer))
+    assert "guide format ngpm-guide-onnx/7 is newer than the ngpm-guide-onnx/1" in line
+    assert "not an ngpm guide" not in line
