@@ -294,6 +294,23 @@ def _exit_on_sigterm() -> None:
         signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
 
 
+def _check_module_cap(cfg: TraceConfig, program: Program, target: Any) -> None:
+    """After a few dropped jobs in a row: TraceError if a prior sample stops at the
+    "max modules" cap before drawing enough (the grammar expands without drawing), so the
+    run stops at once with the reason instead of after MAX_DROPPED_IN_A_ROW slow jobs."""
+    from ngpm_runtime.smc import forward, module_cap
+
+    sample = forward(program, seed=cfg.seed, start=target.start_pose(program.viewport),
+                     max_modules=cfg.max_modules)
+    if sample.limit == "max modules" and len(sample.primitives) < cfg.min_primitives:
+        raise TraceError(
+            f"{cfg.grammar}: jobs are dropped because samples stop at the 'max modules' cap "
+            f"({module_cap(program, cfg.max_modules)} modules expanded in one step without "
+            f"drawing) with {len(sample.primitives)} primitives; the grammar expands without "
+            "drawing (e.g. `A --> A A`): make it draw, lower its 'derivation length:', or "
+            "raise the cap (--max-modules)")
+
+
 def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True,
                     on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest."""
@@ -348,6 +365,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
             in_a_row += 1
             failed += int(arrays["n_prims"][0] < 0)
             bar.set_postfix(dropped=dropped)
+            if in_a_row == 5:
+                _check_module_cap(cfg, program, targets[0])
             if in_a_row >= MAX_DROPPED_IN_A_ROW:
                 raise TraceError(
                     f"{cfg.grammar}: stopped after {in_a_row} jobs in a row were dropped: "

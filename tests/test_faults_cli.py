@@ -3,6 +3,7 @@ with an exit code != 0, and nothing hangs or is lost."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -157,11 +158,14 @@ def test_traces_on_an_exponential_grammar_ends(tmp_path: Path) -> None:
     g = write(tmp_path / "exp.lsys", EXPONENTIAL)
     data = tmp_path / "sc"
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
-    proc = cli("traces", g, "--targets", str(data), "-n", "2", "--particles", "3",
-               "--max-modules", "200", "-o", str(tmp_path / "tr"), "--workers", "1",
-               timeout=120)
+    proc = cli("traces", g, "--targets", str(data), "-n", "2", "--particles", "20",
+               "-o", str(tmp_path / "tr"), "--workers", "1", timeout=120)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
-    assert "jobs in a row were dropped" in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "samples stop at the 'max modules' cap (20000 modules expanded" in last
+    assert "the grammar expands without drawing" in last
+    manifest = json.loads((tmp_path / "tr" / "manifest.json").read_text())
+    assert manifest["dropped"] == 5 and manifest["kept"] == 0
 
 
 def test_module_cap_option_is_checked(capsys) -> None:
