@@ -291,7 +291,13 @@ def _exit_on_sigterm() -> None:
     """Make SIGTERM unwind like Ctrl-C, so the pool's workers are stopped and the manifest of
     the finished jobs is written (the default SIGTERM handler skips all cleanup)."""
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+        signal.signal(signal.SIGTERM, _sigterm_exit)
+
+
+def _sigterm_exit(signum: int, frame: Any) -> None:
+    """Unwind once; a second SIGTERM during the cleanup (writing the manifest) is ignored."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.exit(128 + signum)
 
 
 def _check_module_cap(cfg: TraceConfig, program: Program, target: Any) -> None:
