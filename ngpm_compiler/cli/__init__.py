@@ -10,6 +10,8 @@ import sys
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler.cli import pipes
+
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
     "ngpm_compiler.cli.grammar",  # compile, check, sample
@@ -37,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 2
+    stdout = pipes.install()
     try:
         return int(args.handler(args) or 0)
     except NgpmError as err:
@@ -49,3 +52,5 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
               file=sys.stderr)
         return 1
+    finally:
+        pipes.restore(stdout)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from ngpm_compiler.cli import argtypes
 from ngpm_compiler.experiments import demo
 
 DEFAULT_OUT = "ngpm_demo"
@@ -20,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"output folder (default: {DEFAULT_OUT})")
     p.add_argument("-N", "--particles", type=int, default=10,
                    help="particles per run, guided and unguided (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="first seed (default 0)")
     p.add_argument("--runs", type=int, default=3,
                    help="runs per target and kind, seeds seed, seed+1, ... (default 3)")
     p.set_defaults(handler=cmd_demo)

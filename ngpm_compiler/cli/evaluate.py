@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+from ngpm_compiler.cli import argtypes
 from ngpm_compiler.experiments.config import EvalConfig, quick_config
 from ngpm_compiler.experiments.pipeline import STAGES, EvalError, run_eval
 
@@ -51,7 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--circuit-repeats", type=int, help="circuit runs of each kind (default 5)")
     p.add_argument("--stages", default=",".join(STAGES),
                    help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_eval)
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler.cli import argtypes
 from ngpm_compiler.language.compile import CompiledGrammar, compile_grammar, write_compiled
 
 
@@ -22,19 +23,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser("sample", help="draw one forward sample of a grammar's prior")
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--out", required=True, help="image to write (.png or .svg)")
-    p.add_argument("--size", type=int, default=512, help="image size in pixels (default 512)")
+    p.add_argument("--size", type=argtypes.render_size, default=512,
+                   help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_sample)
 
 
 def load(path: str) -> CompiledGrammar:
+    if Path(path).is_dir():
+        raise NgpmError(f"{path}: is a folder, not a grammar file")
     if not Path(path).is_file():
         raise NgpmError(f"{path}: no such grammar file")
     return compile_grammar(Path(path), filename=path)
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
+    from ngpm_compiler.cli.outpaths import check_output_folder
+
+    check_output_folder(args.out)
     compiled = load(args.grammar)
     sampler, sites = write_compiled(compiled, args.out)
     print(f"{args.grammar}: wrote {sampler} and {sites} ({len(compiled.sites)} sites)")
@@ -67,9 +75,12 @@ def cmd_sample(args: argparse.Namespace) -> int:
     if suffix not in (".png", ".svg"):
         raise NgpmError(f"{args.out}: the output must be a .png or .svg file")
     program = load(args.grammar).program()
-    particle = forward(program, seed=args.seed)
+    particle = forward(program, seed=args.seed, max_modules=args.max_modules)
     prims = list(particle.primitives)
     save_render(prims, args.out, viewport=program.viewport, size=args.size)
     print(f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
           f"log prior {particle.log_prior:.3f}, status {particle.status} -> {args.out}")
+    note = argtypes.limit_note(particle, program, args.max_modules)
+    if note:
+        print(note)
     return 0

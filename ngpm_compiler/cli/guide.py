@@ -10,6 +10,8 @@ import numpy as np
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program
 
+from ngpm_compiler.cli import argtypes
+
 FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS (no torch here)
 
 
@@ -21,11 +23,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--particles", type=int, default=600, help="SMC particles (default 600)")
     p.add_argument("-o", "--out", required=True, help="traces directory (resumed if present)")
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.add_argument("--mirror", action="store_true",
                    help="add mirrored copies of targets that have none")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
     p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
@@ -38,8 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=256, help="site visits per step")
     p.add_argument("--lr", type=float, default=0.005, help="Adam step size (default 0.005)")
     p.add_argument("--patience", type=int, default=4, help="early-stopping patience (epochs)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--allow-missing", action="store_true",
+                   help="train even if shards listed in the manifest are missing or unreadable")
     p.set_defaults(handler=cmd_train)
 
     p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
@@ -60,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
                                    "bundled vines guide when the grammar is vines.lsys)")
     p.add_argument("-N", "--particles", type=int, default=10, help="particles (default 10)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
     p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
                    help="shape: match the image (default); circuit: the paper's circuit-like "
@@ -71,6 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
                    help="also write an animation of the growth (default path: the -o file "
                         "with .gif)")
+    argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_grow)
 
 
@@ -84,7 +90,8 @@ def cmd_traces(args: argparse.Namespace) -> int:
         raise NgpmError("-n, --particles and --workers must be at least 1")
     cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
                       particles=args.particles, seed=args.seed, workers=args.workers,
-                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size))
+                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size),
+                      max_modules=args.max_modules)
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
@@ -95,10 +102,12 @@ def cmd_traces(args: argparse.Namespace) -> int:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    from ngpm_compiler.cli.outpaths import check_output_file
     from ngpm_compiler.learning.traces import load_traces
     from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
 
-    ts = load_traces(args.traces)
+    check_output_file(args.out, "model file")
+    ts = load_traces(args.traces, allow_missing=args.allow_missing)
     if not ts.data:
         raise NgpmError(f"{args.traces}: holds no site visits to train on")
     cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,
@@ -130,9 +139,11 @@ def _print_epoch(row: dict[str, Any]) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from ngpm_compiler.cli.outpaths import check_output_file
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.train import load_model_file
 
+    check_output_file(args.out, "ONNX file")
     model = load_model_file(args.model)
     path = write_onnx(model, args.out)
     print(f"{path}: {len(model.nets)} site networks, features {model.feature_set}, "
@@ -157,6 +168,9 @@ def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
     if len(pos) > 1:
         raise NgpmError(f"one target image at a time, got {len(pos)}: {' '.join(pos)}")
     image = pos[0] if pos else None
+    if image is not None and Path(image).is_dir():
+        raise NgpmError(f"{image} is a folder: grow wants one target image "
+                        "(ngpmc grow IMAGE -o vine.png), so run it once per image")
     if image is not None and Path(image).suffix.lower() in (".lsys", ".py"):
         raise NgpmError(f"{image} is a grammar, not an image: "
                         f"ngpmc grow IMAGE --grammar {image}")
@@ -241,7 +255,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
 
     with tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None) as bar:
         res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-                   on_step=lambda *_: bar.update(1))
+                   on_step=lambda *_: bar.update(1), max_modules=args.max_modules)
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
     score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else
@@ -250,6 +264,9 @@ def cmd_grow(args: argparse.Namespace) -> int:
           f"{len(res.primitives)} primitives")
     if guide is not None:
         print(f"guide: {guide.path}")
+    note = argtypes.limit_note(res.smc.best, program, args.max_modules)
+    if note:
+        print(note)
     from ngpm_runtime.image.render import save_render, save_steps_gif
 
     mask = target.mask if target is not None else None

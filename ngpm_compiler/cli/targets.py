@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 
+from ngpm_compiler.cli import argtypes
 from ngpm_compiler.datasets.build import DATASETS, DatasetWarning, build_dataset, contact_sheet
 
 
@@ -24,7 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("-o", "--out", required=True, type=Path, help="output directory")
     build.add_argument("--count", type=int, default=None,
                        help="number of targets (default: the dataset's own)")
-    build.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    build.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     build.add_argument("--size", type=int, default=50, help="working resolution (default 50)")
     build.add_argument("--font", type=Path, default=None,
                        help="TTF/OTF font for glyphs (default DejaVu Sans Bold)")

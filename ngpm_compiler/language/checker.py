@@ -96,6 +96,7 @@ class Checked:
     viewport: tuple[float, float, float, float] | None
     start: tuple[float, float, float]
     max_primitives: int
+    max_modules: int | None = None  # 'max modules:' (None: the runtime's default)
 
 
 def safe_name(name: str, taken: set[str], prefix: str) -> str:
@@ -257,7 +258,22 @@ class Checker:
                     self.check_expr(arg, params, what, random_ok=True)
                 self.use_arity(part.name, len(part.args), part)
                 out.append(Resolved(part.name, part.args + self.defaults(part), part))
+        self.check_brackets(out, what)
         return out
+
+    def check_brackets(self, modules: list[Resolved], what: str) -> None:
+        """Each `]` closes a `[` of the same successor, and each `[` is closed in it (the
+        turtle would otherwise pop an empty stack at run time)."""
+        opened: list[Resolved] = []
+        for m in modules:
+            if m.name == "[":
+                opened.append(m)
+            elif m.name == "]":
+                if not opened:
+                    raise self.err(f"unmatched ']' in {what}: no '[' before it", m.use)
+                opened.pop()
+        if opened:
+            raise self.err(f"unmatched '[' in {what}: no ']' closes it", opened[-1].use)
 
     def split(self, use: ModuleUse, known: set[str]) -> list[ModuleUse]:
         """`FF` is `F F` when it is not a module itself and each letter is a known module."""
@@ -303,6 +319,8 @@ class Checker:
         self.derivation_length = self.integer(values, "derivation length", 0,
                                               DEFAULT_DERIVATION_LENGTH)
         self.max_primitives = self.integer(values, "max primitives", 1, DEFAULT_MAX_PRIMITIVES)
+        self.max_modules = (self.integer(values, "max modules", 1, 0)
+                            if "max modules" in values else None)
 
     def integer(self, values: dict[str, list[float]], kind: str, least: int,
                 default: int) -> int:
@@ -498,7 +516,7 @@ class Checker:
             self.g, self.name, self.constants, self.const_names, axiom, productions,
             interpretation, dict(self.arity), self.sites, self.call_sites,
             self.derivation_length, "derivation length" in self.g.headers, self.angle,
-            self.viewport, self.start, self.max_primitives,
+            self.viewport, self.start, self.max_primitives, max_modules=self.max_modules,
         )
 
 

@@ -160,6 +160,10 @@ class ModuleWriter:
             f"    viewport={vp},",
             "    start=(" + ", ".join(map(py_float, c.start)) + "),",
             f"    max_primitives={c.max_primitives},",
+        ]
+        if c.max_modules is not None:  # only when the grammar sets it: older output unchanged
+            lines.append(f"    max_modules={c.max_modules},")
+        lines += [
             ")",
         ]
         return [noqa(x) for x in lines]

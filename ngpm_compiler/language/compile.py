@@ -19,6 +19,10 @@ from ngpm_compiler.language.codegen import generate
 from ngpm_compiler.language.errors import GrammarError
 from ngpm_compiler.language.parser import parse
 
+# Grammars larger than this are refused before parsing (docs/language.md): checking takes
+# about 3 s and 130 MB per 100 KiB (the parse tree); real grammars are a few KiB.
+MAX_GRAMMAR_BYTES = 256 * 1024
+
 
 @dataclass
 class CompiledGrammar:
@@ -54,11 +58,16 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
     """Compile a grammar given as a path or as its text; raise GrammarError if malformed.
 
     A str without a newline that ends in `.lsys` or names an existing file is a path."""
+    _check_argument(path_or_text)
     text: str
     if isinstance(path_or_text, os.PathLike) or (
             isinstance(path_or_text, str) and "\n" not in path_or_text
             and (path_or_text.endswith(".lsys") or os.path.isfile(path_or_text))):
         path = Path(path_or_text)
+        if path.is_dir():
+            raise GrammarError("is a folder, not a grammar file", str(path))
+        if path.is_file() and path.stat().st_size > MAX_GRAMMAR_BYTES:
+            raise GrammarError(_too_large(path.stat().st_size), str(path))
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
@@ -70,6 +79,8 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
         text = str(path_or_text)
         filename = filename or "<grammar>"
     text = text.replace("\r\n", "\n")
+    if len(text) > MAX_GRAMMAR_BYTES:
+        raise GrammarError(_too_large(len(text.encode("utf-8"))), filename)
     name = grammar_name(filename)
     digest = "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()
     try:
@@ -80,6 +91,24 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
         raise GrammarError("expressions or successors are nested too deeply", filename, 1, 1,
                            text) from None
     return CompiledGrammar(name, filename, text, code, checked.sites, digest, checked)
+
+
+def _check_argument(path_or_text: object) -> None:
+    """TypeError (or GrammarError, for a folder) unless compile_grammar can take it."""
+    if isinstance(path_or_text, bytes | bytearray):
+        raise TypeError("compile_grammar wants a path or the grammar's text as str, got "
+                        "bytes: decode them first, e.g. data.decode('utf-8')")
+    if not isinstance(path_or_text, str | os.PathLike):
+        raise TypeError("compile_grammar wants a path (str or os.PathLike) or the grammar's "
+                        f"text (str), got {type(path_or_text).__name__}")
+    if isinstance(path_or_text, str) and "\n" not in path_or_text \
+            and path_or_text.strip() and os.path.isdir(path_or_text):
+        raise GrammarError("is a folder, not a grammar file", path_or_text)
+
+
+def _too_large(size: int) -> str:
+    return (f"the grammar is {size / 1024:.0f} KiB; ngpm reads grammars of up to "
+            f"{MAX_GRAMMAR_BYTES // 1024} KiB")
 
 
 def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike) -> tuple[Path, Path]:

@@ -109,7 +109,8 @@ class ModuleDecl(Node):
 
 @dataclass
 class Header(Node):
-    """`derivation length:`, `viewport:`, `angle:`, `start:`, `max primitives:`."""
+    """`derivation length:`, `viewport:`, `angle:`, `start:`, `max primitives:`,
+    `max modules:`."""
 
     kind: str
     values: list[Expr]

@@ -38,6 +38,7 @@ TERMINAL_NAMES = {
     "DERIVATION_LENGTH": "'derivation length:'", "PRODUCTION": "'production:'",
     "INTERPRETATION": "'interpretation:'", "VIEWPORT": "'viewport:'", "ANGLE": "'angle:'",
     "START": "'start:'", "MAX_PRIMITIVES": "'max primitives:'",
+    "MAX_MODULES": "'max modules:'",
 }
 # Symbols of L-Py / cpfg that ngpm does not support, and why.
 UNSUPPORTED = {
@@ -48,7 +49,7 @@ _SUCCESSOR_HINT = {"LSQB", "NAME", "SPECIAL"}
 # Section names the module-level statements use.
 HEADER_KINDS = {
     "derivation_length": "derivation length", "viewport": "viewport", "angle": "angle",
-    "start_pose": "start", "max_primitives": "max primitives",
+    "start_pose": "start", "max_primitives": "max primitives", "max_modules": "max modules",
 }
 
 
@@ -171,7 +172,7 @@ class Builder:
         g.headers[kind] = Header(*pos(t), kind, values)
 
     stmt_derivation_length = stmt_viewport = stmt_angle = _header
-    stmt_start_pose = stmt_max_primitives = _header
+    stmt_start_pose = stmt_max_primitives = stmt_max_modules = _header
 
     def stmt_rule(self, g: Grammar, t: Tree) -> None:
         kids = t.children

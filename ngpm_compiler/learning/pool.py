@@ -3,18 +3,44 @@
 Trace recording, the evaluation and model training all run their jobs through `spawn_pool`
 (or, with one worker, in this process after `setup_here`); a job reads what the setup built
 with `state()`.
+
+Leaving the pool never hangs: `Pool.terminate()` first takes the task queue's lock, and a
+worker killed while holding it (`timeout 60 ngpmc traces ...` sends SIGTERM to the whole
+process group) never gives it back. So terminate() runs in a daemon thread; if it has not
+finished in `grace` seconds, the workers are killed and the command goes on.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from multiprocessing.pool import Pool
 from typing import Any
 
 Setup = Callable[..., dict[str, Any]]
 
 _STATE: dict[str, Any] = {}
+
+GRACE_SECONDS = 3.0
+
+
+def stop_pool(pool: Any, grace: float = GRACE_SECONDS) -> bool:
+    """Terminate `pool`; True if its own terminate() finished, False if it had to be left."""
+    stopper = threading.Thread(target=pool.terminate, name="pool-stop", daemon=True)
+    stopper.start()
+    stopper.join(grace)
+    if not stopper.is_alive():
+        return True
+    for proc in list(getattr(pool, "_pool", None) or []):  # the worker processes
+        try:
+            proc.kill()
+            proc.join(1.0)
+        except (OSError, ValueError, AttributeError):
+            pass
+    stopper.join(1.0)
+    return not stopper.is_alive()
 
 
 def state() -> dict[str, Any]:
@@ -29,9 +55,17 @@ def setup_here(setup: Setup, *args: Any) -> dict[str, Any]:
     return _STATE
 
 
-def spawn_pool(workers: int, setup: Setup | None = None, args: tuple[Any, ...] = ()) -> Pool:
-    """A pool of `workers` spawned processes; each runs `setup(*args)` once when given."""
+@contextmanager
+def spawn_pool(workers: int, setup: Setup | None = None, args: tuple[Any, ...] = (),
+               grace: float = GRACE_SECONDS) -> Iterator[Pool]:
+    """`with spawn_pool(...) as procs:` a pool of `workers` spawned processes, each running
+    `setup(*args)` once when given; stopped on the way out without ever hanging."""
     ctx = mp.get_context("spawn")
     if setup is None:
-        return ctx.Pool(workers)
-    return ctx.Pool(workers, initializer=setup_here, initargs=(setup, *args))
+        procs = ctx.Pool(workers)
+    else:
+        procs = ctx.Pool(workers, initializer=setup_here, initargs=(setup, *args))
+    try:
+        yield procs
+    finally:
+        stop_pool(procs, grace)

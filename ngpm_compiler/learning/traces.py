@@ -38,6 +38,9 @@ from ngpm_compiler.learning import pool
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
+# A run stops when this many jobs in a row are dropped: the grammar (nearly) never draws
+# enough, and would otherwise run forever. At a drop rate of 50% it happens once in 10**15 jobs.
+MAX_DROPPED_IN_A_ROW = 50
 
 
 @dataclass
@@ -66,6 +69,7 @@ class TraceConfig:
     size: int = 50  # target size (pixels)
     min_primitives: int = MIN_PRIMITIVES
     shard_size: int = 50
+    max_modules: int | None = None  # the "max modules" cap (None: the grammar's or default)
 
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
@@ -87,8 +91,8 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     return int(a) % n_targets, int(b)
 
 
-def run_job(program: Program, target: Any, seed: int, particles: int
-            ) -> tuple[list[tuple[int, np.ndarray, float]], int]:
+def run_job(program: Program, target: Any, seed: int, particles: int,
+            max_modules: int | None = None) -> tuple[list[tuple[int, np.ndarray, float]], int]:
     """Unguided SMC on one target; the best particle's trace and primitive count.
 
     The run records values only; the best particle alone is then replayed with its values
@@ -98,10 +102,11 @@ def run_job(program: Program, target: Any, seed: int, particles: int
     from ngpm_runtime.inference.smc import replay
 
     start = target.start_pose(program.viewport)
-    best = grow(program, target, None, particles, seed, record_trace="values").smc.best
+    best = grow(program, target, None, particles, seed, record_trace="values",
+                max_modules=max_modules).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,
-                   target_mask=target.mask)
+                   target_mask=target.mask, max_modules=max_modules)
     if again.primitives != best.primitives:
         raise ProgramError(f"program {program.name}: replaying the best particle's values "
                            "drew other primitives (generated code is not pure)")
@@ -191,9 +196,17 @@ class TraceStore:
         self.pending.mkdir(parents=True, exist_ok=True)
         _save_npz(self.pending / f"job_{int(arrays['jobs'][0]):08d}.npz", arrays)
 
-    def finished(self) -> dict[str, np.ndarray]:
-        """Every finished job's arrays (shards, then pending), deduplicated by job id."""
-        parts = [_load_npz(p) for p in self.shard_paths()]
+    def finished(self, unreadable: list[str] | None = None) -> dict[str, np.ndarray]:
+        """Every finished job's arrays (shards, then pending), deduplicated by job id.
+        With a list `unreadable`, shards that cannot be read are skipped and named there."""
+        parts = []
+        for path in self.shard_paths():
+            try:
+                parts.append(_load_npz(path))
+            except TraceError:
+                if unreadable is None:
+                    raise
+                unreadable.append(path.name)
         seen: set[int] = set()
         for part in parts:
             seen.update(int(j) for j in part["jobs"])
@@ -233,13 +246,15 @@ def _worker_setup(grammar: str, targets: str, size: int, mirror: bool) -> dict[s
     return {"program": load_grammar(grammar), "targets": load_targets(targets, size, mirror)}
 
 
-def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], float]:
-    job, base_seed, particles, min_prims = args
+def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
+    job, base_seed, particles, min_prims = args[:4]
+    max_modules = args[4] if len(args) > 4 else None
     t0 = time.perf_counter()
     targets = pool.state()["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles)
+        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles,
+                                 max_modules=max_modules)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -247,17 +262,43 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[str, Any]:
-    return {"grammar_hash": program.grammar_hash, "grammar": program.name,
-            "targets": [t.name for t in targets], "particles": cfg.particles,
-            "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
-            "min_primitives": cfg.min_primitives}
+    key = {"grammar_hash": program.grammar_hash, "grammar": program.name,
+           "targets": [t.name for t in targets], "particles": cfg.particles,
+           "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
+           "min_primitives": cfg.min_primitives}
+    if cfg.max_modules is not None:  # only when set: older traces directories still resume
+        key["max_modules"] = cfg.max_modules
+    return key
 
 
 def _exit_on_sigterm() -> None:
     """Make SIGTERM unwind like Ctrl-C, so the pool's workers are stopped and the manifest of
     the finished jobs is written (the default SIGTERM handler skips all cleanup)."""
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+        signal.signal(signal.SIGTERM, _sigterm_exit)
+
+
+def _sigterm_exit(signum: int, frame: Any) -> None:
+    """Unwind once; a second SIGTERM during the cleanup (writing the manifest) is ignored."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.exit(128 + signum)
+
+
+def _check_module_cap(cfg: TraceConfig, program: Program, target: Any) -> None:
+    """After a few dropped jobs in a row: TraceError if a prior sample stops at the
+    "max modules" cap before drawing enough (the grammar expands without drawing), so the
+    run stops at once with the reason instead of after MAX_DROPPED_IN_A_ROW slow jobs."""
+    from ngpm_runtime.inference.smc import forward, module_cap
+
+    sample = forward(program, seed=cfg.seed, start=target.start_pose(program.viewport),
+                     max_modules=cfg.max_modules)
+    if sample.limit == "max modules" and len(sample.primitives) < cfg.min_primitives:
+        raise TraceError(
+            f"{cfg.grammar}: jobs are dropped because samples stop at the 'max modules' cap "
+            f"({module_cap(program, cfg.max_modules)} modules expanded in one step without "
+            f"drawing) with {len(sample.primitives)} primitives; the grammar expands without "
+            "drawing (e.g. `A --> A A`): make it draw, lower its 'derivation length:', or "
+            "raise the cap (--max-modules)")
 
 
 def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True,
@@ -269,8 +310,11 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     from ngpm_compiler.language.compile import load_grammar
 
     store = TraceStore(out_dir)
-    store.dir.mkdir(parents=True, exist_ok=True)
     program = load_grammar(cfg.grammar)
+    if program.viewport is None:
+        raise TraceError(f"{cfg.grammar}: the grammar has no 'viewport:' line; traces draw "
+                         "into target images, so add one (e.g. 'viewport: -12 12 -22 2')")
+    store.dir.mkdir(parents=True, exist_ok=True)
     targets = load_targets(cfg.targets, cfg.size, cfg.mirror)
     key = _config_key(cfg, program, targets)
     old = store.manifest()
@@ -300,19 +344,31 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     job_seconds: list[float] = list(old.get("job_seconds", [])) if old else []
 
     failed = int((done.get("n_prims", np.zeros(0)) < 0).sum())
+    in_a_row = 0  # jobs dropped since the last kept one (this run)
 
     def finish(arrays: dict[str, np.ndarray], seconds: float) -> None:
-        nonlocal kept, dropped, since_shard, failed
+        nonlocal kept, dropped, since_shard, failed, in_a_row
         store.write_pending(arrays)
         done_ids.add(int(arrays["jobs"][0]))
         job_seconds.append(seconds)
         if bool(arrays["kept"][0]):
             kept += 1
+            in_a_row = 0
             bar.update(1)
         else:
             dropped += 1
+            in_a_row += 1
             failed += int(arrays["n_prims"][0] < 0)
             bar.set_postfix(dropped=dropped)
+            if in_a_row == 5:
+                _check_module_cap(cfg, program, targets[0])
+            if in_a_row >= MAX_DROPPED_IN_A_ROW:
+                raise TraceError(
+                    f"{cfg.grammar}: stopped after {in_a_row} jobs in a row were dropped: "
+                    f"their best particles drew fewer than {cfg.min_primitives} primitives "
+                    "(or none survived); make the grammar draw more (a longer axiom or "
+                    "derivation; try `ngpmc sample`) or raise its 'max modules:' cap if "
+                    "`ngpmc sample` reports that limit")
         since_shard += 1
         if since_shard >= cfg.shard_size:
             store.consolidate()
@@ -332,7 +388,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         if cfg.workers <= 1:
             pool.setup_here(_worker_setup, cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
             while kept < cfg.n:
-                finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives)))
+                finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives,
+                                 cfg.max_modules)))
         else:
             _exit_on_sigterm()
             with pool.spawn_pool(cfg.workers, _worker_setup, (cfg.grammar, cfg.targets,
@@ -342,7 +399,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
                         job = next(ids)
                         running.append(workers.apply_async(
-                            _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives),)))
+                            _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives,
+                                       cfg.max_modules),)))
                     ready = [r for r in running if r.ready()]
                     if not ready:
                         running[0].wait(0.05)
@@ -374,15 +432,18 @@ class TraceSet:
     dropped: int
 
 
-def load_traces(directory: str | Path) -> TraceSet:
-    """The kept traces of a traces directory, as training data per site."""
+def load_traces(directory: str | Path, allow_missing: bool = False) -> TraceSet:
+    """The kept traces of a traces directory, as training data per site. TraceError when
+    shards that the manifest lists are missing or unreadable, unless `allow_missing`."""
     store = TraceStore(directory)
     manifest = store.manifest()
     if manifest is None or manifest.get("format") != TRACE_FORMAT:
         raise TraceError(f"{store.dir}: not a traces directory (no manifest.json from "
                          "`ngpmc traces`)")
-    done = store.finished()
+    unreadable: list[str] = []
+    done = store.finished(unreadable)
     kept_jobs = np.sort(done["jobs"][done["kept"]])
+    _check_complete(store, manifest, unreadable, len(kept_jobs), allow_missing)
     sites = [Site.from_json(s) for s in manifest["sites"]]
     layouts = {int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
                for i, lay in manifest["layouts"].items()}
@@ -396,3 +457,27 @@ def load_traces(directory: str | Path) -> TraceSet:
         data[site.index] = SiteData(f, v, args, j)
     return TraceSet(manifest, sites, layouts, data, kept_jobs,
                     int(len(done["jobs"]) - len(kept_jobs)))
+
+
+def _check_complete(store: TraceStore, manifest: dict[str, Any], unreadable: list[str],
+                    kept: int, allow_missing: bool) -> None:
+    """TraceError naming the shards the manifest lists that are gone or unreadable (and the
+    kept traces that are missing), unless `allow_missing`; then only a warning on stderr."""
+    present = {p.name for p in store.shard_paths()}
+    gone = [name for name in manifest.get("shards", []) if name not in present]
+    lost = max(0, int(manifest.get("kept", kept)) - kept)
+    if not (gone or unreadable or lost):
+        return
+    problems = []
+    if gone:
+        problems.append(f"missing {', '.join(gone)}")
+    if unreadable:
+        problems.append(f"unreadable {', '.join(unreadable)}")
+    text = (f"{store.dir}: {'; '.join(problems) or 'files missing'}: {kept} of the "
+            f"{kept + lost} kept traces are there")
+    if allow_missing:
+        print(f"ngpmc: warning: {text}; training on those (--allow-missing)", file=sys.stderr)
+        return
+    raise TraceError(f"{text}; restore the files, run `ngpmc traces` again with the same "
+                     "options to redo the lost jobs (after removing unreadable shards), or "
+                     "pass --allow-missing to train on what is there")

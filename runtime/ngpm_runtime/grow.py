@@ -70,7 +70,8 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
          seed: int = 0, likelihood: str = "shape", *,
          on_step: Callable[..., None] | None = None, record_trace: bool | str = False,
          start: tuple[float, float, float] | None = None,
-         canvas_size: tuple[int, int] | None = None) -> GrowResult:
+         canvas_size: tuple[int, int] | None = None,
+         max_modules: int | None = None) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
     target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
@@ -79,7 +80,8 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
     every SMC step's likelihood increment as `on_step(state, canvas, draw)` (the likelihood's
     per-particle state, the canvas, the step's draw batch with `.idx` and `.prims`); it may
     raise to stop the run (a progress bar, live frames). record_trace, start (world pose
-    overriding the target's) and canvas_size (default: the target's size) go to `smc`.
+    overriding the target's), canvas_size (default: the target's size) and max_modules (the
+    grammar's "max modules" cap, overridden) go to `smc`.
     """
     viewport = program.viewport
     if viewport is None:
@@ -95,7 +97,7 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
     t0 = time.perf_counter()
     result = smc(program, like, n_particles, proposal=guide, seed=seed,
                  record_trace=record_trace, start=start, canvas_size=canvas_size,
-                 target_mask=mask)
+                 target_mask=mask, max_modules=max_modules)
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
     image = rasterize(prims, viewport, *canvas_size)

@@ -66,6 +66,7 @@ class Program:
     viewport: tuple[float, float, float, float] | None = None
     start: tuple[float, float, float] = (0.0, 0.0, 90.0)
     max_primitives: int = 5000
+    max_modules: int | None = None  # 'max modules:' header; None: derive.DEFAULT_MAX_MODULES
     source: str = ""
     grammar_hash: str = ""
 

@@ -21,7 +21,12 @@ from ngpm_runtime.geometry.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, int
 from ngpm_runtime.program import Program
 
 MAX_INTERP_DEPTH = 64
-DEFAULT_MAX_OPS = 2_000_000  # modules popped by one particle in one step before "limit"
+# The "max modules" cap: modules one particle may pop (expand or interpret) in one step, that
+# is, between two drawn primitives, before it stops with status "limit". It bounds the work
+# of grammars that expand without drawing (`A --> A A`). Grammar header `max modules:`, run
+# option `--max-modules`, `smc(..., max_modules=)`.
+DEFAULT_MAX_MODULES = 20_000  # the bundled grammars pop fewer than 30 per step
+DEFAULT_MAX_OPS = DEFAULT_MAX_MODULES  # its older name
 
 # advance() outcomes
 DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
@@ -84,7 +89,7 @@ class Particle:
 
     __slots__ = (
         "stack", "turtle", "tstack", "poly", "prims", "n_prims", "trace",
-        "values", "sites", "cont", "need", "in_interp", "last", "status",
+        "values", "sites", "cont", "need", "in_interp", "last", "status", "limit",
     )
 
     def __init__(self, stack: tuple | None, turtle: tuple) -> None:
@@ -102,6 +107,7 @@ class Particle:
         self.in_interp = False  # the top module's production returned None
         self.last: tuple | None = None  # primitive drawn by the last step
         self.status = "live"
+        self.limit: str | None = None  # the cap's name when status is "limit"
 
     def copy(self) -> Particle:
         q = _new_particle(Particle)
@@ -119,6 +125,7 @@ class Particle:
         q.in_interp = self.in_interp
         q.last = self.last
         q.status = self.status
+        q.limit = self.limit
         return q
 
 

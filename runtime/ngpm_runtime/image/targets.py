@@ -139,14 +139,34 @@ def read_image(path: str | os.PathLike) -> Image.Image:
         with Image.open(path) as img:
             img.load()
             info = dict(img.info)
+            if getattr(img, "n_frames", 1) > 1:  # animated GIF/PNG/WebP
+                return _first_shape_frame(img, path, info)
             out = ImageOps.exif_transpose(img)  # photos: honor the camera's orientation
             out.info = info
             return out
+    except IsADirectoryError:
+        raise TargetError(f"{path} is a folder, not an image") from None
     except FileNotFoundError:
         raise TargetError(f"target image {path} does not exist") from None
     except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError,
             SyntaxError) as err:
         raise TargetError(f"cannot read target image {path}: {_reason(err)}") from None
+
+
+def _first_shape_frame(img: Image.Image, path: Path, info: dict) -> Image.Image:
+    """The first frame of an animation that holds a shape (not one flat color); its index
+    is kept in `info["ngpm_frame"]`. An animation often starts blank (a growth GIF does)."""
+    for k in range(img.n_frames):
+        img.seek(k)
+        frame = img.convert("RGBA")
+        rgba = np.asarray(frame)
+        gray = np.asarray(frame.convert("L"))
+        alpha = rgba[..., 3]
+        if int(alpha.max()) - int(alpha.min()) > 32 or int(gray.max()) - int(gray.min()) > 16:
+            frame.info = {**info, "ngpm_frame": k}
+            return frame
+    raise TargetError(f"{path}: none of the animation's {img.n_frames} frames holds a shape "
+                      "(every frame is one flat color)")
 
 
 def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image") -> np.ndarray:
@@ -301,8 +321,9 @@ def load_dataset(directory: str | os.PathLike, size: int | None = None,
                  polarity: str = "auto") -> list[Target]:
     """Load every target of a dataset directory, in the order of its index.json.
 
-    Without index.json, every image with a sidecar is loaded in name order. size=None keeps
-    each image's own (square) size.
+    Without index.json, the images with a sidecar are loaded in name order; when no image
+    has one, every image is, each with its start from `auto_start` (as `load_target` gives
+    it). size=None keeps each image's own (square) size.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -319,10 +340,12 @@ def load_dataset(directory: str | os.PathLike, size: int | None = None,
             raise TargetError(f"dataset {directory} is incomplete (interrupted build); "
                               "run the same build command again")
     else:
-        files = sorted(p for p in directory.iterdir()
-                       if p.suffix.lower() in IMAGE_SUFFIXES and sidecar_path(p).is_file())
+        images = sorted(p for p in directory.iterdir()
+                        if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        files = [p for p in images if sidecar_path(p).is_file()] or images
     if not files:
-        raise TargetError(f"dataset directory {directory} holds no targets")
+        raise TargetError(f"dataset directory {directory} holds no targets (no index.json "
+                          f"and no images: {', '.join(sorted(IMAGE_SUFFIXES))})")
     return [load_target(f, size=size, polarity=polarity) for f in files]
 
 

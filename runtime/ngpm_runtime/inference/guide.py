@@ -61,7 +61,7 @@ class Guide:
             raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
                 from None
         if props.get("ngpm_format") != ONNX_FORMAT:
-            raise GuideError(f"{path}: not an ngpm guide (written by `ngpmc export`?)")
+            raise GuideError(format_message(path, props.get("ngpm_format")))
         try:
             meta = {k: props[k] for k in ("grammar", "grammar_hash", "K")}
             for key in ("sites", "features", "nets", "training"):
@@ -69,6 +69,7 @@ class Guide:
         except (KeyError, ValueError):
             raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
         _check_program(path, meta, program)
+        validate_guide_graph(path, session, meta, program)
         guide = cls(session, program, path, meta)
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
@@ -135,3 +136,55 @@ def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:
     if theirs != ours:
         raise GuideError(f"{path}: guide's site table does not match grammar "
                          f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)")
+
+
+def format_message(path: str, fmt: Any) -> str:
+    """Why a file whose `ngpm_format` is not ONNX_FORMAT cannot be used."""
+    name, _, version = str(fmt or "").rpartition("/")
+    ours_name, _, ours = ONNX_FORMAT.rpartition("/")
+    if fmt and name == ours_name:
+        newer = version.isdigit() and int(version) > int(ours)
+        return (f"{path}: guide format {fmt} {'is newer than' if newer else 'differs from'} "
+                f"the {ONNX_FORMAT} this ngpm reads"
+                + (" (upgrade ngpm to use it)" if newer else " (export it again)"))
+    return f"{path}: not an ngpm guide (written by `ngpmc export`?)"
+
+
+def _expected_outputs(site: Site, K: int) -> int:
+    """Columns of a site network's output (docs/architecture.md section 5)."""
+    if site.kind in ("normal", "uniform"):
+        return 3 * K
+    return 1 if site.kind == "bernoulli" else int(site.k or 0)
+
+
+def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
+                         program: Program) -> None:
+    """GuideError unless the ONNX graph has, for every site net the metadata lists, the
+    input `f_<i>` of shape (n, n_f) and the output `p_<i>` of shape (n, n_out) that the
+    metadata and the site's kind call for; so a broken file fails at load, not in a run."""
+    try:
+        K = int(meta["K"])
+        nets = {int(i): dict(n) for i, n in meta["nets"].items()}
+    except (TypeError, ValueError, AttributeError):
+        raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
+    inputs = {i.name: i.shape for i in session.get_inputs()}
+    outputs = {o.name: o.shape for o in session.get_outputs()}
+    for i, net in sorted(nets.items()):
+        if not 0 <= i < len(program.sites):
+            raise GuideError(f"{path}: guide has a network for site {i}, but grammar "
+                             f"{program.name!r} has {len(program.sites)} sites")
+        site = program.sites[i]
+        n_f, n_out = net.get("n_f"), net.get("n_out")
+        want = _expected_outputs(site, K)
+        if n_out != want:
+            raise GuideError(f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
+                             f"a {site.kind} site needs {want}")
+        for kind, name, have, width in (("input", f"f_{i}", inputs, n_f),
+                                        ("output", f"p_{i}", outputs, n_out)):
+            shape = have.get(name)
+            if shape is None:
+                raise GuideError(f"{path}: the ONNX graph has no {kind} {name} for site {i} "
+                                 f"({site.id}) that its metadata lists (damaged file?)")
+            if len(shape) != 2 or (isinstance(shape[1], int) and shape[1] != width):
+                raise GuideError(f"{path}: ONNX {kind} {name} has shape {list(shape)}, "
+                                 f"the metadata says (n, {width})")

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
-from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver, Particle
+from ngpm_runtime.geometry.derive import DEFAULT_MAX_MODULES, DONE, DRAWN, NEED, Deriver, Particle
 from ngpm_runtime.geometry.turtle import cons_to_list, prim_bbox
 from ngpm_runtime.inference.distributions import prior_logpdf
 from ngpm_runtime.inference.proposals import PriorProposal
@@ -41,6 +41,7 @@ class FinalParticle:
     log_weight: float
     trace: list[tuple[int, np.ndarray | None, float]] | None
     status: str  # "done", "limit" (a cap was hit) or "dead" (zero weight)
+    limit: str | None = None  # which cap: "max modules", "max primitives" or "max steps"
 
 
 @dataclass
@@ -79,10 +80,11 @@ def _ess(log_w: np.ndarray) -> float:
 
 
 def forward(
-    program: Program, seed: int = 0, start: tuple[float, float, float] | None = None
+    program: Program, seed: int = 0, start: tuple[float, float, float] | None = None,
+    max_modules: int | None = None,
 ) -> FinalParticle:
     """One prior sample of the program: SMC with one particle and no likelihood."""
-    return smc(program, None, 1, seed=seed, start=start).particles[0]
+    return smc(program, None, 1, seed=seed, start=start, max_modules=max_modules).particles[0]
 
 
 def smc(
@@ -99,6 +101,7 @@ def smc(
     target_mask: np.ndarray | None = None,
     max_steps: int | None = None,
     max_primitives: int | None = None,
+    max_modules: int | None = None,
 ) -> SMCResult:
     """Run SMC; `likelihood=None` (or a NullLikelihood) means no likelihood, no canvas.
 
@@ -106,11 +109,13 @@ def smc(
     `PrimBatch` (idx, bbox, prims); with a canvas, the DrawBatch also carries `.prims`.
 
     `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
-    (None: every step). `max_primitives` overrides `program.max_primitives`.
+    (None: every step). `max_primitives` overrides `program.max_primitives`, `max_modules`
+    `program.max_modules` (modules one particle may expand or interpret in one step).
     `record_trace=True` records every particle's trace with features; `"values"` records
     (site, None, value) only, at no feature cost (`replay` adds the features afterwards).
     """
     t0 = time.perf_counter()
+    check_run_options(n_particles, seed, max_modules)
     n = int(n_particles)
     if n < 1:
         raise SMCOptionError(f"need at least one particle, got {n_particles}")
@@ -154,7 +159,7 @@ def smc(
     blank_ll = _blank_loglik(likelihood, canvas)
 
     x0, y0, h0 = program.start if start is None else start
-    deriver = Deriver(program)
+    deriver = Deriver(program, max_ops=module_cap(program, max_modules))
     advance = deriver.advance
     parts: list[Particle] = [deriver.start((float(x0), float(y0), float(h0), 1.0))
                              for _ in range(n)]
@@ -174,6 +179,7 @@ def smc(
         if max_steps is not None and steps >= max_steps:
             for i in live:
                 parts[i].status = "limit"
+                parts[i].limit = "max steps"
             break
         steps += 1
         particle_steps += len(live)
@@ -207,6 +213,8 @@ def smc(
                         waiting[s] = [i]
                 else:
                     p.status = "done" if code == DONE else "limit"
+                    if code != DONE:
+                        p.limit = "max modules"
                     if p.n_prims == 0:
                         empty.append(i)
             if served >= 0:
@@ -244,6 +252,7 @@ def smc(
                     p.status = "done"
                 elif p.n_prims >= cap:
                     p.status = "limit"
+                    p.limit = "max primitives"
 
         if empty and blank_ll is not None:
             ia = np.asarray(empty, dtype=np.intp)
@@ -286,6 +295,7 @@ def smc(
             log_weight=float(log_w[i]),
             trace=cons_to_list(p.trace) if record_trace is not False else None,
             status=p.status,
+            limit=p.limit if p.status == "limit" else None,
         )
         for i, p in enumerate(parts)
     ]
@@ -300,7 +310,8 @@ def smc(
         steps=steps,
         seconds=time.perf_counter() - t0,
         info={"particle_steps": particle_steps, "resamples": n_resample,
-              "status": {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}},
+              "status": {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")},
+              "limits": _limit_counts(finals)},
     )
 
 
@@ -348,6 +359,7 @@ def replay(
     canvas_size: tuple[int, int] = (50, 50),
     target_mask: np.ndarray | None = None,
     max_primitives: int | None = None,
+    max_modules: int | None = None,
 ) -> FinalParticle:
     """The one derivation that makes the given (site, value) choices, with its full trace
     (features as `smc(..., record_trace=True)` computes them); no likelihood."""
@@ -356,7 +368,7 @@ def replay(
     proposal = ReplayProposal(values)
     res = smc(program, None, 1, proposal=proposal, record_trace=True, start=start,
               canvas_size=canvas_size, target_mask=target_mask,
-              max_primitives=max_primitives)
+              max_primitives=max_primitives, max_modules=max_modules)
     proposal.check_used()
     return res.particles[0]
 
@@ -512,3 +524,30 @@ def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
         out.append(p.copy() if a == prev and p.status == "live" else p)
         prev = a
     return out
+
+
+def check_run_options(n_particles: Any, seed: Any, max_modules: Any) -> None:
+    """SMCOptionError for a particle count, seed or module cap that is not a fitting integer."""
+    if isinstance(n_particles, bool) or not isinstance(n_particles, int | np.integer):
+        raise SMCOptionError(f"the particle count must be an integer, got {n_particles!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise SMCOptionError(f"the seed must be a non-negative integer, got {seed!r}")
+    if max_modules is not None and (not isinstance(max_modules, int | np.integer)
+                                    or isinstance(max_modules, bool) or max_modules < 1):
+        raise SMCOptionError(f"max_modules must be an integer >= 1, got {max_modules!r}")
+
+
+def module_cap(program: Program, max_modules: int | None = None) -> int:
+    """The "max modules" cap of a run: the option, else the grammar's, else the default."""
+    if max_modules is not None:
+        return int(max_modules)
+    own = getattr(program, "max_modules", None)
+    return int(own) if own else DEFAULT_MAX_MODULES
+
+
+def _limit_counts(finals: list[FinalParticle]) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for p in finals:
+        if p.limit:
+            counts[p.limit] = counts.get(p.limit, 0) + 1
+    return counts

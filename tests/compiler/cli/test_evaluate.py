@@ -38,10 +38,22 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_quick_writes_every_file(quick: Path) -> None:
+    """Every output exists and holds something: tables have a header and rows, the
+    settings parse and say --quick, the Markdown files are not empty."""
     for name in (*PNGS, "README.md", "report.md", "settings.json", "shape_runs.csv",
                  "shape_summary.csv", "speedup.csv", "trainset.csv", "models.csv",
                  "grids.csv", "circuit_runs.csv", "chain_runs.csv"):
-        assert (quick / name).is_file(), name
+        path = quick / name
+        assert path.is_file() and path.stat().st_size > 0, name
+        if name.endswith(".csv"):
+            rows = _csv(path)
+            assert rows and all(len(r) >= 2 for r in rows), name
+            assert not any(None in r or None in r.values() for r in rows), name  # ragged
+        elif name.endswith(".md"):
+            assert len(path.read_text().strip().splitlines()) > 3, name
+    settings = json.loads((quick / "settings.json").read_text())
+    assert isinstance(settings, dict) and settings
+    assert "quick" in json.dumps(settings)
 
 
 def test_pngs_are_images_under_300kb(quick: Path) -> None:

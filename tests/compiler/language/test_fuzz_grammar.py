@@ -1,5 +1,5 @@
-"""Fuzz: mutated shipped grammars either compile (to a loadable program) or raise
-GrammarError -- never any other exception."""
+"""Fuzz: mutated shipped grammars either compile (to a loadable program that runs a few
+steps) or raise GrammarError -- never any other exception."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import re
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.inference.smc import smc
 from repo_paths import REPO
 
 from ngpm_compiler.language.compile import compile_grammar
@@ -31,6 +33,17 @@ def compiles_or_grammar_error(text: str) -> None:
         return
     program = compiled.program()
     assert len(program.sites) == len(compiled.sites)
+    runs_a_few_steps(program)
+
+
+def runs_a_few_steps(program) -> None:
+    """A program that compiled runs: a few SMC steps end normally or with one of ngpm's own
+    errors (say, a division by zero in a production), never a crash, and never a turtle
+    error that `check` should have found (an unmatched bracket)."""
+    try:
+        smc(program, None, 2, seed=0, max_steps=4, max_modules=2000)
+    except NgpmError as err:
+        assert "without a matching" not in str(err), err
 
 
 @st.composite

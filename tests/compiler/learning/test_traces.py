@@ -148,10 +148,10 @@ def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
 
     real = traces_mod.run_job
 
-    def flaky(program, target, seed, particles):
+    def flaky(program, target, seed, particles, **kw):
         if seed % 3 == 0:
             raise SMCFailed("every particle's weight is zero")
-        return real(program, target, seed, particles)
+        return real(program, target, seed, particles, **kw)
 
     monkeypatch.setattr(traces_mod, "run_job", flaky)
     data = make_dataset(tmp_path / "data", 2)

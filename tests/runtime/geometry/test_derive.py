@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from fixtures.tiny_programs import make_program  # noqa: E402
 from ngpm_runtime.errors import ProgramError  # noqa: E402
-from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED, Deriver  # noqa: E402
+from ngpm_runtime.geometry.derive import DONE, DRAWN, LIMIT, NEED, Deriver  # noqa: E402
 from ngpm_runtime.geometry.turtle import prim_bbox  # noqa: E402
 from ngpm_runtime.inference.smc import forward, smc  # noqa: E402
 from ngpm_runtime.program import Site, load_program  # noqa: E402
@@ -222,13 +222,17 @@ def test_primitive_cap_gives_limit_status() -> None:
     r = smc(prog, None, 3, max_steps=4)
     assert all(p.status == "limit" and len(p.primitives) == 4 for p in r.particles)
     assert r.info["status"] == {"done": 0, "limit": 3, "dead": 0}
+    assert r.info["limits"] == {"max steps": 3} and f.limit == "max primitives"
 
 
 def test_work_cap_without_drawing_gives_limit() -> None:
     prog = make_program({"A": lambda ctx: [("A",), ("A",)]}, derivation_length=40)
     d = Deriver(prog, max_ops=10_000)
     p = d.start((0.0, 0.0, 0.0, 1.0))
-    assert d.advance(p) not in (DONE, DRAWN, NEED)
+    assert d.advance(p) == LIMIT
+    r = smc(prog, None, 2, max_modules=500)
+    assert [(q.status, q.limit) for q in r.particles] == [("limit", "max modules")] * 2
+    assert r.info["limits"] == {"max modules": 2}
 
 
 def test_prim_bbox() -> None:

@@ -189,11 +189,18 @@ def test_proposal_with_features_gets_them(vines) -> None:
         def propose(self, site, args, features, rng):
             assert features is not None and features.shape[0] == len(args)
             assert features.dtype == np.float32
-            seen.append(features.shape[1])
+            seen.append((site.index, features.shape[1], len(args)))
             return super().propose(site, args, features, rng)
 
-    run_vines(vines, n=10, proposal=Featured())
-    assert seen
+    result = run_vines(vines, n=10, proposal=Featured())
+    from ngpm_runtime.image.features import FeatureMaker
+
+    fm = FeatureMaker(vines, vines.viewport, disk_mask())
+    # one call per site served, with every waiting particle's row of the site's full width
+    assert len({i for i, _, _ in seen}) >= 3
+    assert all(width == fm.n_features(vines.sites[i]) for i, width, _ in seen)
+    assert all(1 <= rows <= 10 for _, _, rows in seen)
+    assert result.steps > 1 and len(seen) >= result.steps
 
 
 def test_forward_without_viewport_and_null_likelihood(vines) -> None:
