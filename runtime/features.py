@@ -13,13 +13,20 @@ from __future__ import annotations
 import numpy as np
 from ngpm_runtime.errors import TargetError
 from ngpm_runtime.program import Program, Site
-from ngpm_runtime.raster import N_LEVELS, Canvas, Viewport, pyramid
+from ngpm_runtime.raster import (
+    N_LEVELS,
+    PAD,
+    Canvas,
+    Viewport,
+    padded_layout,
+    padded_pyramid,
+    pyramid,
+)
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
-PAD = 3  # padding cells around each pyramid level in the window lookup tables
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -82,53 +89,70 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per canvas size, the pyramid padded by PAD cells on each side and concatenated:
-        level heights and widths (float64), the 3x3 window offsets per level (4, 9) from a
-        padded row-major (row, col) index, and `cells`: a cell's unpadded row-major index in
-        its level, -1 in the padding (flat)."""
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                np.ndarray]:
+        """Per canvas size, in raster's padded pyramid layout: level heights and widths and
+        padded widths (float64), and the 3x3 window offsets per level (4, 9) from a padded
+        row-major (row, col) index, with each level's start and the padding folded in."""
         key = (h, w)
         if key not in self._geom:
-            hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.intp)
-            ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.intp)
-            hp, wp = hs + 2 * PAD, ws + 2 * PAD
-            starts = np.concatenate([[0], np.cumsum(hp * wp)[:-1]]).astype(np.intp)
-            # window offsets, with each level's start and the padding folded in
+            hp, wp, starts = padded_layout(h, w)
+            hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.float64)
+            ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.float64)
             offs = (_DR[None, :] * wp[:, None] + _DC[None, :]
                     + (starts + PAD * wp + PAD)[:, None])
-            cells = []
-            for hl, wl in zip(hs.tolist(), ws.tolist(), strict=True):
-                c = np.full((hl + 2 * PAD, wl + 2 * PAD), -1, dtype=np.intp)
-                c[PAD:PAD + hl, PAD:PAD + wl] = np.arange(hl * wl).reshape(hl, wl)
-                cells.append(c.reshape(-1))
-            self._geom[key] = (hs.astype(np.float64), ws.astype(np.float64), offs,
-                               np.concatenate(cells))
+            self._geom[key] = (hs, ws, wp.astype(np.float64), offs.astype(np.intp))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
-        """The target pyramid in `_windows`' padded layout, -1 in the padding (float32)."""
+        """The target pyramid in raster's padded layout, -1 in the padding (float32)."""
         if self._target_flat is None:
-            levels = []
-            for lev in self.target_levels or []:
-                p = np.full((lev.shape[0] + 2 * PAD, lev.shape[1] + 2 * PAD), -1.0,
-                            dtype=np.float32)
-                p[PAD:PAD + lev.shape[0], PAD:PAD + lev.shape[1]] = lev
-                levels.append(p.reshape(-1))
-            self._target_flat = np.concatenate(levels)
+            self._target_flat = padded_pyramid(list(self.target_levels or []))
         return self._target_flat
 
     def features(self, site: Site, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                  depth: np.ndarray, params: np.ndarray, prior_args: np.ndarray) -> np.ndarray:
+        """Feature rows `(n, n_features(site))` float32 of n particles at one site."""
+        idx = np.asarray(idx, dtype=np.intp).reshape(-1)
+        return self.features_round([site], canvas, idx, turtle, depth, [params],
+                                   [prior_args])[0]
+
+    def features_round(self, sites: list[Site], canvas: Canvas | None, idx: np.ndarray,
+                       turtle: np.ndarray, depth: np.ndarray, params: list[np.ndarray],
+                       prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """Feature rows for several sites at once: `idx`, `turtle` (n, 4) and `depth` (n,)
+        list the particles of every site one after the other (`len(params[j])` of them at
+        `sites[j]`); returns one array per site. The turtle and window columns are computed
+        for all n rows in one pass; each row is the one `features` gives alone."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
-        turtle = np.asarray(turtle, dtype=np.float64).reshape(n, 4)
+        common = self._common(canvas, idx, np.asarray(turtle, dtype=np.float64).reshape(n, 4),
+                              np.asarray(depth, dtype=np.float64).reshape(n))
+        out = []
+        pos = 0
+        for site, par, args in zip(sites, params, prior_args, strict=True):
+            m = len(args)
+            a, k = int(site.arity), int(site.n_args())
+            block = common[pos:pos + m]
+            rows = np.concatenate((block[:, :N_LOCAL_BASE], _fit_columns(par, m, a),
+                                   _fit_columns(args, m, k), block[:, N_LOCAL_BASE:]),
+                                  axis=1, dtype=np.float32)
+            out.append(rows)
+            pos += m
+        if pos != n:
+            raise ValueError(f"features_round: {n} particles, {pos} rows of arguments")
+        return out
+
+    def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
+                depth: np.ndarray) -> np.ndarray:
+        """(n, 7 + 72) float32: the site-independent columns (turtle state, depth, target and
+        partial windows) of every particle."""
+        n = len(idx)
         xmin, xmax, ymin, ymax = self.viewport
         u = (turtle[:, 0] - xmin) / (xmax - xmin)
         v = (ymax - turtle[:, 1]) / (ymax - ymin)
         heading = turtle[:, 2]
-        a, k = int(site.arity), int(site.n_args())
-        nl = N_LOCAL_BASE + a + k
-        out = np.empty((n, nl + 2 * N_WINDOW), dtype=np.float32)
+        out = np.empty((n, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
         out[:, 0] = 2.0 * u - 1.0
         out[:, 1] = 1.0 - 2.0 * v
         out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
@@ -136,9 +160,8 @@ class FeatureMaker:
         out[:, 3] = np.sin(rad)
         out[:, 4] = np.cos(rad)
         out[:, 5] = turtle[:, 3]
-        out[:, 6] = np.asarray(depth, dtype=np.float64).reshape(n) / self.derivation_length
-        out[:, N_LOCAL_BASE:N_LOCAL_BASE + a] = _fit_columns(params, n, a)
-        out[:, N_LOCAL_BASE + a:nl] = _fit_columns(prior_args, n, k)
+        out[:, 6] = depth / self.derivation_length
+        nl = N_LOCAL_BASE
         target = out[:, nl:nl + N_WINDOW]
         partial = out[:, nl + N_WINDOW:]
         h, w = self._shape(canvas)
@@ -146,9 +169,9 @@ class FeatureMaker:
             target[:] = 0.0 if self.target_levels is None else -1.0
             partial[:] = 0.0 if canvas is None else -1.0
             return out
-        if not (np.isfinite(u).all() and np.isfinite(v).all()):
+        if not np.isfinite(turtle[:, :2]).all():
             u, v = _unit(u, v)
-        hs, ws, offs, cells = self._windows(h, w)
+        hs, ws, wp, offs = self._windows(h, w)
         # the turtle's cell at each level, clipped to the padding (a window centred 2 cells
         # outside lies wholly outside, like one further out): (n, L)
         rows = np.floor(v[:, None] * hs)
@@ -157,21 +180,16 @@ class FeatureMaker:
         np.minimum(rows, hs + 1, out=rows)
         np.maximum(cols, -2.0, out=cols)
         np.minimum(cols, ws + 1, out=cols)
-        rows *= ws + 2 * PAD
+        rows *= wp
         rows += cols
-        at = rows.astype(np.intp)[:, :, None] + offs  # (n, L, 9) into the padded pyramid
+        # (n, L * 9) indices into the padded pyramid (target's and every canvas's row)
+        at = (rows.astype(np.intp)[:, :, None] + offs).reshape(n, N_WINDOW)
         if self.target_levels is None:
             target[:] = 0.0
         else:
-            target[:] = self._padded_target()[at].reshape(n, N_WINDOW)
+            target[:] = self._padded_target()[at]
         if canvas is None:
             partial[:] = 0.0
         else:
-            cell = cells[at]
-            outside = cell < 0
-            cell += (idx[:, None] * (hs * ws).astype(np.intp))[:, :, None]
-            vals = partial.reshape(n, N_LEVELS, 9)
-            for lv, arr in enumerate(canvas.levels):
-                vals[:, lv] = arr.reshape(-1)[cell[:, lv]]
-            vals[outside] = -1.0
+            partial[:] = canvas.padded[idx[:, None], at]
         return out

@@ -5,6 +5,11 @@ site table); `Guide.propose` implements the Proposal protocol (docs/architecture
 one onnxruntime call per propose (one small session per site net when the `onnx`
 package can split the file), then sampling with distributions.proposal_draw. Sites without a
 network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+
+`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
+one onnxruntime call of the whole file for all of their networks (each site's rows fed to
+its input, empty batches to the rest), then one proposal_draw per group of sites with the
+same kind and parameter layout (the rows of all of them at once).
 """
 
 from __future__ import annotations
@@ -77,15 +82,7 @@ class Guide:
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
         """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
-        net = self.nets[site]
-        if features is None:
-            if self.uses_features:
-                raise GuideError(f"{self.path}: site {site} needs features")
-            features = np.zeros((n or 0, net["n_f"]), dtype=np.float32)
-        x = np.ascontiguousarray(features, dtype=np.float32)
-        if x.ndim != 2 or x.shape[1] != net["n_f"]:
-            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
-                             f"got shape {x.shape} (features changed since training?)")
+        x = self._input(site, features, n or 0)
         sess = self.site_sessions.get(site)
         if sess is not None:
             (out,) = sess.run(None, {f"f_{site}": x})
@@ -94,6 +91,66 @@ class Guide:
             feeds[f"f_{site}"] = x
             (out,) = self.session.run([f"p_{site}"], feeds)
         return out.astype(np.float64)
+
+    def _input(self, site: int, features: np.ndarray | None, n: int) -> np.ndarray:
+        """The float32 feature rows the site's network reads (checked)."""
+        net = self.nets[site]
+        if features is None:
+            if self.uses_features:
+                raise GuideError(f"{self.path}: site {site} needs features")
+            return np.zeros((n, net["n_f"]), dtype=np.float32)
+        x = np.ascontiguousarray(features, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != net["n_f"]:
+            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
+                             f"got shape {x.shape} (features changed since training?)")
+        return x
+
+    def params_round(self, sites: list[int], features: list[np.ndarray | None],
+                     ns: list[int]) -> list[np.ndarray]:
+        """`params` of several site networks (distinct sites) with one onnxruntime call."""
+        if len(sites) == 1:
+            return [self.params(sites[0], features[0], ns[0])]
+        feeds = dict(self._empty)
+        for s, f, n in zip(sites, features, ns, strict=True):
+            feeds[f"f_{s}"] = self._input(s, f, n)
+        outs = self.session.run([f"p_{s}" for s in sites], feeds)
+        return [o.astype(np.float64) for o in outs]
+
+    def propose_round(self, sites: list[Site], prior_args: list[np.ndarray],
+                      features: list[np.ndarray] | None, rng: np.random.Generator
+                      ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """`propose` for every site waiting in an SMC round (proposals.RoundProposal): one
+        network call for all of them, one draw per group of like sites."""
+        out: list[Any] = [None] * len(sites)
+        net = [j for j, site in enumerate(sites) if site.index in self.nets]
+        for j, site in enumerate(sites):
+            if site.index not in self.nets:
+                out[j] = self.propose(site, prior_args[j], None, rng)
+        if not net:
+            return out
+        params = self.params_round([sites[j].index for j in net],
+                                   [None if features is None else features[j] for j in net],
+                                   [len(prior_args[j]) for j in net])
+        groups: dict[tuple, list[int]] = {}
+        for j, p in zip(net, params, strict=True):
+            key = (sites[j].kind, p.shape[1], prior_args[j].shape[1])
+            groups.setdefault(key, []).append(j)
+        by_site = dict(zip(net, params, strict=True))
+        for js in groups.values():
+            args = [prior_args[j] for j in js]
+            if len(js) > 1:
+                a = np.concatenate(args)
+                if np.isfinite(a).all():  # else per site, for the error naming its site
+                    values, log_q = dist.proposal_draw(
+                        sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng)
+                    cut = np.cumsum([len(x) for x in args])[:-1]
+                    for j, v, q in zip(js, np.split(values, cut), np.split(log_q, cut),
+                                       strict=True):
+                        out[j] = (v, q)
+                    continue
+            for j in js:
+                out[j] = dist.proposal_draw(sites[j], prior_args[j], by_site[j], rng)
+        return out
 
     def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program  # noqa: E402
 from ngpm_runtime import features as features_module  # noqa: E402
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
-from ngpm_runtime.likelihood import NullLikelihood, ShapeLikelihood  # noqa: E402
+from ngpm_runtime.likelihood import Likelihood, NullLikelihood, ShapeLikelihood  # noqa: E402
 from ngpm_runtime.program import load_program  # noqa: E402
 from ngpm_runtime.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.raster import rasterize  # noqa: E402
@@ -118,7 +118,7 @@ def test_one_batched_proposal_call_per_site_per_round(vines) -> None:
 
 
 def test_all_zero_weight_raises_smcfailed(vines) -> None:
-    class Impossible:
+    class Impossible(Likelihood):
         needs_canvas = False
 
         def start(self, n):
@@ -133,7 +133,7 @@ def test_all_zero_weight_raises_smcfailed(vines) -> None:
 
 
 def test_nan_increments_are_zero_weight_not_nan(vines) -> None:
-    class HalfNaN:
+    class HalfNaN(Likelihood):
         needs_canvas = False
 
         def start(self, n):
@@ -210,7 +210,7 @@ def test_forward_without_viewport_and_null_likelihood(vines) -> None:
     r = smc(make_program({"A": lambda ctx: [("F", 1.0)]}), NullLikelihood(), 3)
     assert all(p.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0)] for p in r.particles)
 
-    class NeedsCanvas:
+    class NeedsCanvas(Likelihood):
         def start(self, n):
             return {}
 
