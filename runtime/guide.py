@@ -7,9 +7,12 @@ package can split the file), then sampling with distributions.proposal_draw. Sit
 network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
 
 `Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
-one onnxruntime call of the whole file for all of their networks (each site's rows fed to
-its input, empty batches to the rest), then one proposal_draw per group of sites with the
-same kind and parameter layout (the rows of all of them at once).
+one network call per waiting site, then one proposal_draw per group of sites with the same
+kind and parameter layout (the rows of all of them at once).
+
+Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
+file's own weights, float32 like onnxruntime); any other graph, or every net when
+`Guide.numpy_nets` is emptied, runs in onnxruntime.
 """
 
 from __future__ import annotations
@@ -48,6 +51,9 @@ class Guide:
                        for i, n in self.nets.items()}
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
+        # the same nets evaluated in numpy (sites whose graph has the export's usual form);
+        # they answer instead of onnxruntime (empty this dict to use onnxruntime only)
+        self.numpy_nets: dict[int, NumpyNet] = {}
 
     @classmethod
     def load(cls, path: str | Path, program: Program) -> Guide:
@@ -77,12 +83,15 @@ class Guide:
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
-        guide.site_sessions = _site_sessions(path, list(guide.nets), opts)
+        guide.site_sessions, guide.numpy_nets = _site_engines(path, list(guide.nets), opts)
         return guide
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
         """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
         x = self._input(site, features, n or 0)
+        numpy_net = self.numpy_nets.get(site)
+        if numpy_net is not None:
+            return numpy_net(x)
         sess = self.site_sessions.get(site)
         if sess is not None:
             (out,) = sess.run(None, {f"f_{site}": x})
@@ -107,9 +116,12 @@ class Guide:
 
     def params_round(self, sites: list[int], features: list[np.ndarray | None],
                      ns: list[int]) -> list[np.ndarray]:
-        """`params` of several site networks (distinct sites) with one onnxruntime call."""
-        if len(sites) == 1:
-            return [self.params(sites[0], features[0], ns[0])]
+        """`params` of several site networks (distinct sites): one call per site's own
+        session (onnxruntime's cost is per graph node, so one run of the whole file, which
+        also runs every other net on an empty batch, costs more: benchmarks/smc.py --nets),
+        or one whole-file call when the file could not be split."""
+        if self.site_sessions or len(sites) == 1:
+            return [self.params(s, f, n) for s, f, n in zip(sites, features, ns, strict=True)]
         feeds = dict(self._empty)
         for s, f, n in zip(sites, features, ns, strict=True):
             feeds[f"f_{s}"] = self._input(s, f, n)
@@ -161,23 +173,117 @@ class Guide:
         return dist.proposal_draw(site, prior_args, params, rng)
 
 
-def _site_sessions(path: str, sites: list[int], opts: ort.SessionOptions
-                   ) -> dict[int, ort.InferenceSession]:
-    """One session per site net, cut from the file's graph (a call then runs only that
-    net); empty when the `onnx` package is missing or cannot split the file."""
+def _site_engines(path: str, sites: list[int], opts: ort.SessionOptions
+                  ) -> tuple[dict[int, ort.InferenceSession], dict[int, NumpyNet]]:
+    """One onnxruntime session per site net, cut from the file's graph (a call then runs
+    only that net), and a NumpyNet for each cut graph of the usual form; both empty when the
+    `onnx` package is missing or cannot split the file."""
     try:
         import onnx
         import onnx.utils
     except ImportError:
-        return {}
+        return {}, {}
     try:
         extractor = onnx.utils.Extractor(onnx.load(path))
-        return {s: ort.InferenceSession(
-                    extractor.extract_model([f"f_{s}"], [f"p_{s}"]).SerializeToString(),
-                    opts, providers=["CPUExecutionProvider"])
-                for s in sites}
+        models = {s: extractor.extract_model([f"f_{s}"], [f"p_{s}"]) for s in sites}
+        sessions = {s: ort.InferenceSession(m.SerializeToString(), opts,
+                                            providers=["CPUExecutionProvider"])
+                    for s, m in models.items()}
     except Exception:  # any failure: the whole-file session still works
-        return {}
+        return {}, {}
+    nets = {}
+    for s, m in models.items():
+        net = NumpyNet.from_graph(m.graph)
+        if net is not None:
+            nets[s] = net
+    return sessions, nets
+
+
+_HEADS = {("Slice", "Slice", "LogSoftmax", "Concat"): "mixture", ("Softmax",): "softmax",
+          ("Sigmoid",): "sigmoid"}
+
+
+class NumpyNet:
+    """One site network evaluated in numpy, float32 like onnxruntime, from the weights in
+    the ONNX file: `tanh(x[:, cols] @ W1' + b1)`, then `bounds * tanh(h @ W2' + b2)`, then
+    the head (log-softmax over the first K mixture columns, softmax, or sigmoid): the graph
+    ngpm_compiler/export.py writes. Other graphs get no NumpyNet (onnxruntime runs them).
+
+    Why: SMC's batches are small, and there a call costs a few numpy operations where
+    onnxruntime's per-call overhead dominates (benchmarks/smc.py --nets prints both, from 1
+    to 1000 rows); one engine for every batch size keeps a particle's proposal independent
+    of how many particles share its round. tests/test_guide.py checks it against
+    onnxruntime to 1e-5."""
+
+    def __init__(self, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray, w2: np.ndarray,
+                 b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
+        self.cols = cols.astype(np.intp)
+        self.w1t = np.ascontiguousarray(w1.T, dtype=np.float32)
+        self.b1 = b1.astype(np.float32)
+        self.w2t = np.ascontiguousarray(w2.T, dtype=np.float32)
+        self.b2 = b2.astype(np.float32)
+        self.bounds = bounds.astype(np.float32)
+        self.head = head
+        self.k = k
+
+    @classmethod
+    def from_graph(cls, graph: Any) -> NumpyNet | None:
+        """The NumpyNet of an export's per-site graph; None for any other graph."""
+        from onnx import helper, numpy_helper
+
+        nodes = list(graph.node)
+        ops = tuple(n.op_type for n in nodes)
+        head = _HEADS.get(ops[6:])
+        if ops[:6] != ("Gather", "Gemm", "Tanh", "Gemm", "Tanh", "Mul") or head is None:
+            return None
+        consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+        for gemm in (nodes[1], nodes[3]):
+            attrs = {a.name: helper.get_attribute_value(a) for a in gemm.attribute}
+            if attrs != {"transB": 1} or len(gemm.input) != 3:
+                return None
+        gather = {a.name: helper.get_attribute_value(a) for a in nodes[0].attribute}
+        try:
+            cols = consts[nodes[0].input[1]]
+            w1, b1 = consts[nodes[1].input[1]], consts[nodes[1].input[2]]
+            w2, b2 = consts[nodes[3].input[1]], consts[nodes[3].input[2]]
+            bounds = consts[nodes[5].input[1]]
+            k = 0
+            if head == "mixture":
+                sl = nodes[6]
+                starts, ends = consts[sl.input[1]].tolist(), consts[sl.input[2]].tolist()
+                axes = consts[sl.input[3]].tolist() if len(sl.input) > 3 else [0]
+                if starts != [0] or axes != [1] or len(sl.input) > 4:
+                    return None
+                k = int(ends[0])
+                rest = nodes[7]
+                if (consts[rest.input[1]].tolist() != [k] or len(rest.input) > 4
+                        or consts[rest.input[2]].tolist()[0] < w2.shape[0]):
+                    return None
+        except (KeyError, IndexError):
+            return None
+        if gather.get("axis") != 1 or b1.shape != (w1.shape[0],) or w2.shape[1] != w1.shape[0]:
+            return None
+        return cls(cols, w1, b1, w2, b2, bounds, head, k)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
+        h = x[:, self.cols] @ self.w1t
+        h += self.b1
+        np.tanh(h, out=h)
+        o = h @ self.w2t
+        o += self.b2
+        np.tanh(o, out=o)
+        o *= self.bounds
+        if self.head == "mixture":
+            lw = o[:, :self.k]
+            d = lw - lw.max(axis=1, keepdims=True)
+            lw[:] = d - np.log(np.exp(d).sum(axis=1, keepdims=True))
+        elif self.head == "softmax":
+            o = np.exp(o - o.max(axis=1, keepdims=True))
+            o /= o.sum(axis=1, keepdims=True)
+        else:
+            o = 1 / (1 + np.exp(-o))
+        return o.astype(np.float64)
 
 
 def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:

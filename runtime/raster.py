@@ -317,17 +317,21 @@ class Canvas:
     `padded` (N, total) float32 holds every canvas's pyramid in `padded_layout` (level 0 the
     image as 0/1, levels 1-3 means over 2x2, 4x4 and 8x8 pixel blocks, floor sizes; -1 in
     the padding). `levels` gives the unpadded levels as views (`levels[0]` is `image`).
+    With `pyramid=False` (no guide features to serve) only `image` is kept: `padded` is
+    (N, 0) and `levels` is `[image]`.
     """
 
-    def __init__(self, n: int, height: int, width: int, viewport: Viewport) -> None:
+    def __init__(self, n: int, height: int, width: int, viewport: Viewport,
+                 pyramid: bool = True) -> None:
         self.n, self.height, self.width = int(n), int(height), int(width)
         self.viewport = tuple(float(v) for v in viewport)
         self._grid = _Grid(self.viewport, self.height, self.width)
         self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
         self._hp, self._wp, self._starts = padded_layout(self.height, self.width)
+        self.pyramid = pyramid
         blank = padded_pyramid([np.zeros(s, dtype=np.float32)
                                 for s in level_shapes(self.height, self.width)])
-        self.padded = np.repeat(blank[None, :], self.n, axis=0)
+        self.padded = np.repeat(blank[None, :] if pyramid else blank[None, :0], self.n, axis=0)
         self._spare: list[np.ndarray] | None = None  # take()'s second buffers
         self._row_off = np.arange(self.height)[:, None] * self.width  # (H, 1) flat offsets
 
@@ -336,7 +340,7 @@ class Canvas:
         """The pyramid levels (N, h_l, w_l): `image`, then float32 views into `padded`."""
         out = [self.image]
         for lv, (h, w) in enumerate(level_shapes(self.height, self.width)):
-            if lv:
+            if lv and self.pyramid:
                 hp, wp, st = int(self._hp[lv]), int(self._wp[lv]), int(self._starts[lv])
                 block = self.padded[:, st:st + hp * wp].reshape(self.n, hp, wp)
                 out.append(block[:, PAD:PAD + h, PAD:PAD + w])
@@ -361,7 +365,7 @@ class Canvas:
         c = x0[k] + j
         p = idx[k]
         img[(p * h + r) * w + c] = 1
-        if k.size:
+        if k.size and self.pyramid:
             pad = self.padded.reshape(-1)
             row0 = p * self.padded.shape[1]
             wp, starts = self._wp, self._starts

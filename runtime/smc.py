@@ -212,7 +212,7 @@ class _Run:
             from ngpm_runtime.raster import Canvas
 
             self.canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]),
-                                 program.viewport)
+                                 program.viewport, pyramid=need_features)
         self.fmaker = None
         if need_features:
             from ngpm_runtime.features import FeatureMaker
@@ -227,6 +227,8 @@ class _Run:
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
         self.order = SiteOrder()
         self.tables: dict[tuple, np.ndarray] = {}  # categorical log prior per (site, weights)
+        # (particles, log q or None for the prior proposal, log p) of the sites served
+        self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
         self.log_z = 0.0
         self.ess_history: list[float] = []
         self.steps = 0
@@ -258,11 +260,12 @@ class _Run:
         rounds; returns (particles that drew, particles that ended having drawn nothing)."""
         parts = self.pop.parts
         advance = self.deriver.advance
+        order = self.order
         drawn: list[int] = []
         empty: list[int] = []
         # particles already waiting on a site (from the look-ahead) skip round one
         waiting: dict[int, list[int]] = {}
-        run = []
+        run: list[int] = []
         for i in self.pop.live:
             need = parts[i].need
             if need is None:
@@ -271,17 +274,18 @@ class _Run:
                 waiting[need[0]].append(i)
             else:
                 waiting[need[0]] = [i]
-        served = -1  # the site `run` was just served at (-1: none; per-site serving only)
-        nexts: set[int] = set()  # the sites the particles of `run` asked for next
+        came: list[int] = [-1] * len(run)  # the site each particle of `run` was served at
         while True:
-            for i in run:
+            seen: set[tuple[int, int]] = set()  # (served site, next site) in this round
+            for i, a in zip(run, came, strict=True):
                 p = parts[i]
                 code = advance(p)
                 if code == DRAWN:
                     drawn.append(i)
                 elif code == NEED:
                     s = p.need[0]  # type: ignore[index]
-                    nexts.add(s)
+                    if a >= 0:
+                        seen.add((a, s))
                     if s in waiting:
                         waiting[s].append(i)
                     else:
@@ -290,22 +294,17 @@ class _Run:
                     p.status = "done" if code == DONE else "limit"
                     if p.n_prims == 0:
                         empty.append(i)
-            if served >= 0:
-                for s in nexts:
-                    self.order.saw(served, s)
-            nexts.clear()
+            for a, s in seen:
+                order.saw(a, s)
             if not waiting:
+                self._flush()
                 return drawn, empty
-            if self.batched:  # every waiting site in one call
-                sites = sorted(waiting)
-                groups = [sorted(waiting[s]) for s in sites]
-                waiting = {}
-                self._serve(sites, groups)
-                run = [i for g in groups for i in g]
-            else:
-                served = self.order.pick(waiting)
-                run = sorted(waiting.pop(served))
-                self._serve([served], [run])
+            # a RoundProposal gets every site no other waiting site leads to in one call
+            sites = order.free(waiting) if self.batched else [order.pick(waiting)]
+            groups = [sorted(waiting.pop(s)) for s in sites]
+            self._serve(sites, groups)
+            run = [i for g in groups for i in g]
+            came = [s for s, g in zip(sites, groups, strict=True) for _ in g]
 
     def _serve(self, sites: list[int], groups: list[list[int]]) -> None:
         """Draw the values the particles `groups[j]` wait for at site `sites[j]`: one
@@ -340,11 +339,11 @@ class _Run:
 
     def _weigh_site(self, site: Site, idx: list[int], rows: list[tuple], args: np.ndarray,
                     values: np.ndarray, log_q: np.ndarray, feats: np.ndarray | None) -> None:
-        """Weights (log prior - log q), trace and replay values of one served site."""
-        pop = self.pop
+        """Weights (log prior - log q), trace and replay values of one served site. The
+        weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
         ia = np.asarray(idx, dtype=np.intp)
         if self.is_prior:  # log q = log prior: the weight does not change
-            pop.log_prior[ia] += log_q
+            self.pending.append((ia, None, log_q))
         else:
             values = np.asarray(values, dtype=np.float64)
             log_q = np.asarray(log_q, dtype=np.float64)
@@ -353,11 +352,27 @@ class _Run:
                 log_p = _categorical_logp(site, rows, args, values, self.tables)
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
+            self.pending.append((ia, log_q, log_p))
+        _record(self.pop.parts, site, idx, values.tolist(), feats, self.record_trace)
+
+    def _flush(self) -> None:
+        """Apply the pending site weights: log w += log p - log q (NaN: zero weight),
+        log prior += log p; each particle's terms are added in the order they came."""
+        pending = self.pending
+        if not pending:
+            return
+        pop = self.pop
+        ia = np.concatenate([x[0] for x in pending]) if len(pending) > 1 else pending[0][0]
+        log_p = (np.concatenate([x[2] for x in pending]) if len(pending) > 1
+                 else pending[0][2])
+        if not self.is_prior:
+            log_q = (np.concatenate([x[1] for x in pending]) if len(pending) > 1
+                     else pending[0][1])
             with np.errstate(invalid="ignore"):
                 delta = log_p - log_q
-            pop.log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
-            pop.log_prior[ia] += log_p
-        _record(pop.parts, site, idx, values.tolist(), feats, self.record_trace)
+            np.add.at(pop.log_w, ia, np.where(np.isnan(delta), -np.inf, delta))
+        np.add.at(pop.log_prior, ia, log_p)
+        pending.clear()
 
     def _features(self, sites: list[Site], groups: list[list[int]],
                   args_list: list[np.ndarray]) -> list[np.ndarray]:
@@ -509,6 +524,23 @@ class SiteOrder:
                 blocked |= hit
         first = [k for k in waiting if k not in blocked]
         return max(first or waiting, key=lambda k: (len(waiting[k]), -k))
+
+    def free(self, waiting: dict[int, list[int]]) -> list[int]:
+        """Every waiting site that no other waiting site leads to, ascending (no particle
+        is expected to join them later in the step); `[pick(waiting)]` when a cycle leaves
+        none."""
+        if len(waiting) == 1:
+            return list(waiting)
+        keys = waiting.keys()
+        blocked: set[int] = set()
+        for a in waiting:
+            ra = self.reach.get(a)
+            if ra:
+                hit = ra & keys
+                hit.discard(a)
+                blocked |= hit
+        first = sorted(k for k in waiting if k not in blocked)
+        return first or [self.pick(waiting)]
 
 
 def replay(
