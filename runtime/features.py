@@ -27,6 +27,8 @@ N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
+_TWO_NEG = np.array([2.0, -2.0])
+_ONE_POS = np.array([-1.0, 1.0])
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -63,7 +65,10 @@ class FeatureMaker:
         self.target_levels = (None if target_mask is None
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
-        self._geom: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        xmin, xmax, ymin, ymax = self.viewport
+        self._origin = np.array([xmin, ymax])
+        self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
 
     def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
         if canvas is not None:
@@ -89,19 +94,22 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                np.ndarray]:
-        """Per canvas size, in raster's padded pyramid layout: level heights and widths and
-        padded widths (float64), and the 3x3 window offsets per level (4, 9) from a padded
-        row-major (row, col) index, with each level's start and the padding folded in."""
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, ...]:
+        """Per canvas size, in raster's padded pyramid layout: (2, L) level (heights,
+        widths), lowest and highest (row, col) a window centre is clipped to, the (padded
+        width, 1) multipliers of a (row, col), all float64, and the 3x3 window offsets per
+        level (L, 9) from a padded row-major index, each level's start and padding folded in.
+        """
         key = (h, w)
         if key not in self._geom:
             hp, wp, starts = padded_layout(h, w)
-            hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.float64)
-            ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.float64)
+            size = np.array([[h >> lv for lv in range(N_LEVELS)],
+                             [w >> lv for lv in range(N_LEVELS)]], dtype=np.float64)
+            mult = np.stack([wp.astype(np.float64), np.ones(N_LEVELS)])
             offs = (_DR[None, :] * wp[:, None] + _DC[None, :]
                     + (starts + PAD * wp + PAD)[:, None])
-            self._geom[key] = (hs, ws, wp.astype(np.float64), offs.astype(np.intp))
+            self._geom[key] = (size, np.full_like(size, -2.0), size + 1, mult,
+                               offs.astype(np.intp))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
@@ -146,15 +154,13 @@ class FeatureMaker:
     def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                 depth: np.ndarray) -> np.ndarray:
         """(n, 7 + 72) float32: the site-independent columns (turtle state, depth, target and
-        partial windows) of every particle."""
+        partial windows) of every particle, in few numpy calls (SMC's batches are small)."""
         n = len(idx)
-        xmin, xmax, ymin, ymax = self.viewport
-        u = (turtle[:, 0] - xmin) / (xmax - xmin)
-        v = (ymax - turtle[:, 1]) / (ymax - ymin)
-        heading = turtle[:, 2]
+        # (u, v): normalized image position, u right, v down from ymax
+        uv = (turtle[:, :2] - self._origin) / self._span
         out = np.empty((n, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
-        out[:, 0] = 2.0 * u - 1.0
-        out[:, 1] = 1.0 - 2.0 * v
+        out[:, :2] = uv * _TWO_NEG + _ONE_POS  # 2u - 1, 1 - 2v
+        heading = turtle[:, 2]
         out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
         rad = np.radians(heading)
         out[:, 3] = np.sin(rad)
@@ -169,21 +175,16 @@ class FeatureMaker:
             target[:] = 0.0 if self.target_levels is None else -1.0
             partial[:] = 0.0 if canvas is None else -1.0
             return out
-        if not np.isfinite(turtle[:, :2]).all():
-            u, v = _unit(u, v)
-        hs, ws, wp, offs = self._windows(h, w)
-        # the turtle's cell at each level, clipped to the padding (a window centred 2 cells
-        # outside lies wholly outside, like one further out): (n, L)
-        rows = np.floor(v[:, None] * hs)
-        cols = np.floor(u[:, None] * ws)
-        np.maximum(rows, -2.0, out=rows)
-        np.minimum(rows, hs + 1, out=rows)
-        np.maximum(cols, -2.0, out=cols)
-        np.minimum(cols, ws + 1, out=cols)
-        rows *= wp
-        rows += cols
+        if not np.isfinite(uv).all():
+            uv = np.column_stack(_unit(uv[:, 0], uv[:, 1]))
+        size, low, high, mult, offs = self._windows(h, w)
+        # the turtle's (row, col) at each level, clipped to the padding (a window centred 2
+        # cells outside lies wholly outside, like one further out): (n, 2, L)
+        rc = np.floor(uv[:, ::-1, None] * size)
+        np.maximum(rc, low, out=rc)
+        np.minimum(rc, high, out=rc)
         # (n, L * 9) indices into the padded pyramid (target's and every canvas's row)
-        at = (rows.astype(np.intp)[:, :, None] + offs).reshape(n, N_WINDOW)
+        at = ((rc * mult).sum(axis=1).astype(np.intp)[:, :, None] + offs).reshape(n, N_WINDOW)
         if self.target_levels is None:
             target[:] = 0.0
         else:

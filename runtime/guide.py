@@ -215,9 +215,11 @@ class NumpyNet:
     of how many particles share its round. tests/test_guide.py checks it against
     onnxruntime to 1e-5."""
 
-    def __init__(self, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray, w2: np.ndarray,
-                 b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
-        self.cols = cols.astype(np.intp)
+    def __init__(self, n_f: int, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray,
+                 w2: np.ndarray, b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
+        cols = cols.astype(np.intp)
+        # every column in order (the usual case): no gather
+        self.cols = None if np.array_equal(cols, np.arange(n_f)) else cols
         self.w1t = np.ascontiguousarray(w1.T, dtype=np.float32)
         self.b1 = b1.astype(np.float32)
         self.w2t = np.ascontiguousarray(w2.T, dtype=np.float32)
@@ -263,11 +265,12 @@ class NumpyNet:
             return None
         if gather.get("axis") != 1 or b1.shape != (w1.shape[0],) or w2.shape[1] != w1.shape[0]:
             return None
-        return cls(cols, w1, b1, w2, b2, bounds, head, k)
+        n_f = graph.input[0].type.tensor_type.shape.dim[1].dim_value
+        return cls(int(n_f), cols, w1, b1, w2, b2, bounds, head, k)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
-        h = x[:, self.cols] @ self.w1t
+        h = (x if self.cols is None else x[:, self.cols]) @ self.w1t
         h += self.b1
         np.tanh(h, out=h)
         o = h @ self.w2t

@@ -226,7 +226,7 @@ class _Run:
         turtle = (float(x0), float(y0), float(h0), 1.0)
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
         self.order = SiteOrder()
-        self.tables: dict[tuple, np.ndarray] = {}  # categorical log prior per (site, weights)
+        self.tables: dict[tuple, list[float]] = {}  # categorical log prior per (site, weights)
         # (particles, log q or None for the prior proposal, log p) of the sites served
         self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
         self.log_z = 0.0
@@ -342,18 +342,19 @@ class _Run:
         """Weights (log prior - log q), trace and replay values of one served site. The
         weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
         ia = np.asarray(idx, dtype=np.intp)
+        values = np.asarray(values, dtype=np.float64)
+        vals = values.tolist()
         if self.is_prior:  # log q = log prior: the weight does not change
             self.pending.append((ia, None, log_q))
         else:
-            values = np.asarray(values, dtype=np.float64)
             log_q = np.asarray(log_q, dtype=np.float64)
             log_p = None
             if site.kind == "categorical":
-                log_p = _categorical_logp(site, rows, args, values, self.tables)
+                log_p = _categorical_logp(site, rows, args, vals, self.tables)
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
             self.pending.append((ia, log_q, log_p))
-        _record(self.pop.parts, site, idx, values.tolist(), feats, self.record_trace)
+        _record(self.pop.parts, site, idx, vals, feats, self.record_trace)
 
     def _flush(self) -> None:
         """Apply the pending site weights: log w += log p - log q (NaN: zero weight),
@@ -563,8 +564,8 @@ def replay(
     return res.particles[0]
 
 
-def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, values: np.ndarray,
-                      tables: dict[tuple, np.ndarray]) -> np.ndarray | None:
+def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list[float],
+                      tables: dict[tuple, list[float]]) -> np.ndarray | None:
     """prior_logpdf of categorical values whose rows share one weight tuple, from a table
     made by prior_logpdf itself (the same numbers); None when it does not apply."""
     first = rows[0]
@@ -575,14 +576,19 @@ def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, values: np
     table = tables.get(key)
     if table is None:
         k = len(first)
-        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0), np.arange(k, dtype=np.float64))
+        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0),
+                             np.arange(k, dtype=np.float64)).tolist()
         if len(tables) >= 4096:
             tables.clear()
         tables[key] = table
-    ki = values.astype(np.intp)
-    if not ((ki == values).all() and (ki >= 0).all() and (ki < len(table)).all()):
-        return None
-    return table[ki]
+    k = len(table)
+    out = []
+    for v in vals:
+        i = int(v) if v == v and abs(v) < 1e18 else -1
+        if i != v or not 0 <= i < k:
+            return None
+        out.append(table[i])
+    return np.array(out)
 
 
 def _rows(rows: list[tuple]) -> np.ndarray | None:
