@@ -301,7 +301,8 @@ def _small_categorical_draw(
         k = min(k, last)
         ks.append(float(k))
         qs.append(row[k] / total)
-    return np.array(ks), _log(np.array(qs))
+    q = np.array(qs)
+    return np.array(ks), (np.log(q) if min(qs) > 0.0 else _log(q))
 
 
 def proposal_draw(

@@ -380,12 +380,11 @@ class _Run:
         """Feature rows of the waiting particles, one array per site, in one pass."""
         parts = self.pop.parts
         idx = [i for g in groups for i in g]
-        n = len(idx)
-        turtle = np.fromiter(chain.from_iterable(parts[i].turtle for i in idx), np.float64,
-                             4 * n).reshape(n, 4)
-        tops = [parts[i].stack for i in idx]
-        depth = np.fromiter((t[1] for t in tops), np.float64, n)  # type: ignore[index]
-        np.maximum(depth, 0.0, out=depth)  # the axiom pseudo-module has depth -1
+        ps = [parts[i] for i in idx]
+        turtle = np.array([p.turtle for p in ps], dtype=np.float64)
+        tops = [p.stack for p in ps]
+        # the axiom pseudo-module has depth -1
+        depth = np.array([max(t[1], 0) for t in tops], dtype=np.float64)  # type: ignore[index]
         params_list = []
         pos = 0
         for site, g in zip(sites, groups, strict=True):
