@@ -13,7 +13,9 @@ similarity and mean seconds per N; the unguided N that matches guided N=10's sim
 (evaluate.time_to_reach): the figure docs/results reports for Fig. 4b.
 
 --nets: one site network's call, numpy engine (guide.NumpyNet) against onnxruntime, by rows.
---profile: cProfile of the guided N=10 runs (top functions by own time).
+--profile: where a guided N=10 step's CPU time goes: per part of the SMC loop (wrapped
+with CPU timers, which add ~1 us per call), calls per step and us per call; then cProfile's
+top functions by own time.
 --trace-jobs: the 600-particle trace job (values recorded, best replayed) next to recording
 features for every particle.
 
@@ -141,6 +143,75 @@ def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
               f"{ratio:.1f}x faster at equal similarity{more}")
 
 
+# (module, owner, attribute, label): the parts of a guided step, outermost first
+PARTS = (
+    ("smc", "_Run", "step", "step (everything)"),
+    ("smc", "_Run", "_derive", " derive: rounds until every particle drew"),
+    ("derive", "Deriver", "advance", "  advance (the deriver, per particle)"),
+    ("smc", "_Run", "_serve", "  serve (one round's sites)"),
+    ("smc", "_Run", "_features", "   features: gather particle state + build rows"),
+    ("features", "FeatureMaker", "_common", "    turtle columns + 3x3x4 windows"),
+    ("guide", "Guide", "propose_round", "   guide: nets + draws"),
+    ("guide", "NumpyNet", "__call__", "    site net (numpy)"),
+    ("distributions", None, "proposal_draw", "    draw + log q"),
+    ("smc", "_Run", "_weigh_site", "   log prior, trace, replay values"),
+    ("smc", "_Run", "_flush", "  apply site weights"),
+    ("smc", "_Run", "_observe", " observe: rasterize + likelihood"),
+    ("raster", "Canvas", "draw", "  rasterize (+ pyramid)"),
+    ("likelihood", "ShapeLikelihood", "increment", "  likelihood increment"),
+    ("smc", "_Run", "_resample", " resample"),
+)
+
+
+def breakdown(program: Any, guide: Any, targets: list) -> None:
+    """CPU time per part of guided N=10 steps (wrapped timers), per step and per call."""
+    import importlib
+
+    from ngpm_runtime.smc import smc
+
+    acc: dict[str, list[float]] = {}
+    saved = []
+    for mod, owner, attr, label in PARTS:
+        m = importlib.import_module(f"ngpm_runtime.{mod}")
+        obj = getattr(m, owner) if owner else m
+        fn = getattr(obj, attr)
+        saved.append((obj, attr, fn))
+        slot = acc.setdefault(label, [0.0, 0])
+
+        def timed(*a: Any, _fn: Any = fn, _slot: list = slot, **k: Any) -> Any:
+            c0 = time.process_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                _slot[0] += time.process_time() - c0
+                _slot[1] += 1
+        setattr(obj, attr, timed)
+    steps = 0
+    try:
+        for seed in range(2):
+            for _, t in targets:
+                steps += smc(program, _like(program, t), 10, proposal=guide, seed=seed,
+                             start=t.start_pose(program.viewport), canvas_size=t.size,
+                             target_mask=t.mask).steps
+    finally:
+        for obj, attr, fn in saved:
+            setattr(obj, attr, fn)
+    print(f"\nguided N=10, {len(targets)} targets x 2 seeds, {steps} steps: CPU per step "
+          "(timers included)")
+    print(f"{'part':48s} {'us/step':>8s} {'calls/step':>10s} {'us/call':>8s}")
+    for _, _, _, label in PARTS:
+        total, calls = acc[label]
+        if calls:
+            print(f"{label:48s} {1e6 * total / steps:8.0f} {calls / steps:10.2f} "
+                  f"{1e6 * total / calls:8.1f}")
+
+
+def _like(program: Any, target: Any) -> Any:
+    from ngpm_runtime.likelihood import ShapeLikelihood
+
+    return ShapeLikelihood(target.mask, program.viewport)
+
+
 def nets(guide: Any) -> None:
     """One site net per call: numpy engine vs onnxruntime, by batch rows."""
     import timeit
@@ -210,6 +281,7 @@ def main() -> None:
           f"({args.glyphs} glyphs, {args.silhouettes} silhouettes), one core, "
           f"{os.cpu_count()} CPUs on the machine")
     if args.profile:
+        breakdown(program, guide, targets)
         prof = cProfile.Profile()
         prof.enable()
         for _, t in targets:
