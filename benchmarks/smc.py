@@ -1,27 +1,42 @@
-"""Unguided SMC on vines against a 50x50 filled-disk target: seconds per run and
-particle-steps per second (one core); then, with a guide (`--guide PATH`, default
-work/vines/vines_guide.onnx when present), guided N=10 on glyph targets: seconds per result
-and proposal calls per result; and the 600-particle trace job (values recorded, best particle
-replayed for its features) next to recording features for every particle.
+"""SMC speed on the project's held-out targets (glyphs and silhouettes), one core.
 
-Usage: python benchmarks/smc.py [--profile] [--guide PATH] [--targets N]
+Default: the step-cost table. Guided N=10 (the bundled guide, runtime/data/vines_guide.onnx,
+or `--guide PATH`) and unguided N=10/200/600 run interleaved (per seed, per target, every
+configuration in turn) on the same targets; printed per configuration: median ms per SMC
+step (CPU and wall), median seconds per run, median steps, mean similarity of the best
+particle; then guided N=10's cost per step over unguided N=10's.
 
-Uses the compiler's output for grammars/vines.lsys when the compiler is importable, else the
-hand-written fixture tests/fixtures/vines_sampler.py (then no guided or trace figures).
-CPU seconds are reported as well as wall seconds: the machine may be shared.
+--equal-sim: guided N=10 against unguided SMC at a ladder of N on the same targets
+(`--repeats` seeds each, seeds as `ngpmc eval`): mean over targets of the per-target median
+similarity and mean seconds per N; the unguided N that matches guided N=10's similarity
+(log-interpolated, evaluate.n_to_match) and the time ratio at that similarity
+(evaluate.time_to_reach): the figure docs/results reports for Fig. 4b.
+
+--nets: one site network's call, numpy engine (guide.NumpyNet) against onnxruntime, by rows.
+--profile: where a guided N=10 step's CPU time goes: per part of the SMC loop (wrapped
+with CPU timers, which add ~1 us per call), calls per step and us per call; then cProfile's
+top functions by own time.
+--trace-jobs: the 600-particle trace job (values recorded, best replayed) next to recording
+features for every particle.
+
+Usage: python benchmarks/smc.py [--guide PATH] [--glyphs 6] [--silhouettes 6] [--seeds 2]
+       [--equal-sim [--ladder 10,20,...] [--repeats 3]] [--nets] [--profile] [--trace-jobs]
+Needs the compiler (ngpm_compiler) for the datasets. CPU seconds are reported as well as
+wall seconds: the machine may be shared.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
-import math
 import os
 import pstats
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core
@@ -29,149 +44,201 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+STEP_CONFIGS = (("guided N=10", True, 10), ("unguided N=10", False, 10),
+                ("unguided N=200", False, 200), ("unguided N=600", False, 600))
+LADDER = "10,20,50,100,200,400,600,1000,1500"
 
 
-def vines_program():
-    from ngpm_runtime.program import load_program
-
-    try:
-        from ngpm_compiler.language.compile import compile_grammar
-    except ImportError:
-        return load_program(ROOT / "tests" / "fixtures" / "vines_sampler.py"), "fixture"
-    return compile_grammar(str(ROOT / "grammars" / "vines.lsys")).program(), "compiled"
-
-
-def disk_target(size: int = 50):
-    """A filled disk in the upper middle of the image; start at its bottom, heading up."""
-    from ngpm_runtime.image.targets import Target
-
-    yy, xx = np.mgrid[0:size, 0:size]
-    c = (size - 1) / 2.0
-    mask = (xx - c) ** 2 + (yy - 0.4 * size) ** 2 < (0.32 * size) ** 2
-    return Target(mask, (0.5, 0.75, 0.0, -1.0), "disk")
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--particles", type=int, default=600)
-    ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--resample", default="residual")
-    ap.add_argument("--profile", action="store_true")
-    ap.add_argument("--guide", default=str(ROOT / "work" / "vines" / "vines_guide.onnx"))
-    ap.add_argument("--targets", type=int, default=20, help="glyph targets for guided runs")
-    args = ap.parse_args()
-
-    from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import smc
-
-    program, origin = vines_program()
-    target = disk_target()
-    start = target.start_pose(program.viewport)
-
-    def run(seed: int):
-        like = ShapeLikelihood(target.mask, program.viewport)
-        return smc(program, like, args.particles, seed=seed, resample=args.resample,
-                   start=start, canvas_size=target.size, target_mask=target.mask)
-
-    run(100)  # warm-up
-    if args.profile:
-        prof = cProfile.Profile()
-        prof.enable()
-        run(0)
-        prof.disable()
-        pstats.Stats(prof, stream=sys.stdout).sort_stats("tottime").print_stats(25)
-        return
-    secs, cpus, psteps, stepss, nprims, sims = [], [], [], [], [], []
-    from ngpm_runtime.image.raster import rasterize
-    from ngpm_runtime.inference.likelihood import similarity
-
-    for seed in range(args.runs):
-        t0, c0 = time.perf_counter(), time.process_time()
-        res = run(seed)
-        secs.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-        psteps.append(res.info["particle_steps"])
-        stepss.append(res.steps)
-        nprims.append(len(res.best.primitives))
-        img = rasterize(res.best.primitives, program.viewport, *target.size)
-        sims.append(similarity(img, target.mask))
-    med = statistics.median(secs)
-    print(f"vines ({origin}), {args.particles} particles, {args.resample} resampling, "
-          f"50x50 disk target, {args.runs} runs, one core")
-    print(f"seconds per run: median {med:.3f} (min {min(secs):.3f}, max {max(secs):.3f}); "
-          f"CPU seconds median {statistics.median(cpus):.3f}")
-    print(f"particle-steps per run: median {statistics.median(psteps):.0f}; "
-          f"SMC steps median {statistics.median(stepss):.0f}")
-    print(f"particle-steps per second: {sum(psteps) / sum(secs):,.0f}")
-    print(f"best particle: median {statistics.median(nprims):.0f} primitives, "
-          f"similarity median {statistics.median(sims):.3f}")
-    if origin != "compiled":
-        return
-    targets = glyph_targets(args.targets)
-    guided(program, targets, args.guide)
-    trace_jobs(program, targets[:6])
-
-
-def glyph_targets(count: int) -> list:
-    import tempfile
-
+def held_out_targets(n_glyphs: int, n_silhouettes: int) -> list[tuple[str, Any]]:
+    """(dataset, target) pairs: glyphs and silhouettes spread over each set as `ngpmc eval`
+    picks its test targets (eval_shape.pick; mirrored copies left out), 50x50."""
     from ngpm_runtime.image.targets import load_dataset
 
     from ngpm_compiler.datasets.build import build_dataset
+    from ngpm_compiler.experiments.shape import pick
 
+    out = []
     with tempfile.TemporaryDirectory() as tmp:
-        build_dataset("glyphs", tmp, count=count, seed=0)
-        return load_dataset(tmp)
+        for name, k in (("glyphs", n_glyphs), ("silhouettes", n_silhouettes)):
+            if k <= 0:
+                continue
+            d = Path(tmp) / name
+            build_dataset(name, d, count=None, seed=0)
+            ts = [t for t in load_dataset(d, size=50) if not t.name.endswith("_m")]
+            out += [(name, t) for t in pick(ts, k)]
+    return out
 
 
-class CountingProposal:
-    """Counts the proposal calls of the proposal it wraps."""
-
-    def __init__(self, inner) -> None:
-        self.inner = inner
-        self.uses_features = inner.uses_features
-        self.calls = 0
-
-    def propose(self, site, args, features, rng):
-        self.calls += 1
-        return self.inner.propose(site, args, features, rng)
-
-
-def guided(program, targets: list, guide_path: str) -> None:
-    """Guided N=10 on each target (best of 3 runs each): seconds and calls per result."""
+def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict[str, float]:
     from ngpm_runtime.image.raster import rasterize
-    from ngpm_runtime.inference.guide import Guide
     from ngpm_runtime.inference.likelihood import ShapeLikelihood, similarity
     from ngpm_runtime.inference.smc import smc
 
-    if not Path(guide_path).is_file():
-        print(f"no guide at {guide_path}: no guided figures")
-        return
     vp = program.viewport
-    prop = CountingProposal(Guide.load(guide_path, program))
-    for label, proposal, n in (("guided N=10", prop, 10), ("unguided N=10", None, 10),
-                               ("unguided N=200", None, 200)):
-        secs, cpus, sims = [], [], []
-        prop.calls = 0
-        for t in targets:
-            best_wall, best_cpu = math.inf, math.inf
-            for _ in range(3):
-                t0, c0 = time.perf_counter(), time.process_time()
-                res = smc(program, ShapeLikelihood(t.mask, vp), n, proposal=proposal, seed=0,
-                          start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask)
-                best_wall = min(best_wall, time.perf_counter() - t0)
-                best_cpu = min(best_cpu, time.process_time() - c0)
-            secs.append(best_wall)
-            cpus.append(best_cpu)
-            sims.append(similarity(rasterize(res.best.primitives, vp, *t.size), t.mask))
-        calls = (f", {prop.calls / (3 * len(targets)):.0f} proposal calls per result"
-                 if proposal is prop else "")
-        print(f"{label}: {statistics.mean(secs):.4f} s per result (CPU "
-              f"{statistics.mean(cpus):.4f}; best of 3, mean over {len(targets)} glyphs)"
-              f"{calls}; similarity mean {statistics.mean(sims):.3f}")
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = smc(program, ShapeLikelihood(target.mask, vp), n, proposal=proposal, seed=seed,
+              start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    sim = similarity(rasterize(res.best.primitives, vp, *target.size), target.mask)
+    return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
 
 
-def trace_jobs(program, targets: list) -> None:
+def step_table(program: Any, guide: Any, targets: list, seeds: int) -> None:
+    """The interleaved step-cost table."""
+    rows: dict[str, list[dict[str, float]]] = {label: [] for label, _, _ in STEP_CONFIGS}
+    for _, t in targets[:2]:  # warm-up (imports, caches)
+        one_run(program, t, guide, 10, 99)
+        one_run(program, t, None, 10, 99)
+    for seed in range(seeds):
+        for _, t in targets:
+            for label, guided, n in STEP_CONFIGS:
+                rows[label].append(one_run(program, t, guide if guided else None, n, seed))
+    print(f"\nstep cost: {len(targets)} held-out targets x {seeds} seeds, interleaved; medians "
+          "over runs (ms/step = run time / SMC steps)")
+    print(f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
+          f"{'s/run CPU':>9s} {'steps':>5s} {'similarity':>10s}")
+    per_step: dict[str, float] = {}
+    for label, rs in rows.items():
+        cpu_step = statistics.median(1000 * r["cpu"] / r["steps"] for r in rs)
+        per_step[label] = cpu_step
+        print(f"{label:16s} {cpu_step:11.3f} "
+              f"{statistics.median(1000 * r['wall'] / r['steps'] for r in rs):12.3f} "
+              f"{statistics.median(r['wall'] for r in rs):10.4f} "
+              f"{statistics.median(r['cpu'] for r in rs):9.4f} "
+              f"{statistics.median(r['steps'] for r in rs):5.0f} "
+              f"{statistics.mean(r['sim'] for r in rs):10.3f}")
+    ratio = per_step["guided N=10"] / per_step["unguided N=10"]
+    print(f"guided N=10 per step / unguided N=10 per step (CPU): {ratio:.2f}x")
+
+
+def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
+                     repeats: int) -> None:
+    """Guided N=10 vs the unguided ladder: crossing N and time ratio (evaluate.py)."""
+    from ngpm_compiler.experiments.evaluate import (
+        curve,
+        n_to_match,
+        run_seed,
+        summarize,
+        time_to_reach,
+    )
+
+    rows = []
+    for rep in range(repeats):
+        for ti, (ds, t) in enumerate(targets):
+            for model, proposal, ns in (("all", guide, [10]), ("unguided", None, ladder)):
+                for n in ns:
+                    r = one_run(program, t, proposal, n, run_seed(0, ti, n, rep))
+                    rows.append({"model": model, "n": n, "dataset": ds, "target": t.name,
+                                 "similarity": r["sim"], "seconds": r["wall"]})
+    print(f"\nequal similarity: {len(targets)} held-out targets x {repeats} repeats; mean over "
+          "targets of the per-target median similarity, mean wall seconds per run")
+    for ds in sorted({r["dataset"] for r in rows}) + ["all"]:
+        sub = [r for r in rows if ds == "all" or r["dataset"] == ds]
+        summary = summarize(sub, ds)
+        g = next(r for r in summary if r["model"] == "all")
+        ns, sims, secs = curve(summary, "unguided")
+        table = ", ".join(f"{n}: {s:.3f} ({t:.2f} s)" for n, s, t in
+                          zip(ns.tolist(), sims.tolist(), secs.tolist(), strict=True))
+        cross = n_to_match(summary, g["mean_similarity"])
+        t_u = time_to_reach(sims, secs, g["mean_similarity"])
+        ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
+        more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
+        print(f"[{ds}] guided N=10: similarity {g['mean_similarity']:.3f} in "
+              f"{g['mean_seconds']:.3f} s; unguided by N: {table}")
+        print(f"[{ds}] unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: guided N=10 is "
+              f"{ratio:.1f}x faster at equal similarity{more}")
+
+
+# (module, owner, attribute, label): the parts of a guided step, outermost first
+PARTS = (
+    ("smc", "_Run", "step", "step (everything)"),
+    ("smc", "_Run", "_derive", " derive: rounds until every particle drew"),
+    ("derive", "Deriver", "advance", "  advance (the deriver, per particle)"),
+    ("smc", "_Run", "_serve", "  serve (one round's sites)"),
+    ("smc", "_Run", "_features", "   features: gather particle state + build rows"),
+    ("features", "FeatureMaker", "_common", "    turtle columns + 3x3x4 windows"),
+    ("guide", "Guide", "propose_round", "   guide: nets + draws"),
+    ("guide", "NumpyNet", "__call__", "    site net (numpy)"),
+    ("distributions", None, "proposal_draw", "    draw + log q"),
+    ("smc", "_Run", "_weigh_site", "   log prior, trace, replay values"),
+    ("smc", "_Run", "_flush", "  apply site weights"),
+    ("smc", "_Run", "_observe", " observe: rasterize + likelihood"),
+    ("raster", "Canvas", "draw", "  rasterize (+ pyramid)"),
+    ("likelihood", "ShapeLikelihood", "increment", "  likelihood increment"),
+    ("smc", "_Run", "_resample", " resample"),
+)
+
+
+def breakdown(program: Any, guide: Any, targets: list) -> None:
+    """CPU time per part of guided N=10 steps (wrapped timers), per step and per call."""
+    import importlib
+
+    from ngpm_runtime.inference.smc import smc
+
+    acc: dict[str, list[float]] = {}
+    saved = []
+    for mod, owner, attr, label in PARTS:
+        m = importlib.import_module(f"ngpm_runtime.{mod}")
+        obj = getattr(m, owner) if owner else m
+        fn = getattr(obj, attr)
+        saved.append((obj, attr, fn))
+        slot = acc.setdefault(label, [0.0, 0])
+
+        def timed(*a: Any, _fn: Any = fn, _slot: list = slot, **k: Any) -> Any:
+            c0 = time.process_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                _slot[0] += time.process_time() - c0
+                _slot[1] += 1
+        setattr(obj, attr, timed)
+    steps = 0
+    try:
+        for seed in range(2):
+            for _, t in targets:
+                steps += smc(program, _like(program, t), 10, proposal=guide, seed=seed,
+                             start=t.start_pose(program.viewport), canvas_size=t.size,
+                             target_mask=t.mask).steps
+    finally:
+        for obj, attr, fn in saved:
+            setattr(obj, attr, fn)
+    print(f"\nguided N=10, {len(targets)} targets x 2 seeds, {steps} steps: CPU per step "
+          "(timers included)")
+    print(f"{'part':48s} {'us/step':>8s} {'calls/step':>10s} {'us/call':>8s}")
+    for _, _, _, label in PARTS:
+        total, calls = acc[label]
+        if calls:
+            print(f"{label:48s} {1e6 * total / steps:8.0f} {calls / steps:10.2f} "
+                  f"{1e6 * total / calls:8.1f}")
+
+
+def _like(program: Any, target: Any) -> Any:
+    from ngpm_runtime.inference.likelihood import ShapeLikelihood
+
+    return ShapeLikelihood(target.mask, program.viewport)
+
+
+def nets(guide: Any) -> None:
+    """One site net per call: numpy engine vs onnxruntime, by batch rows."""
+    import timeit
+
+    site = 1
+    sess, numpy_net = guide.site_sessions.get(site), guide.numpy_nets.get(site)
+    if sess is None or numpy_net is None:
+        print("no per-site engines (onnx package missing?)")
+        return
+    print(f"\nsite {site} net, one call, best of 7 (us): rows, numpy, onnxruntime")
+    rng = np.random.default_rng(0)
+    for rows in (1, 3, 10, 100, 1000):
+        x = rng.normal(size=(rows, guide.nets[site]["n_f"])).astype(np.float32)
+        num = max(20, 20000 // rows)
+        a = min(timeit.repeat(lambda: numpy_net(x), number=num, repeat=7)) / num  # noqa: B023
+        b = min(timeit.repeat(lambda: sess.run(None, {f"f_{site}": x}),  # noqa: B023
+                              number=num, repeat=7)) / num
+        print(f"{rows:5d} {1e6 * a:8.1f} {1e6 * b:8.1f}")
+
+
+def trace_jobs(program: Any, targets: list) -> None:
     """The 600-particle trace job (traces.run_job) and the same run with features for
     every particle (record_trace=True), CPU seconds per job."""
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
@@ -181,7 +248,7 @@ def trace_jobs(program, targets: list) -> None:
 
     vp = program.viewport
     job, full = [], []
-    for t in targets:
+    for _, t in targets:
         c0 = time.process_time()
         run_job(program, t, 5, 600)
         c1 = time.process_time()
@@ -190,9 +257,52 @@ def trace_jobs(program, targets: list) -> None:
         c2 = time.process_time()
         job.append(c1 - c0)
         full.append(c2 - c1)
-    print(f"trace job, 600 particles: {statistics.mean(job):.3f} CPU s per job (values "
+    print(f"\ntrace job, 600 particles: {statistics.mean(job):.3f} CPU s per job (values "
           f"recorded, best replayed) vs {statistics.mean(full):.3f} with features for every "
-          f"particle; mean over {len(targets)} glyphs")
+          f"particle; mean over {len(targets)} targets")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--guide", default=None, help="guide .onnx (default: the bundled one)")
+    ap.add_argument("--glyphs", type=int, default=6)
+    ap.add_argument("--silhouettes", type=int, default=6)
+    ap.add_argument("--seeds", type=int, default=2, help="seeds per target, step table")
+    ap.add_argument("--equal-sim", action="store_true")
+    ap.add_argument("--ladder", default=LADDER, help="unguided N for --equal-sim")
+    ap.add_argument("--repeats", type=int, default=3, help="repeats per target, --equal-sim")
+    ap.add_argument("--nets", action="store_true")
+    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--trace-jobs", action="store_true")
+    args = ap.parse_args()
+
+    from ngpm_runtime.bundled import bundled_program, guide_path
+    from ngpm_runtime.inference.guide import Guide
+
+    program = bundled_program()
+    path = args.guide or str(guide_path())
+    guide = Guide.load(path, program)
+    targets = held_out_targets(args.glyphs, args.silhouettes)
+    print(f"vines, guide {Path(path).name}, {len(targets)} held-out targets "
+          f"({args.glyphs} glyphs, {args.silhouettes} silhouettes), one core, "
+          f"{os.cpu_count()} CPUs on the machine")
+    if args.profile:
+        breakdown(program, guide, targets)
+        prof = cProfile.Profile()
+        prof.enable()
+        for _, t in targets:
+            one_run(program, t, guide, 10, 0)
+        prof.disable()
+        pstats.Stats(prof, stream=sys.stdout).sort_stats("tottime").print_stats(25)
+        return
+    if args.nets:
+        nets(guide)
+    step_table(program, guide, targets, args.seeds)
+    if args.equal_sim:
+        equal_similarity(program, guide, targets, [int(x) for x in args.ladder.split(",")],
+                         args.repeats)
+    if args.trace_jobs:
+        trace_jobs(program, targets[:6])
 
 
 if __name__ == "__main__":

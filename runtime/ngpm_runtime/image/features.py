@@ -13,14 +13,23 @@ from __future__ import annotations
 import numpy as np
 
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.image.raster import N_LEVELS, Canvas, Viewport, pyramid
+from ngpm_runtime.image.raster import (
+    N_LEVELS,
+    PAD,
+    Canvas,
+    Viewport,
+    padded_layout,
+    padded_pyramid,
+    pyramid,
+)
 from ngpm_runtime.program import Program, Site
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
-PAD = 3  # padding cells around each pyramid level in the window lookup tables
+_TWO_NEG = np.array([2.0, -2.0])
+_ONE_POS = np.array([-1.0, 1.0])
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -57,7 +66,10 @@ class FeatureMaker:
         self.target_levels = (None if target_mask is None
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
-        self._geom: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        xmin, xmax, ymin, ymax = self.viewport
+        self._origin = np.array([xmin, ymax])
+        self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
 
     def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
         if canvas is not None:
@@ -83,63 +95,80 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + 2 * N_WINDOW
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per canvas size, the pyramid padded by PAD cells on each side and concatenated:
-        level heights and widths (float64), the 3x3 window offsets per level (4, 9) from a
-        padded row-major (row, col) index, and `cells`: a cell's unpadded row-major index in
-        its level, -1 in the padding (flat)."""
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, ...]:
+        """Per canvas size, in raster's padded pyramid layout: (2, L) level (heights,
+        widths), lowest and highest (row, col) a window centre is clipped to, the (padded
+        width, 1) multipliers of a (row, col), all float64, and the 3x3 window offsets per
+        level (L, 9) from a padded row-major index, each level's start and padding folded in.
+        """
         key = (h, w)
         if key not in self._geom:
-            hs = np.array([h >> lv for lv in range(N_LEVELS)], dtype=np.intp)
-            ws = np.array([w >> lv for lv in range(N_LEVELS)], dtype=np.intp)
-            hp, wp = hs + 2 * PAD, ws + 2 * PAD
-            starts = np.concatenate([[0], np.cumsum(hp * wp)[:-1]]).astype(np.intp)
-            # window offsets, with each level's start and the padding folded in
+            hp, wp, starts = padded_layout(h, w)
+            size = np.array([[h >> lv for lv in range(N_LEVELS)],
+                             [w >> lv for lv in range(N_LEVELS)]], dtype=np.float64)
+            mult = np.stack([wp.astype(np.float64), np.ones(N_LEVELS)])
             offs = (_DR[None, :] * wp[:, None] + _DC[None, :]
                     + (starts + PAD * wp + PAD)[:, None])
-            cells = []
-            for hl, wl in zip(hs.tolist(), ws.tolist(), strict=True):
-                c = np.full((hl + 2 * PAD, wl + 2 * PAD), -1, dtype=np.intp)
-                c[PAD:PAD + hl, PAD:PAD + wl] = np.arange(hl * wl).reshape(hl, wl)
-                cells.append(c.reshape(-1))
-            self._geom[key] = (hs.astype(np.float64), ws.astype(np.float64), offs,
-                               np.concatenate(cells))
+            self._geom[key] = (size, np.full_like(size, -2.0), size + 1, mult,
+                               offs.astype(np.intp))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
-        """The target pyramid in `_windows`' padded layout, -1 in the padding (float32)."""
+        """The target pyramid in raster's padded layout, -1 in the padding (float32)."""
         if self._target_flat is None:
-            levels = []
-            for lev in self.target_levels or []:
-                p = np.full((lev.shape[0] + 2 * PAD, lev.shape[1] + 2 * PAD), -1.0,
-                            dtype=np.float32)
-                p[PAD:PAD + lev.shape[0], PAD:PAD + lev.shape[1]] = lev
-                levels.append(p.reshape(-1))
-            self._target_flat = np.concatenate(levels)
+            self._target_flat = padded_pyramid(list(self.target_levels or []))
         return self._target_flat
 
     def features(self, site: Site, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                  depth: np.ndarray, params: np.ndarray, prior_args: np.ndarray) -> np.ndarray:
+        """Feature rows `(n, n_features(site))` float32 of n particles at one site."""
+        idx = np.asarray(idx, dtype=np.intp).reshape(-1)
+        return self.features_round([site], canvas, idx, turtle, depth, [params],
+                                   [prior_args])[0]
+
+    def features_round(self, sites: list[Site], canvas: Canvas | None, idx: np.ndarray,
+                       turtle: np.ndarray, depth: np.ndarray, params: list[np.ndarray],
+                       prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """Feature rows for several sites at once: `idx`, `turtle` (n, 4) and `depth` (n,)
+        list the particles of every site one after the other (`len(params[j])` of them at
+        `sites[j]`); returns one array per site. The turtle and window columns are computed
+        for all n rows in one pass; each row is the one `features` gives alone."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
-        turtle = np.asarray(turtle, dtype=np.float64).reshape(n, 4)
-        xmin, xmax, ymin, ymax = self.viewport
-        u = (turtle[:, 0] - xmin) / (xmax - xmin)
-        v = (ymax - turtle[:, 1]) / (ymax - ymin)
+        common = self._common(canvas, idx, np.asarray(turtle, dtype=np.float64).reshape(n, 4),
+                              np.asarray(depth, dtype=np.float64).reshape(n))
+        out = []
+        pos = 0
+        for site, par, args in zip(sites, params, prior_args, strict=True):
+            m = len(args)
+            a, k = int(site.arity), int(site.n_args())
+            block = common[pos:pos + m]
+            rows = np.concatenate((block[:, :N_LOCAL_BASE], _fit_columns(par, m, a),
+                                   _fit_columns(args, m, k), block[:, N_LOCAL_BASE:]),
+                                  axis=1, dtype=np.float32)
+            out.append(rows)
+            pos += m
+        if pos != n:
+            raise ValueError(f"features_round: {n} particles, {pos} rows of arguments")
+        return out
+
+    def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
+                depth: np.ndarray) -> np.ndarray:
+        """(n, 7 + 72) float32: the site-independent columns (turtle state, depth, target and
+        partial windows) of every particle, in few numpy calls (SMC's batches are small)."""
+        n = len(idx)
+        # (u, v): normalized image position, u right, v down from ymax
+        uv = (turtle[:, :2] - self._origin) / self._span
+        out = np.empty((n, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
+        out[:, :2] = uv * _TWO_NEG + _ONE_POS  # 2u - 1, 1 - 2v
         heading = turtle[:, 2]
-        a, k = int(site.arity), int(site.n_args())
-        nl = N_LOCAL_BASE + a + k
-        out = np.empty((n, nl + 2 * N_WINDOW), dtype=np.float32)
-        out[:, 0] = 2.0 * u - 1.0
-        out[:, 1] = 1.0 - 2.0 * v
         out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
         rad = np.radians(heading)
         out[:, 3] = np.sin(rad)
         out[:, 4] = np.cos(rad)
         out[:, 5] = turtle[:, 3]
-        out[:, 6] = np.asarray(depth, dtype=np.float64).reshape(n) / self.derivation_length
-        out[:, N_LOCAL_BASE:N_LOCAL_BASE + a] = _fit_columns(params, n, a)
-        out[:, N_LOCAL_BASE + a:nl] = _fit_columns(prior_args, n, k)
+        out[:, 6] = depth / self.derivation_length
+        nl = N_LOCAL_BASE
         target = out[:, nl:nl + N_WINDOW]
         partial = out[:, nl + N_WINDOW:]
         h, w = self._shape(canvas)
@@ -147,32 +176,22 @@ class FeatureMaker:
             target[:] = 0.0 if self.target_levels is None else -1.0
             partial[:] = 0.0 if canvas is None else -1.0
             return out
-        if not (np.isfinite(u).all() and np.isfinite(v).all()):
-            u, v = _unit(u, v)
-        hs, ws, offs, cells = self._windows(h, w)
-        # the turtle's cell at each level, clipped to the padding (a window centred 2 cells
-        # outside lies wholly outside, like one further out): (n, L)
-        rows = np.floor(v[:, None] * hs)
-        cols = np.floor(u[:, None] * ws)
-        np.maximum(rows, -2.0, out=rows)
-        np.minimum(rows, hs + 1, out=rows)
-        np.maximum(cols, -2.0, out=cols)
-        np.minimum(cols, ws + 1, out=cols)
-        rows *= ws + 2 * PAD
-        rows += cols
-        at = rows.astype(np.intp)[:, :, None] + offs  # (n, L, 9) into the padded pyramid
+        if not np.isfinite(uv).all():
+            uv = np.column_stack(_unit(uv[:, 0], uv[:, 1]))
+        size, low, high, mult, offs = self._windows(h, w)
+        # the turtle's (row, col) at each level, clipped to the padding (a window centred 2
+        # cells outside lies wholly outside, like one further out): (n, 2, L)
+        rc = np.floor(uv[:, ::-1, None] * size)
+        np.maximum(rc, low, out=rc)
+        np.minimum(rc, high, out=rc)
+        # (n, L * 9) indices into the padded pyramid (target's and every canvas's row)
+        at = ((rc * mult).sum(axis=1).astype(np.intp)[:, :, None] + offs).reshape(n, N_WINDOW)
         if self.target_levels is None:
             target[:] = 0.0
         else:
-            target[:] = self._padded_target()[at].reshape(n, N_WINDOW)
+            target[:] = self._padded_target()[at]
         if canvas is None:
             partial[:] = 0.0
         else:
-            cell = cells[at]
-            outside = cell < 0
-            cell += (idx[:, None] * (hs * ws).astype(np.intp))[:, :, None]
-            vals = partial.reshape(n, N_LEVELS, 9)
-            for lv, arr in enumerate(canvas.levels):
-                vals[:, lv] = arr.reshape(-1)[cell[:, lv]]
-            vals[outside] = -1.0
+            partial[:] = canvas.padded[idx[:, None], at]
         return out

@@ -5,6 +5,9 @@ pixel row 0 at ymax. A pixel is covered when its center lies strictly inside the
 `Canvas.draw` rasterizes one primitive per listed particle, all in one numpy pass per
 primitive kind, inside a common pixel window, and keeps a 4-level mean pyramid of every
 canvas up to date (pixels are only ever added, so each level just accumulates counts).
+The pyramid lives in one float32 row per particle, `Canvas.padded`: the levels one after
+another, each with PAD cells of -1 around it (`padded_layout`), so that the guide features'
+3x3 windows at every level are one gather (features.py) and resampling is one `take`.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from ngpm_runtime.geometry.turtle import prim_bboxes
 
 Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 N_LEVELS = 4
+PAD = 3  # cells of -1 around each pyramid level in `Canvas.padded`
 _EPS = 1e-9
 _CHUNK = 8192  # window pixels per vectorized shape test: float64 temporaries <= 64 KiB
 
@@ -50,6 +54,29 @@ class DrawBatch:
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
     """Pyramid level sizes: (H, W), (H//2, W//2), (H//4, W//4), (H//8, W//8)."""
     return [(height >> lv, width >> lv) for lv in range(N_LEVELS)]
+
+
+def padded_layout(height: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pyramid level of an H x W image: padded height and width (each level's size plus
+    2 * PAD) and the level's start in the padded row (intp arrays)."""
+    hs = np.array([height >> lv for lv in range(N_LEVELS)], dtype=np.intp)
+    ws = np.array([width >> lv for lv in range(N_LEVELS)], dtype=np.intp)
+    hp, wp = hs + 2 * PAD, ws + 2 * PAD
+    starts = np.concatenate([[0], np.cumsum(hp * wp)[:-1]]).astype(np.intp)
+    return hp, wp, starts
+
+
+def padded_pyramid(levels: list[np.ndarray]) -> np.ndarray:
+    """Pyramid levels (each (..., h_l, w_l)) in the padded layout: (..., total) float32,
+    -1 in the padding."""
+    rows = []
+    for lev in levels:
+        lead = lev.shape[:-2]
+        p = np.full(lead + (lev.shape[-2] + 2 * PAD, lev.shape[-1] + 2 * PAD), -1.0,
+                    dtype=np.float32)
+        p[..., PAD:PAD + lev.shape[-2], PAD:PAD + lev.shape[-1]] = lev
+        rows.append(p.reshape(lead + (-1,)))
+    return np.concatenate(rows, axis=-1)
 
 
 def pyramid(image: np.ndarray) -> list[np.ndarray]:
@@ -254,21 +281,37 @@ def rasterize(prims: list[tuple], viewport: Viewport, height: int, width: int) -
 class Canvas:
     """N binary canvases `(N, H, W)` uint8 with an incrementally kept 4-level pyramid.
 
-    `levels[0]` is `image` itself (uint8 0/1, no float copy); `levels[1..3]` are float32
-    means over 2x2, 4x4 and 8x8 pixel blocks (floor sizes).
+    `padded` (N, total) float32 holds every canvas's pyramid in `padded_layout` (level 0 the
+    image as 0/1, levels 1-3 means over 2x2, 4x4 and 8x8 pixel blocks, floor sizes; -1 in
+    the padding). `levels` gives the unpadded levels as views (`levels[0]` is `image`).
+    With `pyramid=False` (no guide features to serve) only `image` is kept: `padded` is
+    (N, 0) and `levels` is `[image]`.
     """
 
-    def __init__(self, n: int, height: int, width: int, viewport: Viewport) -> None:
+    def __init__(self, n: int, height: int, width: int, viewport: Viewport,
+                 pyramid: bool = True) -> None:
         self.n, self.height, self.width = int(n), int(height), int(width)
         self.viewport = tuple(float(v) for v in viewport)
         self._grid = _Grid(self.viewport, self.height, self.width)
         self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
-        self.levels: list[np.ndarray] = [self.image] + [
-            np.zeros((self.n, h, w), dtype=np.float32)
-            for h, w in level_shapes(self.height, self.width)[1:]
-        ]
+        self._hp, self._wp, self._starts = padded_layout(self.height, self.width)
+        self.pyramid = pyramid
+        blank = padded_pyramid([np.zeros(s, dtype=np.float32)
+                                for s in level_shapes(self.height, self.width)])
+        self.padded = np.repeat(blank[None, :] if pyramid else blank[None, :0], self.n, axis=0)
         self._spare: list[np.ndarray] | None = None  # take()'s second buffers
         self._row_off = np.arange(self.height)[:, None] * self.width  # (H, 1) flat offsets
+
+    @property
+    def levels(self) -> list[np.ndarray]:
+        """The pyramid levels (N, h_l, w_l): `image`, then float32 views into `padded`."""
+        out = [self.image]
+        for lv, (h, w) in enumerate(level_shapes(self.height, self.width)):
+            if lv and self.pyramid:
+                hp, wp, st = int(self._hp[lv]), int(self._wp[lv]), int(self._starts[lv])
+                block = self.padded[:, st:st + hp * wp].reshape(self.n, hp, wp)
+                out.append(block[:, PAD:PAD + h, PAD:PAD + w])
+        return out
 
     def draw(self, idx: np.ndarray, prims: list[tuple]) -> DrawBatch:
         """Rasterize `prims[k]` into canvas `idx[k]` (indices distinct); returns the changes."""
@@ -289,13 +332,16 @@ class Canvas:
         c = x0[k] + j
         p = idx[k]
         img[(p * h + r) * w + c] = 1
-        if k.size:
+        if k.size and self.pyramid:
+            pad = self.padded.reshape(-1)
+            row0 = p * self.padded.shape[1]
+            wp, starts = self._wp, self._starts
+            pad[row0 + starts[0] + (r + PAD) * wp[0] + (c + PAD)] = 1.0
             for lv in range(1, N_LEVELS):
-                arr = self.levels[lv]
-                hl, wl = arr.shape[1:]
+                hl, wl = h >> lv, w >> lv
                 rl, cl = r >> lv, c >> lv
                 ok = (rl < hl) & (cl < wl)
-                np.add.at(arr.reshape(-1), (p[ok] * hl + rl[ok]) * wl + cl[ok],
+                np.add.at(pad, row0[ok] + starts[lv] + (rl[ok] + PAD) * wp[lv] + (cl[ok] + PAD),
                           np.float32(1.0 / 4**lv))
         return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox, hit_k=k, hit_pix=r * w + c)
 
@@ -303,23 +349,22 @@ class Canvas:
         """Resampling: particle k becomes old particle idx[k] (every per-particle array).
 
         The arrays are double-buffered (fresh allocations of this size cost page faults):
-        a reference to `image` or `levels` kept across two `take` calls gets overwritten.
+        a reference to `image` or `padded` kept across two `take` calls gets overwritten.
         """
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         if len(idx) != self.n:
             self.image = self.image[idx]
-            self.levels = [self.image] + [lv[idx] for lv in self.levels[1:]]
+            self.padded = self.padded[idx]
             self.n = len(idx)
             self._spare = None
             return
         if self._spare is None:
-            self._spare = [np.empty_like(a) for a in self.levels]
-        spare = self._spare
-        for a, out in zip(self.levels, spare, strict=True):
-            np.take(a, idx, axis=0, out=out)
-        self._spare = self.levels
-        self.levels = spare
-        self.image = spare[0]
+            self._spare = [np.empty_like(self.image), np.empty_like(self.padded)]
+        img, pad = self._spare
+        np.take(self.image, idx, axis=0, out=img)
+        np.take(self.padded, idx, axis=0, out=pad)
+        self._spare = [self.image, self.padded]
+        self.image, self.padded = img, pad
 
     def world_to_unit(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World points as normalized image coords (u right, v down, [0, 1] inside)."""

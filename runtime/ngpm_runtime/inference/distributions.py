@@ -302,7 +302,8 @@ def _small_categorical_draw(
         k = min(k, last)
         ks.append(float(k))
         qs.append(row[k] / total)
-    return np.array(ks), _log(np.array(qs))
+    q = np.array(qs)
+    return np.array(ks), (np.log(q) if min(qs) > 0.0 else _log(q))
 
 
 def proposal_draw(
@@ -340,6 +341,10 @@ def proposal_draw(
             out = _small_normal_draw(args, params, rng)
             if out is not None:
                 return out
+        else:
+            out = _lean_normal_draw(args, params, rng)
+            if out is not None:
+                return out
         logw, mean, sd = _normal_mixture(args, params)
         v = _mixture_sample(logw, mean, sd, rng)
         return v, _mixture_logpdf(v, logw, mean, sd)
@@ -347,6 +352,35 @@ def proposal_draw(
         v = proposal_sample(site, args, params, rng)
         return v, proposal_logpdf(site, args, params, v)
     raise ProgramError(f"site {site.id}: unknown kind {kind!r}")
+
+
+def _lean_normal_draw(
+    args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The normal-mixture branch of `proposal_draw` with fewer numpy calls, for finite
+    parameters and positive sds: the same draws from `rng` (one uniform per row for the
+    component, then one standard normal per row) and the same formulas as the general
+    path (`_normal_mixture`, `_mixture_sample`, `_mixture_logpdf`); None otherwise."""
+    p = np.asarray(params, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] % 3 != 0 or p.shape[1] == 0 or not np.isfinite(p).all():
+        return None
+    n, k = p.shape[0], p.shape[1] // 3
+    sigma = np.abs(args[:, 1:2])
+    sd = sigma * np.exp(p[:, 2 * k:])
+    if not sd.min() > 0.0:
+        return None
+    lw = p[:, :k]
+    top = lw.max(axis=1, keepdims=True)
+    logw = lw - (top + np.log(np.exp(lw - top).sum(axis=1, keepdims=True)))
+    mean = args[:, 0:1] + sigma * p[:, k:2 * k]
+    cum = np.cumsum(np.exp(logw), axis=1)
+    u = rng.random(n) * cum[:, -1]
+    at = np.minimum((cum <= u[:, None]).sum(axis=1), k - 1) + np.arange(n) * k
+    v = mean.reshape(-1)[at] + sd.reshape(-1)[at] * rng.standard_normal(n)
+    z = (v[:, None] - mean) / sd
+    comp = logw + (-0.5 * z * z - np.log(sd) - 0.5 * LOG_2PI)
+    top = comp.max(axis=1, keepdims=True)
+    return v, (top + np.log(np.exp(comp - top).sum(axis=1, keepdims=True)))[:, 0]
 
 
 def _small_normal_draw(

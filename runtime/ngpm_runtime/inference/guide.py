@@ -5,6 +5,14 @@ site table); `Guide.propose` implements the Proposal protocol (docs/architecture
 one onnxruntime call per propose (one small session per site net when the `onnx`
 package can split the file), then sampling with distributions.proposal_draw. Sites without a
 network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+
+`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
+one network call per waiting site, then one proposal_draw per group of sites with the same
+kind and parameter layout (the rows of all of them at once).
+
+Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
+file's own weights, float32 like onnxruntime); any other graph, or every net when
+`Guide.numpy_nets` is emptied, runs in onnxruntime.
 """
 
 from __future__ import annotations
@@ -44,6 +52,9 @@ class Guide:
                        for i, n in self.nets.items()}
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
+        # the same nets evaluated in numpy (sites whose graph has the export's usual form);
+        # they answer instead of onnxruntime (empty this dict to use onnxruntime only)
+        self.numpy_nets: dict[int, NumpyNet] = {}
 
     @classmethod
     def load(cls, path: str | Path, program: Program) -> Guide:
@@ -74,20 +85,15 @@ class Guide:
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
-        guide.site_sessions = _site_sessions(path, list(guide.nets), opts)
+        guide.site_sessions, guide.numpy_nets = _site_engines(path, list(guide.nets), opts)
         return guide
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
         """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
-        net = self.nets[site]
-        if features is None:
-            if self.uses_features:
-                raise GuideError(f"{self.path}: site {site} needs features")
-            features = np.zeros((n or 0, net["n_f"]), dtype=np.float32)
-        x = np.ascontiguousarray(features, dtype=np.float32)
-        if x.ndim != 2 or x.shape[1] != net["n_f"]:
-            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
-                             f"got shape {x.shape} (features changed since training?)")
+        x = self._input(site, features, n or 0)
+        numpy_net = self.numpy_nets.get(site)
+        if numpy_net is not None:
+            return numpy_net(x)
         sess = self.site_sessions.get(site)
         if sess is not None:
             (out,) = sess.run(None, {f"f_{site}": x})
@@ -96,6 +102,69 @@ class Guide:
             feeds[f"f_{site}"] = x
             (out,) = self.session.run([f"p_{site}"], feeds)
         return out.astype(np.float64)
+
+    def _input(self, site: int, features: np.ndarray | None, n: int) -> np.ndarray:
+        """The float32 feature rows the site's network reads (checked)."""
+        net = self.nets[site]
+        if features is None:
+            if self.uses_features:
+                raise GuideError(f"{self.path}: site {site} needs features")
+            return np.zeros((n, net["n_f"]), dtype=np.float32)
+        x = np.ascontiguousarray(features, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != net["n_f"]:
+            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
+                             f"got shape {x.shape} (features changed since training?)")
+        return x
+
+    def params_round(self, sites: list[int], features: list[np.ndarray | None],
+                     ns: list[int]) -> list[np.ndarray]:
+        """`params` of several site networks (distinct sites): one call per site's own
+        session (onnxruntime's cost is per graph node, so one run of the whole file, which
+        also runs every other net on an empty batch, costs more: benchmarks/smc.py --nets),
+        or one whole-file call when the file could not be split."""
+        if self.site_sessions or len(sites) == 1:
+            return [self.params(s, f, n) for s, f, n in zip(sites, features, ns, strict=True)]
+        feeds = dict(self._empty)
+        for s, f, n in zip(sites, features, ns, strict=True):
+            feeds[f"f_{s}"] = self._input(s, f, n)
+        outs = self.session.run([f"p_{s}" for s in sites], feeds)
+        return [o.astype(np.float64) for o in outs]
+
+    def propose_round(self, sites: list[Site], prior_args: list[np.ndarray],
+                      features: list[np.ndarray] | None, rng: np.random.Generator
+                      ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """`propose` for every site waiting in an SMC round (proposals.RoundProposal): one
+        network call for all of them, one draw per group of like sites."""
+        out: list[Any] = [None] * len(sites)
+        net = [j for j, site in enumerate(sites) if site.index in self.nets]
+        for j, site in enumerate(sites):
+            if site.index not in self.nets:
+                out[j] = self.propose(site, prior_args[j], None, rng)
+        if not net:
+            return out
+        params = self.params_round([sites[j].index for j in net],
+                                   [None if features is None else features[j] for j in net],
+                                   [len(prior_args[j]) for j in net])
+        groups: dict[tuple, list[int]] = {}
+        for j, p in zip(net, params, strict=True):
+            key = (sites[j].kind, p.shape[1], prior_args[j].shape[1])
+            groups.setdefault(key, []).append(j)
+        by_site = dict(zip(net, params, strict=True))
+        for js in groups.values():
+            args = [prior_args[j] for j in js]
+            if len(js) > 1:
+                a = np.concatenate(args)
+                if np.isfinite(a).all():  # else per site, for the error naming its site
+                    values, log_q = dist.proposal_draw(
+                        sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng)
+                    cut = np.cumsum([len(x) for x in args])[:-1]
+                    for j, v, q in zip(js, np.split(values, cut), np.split(log_q, cut),
+                                       strict=True):
+                        out[j] = (v, q)
+                    continue
+            for j in js:
+                out[j] = dist.proposal_draw(sites[j], prior_args[j], by_site[j], rng)
+        return out
 
     def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -106,23 +175,120 @@ class Guide:
         return dist.proposal_draw(site, prior_args, params, rng)
 
 
-def _site_sessions(path: str, sites: list[int], opts: ort.SessionOptions
-                   ) -> dict[int, ort.InferenceSession]:
-    """One session per site net, cut from the file's graph (a call then runs only that
-    net); empty when the `onnx` package is missing or cannot split the file."""
+def _site_engines(path: str, sites: list[int], opts: ort.SessionOptions
+                  ) -> tuple[dict[int, ort.InferenceSession], dict[int, NumpyNet]]:
+    """One onnxruntime session per site net, cut from the file's graph (a call then runs
+    only that net), and a NumpyNet for each cut graph of the usual form; both empty when the
+    `onnx` package is missing or cannot split the file."""
     try:
         import onnx
         import onnx.utils
     except ImportError:
-        return {}
+        return {}, {}
     try:
         extractor = onnx.utils.Extractor(onnx.load(path))
-        return {s: ort.InferenceSession(
-                    extractor.extract_model([f"f_{s}"], [f"p_{s}"]).SerializeToString(),
-                    opts, providers=["CPUExecutionProvider"])
-                for s in sites}
+        models = {s: extractor.extract_model([f"f_{s}"], [f"p_{s}"]) for s in sites}
+        sessions = {s: ort.InferenceSession(m.SerializeToString(), opts,
+                                            providers=["CPUExecutionProvider"])
+                    for s, m in models.items()}
     except Exception:  # any failure: the whole-file session still works
-        return {}
+        return {}, {}
+    nets = {}
+    for s, m in models.items():
+        net = NumpyNet.from_graph(m.graph)
+        if net is not None:
+            nets[s] = net
+    return sessions, nets
+
+
+_HEADS = {("Slice", "Slice", "LogSoftmax", "Concat"): "mixture", ("Softmax",): "softmax",
+          ("Sigmoid",): "sigmoid"}
+
+
+class NumpyNet:
+    """One site network evaluated in numpy, float32 like onnxruntime, from the weights in
+    the ONNX file: `tanh(x[:, cols] @ W1' + b1)`, then `bounds * tanh(h @ W2' + b2)`, then
+    the head (log-softmax over the first K mixture columns, softmax, or sigmoid): the graph
+    ngpm_compiler/export.py writes. Other graphs get no NumpyNet (onnxruntime runs them).
+
+    Why: SMC's batches are small, and there a call costs a few numpy operations where
+    onnxruntime's per-call overhead dominates (benchmarks/smc.py --nets prints both, from 1
+    to 1000 rows); one engine for every batch size keeps a particle's proposal independent
+    of how many particles share its round. tests/test_guide.py checks it against
+    onnxruntime to 1e-5."""
+
+    def __init__(self, n_f: int, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray,
+                 w2: np.ndarray, b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
+        cols = cols.astype(np.intp)
+        # every column in order (the usual case): no gather
+        self.cols = None if np.array_equal(cols, np.arange(n_f)) else cols
+        self.w1t = np.ascontiguousarray(w1.T, dtype=np.float32)
+        self.b1 = b1.astype(np.float32)
+        self.w2t = np.ascontiguousarray(w2.T, dtype=np.float32)
+        self.b2 = b2.astype(np.float32)
+        self.bounds = bounds.astype(np.float32)
+        self.head = head
+        self.k = k
+
+    @classmethod
+    def from_graph(cls, graph: Any) -> NumpyNet | None:
+        """The NumpyNet of an export's per-site graph; None for any other graph."""
+        from onnx import helper, numpy_helper
+
+        nodes = list(graph.node)
+        ops = tuple(n.op_type for n in nodes)
+        head = _HEADS.get(ops[6:])
+        if ops[:6] != ("Gather", "Gemm", "Tanh", "Gemm", "Tanh", "Mul") or head is None:
+            return None
+        consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
+        for gemm in (nodes[1], nodes[3]):
+            attrs = {a.name: helper.get_attribute_value(a) for a in gemm.attribute}
+            if attrs != {"transB": 1} or len(gemm.input) != 3:
+                return None
+        gather = {a.name: helper.get_attribute_value(a) for a in nodes[0].attribute}
+        try:
+            cols = consts[nodes[0].input[1]]
+            w1, b1 = consts[nodes[1].input[1]], consts[nodes[1].input[2]]
+            w2, b2 = consts[nodes[3].input[1]], consts[nodes[3].input[2]]
+            bounds = consts[nodes[5].input[1]]
+            k = 0
+            if head == "mixture":
+                sl = nodes[6]
+                starts, ends = consts[sl.input[1]].tolist(), consts[sl.input[2]].tolist()
+                axes = consts[sl.input[3]].tolist() if len(sl.input) > 3 else [0]
+                if starts != [0] or axes != [1] or len(sl.input) > 4:
+                    return None
+                k = int(ends[0])
+                rest = nodes[7]
+                if (consts[rest.input[1]].tolist() != [k] or len(rest.input) > 4
+                        or consts[rest.input[2]].tolist()[0] < w2.shape[0]):
+                    return None
+        except (KeyError, IndexError):
+            return None
+        if gather.get("axis") != 1 or b1.shape != (w1.shape[0],) or w2.shape[1] != w1.shape[0]:
+            return None
+        n_f = graph.input[0].type.tensor_type.shape.dim[1].dim_value
+        return cls(int(n_f), cols, w1, b1, w2, b2, bounds, head, k)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
+        h = (x if self.cols is None else x[:, self.cols]) @ self.w1t
+        h += self.b1
+        np.tanh(h, out=h)
+        o = h @ self.w2t
+        o += self.b2
+        np.tanh(o, out=o)
+        o *= self.bounds
+        if self.head == "mixture":
+            lw = o[:, :self.k]
+            d = lw - lw.max(axis=1, keepdims=True)
+            lw[:] = d - np.log(np.exp(d).sum(axis=1, keepdims=True))
+        elif self.head == "softmax":
+            o = np.exp(o - o.max(axis=1, keepdims=True))
+            o /= o.sum(axis=1, keepdims=True)
+        else:
+            o = 1 / (1 + np.exp(-o))
+        return o.astype(np.float64)
 
 
 def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:

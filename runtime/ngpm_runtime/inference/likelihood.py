@@ -13,6 +13,7 @@ edge of a 0/1 image reads 1 (the reference's "edge pixels count 1.5 x filled one
 from __future__ import annotations
 
 import math
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -125,8 +126,41 @@ def empty_bbox(n: int) -> np.ndarray:
     return out
 
 
-class ShapeLikelihood:
+class Likelihood(Protocol):
+    """What `smc()` asks of a likelihood (subclass it to inherit the defaults).
+
+    - `needs_canvas`: True (default): `increment` gets raster's DrawBatch (with `.prims`) and
+      the run's Canvas; False: a `smc.PrimBatch` (idx, bbox, prims), and no canvas is drawn
+      for it.
+    - `start(n)`: per-particle state arrays; SMC reindexes every array at resampling.
+    - `increment(state, canvas, batch)`: per listed particle, new log-lik minus previous.
+    - `blank_loglik(height, width)`: log-likelihood of an empty drawing, charged to particles
+      that end without drawing anything (increments only come with primitives); None
+      (default) when it cannot say.
+    """
+
+    needs_canvas: bool = True
+
+    def start(self, n: int) -> dict[str, np.ndarray]: ...
+
+    def increment(self, state: dict[str, np.ndarray], canvas: Any, batch: Any) -> np.ndarray:
+        ...
+
+    def blank_loglik(self, height: int, width: int) -> float | None:
+        return None
+
+
+def _blank_value(full: Any, height: int, width: int) -> float:
+    """`full` of an empty image with an empty box; NaN reads as zero likelihood."""
+    blank = np.zeros((height, width), dtype=np.uint8)
+    value = float(full(blank, np.array([np.inf, np.inf, -np.inf, -np.inf])))
+    return value if not math.isnan(value) else -math.inf
+
+
+class ShapeLikelihood(Likelihood):
     """The paper's equation 1 against a target mask (H, W) bool on a same-size canvas."""
+
+    needs_canvas = True
 
     def __init__(self, target_mask: np.ndarray, viewport: Viewport) -> None:
         t = np.asarray(target_mask, dtype=bool)
@@ -163,6 +197,9 @@ class ShapeLikelihood:
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:
         """Log-likelihood of one finished image from scratch."""
         return shape_loglik(image, self.target, bbox, self.viewport)
+
+    def blank_loglik(self, height: int, width: int) -> float | None:
+        return _blank_value(self.full, height, width)
 
 
 # Sobel magnitude / 4 of a 0/1 image, by the integer gradients (gx, gy) in [-4, 4]^2
@@ -203,8 +240,10 @@ def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndar
     return (diff * inner).sum(axis=(1, 2))
 
 
-class CircuitLikelihood:
+class CircuitLikelihood(Likelihood):
     """The paper's equation 2: dense edges at about half fill (no target)."""
+
+    needs_canvas = True
 
     def __init__(self, viewport: Viewport) -> None:
         self.viewport = tuple(float(v) for v in viewport)
@@ -237,9 +276,13 @@ class CircuitLikelihood:
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:
         return circuit_loglik(image, bbox, self.viewport)
 
+    def blank_loglik(self, height: int, width: int) -> float | None:
+        return _blank_value(self.full, height, width)
 
-class NullLikelihood:
-    """Forward sampling: every increment is 0 (works on any batch with `.idx`)."""
+
+class NullLikelihood(Likelihood):
+    """Forward sampling: every increment is 0 (works on any batch with `.idx`); `smc()`
+    treats it as no likelihood at all (no canvas, nothing computed)."""
 
     needs_canvas = False
 
@@ -251,4 +294,7 @@ class NullLikelihood:
         return np.zeros(len(draw.idx))
 
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:
+        return 0.0
+
+    def blank_loglik(self, height: int, width: int) -> float | None:
         return 0.0

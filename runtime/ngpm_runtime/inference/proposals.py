@@ -8,7 +8,7 @@ A learned `Guide` (guide.py) implements the same protocol.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -32,6 +32,24 @@ class Proposal(Protocol):
         features: np.ndarray | None,
         rng: np.random.Generator,
     ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+@runtime_checkable
+class RoundProposal(Protocol):
+    """A proposal that also serves every site waiting in an SMC round with one call (a
+    learned Guide: one network evaluation for all of them). `smc()` then hands it all
+    waiting sites at once, in ascending site order, each with its particles in index order;
+    it returns one (values, log q) pair per site, as `propose` would."""
+
+    uses_features: bool
+
+    def propose_round(
+        self,
+        sites: list[Site],
+        prior_args: list[np.ndarray],
+        features: list[np.ndarray] | None,
+        rng: np.random.Generator,
+    ) -> list[tuple[np.ndarray, np.ndarray]]: ...
 
 
 class PriorProposal:

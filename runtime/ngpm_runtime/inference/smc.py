@@ -1,12 +1,18 @@
 """Sequential Monte Carlo over a compiled program (architecture.md sections 2, 3, 5, 8).
 
 All particles advance together. In one step every live particle runs to its next drawn
-primitive; the random values it asks for on the way are drawn in rounds, one batched
-`proposal.propose` call per round for the particles waiting on one site (`SiteOrder` picks
-it; particles by index). Then the new primitives are rasterized, the likelihood increments
-applied and, every step or when the ESS drops below `ess_threshold * N`, the particles are
-resampled. Weights carry
-`log prior - log q` of every site, so any proposal gives a correct answer.
+primitive; the random values it asks for on the way are drawn in rounds. A proposal with
+`propose_round` (a learned Guide) serves every site that particles wait on in one call per
+round (one network evaluation for all of them); any other proposal gets one batched
+`propose` call per round for the particles waiting on one site (`SiteOrder` picks it).
+Particles are served in index order. Then the new primitives are rasterized, the likelihood
+increments applied and, every step or when the ESS drops below `ess_threshold * N`, the
+particles are resampled. Weights carry `log prior - log q` of every site, so any proposal
+gives a correct answer.
+
+The parts: `smc()` checks options and builds a `_Run`; `_Run.step` derives (`_derive`),
+serves the waiting sites (`_serve`, `_weigh_sites`), rasterizes and applies the likelihood
+(`_observe`) and resamples (`_resample`); `Population` holds the particles and weights.
 """
 
 from __future__ import annotations
@@ -23,10 +29,11 @@ from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
 from ngpm_runtime.geometry.derive import DEFAULT_MAX_MODULES, DONE, DRAWN, NEED, Deriver, Particle
 from ngpm_runtime.geometry.turtle import cons_to_list, prim_bbox
 from ngpm_runtime.inference.distributions import prior_logpdf
-from ngpm_runtime.inference.proposals import PriorProposal
+from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood
+from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
 from ngpm_runtime.inference.resample import SCHEMES
 from ngpm_runtime.inference.resample import resample as draw_ancestors
-from ngpm_runtime.program import Program
+from ngpm_runtime.program import Program, Site
 
 
 class SMCOptionError(NgpmError):
@@ -89,9 +96,9 @@ def forward(
 
 def smc(
     program: Program,
-    likelihood: Any,
+    likelihood: Likelihood | None,
     n_particles: int,
-    proposal: Any = None,
+    proposal: Proposal | None = None,
     seed: int = 0,
     resample: str = "residual",
     ess_threshold: float | None = None,
@@ -117,8 +124,24 @@ def smc(
     t0 = time.perf_counter()
     check_run_options(n_particles, seed, max_modules)
     n = int(n_particles)
+    _check_options(n, resample, record_trace, ess_threshold, target_mask, canvas_size)
+    run = _Run(program, likelihood, n, proposal, seed, resample, record_trace, start,
+               canvas_size, target_mask, max_primitives, module_cap(program, max_modules))
+    while run.pop.live:
+        if max_steps is not None and run.steps >= max_steps:
+            for i in run.pop.live:
+                run.pop.parts[i].status = "limit"
+                run.pop.parts[i].limit = "max steps"
+            break
+        run.step(ess_threshold)
+    return run.result(time.perf_counter() - t0)
+
+
+def _check_options(n: int, resample: str, record_trace: bool | str,
+                   ess_threshold: float | None, target_mask: np.ndarray | None,
+                   canvas_size: tuple[int, int]) -> None:
     if n < 1:
-        raise SMCOptionError(f"need at least one particle, got {n_particles}")
+        raise SMCOptionError(f"need at least one particle, got {n}")
     if resample not in SCHEMES:
         raise SMCOptionError(f"unknown resampling scheme {resample!r} "
                              f"(choose from {', '.join(SCHEMES)})")
@@ -130,65 +153,127 @@ def smc(
     if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
         raise SMCOptionError(f"target mask {tuple(np.shape(target_mask))} and canvas size "
                              f"{tuple(canvas_size)} differ")
-    rng = np.random.Generator(np.random.PCG64(seed))
-    proposal = PriorProposal() if proposal is None else proposal
-    is_prior = type(proposal) is PriorProposal
-    cap = program.max_primitives if max_primitives is None else int(max_primitives)
-    viewport = program.viewport
 
-    # What the run needs: features, a canvas.
-    use_features = bool(getattr(proposal, "uses_features", False))
-    need_features = use_features or record_trace is True
-    if likelihood is not None and _is_null(likelihood):
-        likelihood = None  # nothing to compute, no canvas needed
-    like_canvas = likelihood is not None and getattr(likelihood, "needs_canvas", True)
-    canvas = None
-    if need_features or like_canvas:
-        if viewport is None:
-            raise ProgramError(f"program {program.name} has no viewport: "
-                               "cannot rasterize for the likelihood or features")
-        from ngpm_runtime.image.raster import Canvas
 
-        canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]), viewport)
-    fmaker = None
-    if need_features:
-        from ngpm_runtime.image.features import FeatureMaker
+class Population:
+    """The particles of one run and their weights; index i is particle i throughout.
+    `live` lists the particles still deriving, ascending."""
 
-        fmaker = FeatureMaker(program, viewport, target_mask)
-    like_state = likelihood.start(n) if likelihood is not None else {}
-    blank_ll = _blank_loglik(likelihood, canvas)
+    def __init__(self, parts: list[Particle]) -> None:
+        n = len(parts)
+        self.n = n
+        self.parts = parts
+        self.log_w = np.zeros(n)
+        self.log_prior = np.zeros(n)
+        self.log_lik = np.zeros(n)
+        self.live = list(range(n))
 
-    x0, y0, h0 = program.start if start is None else start
-    deriver = Deriver(program, max_ops=module_cap(program, max_modules))
-    advance = deriver.advance
-    parts: list[Particle] = [deriver.start((float(x0), float(y0), float(h0), 1.0))
-                             for _ in range(n)]
-    log_w = np.zeros(n)
-    log_prior = np.zeros(n)
-    log_lik = np.zeros(n)
-    log_z = 0.0
-    ess_history: list[float] = []
-    steps = 0
-    n_resample = 0
-    particle_steps = 0
-    live = list(range(n))
-    order = SiteOrder()
-    tables: dict[tuple, np.ndarray] = {}  # categorical log prior per (site, weights)
+    def add_loglik(self, idx: np.ndarray, inc: np.ndarray) -> None:
+        self.log_w[idx] += inc
+        self.log_lik[idx] += inc
 
-    while live:
-        if max_steps is not None and steps >= max_steps:
-            for i in live:
-                parts[i].status = "limit"
-                parts[i].limit = "max steps"
-            break
-        steps += 1
-        particle_steps += len(live)
+    def update_live(self) -> None:
+        """Zero-weight live particles are dead; `live` keeps the ones still deriving."""
+        parts = self.parts
+        for i in np.flatnonzero(self.log_w == -np.inf).tolist():
+            if parts[i].status == "live":
+                parts[i].status = "dead"
+        self.live = [i for i in self.live if parts[i].status == "live"]
+
+    def take(self, anc: np.ndarray) -> None:
+        """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
+        self.parts = _take_particles(self.parts, anc)
+        self.log_prior = self.log_prior[anc]
+        self.log_lik = self.log_lik[anc]
+        self.log_w = np.zeros(self.n)
+        self.live = [i for i, p in enumerate(self.parts) if p.status == "live"]
+
+
+class _Run:
+    """One SMC run's state: population, canvas, features, proposal and counters."""
+
+    def __init__(self, program: Program, likelihood: Likelihood | None, n: int,
+                 proposal: Proposal | None, seed: int, resample: str,
+                 record_trace: bool | str, start: tuple[float, float, float] | None,
+                 canvas_size: tuple[int, int], target_mask: np.ndarray | None,
+                 max_primitives: int | None, max_modules: int) -> None:
+        self.program = program
+        self.n = n
+        self.resample = resample
+        self.record_trace = record_trace
+        self.rng = np.random.Generator(np.random.PCG64(seed))
+        self.proposal: Proposal = PriorProposal() if proposal is None else proposal
+        self.is_prior = type(self.proposal) is PriorProposal
+        self.batched = isinstance(self.proposal, RoundProposal)
+        self.cap = program.max_primitives if max_primitives is None else int(max_primitives)
+        if isinstance(likelihood, NullLikelihood):
+            likelihood = None  # nothing to compute, no canvas needed
+        self.likelihood = likelihood
+        self.use_features = bool(self.proposal.uses_features)
+        need_features = self.use_features or record_trace is True
+        self.canvas = None
+        if need_features or (likelihood is not None and likelihood.needs_canvas):
+            if program.viewport is None:
+                raise ProgramError(f"program {program.name} has no viewport: "
+                                   "cannot rasterize for the likelihood or features")
+            from ngpm_runtime.image.raster import Canvas
+
+            self.canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]),
+                                 program.viewport, pyramid=need_features)
+        self.fmaker = None
+        if need_features:
+            from ngpm_runtime.image.features import FeatureMaker
+
+            self.fmaker = FeatureMaker(program, program.viewport, target_mask)
+        self.like_state = likelihood.start(n) if likelihood is not None else {}
+        self.blank_ll = (likelihood.blank_loglik(self.canvas.height, self.canvas.width)
+                         if likelihood is not None and self.canvas is not None else None)
+        x0, y0, h0 = program.start if start is None else start
+        self.deriver = Deriver(program, max_ops=max_modules)
+        turtle = (float(x0), float(y0), float(h0), 1.0)
+        self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
+        self.order = SiteOrder()
+        self.tables: dict[tuple, list[float]] = {}  # categorical log prior per (site, weights)
+        # (particles, log q or None for the prior proposal, log p) of the sites served
+        self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
+        self.log_z = 0.0
+        self.ess_history: list[float] = []
+        self.steps = 0
+        self.particle_steps = 0
+        self.n_resample = 0
+
+    def step(self, ess_threshold: float | None) -> None:
+        """Every live particle to its next drawn primitive; weights; maybe resampling."""
+        pop = self.pop
+        self.steps += 1
+        self.particle_steps += len(pop.live)
+        drawn, empty = self._derive()
+        self._observe(drawn, empty)
+        if (pop.log_w == np.inf).any():
+            raise SMCFailed(f"a weight became +inf at step {self.steps} (program "
+                            f"{self.program.name}): a proposal gave zero density to its own "
+                            "value or a likelihood returned +inf")
+        if not np.isfinite(pop.log_w).any():
+            raise SMCFailed(f"every particle's weight is zero after step {self.steps} "
+                            f"({self.n} particles, program {self.program.name})")
+        pop.update_live()
+        ess = _ess(pop.log_w)
+        self.ess_history.append(ess)
+        if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
+            self._resample()
+
+    def _derive(self) -> tuple[list[int], list[int]]:
+        """Run the live particles to their next primitive, serving their random choices in
+        rounds; returns (particles that drew, particles that ended having drawn nothing)."""
+        parts = self.pop.parts
+        advance = self.deriver.advance
+        order = self.order
         drawn: list[int] = []
-        empty: list[int] = []  # particles that ended without drawing anything
-        # particles already waiting on a site (from the look-ahead below) skip round one
+        empty: list[int] = []
+        # particles already waiting on a site (from the look-ahead) skip round one
         waiting: dict[int, list[int]] = {}
-        run = []
-        for i in live:
+        run: list[int] = []
+        for i in self.pop.live:
             need = parts[i].need
             if need is None:
                 run.append(i)
@@ -196,17 +281,18 @@ def smc(
                 waiting[need[0]].append(i)
             else:
                 waiting[need[0]] = [i]
-        served = -1  # the site `run` was just served at (-1: none)
-        nexts: set[int] = set()  # the sites the particles of `run` asked for next
-        while run or waiting:
-            for i in run:
+        came: list[int] = [-1] * len(run)  # the site each particle of `run` was served at
+        while True:
+            seen: set[tuple[int, int]] = set()  # (served site, next site) in this round
+            for i, a in zip(run, came, strict=True):
                 p = parts[i]
                 code = advance(p)
                 if code == DRAWN:
                     drawn.append(i)
                 elif code == NEED:
-                    s = p.need[0]
-                    nexts.add(s)
+                    s = p.need[0]  # type: ignore[index]
+                    if a >= 0:
+                        seen.add((a, s))
                     if s in waiting:
                         waiting[s].append(i)
                     else:
@@ -217,35 +303,128 @@ def smc(
                         p.limit = "max modules"
                     if p.n_prims == 0:
                         empty.append(i)
-            if served >= 0:
-                for s in nexts:
-                    order.saw(served, s)
-            nexts.clear()
+            for a, s in seen:
+                order.saw(a, s)
             if not waiting:
-                break
-            served = order.pick(waiting)
-            run = sorted(waiting.pop(served))
-            _serve_site(program, served, run, parts, proposal, is_prior, rng, log_w,
-                        log_prior, fmaker, canvas, use_features, record_trace, tables)
+                self._flush()
+                return drawn, empty
+            # a RoundProposal gets every site no other waiting site leads to in one call
+            sites = order.free(waiting) if self.batched else [order.pick(waiting)]
+            groups = [sorted(waiting.pop(s)) for s in sites]
+            self._serve(sites, groups)
+            run = [i for g in groups for i in g]
+            came = [s for s, g in zip(sites, groups, strict=True) for _ in g]
 
+    def _serve(self, sites: list[int], groups: list[list[int]]) -> None:
+        """Draw the values the particles `groups[j]` wait for at site `sites[j]`: one
+        proposal call (propose_round, or propose for a single site)."""
+        program, parts = self.program, self.pop.parts
+        objs: list[Site] = []
+        rows_list: list[list[tuple]] = []
+        args_list: list[np.ndarray] = []
+        for s, idx in zip(sites, groups, strict=True):
+            if not 0 <= s < len(program.sites):
+                raise ProgramError(f"program {program.name} asked for unknown site {s}")
+            site = program.sites[s]
+            rows = [parts[i].need[1] for i in idx]  # type: ignore[index]
+            args = _prior_args(site, rows)
+            if site.kind != "categorical" and args.shape[1] != site.n_args():
+                raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
+                                   f"{site.n_args()} arguments, got {args.shape[1]}")
+            objs.append(site)
+            rows_list.append(rows)
+            args_list.append(args)
+        feats = self._features(objs, groups, args_list) if self.fmaker is not None else None
+        given = feats if self.use_features else None
+        if self.batched:
+            answers = self.proposal.propose_round(  # type: ignore[attr-defined]
+                objs, args_list, given, self.rng)
+        else:
+            answers = [self.proposal.propose(objs[0], args_list[0],
+                                             None if given is None else given[0], self.rng)]
+        for j, (values, log_q) in enumerate(answers):
+            self._weigh_site(objs[j], groups[j], rows_list[j], args_list[j], values, log_q,
+                             None if feats is None else feats[j])
+
+    def _weigh_site(self, site: Site, idx: list[int], rows: list[tuple], args: np.ndarray,
+                    values: np.ndarray, log_q: np.ndarray, feats: np.ndarray | None) -> None:
+        """Weights (log prior - log q), trace and replay values of one served site. The
+        weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
+        ia = np.asarray(idx, dtype=np.intp)
+        values = np.asarray(values, dtype=np.float64)
+        vals = values.tolist()
+        if self.is_prior:  # log q = log prior: the weight does not change
+            self.pending.append((ia, None, log_q))
+        else:
+            log_q = np.asarray(log_q, dtype=np.float64)
+            log_p = None
+            if site.kind == "categorical":
+                log_p = _categorical_logp(site, rows, args, vals, self.tables)
+            if log_p is None:
+                log_p = prior_logpdf(site, args, values)
+            self.pending.append((ia, log_q, log_p))
+        _record(self.pop.parts, site, idx, vals, feats, self.record_trace)
+
+    def _flush(self) -> None:
+        """Apply the pending site weights: log w += log p - log q (NaN: zero weight),
+        log prior += log p; each particle's terms are added in the order they came."""
+        pending = self.pending
+        if not pending:
+            return
+        pop = self.pop
+        ia = np.concatenate([x[0] for x in pending]) if len(pending) > 1 else pending[0][0]
+        log_p = (np.concatenate([x[2] for x in pending]) if len(pending) > 1
+                 else pending[0][2])
+        if not self.is_prior:
+            log_q = (np.concatenate([x[1] for x in pending]) if len(pending) > 1
+                     else pending[0][1])
+            with np.errstate(invalid="ignore"):
+                delta = log_p - log_q
+            np.add.at(pop.log_w, ia, np.where(np.isnan(delta), -np.inf, delta))
+        np.add.at(pop.log_prior, ia, log_p)
+        pending.clear()
+
+    def _features(self, sites: list[Site], groups: list[list[int]],
+                  args_list: list[np.ndarray]) -> list[np.ndarray]:
+        """Feature rows of the waiting particles, one array per site, in one pass."""
+        parts = self.pop.parts
+        idx = [i for g in groups for i in g]
+        ps = [parts[i] for i in idx]
+        turtle = np.array([p.turtle for p in ps], dtype=np.float64)
+        tops = [p.stack for p in ps]
+        # the axiom pseudo-module has depth -1
+        depth = np.array([max(t[1], 0) for t in tops], dtype=np.float64)  # type: ignore[index]
+        params_list = []
+        pos = 0
+        for site, g in zip(sites, groups, strict=True):
+            params = _rows([t[0][1:] for t in tops[pos:pos + len(g)]])  # type: ignore[index]
+            if params is None:
+                raise ProgramError(f"site {site.id}: modules of different arity share it")
+            params_list.append(params)
+            pos += len(g)
+        assert self.fmaker is not None
+        return self.fmaker.features_round(sites, self.canvas, np.asarray(idx, dtype=np.intp),
+                                          turtle, depth, params_list, args_list)
+
+    def _observe(self, drawn: list[int], empty: list[int]) -> None:
+        """Rasterize the new primitives and apply the likelihood increments (and the blank
+        image's log-likelihood to particles that ended without drawing)."""
+        pop = self.pop
+        parts = pop.parts
         if drawn:
             drawn.sort()
             idx = np.asarray(drawn, dtype=np.intp)
             prims = [parts[i].last for i in drawn]
-            if canvas is not None:
-                batch = canvas.draw(idx, prims)
-                try:
-                    batch.prims = prims
-                except AttributeError:
-                    pass
+            if self.canvas is not None:
+                batch: Any = self.canvas.draw(idx, prims)  # type: ignore[arg-type]
+                batch.prims = prims
             else:
                 batch = PrimBatch(idx, np.array([prim_bbox(q) for q in prims]), prims)
-            if likelihood is not None:
-                inc = np.asarray(likelihood.increment(like_state, canvas, batch),
-                                 dtype=np.float64)
-                inc = np.where(np.isnan(inc), -np.inf, inc)
-                log_w[idx] += inc
-                log_lik[idx] += inc
+            if self.likelihood is not None:
+                inc = np.asarray(self.likelihood.increment(self.like_state, self.canvas,
+                                                           batch), dtype=np.float64)
+                pop.add_loglik(idx, np.where(np.isnan(inc), -np.inf, inc))
+            cap = self.cap
             for i in drawn:
                 p = parts[i]
                 if p.stack is None:
@@ -253,67 +432,73 @@ def smc(
                 elif p.n_prims >= cap:
                     p.status = "limit"
                     p.limit = "max primitives"
+        if empty and self.blank_ll is not None:
+            pop.add_loglik(np.asarray(empty, dtype=np.intp), np.float64(self.blank_ll))
 
-        if empty and blank_ll is not None:
-            ia = np.asarray(empty, dtype=np.intp)
-            log_w[ia] += blank_ll
-            log_lik[ia] += blank_ll
+    def _resample(self) -> None:
+        pop = self.pop
+        self.log_z += _logsumexp(pop.log_w) - math.log(self.n)
+        anc = draw_ancestors(self.resample, pop.log_w, self.rng)
+        pop.take(anc)
+        for key in self.like_state:
+            self.like_state[key] = self.like_state[key][anc]
+        if self.canvas is not None:
+            self.canvas.take(anc)
+        self.n_resample += 1
 
-        if (log_w == np.inf).any():
-            raise SMCFailed(f"a weight became +inf at step {steps} (program {program.name}): "
-                            "a proposal gave zero density to its own value or a likelihood "
-                            "returned +inf")
-        if not np.isfinite(log_w).any():
-            raise SMCFailed(f"every particle's weight is zero after step {steps} "
-                            f"({n} particles, program {program.name})")
-        for i in np.flatnonzero(log_w == -np.inf).tolist():
-            if parts[i].status == "live":
-                parts[i].status = "dead"
-        live = [i for i in live if parts[i].status == "live"]
-        ess = _ess(log_w)
-        ess_history.append(ess)
-        if live and n > 1 and (ess_threshold is None or ess < ess_threshold * n):
-            log_z += _logsumexp(log_w) - math.log(n)
-            anc = draw_ancestors(resample, log_w, rng)
-            parts = _take_particles(parts, anc)
-            log_prior = log_prior[anc]
-            log_lik = log_lik[anc]
-            log_w = np.zeros(n)
-            for key in like_state:
-                like_state[key] = like_state[key][anc]
-            if canvas is not None:
-                canvas.take(anc)
-            live = [i for i in range(n) if parts[i].status == "live"]
-            n_resample += 1
-
-    log_z += _logsumexp(log_w) - math.log(n)
-    finals = [
-        FinalParticle(
-            primitives=cons_to_list(p.prims),
-            log_prior=float(log_prior[i]),
-            log_likelihood=float(log_lik[i]),
-            log_weight=float(log_w[i]),
-            trace=cons_to_list(p.trace) if record_trace is not False else None,
-            status=p.status,
-            limit=p.limit if p.status == "limit" else None,
+    def result(self, seconds: float) -> SMCResult:
+        pop = self.pop
+        log_w = pop.log_w
+        log_z = self.log_z + _logsumexp(log_w) - math.log(self.n)
+        finals = [
+            FinalParticle(
+                primitives=cons_to_list(p.prims),
+                log_prior=float(pop.log_prior[i]),
+                log_likelihood=float(pop.log_lik[i]),
+                log_weight=float(log_w[i]),
+                trace=cons_to_list(p.trace) if self.record_trace is not False else None,
+                status=p.status,
+                limit=p.limit if p.status == "limit" else None,
+            )
+            for i, p in enumerate(pop.parts)
+        ]
+        score = np.where(np.isfinite(log_w), pop.log_prior + pop.log_lik, -np.inf)
+        status = {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}
+        return SMCResult(
+            particles=finals,
+            log_weights=log_w.copy(),
+            best=finals[int(np.argmax(score))],
+            log_evidence=float(log_z),
+            ess_history=self.ess_history,
+            steps=self.steps,
+            seconds=seconds,
+            info={"particle_steps": self.particle_steps, "resamples": self.n_resample,
+                  "status": status, "limits": _limit_counts(finals)},
         )
-        for i, p in enumerate(parts)
-    ]
-    score = np.where(np.isfinite(log_w), log_prior + log_lik, -np.inf)
-    best = finals[int(np.argmax(score))]
-    return SMCResult(
-        particles=finals,
-        log_weights=log_w.copy(),
-        best=best,
-        log_evidence=float(log_z),
-        ess_history=ess_history,
-        steps=steps,
-        seconds=time.perf_counter() - t0,
-        info={"particle_steps": particle_steps, "resamples": n_resample,
-              "status": {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")},
-              "limits": _limit_counts(finals)},
-    )
 
+
+def _record(parts: list[Particle], site: Site, idx: list[int], vals: list[float],
+            feats: np.ndarray | None, record_trace: bool | str) -> None:
+    """Append the drawn values to the particles' replay values (and traces)."""
+    s = site.index
+    st = (s,)
+    if record_trace is True:
+        assert feats is not None
+        for j, i in enumerate(idx):
+            p = parts[i]
+            p.trace = ((s, feats[j], vals[j]), p.trace)
+    elif record_trace:
+        for i, v in zip(idx, vals, strict=True):
+            p = parts[i]
+            p.trace = ((s, None, v), p.trace)
+    cont = site.kind == "normal" or site.kind == "uniform"
+    for i, v in zip(idx, vals, strict=True):
+        p = parts[i]
+        p.values += (v,)
+        p.sites += st
+        p.need = None
+        if cont:
+            p.cont = True
 
 
 class SiteOrder:
@@ -351,6 +536,23 @@ class SiteOrder:
         first = [k for k in waiting if k not in blocked]
         return max(first or waiting, key=lambda k: (len(waiting[k]), -k))
 
+    def free(self, waiting: dict[int, list[int]]) -> list[int]:
+        """Every waiting site that no other waiting site leads to, ascending (no particle
+        is expected to join them later in the step); `[pick(waiting)]` when a cycle leaves
+        none."""
+        if len(waiting) == 1:
+            return list(waiting)
+        keys = waiting.keys()
+        blocked: set[int] = set()
+        for a in waiting:
+            ra = self.reach.get(a)
+            if ra:
+                hit = ra & keys
+                hit.discard(a)
+                blocked |= hit
+        first = sorted(k for k in waiting if k not in blocked)
+        return first or [self.pick(waiting)]
+
 
 def replay(
     program: Program,
@@ -373,89 +575,8 @@ def replay(
     return res.particles[0]
 
 
-def _blank_loglik(likelihood: Any, canvas: Any) -> float | None:
-    """Log-likelihood of an empty drawing, charged to particles that end without drawing
-    (increments only come with primitives); None when the likelihood cannot say."""
-    full = getattr(likelihood, "full", None)
-    if full is None or canvas is None:
-        return None
-    blank = np.zeros(canvas.image.shape[1:], dtype=np.uint8)
-    value = float(full(blank, np.array([np.inf, np.inf, -np.inf, -np.inf])))
-    return value if not math.isnan(value) else -math.inf
-
-
-def _is_null(likelihood: Any) -> bool:
-    from ngpm_runtime.inference.likelihood import NullLikelihood
-
-    return isinstance(likelihood, NullLikelihood)
-
-
-def _serve_site(
-    program: Program,
-    s: int,
-    idx: list[int],
-    parts: list[Particle],
-    proposal: Any,
-    is_prior: bool,
-    rng: np.random.Generator,
-    log_w: np.ndarray,
-    log_prior: np.ndarray,
-    fmaker: Any,
-    canvas: Any,
-    use_features: bool,
-    record_trace: bool | str,
-    tables: dict[tuple, np.ndarray],
-) -> None:
-    """Draw site `s` for the waiting particles `idx` with one proposal call."""
-    if not 0 <= s < len(program.sites):
-        raise ProgramError(f"program {program.name} asked for unknown site {s}")
-    site = program.sites[s]
-    rows = [parts[i].need[1] for i in idx]
-    args = _prior_args(site, rows)
-    if site.kind != "categorical" and args.shape[1] != site.n_args():
-        raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
-                           f"{site.n_args()} arguments, got {args.shape[1]}")
-    feats = None
-    if fmaker is not None:
-        feats = _features(fmaker, site, canvas, idx, parts, args)
-    values, log_q = proposal.propose(site, args, feats if use_features else None, rng)
-    ia = np.asarray(idx, dtype=np.intp)
-    if is_prior:  # log q = log prior: the weight does not change
-        log_prior[ia] += log_q
-    else:
-        values = np.asarray(values, dtype=np.float64)
-        log_q = np.asarray(log_q, dtype=np.float64)
-        log_p = None
-        if site.kind == "categorical":
-            log_p = _categorical_logp(site, rows, args, values, tables)
-        if log_p is None:
-            log_p = prior_logpdf(site, args, values)
-        with np.errstate(invalid="ignore"):
-            delta = log_p - log_q
-        log_w[ia] += np.where(np.isnan(delta), -np.inf, delta)
-        log_prior[ia] += log_p
-    vals = values.tolist()
-    cont = site.kind == "normal" or site.kind == "uniform"
-    st = (s,)
-    if record_trace is True:
-        for j, i in enumerate(idx):
-            p = parts[i]
-            p.trace = ((s, feats[j], vals[j]), p.trace)
-    elif record_trace:
-        for i, v in zip(idx, vals, strict=True):
-            p = parts[i]
-            p.trace = ((s, None, v), p.trace)
-    for i, v in zip(idx, vals, strict=True):
-        p = parts[i]
-        p.values += (v,)
-        p.sites += st
-        p.need = None
-        if cont:
-            p.cont = True
-
-
-def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, values: np.ndarray,
-                      tables: dict[tuple, np.ndarray]) -> np.ndarray | None:
+def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list[float],
+                      tables: dict[tuple, list[float]]) -> np.ndarray | None:
     """prior_logpdf of categorical values whose rows share one weight tuple, from a table
     made by prior_logpdf itself (the same numbers); None when it does not apply."""
     first = rows[0]
@@ -466,14 +587,19 @@ def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, values: np
     table = tables.get(key)
     if table is None:
         k = len(first)
-        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0), np.arange(k, dtype=np.float64))
+        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0),
+                             np.arange(k, dtype=np.float64)).tolist()
         if len(tables) >= 4096:
             tables.clear()
         tables[key] = table
-    ki = values.astype(np.intp)
-    if not ((ki == values).all() and (ki >= 0).all() and (ki < len(table)).all()):
-        return None
-    return table[ki]
+    k = len(table)
+    out = []
+    for v in vals:
+        i = int(v) if v == v and abs(v) < 1e18 else -1
+        if i != v or not 0 <= i < k:
+            return None
+        out.append(table[i])
+    return np.array(out)
 
 
 def _rows(rows: list[tuple]) -> np.ndarray | None:
@@ -497,21 +623,6 @@ def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
         raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
                            "numbers of one length")
     return args
-
-
-def _features(fmaker: Any, site: Any, canvas: Any, idx: list[int], parts: list[Particle],
-              args: np.ndarray) -> np.ndarray:
-    n = len(idx)
-    turtle = np.fromiter(chain.from_iterable(parts[i].turtle for i in idx), np.float64,
-                         4 * n).reshape(n, 4)
-    tops = [parts[i].stack for i in idx]
-    depth = np.fromiter((t[1] for t in tops), np.float64, n)
-    np.maximum(depth, 0.0, out=depth)  # the axiom pseudo-module has depth -1
-    params = _rows([t[0][1:] for t in tops])
-    if params is None:
-        raise ProgramError(f"site {site.id}: modules of different arity share it")
-    return fmaker.features(site, canvas, np.asarray(idx, dtype=np.intp), turtle, depth,
-                           params, args)
 
 
 def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
@@ -541,8 +652,7 @@ def module_cap(program: Program, max_modules: int | None = None) -> int:
     """The "max modules" cap of a run: the option, else the grammar's, else the default."""
     if max_modules is not None:
         return int(max_modules)
-    own = getattr(program, "max_modules", None)
-    return int(own) if own else DEFAULT_MAX_MODULES
+    return int(program.max_modules) if program.max_modules else DEFAULT_MAX_MODULES
 
 
 def _limit_counts(finals: list[FinalParticle]) -> dict[str, int]:

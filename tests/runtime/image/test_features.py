@@ -85,6 +85,30 @@ def test_features_match_slow_computation() -> None:
                 np.testing.assert_allclose(got[k], want, rtol=1e-5, atol=1e-6)
 
 
+def test_features_round_rows_equal_features_per_site() -> None:
+    """One pass for several sites gives each site's rows exactly as `features` alone."""
+    rng = np.random.default_rng(3)
+    prog = _program()
+    target = np.zeros((50, 50), dtype=bool)
+    target[5:30, 10:40] = True
+    canvas = Canvas(6, 50, 50, VP)
+    canvas.draw(np.arange(6), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0)
+                               for _ in range(6)])
+    fm = FeatureMaker(prog, VP, target)
+    idx = np.array([4, 1, 1, 0, 5])
+    turtle = np.column_stack([rng.uniform(-14, 14, 5), rng.uniform(-24, 4, 5),
+                              rng.uniform(-400, 400, 5), rng.uniform(0.1, 1, 5)])
+    depth = rng.integers(0, 40, 5).astype(float)
+    sites = [prog.sites[0], prog.sites[1]]
+    params = [rng.normal(size=(2, 1)), np.zeros((3, 0))]
+    args = [rng.normal(size=(2, 2)), np.tile([0.2, 0.3, 0.5], (3, 1))]
+    got = fm.features_round(sites, canvas, idx, turtle, depth, params, args)
+    cut = [slice(0, 2), slice(2, 5)]
+    for site, rows, par, arg, sl in zip(sites, got, params, args, cut, strict=True):
+        want = fm.features(site, canvas, idx[sl], turtle[sl], depth[sl], par, arg)
+        np.testing.assert_array_equal(rows, want)
+
+
 def test_layout_slices() -> None:
     prog = _program()
     fm = FeatureMaker(prog, VP, None)

@@ -233,3 +233,31 @@ def test_small_normal_draw_matches_the_array_path() -> None:
     # a zero sd takes the array path (a point mass)
     v, q = proposal_draw(NORMAL, np.array([[1.0, 0.0]]), np.zeros((1, 3)), rng(0))
     assert v[0] == 1.0 and q[0] == 0.0
+
+
+def test_lean_normal_draw_matches_the_general_path() -> None:
+    """More than a few rows take `_lean_normal_draw`: the general path's values and log q
+    (the same formulas in the same order), and None for what it does not handle."""
+    from ngpm_runtime.inference.distributions import (
+        _lean_normal_draw,
+        _mixture_logpdf,
+        _mixture_sample,
+        _normal_mixture,
+    )
+
+    r = rng(13)
+    for n in (5, 9, 40):
+        for _ in range(20):
+            args = np.column_stack([r.normal(size=n) * 10, r.random(n) * 5 + 0.01])
+            params = r.normal(size=(n, 12)) * 2
+            out = _lean_normal_draw(args, params, rng(3))
+            assert out is not None
+            mix = _normal_mixture(args, params)
+            want_v = _mixture_sample(*mix, rng(3))
+            np.testing.assert_array_equal(out[0], want_v)
+            np.testing.assert_array_equal(out[1], _mixture_logpdf(want_v, *mix))
+    args = np.tile([0.0, 1.0], (6, 1))
+    bad = np.zeros((6, 12))
+    bad[2, 0] = np.inf
+    assert _lean_normal_draw(args, bad, rng(0)) is None
+    assert _lean_normal_draw(np.tile([0.0, 0.0], (6, 1)), np.zeros((6, 12)), rng(0)) is None

@@ -28,7 +28,9 @@ class CountingSession:
 
 
 def count_calls(g: Guide) -> None:
-    """Count onnxruntime calls of the whole-file and per-site sessions in g.session.calls."""
+    """Count onnxruntime calls of the whole-file and per-site sessions in g.session.calls
+    (the numpy engine switched off)."""
+    g.numpy_nets = {}
     g.session = CountingSession(g.session)
     g.site_sessions = {s: CountingSession(x, g.session.calls) for s, x in
                        g.site_sessions.items()}
@@ -70,11 +72,59 @@ def test_site_sessions_match_the_whole_file(tmp_path):
     g = Guide.load(path, fake_program())
     assert sorted(g.site_sessions) == sorted(g.nets) and 2 not in g.site_sessions
     feats = np.random.default_rng(2).normal(size=(5, N_F)).astype(np.float32)
+    g.numpy_nets = {}
     for s in g.nets:
         split = g.params(s, feats)
         whole = Guide.load(path, fake_program())
-        whole.site_sessions = {}
+        whole.site_sessions = whole.numpy_nets = {}
         np.testing.assert_array_equal(split, whole.params(s, feats))
+
+
+@pytest.mark.parametrize("K, feature_set", [(4, "all"), (1, "local"), (3, "all")])
+def test_numpy_nets_match_onnxruntime(tmp_path, K, feature_set):
+    """The numpy engine (the file's weights) gives onnxruntime's parameters to 1e-5, for
+    every head (mixture, bernoulli, categorical) and batch size."""
+    path = write_onnx(random_model(K, feature_set, seed=K), tmp_path / "g.onnx")
+    g = Guide.load(path, fake_program())
+    assert sorted(g.numpy_nets) == sorted(g.nets)
+    rng = np.random.default_rng(4)
+    for s in g.nets:
+        for n in (1, 3, 10, 300):
+            x = (rng.normal(size=(n, N_F)) * 3).astype(np.float32)
+            (want,) = g.site_sessions[s].run(None, {f"f_{s}": x})
+            got = g.params(s, x)
+            assert got.dtype == np.float64 and got.shape == want.shape
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
+def test_const_guide_runs_in_onnxruntime(tmp_path):
+    """A graph of another form (the const nets' Expand) gets no numpy engine."""
+    g = Guide.load(write_onnx(random_model(2, "const"), tmp_path / "c.onnx"), fake_program())
+    assert g.numpy_nets == {}
+
+
+def test_propose_round_matches_propose(tmp_path):
+    """propose_round: per site, values with log q = proposal_logpdf under the site's own
+    parameters; fallback sites use the prior; seeded calls repeat exactly."""
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    g = Guide.load(path, fake_program())
+    rng = np.random.default_rng(6)
+    sites = [SITES[0], SITES[1], SITES[2], SITES[3]]
+    ns = [5, 1, 4, 7]
+    args = [np.tile([2.0, 3.0], (5, 1)), np.tile([-1.0, 4.0], (1, 1)), np.full((4, 1), 0.3),
+            np.tile([1.0, 1.0, 1.0], (7, 1))]
+    feats = [rng.normal(size=(n, N_F)).astype(np.float32) for n in ns]
+    a = g.propose_round(sites, args, feats, np.random.default_rng(1))
+    b = g.propose_round(sites, args, feats, np.random.default_rng(1))
+    for site, n, arg, f, (v, q), (v2, q2) in zip(sites, ns, args, feats, a, b, strict=True):
+        assert v.shape == q.shape == (n,)
+        np.testing.assert_array_equal(v, v2)
+        np.testing.assert_array_equal(q, q2)
+        if site.index in g.nets:
+            want = proposal_logpdf(site, arg, g.params(site.index, f), v)
+        else:
+            want = prior_logpdf(site, arg, v)
+        np.testing.assert_allclose(q, want, rtol=1e-12, atol=1e-12)
 
 
 def test_fallback_site_uses_the_prior(guide):

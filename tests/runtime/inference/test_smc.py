@@ -7,7 +7,7 @@ from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_progra
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
 from ngpm_runtime.image import features as features_module  # noqa: E402
 from ngpm_runtime.image.raster import rasterize  # noqa: E402
-from ngpm_runtime.inference.likelihood import NullLikelihood, ShapeLikelihood  # noqa: E402
+from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, ShapeLikelihood  # noqa: E402
 from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
 from ngpm_runtime.inference.smc import SiteOrder, SMCOptionError, forward, replay, smc  # noqa: E402
@@ -114,7 +114,7 @@ def test_one_batched_proposal_call_per_site_per_round(vines) -> None:
 
 
 def test_all_zero_weight_raises_smcfailed(vines) -> None:
-    class Impossible:
+    class Impossible(Likelihood):
         needs_canvas = False
 
         def start(self, n):
@@ -129,7 +129,7 @@ def test_all_zero_weight_raises_smcfailed(vines) -> None:
 
 
 def test_nan_increments_are_zero_weight_not_nan(vines) -> None:
-    class HalfNaN:
+    class HalfNaN(Likelihood):
         needs_canvas = False
 
         def start(self, n):
@@ -213,7 +213,7 @@ def test_forward_without_viewport_and_null_likelihood(vines) -> None:
     r = smc(make_program({"A": lambda ctx: [("F", 1.0)]}), NullLikelihood(), 3)
     assert all(p.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0)] for p in r.particles)
 
-    class NeedsCanvas:
+    class NeedsCanvas(Likelihood):
         def start(self, n):
             return {}
 
