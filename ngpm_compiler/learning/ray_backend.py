@@ -74,7 +74,8 @@ class RayBackend:
                 ray.init(address=self.address, logging_level="ERROR")
             else:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-                ray.init(num_cpus=self.workers, include_dashboard=False, logging_level="ERROR")
+                ray.init(address="local", num_cpus=self.workers, include_dashboard=False,
+                         logging_level="ERROR")  # "local": not a `ray start` cluster here
                 self._started = True
         try:
             cpus = int(ray.cluster_resources().get("CPU", self.workers))
