@@ -68,6 +68,24 @@ def test_ray_shards_equal_the_local_backends(local_ray, reference, tmp_path):
     assert ray.is_initialized()  # a Ray instance it did not start is left running
 
 
+def test_eval_runs_on_ray_equal_local_runs(local_ray):
+    """`ngpmc eval --backend ray`'s run matrix: the grammar's text and the guide's bytes are
+    sent; every run's result equals the in-process run's."""
+    from ngpm_runtime import bundled
+
+    from ngpm_compiler.experiments.evaluate import UNGUIDED, run_tasks, shape_tasks
+
+    targets = {"demo": bundled.demo_targets()[:2]}
+    guides = {"all": str(bundled.guide_path())}
+    tasks = shape_tasks([UNGUIDED, "all"], {"demo": 2}, [2], 2)
+    vines = str(REPO / "grammars" / "vines.lsys")
+    local = run_tasks(vines, targets, guides, tasks, workers=1)
+    remote = run_tasks(vines, targets, guides, tasks, workers=2, backend="ray")
+    assert [r.task for r in remote] == tasks
+    assert [(r.similarity, r.primitives) for r in remote] == \
+        [(r.similarity, r.primitives) for r in local]
+
+
 def running_task_workers() -> list[int]:
     """Our Ray workers (children of the raylet this process started) running a task."""
     me, out = os.getpid(), []
