@@ -64,3 +64,27 @@ def test_grammar_from_text_is_the_same_program(tmp_path):
     c = load_grammar(sampler, sampler.read_text(encoding="utf-8"))
     assert (c.name, c.grammar_hash) == (a.name, a.grammar_hash)
     assert [s.to_json() for s in c.sites] == [s.to_json() for s in a.sites]
+
+
+class _Twice(InProcess):
+    """Every result comes back twice (as a job retried after its worker died may)."""
+
+    def results(self, timeout: float) -> list[tuple[int, object]]:
+        return [x for x in super().results(timeout) for _ in range(2)]
+
+
+def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatch):
+    from fixtures.datasets import CHAIN, make_dataset
+
+    from ngpm_compiler.learning import backends
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
+                      shard_size=4)
+    monkeypatch.setattr(backends, "make_backend",
+                        lambda kind, workers, setup, args, address=None: _Twice(setup, args))
+    m = generate_traces(cfg, tmp_path / "twice", progress=False)
+    assert m["kept"] == m["jobs_done"] == 6 and len(m["job_seconds"]) == 6
+    assert sorted(load_traces(tmp_path / "twice").kept_jobs.tolist()) == list(range(6))
+    assert m["shards"] == ["shard_00000000.npz", "shard_00000004.npz"]
