@@ -15,6 +15,7 @@ nothing else is read there: no grammar file, no target folder.
 from __future__ import annotations
 
 import os
+import socket
 import uuid
 from typing import Any
 
@@ -48,6 +49,31 @@ def import_ray() -> Any:
     return ray
 
 
+def check_reachable(address: str, timeout: float = 10.0) -> None:
+    """NgpmError unless something listens at a `host:port` (or `ray://host:port`) address,
+    rather than Ray's minutes of retries; 'auto' and other forms are left to Ray."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not port.isdigit() or not host:
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as err:
+        raise NgpmError(f"cannot reach the Ray cluster at {address} ({err.strerror or err}); "
+                        "is `ray start --head` running there?") from None
+
+
+def connect(ray: Any, address: str) -> None:
+    """ray.init on a running cluster, with errors that say what to check."""
+    check_reachable(address)
+    try:
+        ray.init(address=address, logging_level="ERROR")
+    except ConnectionError as err:
+        raise NgpmError(f"cannot connect to the Ray cluster at {address} ({err}); a cluster "
+                        "with token authentication (recent Ray turns it on for `ray start`) "
+                        "needs RAY_AUTH_MODE=token here, and its token in RAY_AUTH_TOKEN or "
+                        "~/.ray/auth_token (docs/cluster.md)") from None
+
+
 class RayBackend:
     """Jobs as Ray tasks (see the module's docstring)."""
 
@@ -71,7 +97,7 @@ class RayBackend:
         ray = self.ray
         if not ray.is_initialized():
             if self.address or os.environ.get("RAY_ADDRESS"):
-                ray.init(address=self.address, logging_level="ERROR")
+                connect(ray, self.address or os.environ["RAY_ADDRESS"])
             else:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
                 ray.init(address="local", num_cpus=self.workers, include_dashboard=False,
