@@ -88,3 +88,11 @@ def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatc
     assert m["kept"] == m["jobs_done"] == 6 and len(m["job_seconds"]) == 6
     assert sorted(load_traces(tmp_path / "twice").kept_jobs.tolist()) == list(range(6))
     assert m["shards"] == ["shard_00000000.npz", "shard_00000004.npz"]
+
+
+def test_unreachable_ray_address_fails_at_once():
+    from ngpm_compiler.learning.ray_backend import check_reachable
+
+    with pytest.raises(NgpmError, match="cannot reach the Ray cluster at 127.0.0.1:1"):
+        check_reachable("127.0.0.1:1", timeout=2)
+    check_reachable("auto")  # left to Ray
