@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli.guide import add_backend_arguments
 from ngpm_compiler.experiments.config import EvalConfig, quick_config
 from ngpm_compiler.experiments.pipeline import STAGES, EvalError, run_eval
 
@@ -48,6 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="extra particle counts for unguided SMC only (default 600)")
     p.add_argument("--repeats", type=int, help="SMC runs per target and N (default 3)")
     p.add_argument("--workers", type=int, help="processes (default 2; quick: 1)")
+    add_backend_arguments(p)
     p.add_argument("--circuit-traces", type=int, help="circuit traces (default 200)")
     p.add_argument("--circuit-repeats", type=int, help="circuit runs of each kind (default 5)")
     p.add_argument("--stages", default=",".join(STAGES),
@@ -71,7 +73,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     cfg.stages = stages
     for key in ("traces", "guide_all", "glyphs", "silhouettes", "n_glyphs", "n_silhouettes",
                 "ns", "repeats", "workers", "circuit_traces", "circuit_repeats",
-                "unguided_ns"):
+                "unguided_ns", "backend", "ray_address"):
         v = getattr(args, key, None)
         key = "unguided_extra_ns" if key == "unguided_ns" else key
         if v is not None:
@@ -79,6 +81,8 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     cfg.seed = args.seed
     if cfg.repeats < 1 or cfg.workers < 1:
         raise EvalError("--repeats and --workers must be at least 1")
+    if cfg.ray_address and cfg.backend != "ray":
+        raise EvalError("--ray-address needs --backend ray")
     for key in ("traces", "guide_all", "glyphs", "silhouettes"):
         v = getattr(cfg, key)
         if v is not None and not Path(v).exists():

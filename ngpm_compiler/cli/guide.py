@@ -29,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
     p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
     argtypes.add_max_modules(p)
+    add_backend_arguments(p)
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
@@ -83,6 +84,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- traces / train
 
 
+def add_backend_arguments(p: argparse.ArgumentParser) -> None:
+    """--backend and --ray-address (traces and eval)."""
+    p.add_argument("--backend", choices=("local", "ray"), default="local",
+                   help="where jobs run: local worker processes (default) or Ray tasks "
+                        "(a local Ray instance with --workers CPUs, or --ray-address's "
+                        "cluster; needs `pip install ray`)")
+    p.add_argument("--ray-address", metavar="ADDRESS",
+                   help="a running Ray cluster (e.g. 10.0.0.1:6379 from `ray start --head`, "
+                        "or 'auto'); default: $RAY_ADDRESS, else a local Ray instance")
+
+
 def cmd_traces(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
@@ -91,7 +103,8 @@ def cmd_traces(args: argparse.Namespace) -> int:
     cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
                       particles=args.particles, seed=args.seed, workers=args.workers,
                       mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size),
-                      max_modules=args.max_modules)
+                      max_modules=args.max_modules, backend=args.backend,
+                      ray_address=args.ray_address)
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""

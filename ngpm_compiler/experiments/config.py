@@ -51,6 +51,8 @@ class EvalConfig:
     chain_ns: tuple[int, ...] = (1, 5, 20)
     chain_repeats: int = 5
     workers: int = 2
+    backend: str = "local"  # the shape runs and chain traces: "local" processes or "ray"
+    ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
     seed: int = 0
     stages: tuple[str, ...] = ("shape", "grids", "circuit", "chain", "report")
     extra: dict[str, Any] = field(default_factory=dict)

@@ -2,8 +2,9 @@
 
 One *run* is SMC with N particles into one target; it records the best particle's normalized
 similarity (the argument of the Gaussian of equation 1, `likelihood.similarity`) and the wall
-time of the SMC call. Runs go to worker processes in a shuffled order, so a load change on the
-machine touches every model alike. The statistics follow the paper: the median over repeats
+time of the SMC call. Runs go to a backend (`learning/backends.py`: worker processes, or Ray
+tasks with `backend="ray"`) in a shuffled order, so a load change on the machine touches every
+model alike. The statistics follow the paper: the median over repeats
 per target, then the mean over targets with a 95% t interval.
 
 The other modules of this package build models (models), plot (plots), run the circuit and
@@ -16,6 +17,7 @@ import csv
 import io
 import math
 import os
+import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +26,7 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.learning import pool
+from ngpm_compiler.learning import backends, pool
 
 __all__ = ["atomic_write"]  # re-exported for the other eval_* modules
 
@@ -77,16 +79,27 @@ def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str]
-                  ) -> dict[str, Any]:
+def _worker_setup(grammar: str, text: str, targets: dict[str, list[Any]],
+                  guides: dict[str, str | bytes]) -> dict[str, Any]:
+    """A worker's state: the grammar from its text, the targets, and each guide from its path
+    or, for workers that may be on other machines, from its file's bytes."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    from ngpm_runtime.inference.guide import Guide
-
     from ngpm_compiler.language.compile import load_grammar
 
-    program = load_grammar(grammar)
+    program = load_grammar(grammar, text)
     return {"program": program, "targets": targets,
-            "guides": {name: Guide.load(path, program) for name, path in guides.items()}}
+            "guides": {name: _load_guide(g, program) for name, g in guides.items()}}
+
+
+def _load_guide(guide: str | bytes, program: Any) -> Any:
+    from ngpm_runtime.inference.guide import Guide
+
+    if isinstance(guide, str):
+        return Guide.load(guide, program)
+    with tempfile.TemporaryDirectory(prefix="ngpm_guide_") as tmp:  # read whole by load
+        path = Path(tmp) / "guide.onnx"
+        path.write_bytes(guide)
+        return Guide.load(path, program)
 
 
 def _run(task: RunTask) -> RunResult:
@@ -99,24 +112,28 @@ def _run(task: RunTask) -> RunResult:
 
 def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str],
               tasks: list[RunTask], workers: int = 1, shuffle_seed: int = 0,
-              on_result: Callable[[RunResult], None] | None = None) -> list[RunResult]:
-    """Run every task (shuffled order, `workers` processes); results in task order."""
+              on_result: Callable[[RunResult], None] | None = None, backend: str = "local",
+              address: str | None = None) -> list[RunResult]:
+    """Run every task (shuffled order, on `backend` with `workers` processes or Ray CPUs, or
+    on the Ray cluster at `address`); results in task order."""
     order = np.random.default_rng(shuffle_seed).permutation(len(tasks))
     shuffled = [tasks[i] for i in order]
+    ship: dict[str, str | bytes] = dict(guides) if backend == "local" else \
+        {name: Path(path).read_bytes() for name, path in guides.items()}
+    text = Path(grammar).read_text(encoding="utf-8")
+    jobs = backends.make_backend(backend, workers, _worker_setup,
+                                 (grammar, text, targets, ship), address)
     out: dict[RunTask, RunResult] = {}
-    if workers <= 1:
-        pool.setup_here(_worker_setup, grammar, targets, guides)
-        for t in shuffled:
-            r = _run(t)
-            out[t] = r
-            if on_result:
-                on_result(r)
-    else:
-        with pool.spawn_pool(workers, _worker_setup, (grammar, targets, guides)) as procs:
-            for r in procs.imap_unordered(_run, shuffled, chunksize=1):
-                out[r.task] = r
-                if on_result:
-                    on_result(r)
+    with jobs:
+        todo = iter(enumerate(shuffled))
+        while len(out) < len(set(shuffled)):
+            while jobs.running() < jobs.capacity and (nxt := next(todo, None)) is not None:
+                jobs.submit(nxt[0], _run, nxt[1])
+            for _, r in jobs.results(0.05):
+                if r.task not in out:  # else: a duplicate task, or a retried run
+                    out[r.task] = r
+                    if on_result:
+                        on_result(r)
     return [out[t] for t in tasks]
 
 

@@ -242,7 +242,8 @@ def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
     traces = work / "traces"
     generate_traces(TraceConfig(grammar=cfg.chain_grammar, targets=str(tdir), n=cfg.chain_traces,
                                 particles=cfg.chain_particles, seed=cfg.seed,
-                                workers=max(1, cfg.workers)),
+                                workers=max(1, cfg.workers), backend=cfg.backend,
+                                ray_address=cfg.ray_address),
                     traces, progress=False)
     spec = ModelSpec("chain_all", "all", 4, None, cfg.epochs)
     path = train_models([spec], str(traces), str(work / "models"), 1, cfg.seed)["chain_all"]

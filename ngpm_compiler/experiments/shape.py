@@ -140,8 +140,11 @@ def run_shape(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
         if done[0] % max(1, len(tasks) // 20) == 0 or done[0] == len(tasks):
             log(f"shape runs: {done[0]}/{len(tasks)}")
 
-    log(f"shape runs: {len(tasks)} SMC runs, {cfg.workers} worker(s)")
-    results = run_tasks(cfg.grammar, targets, guides, tasks, cfg.workers, cfg.seed, progress)
+    where = f"{cfg.workers} worker(s)" if cfg.backend == "local" else \
+        f"Ray ({cfg.ray_address or 'local instance'})"
+    log(f"shape runs: {len(tasks)} SMC runs, {where}")
+    results = run_tasks(cfg.grammar, targets, guides, tasks, cfg.workers, cfg.seed, progress,
+                        backend=cfg.backend, address=cfg.ray_address)
     rows = [r.row() for r in results]
     write_csv(Path(cfg.out) / "shape_runs.csv", rows, RUN_FIELDS)
     return rows

@@ -1,10 +1,15 @@
 """Training traces: unguided SMC on dataset targets, keep the best particle's trace.
 
 Job `i` is a pure function of (grammar, base seed, i): its target and SMC seed come from
-`job_spec(base_seed, i, n_targets)`. Jobs run in worker processes (spawn-safe); every finished
-job is written at once to `pending/job_<i>.npz` (atomic), and pending jobs are gathered into
-shards `shard_<first>.npz`. A rerun on the same directory skips finished job ids, so an
-interrupted run loses no finished trace and never repeats one.
+`job_spec(base_seed, i, n_targets)`. Jobs run on a backend (`backends.py`: worker processes
+here, or Ray tasks on a cluster) that gets the grammar's text and the targets, never paths;
+the driver (this process) writes every finished job at once to `pending/job_<i>.npz`
+(atomic), and gathers the jobs of each finished block of `shard_size` consecutive ids into a
+shard `shard_<first>.npz` (the last, partial block when the run is complete). A rerun on the
+same directory skips finished job ids, so an interrupted run loses no finished trace and
+never repeats one; the driver ignores a second result for a written job. Shards are the same
+bytes whatever backend ran the jobs, in whatever order they finished, however often the run
+was interrupted (with one shard size).
 
 Shard / pending npz arrays: `jobs, kept, n_prims, target, seed` (one entry per job; n_prims
 is -1 when SMC failed: every particle died, so the job is dropped) and per
@@ -17,12 +22,14 @@ is interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import signal
 import sys
 import threading
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -34,7 +41,7 @@ from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
 from tqdm import tqdm
 
-from ngpm_compiler.learning import pool
+from ngpm_compiler.learning import backends, pool
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
@@ -70,6 +77,8 @@ class TraceConfig:
     min_primitives: int = MIN_PRIMITIVES
     shard_size: int = 50
     max_modules: int | None = None  # the "max modules" cap (None: the grammar's or default)
+    backend: str = "local"  # backends.BACKENDS: "local" (processes) or "ray"
+    ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
 
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
@@ -131,8 +140,13 @@ def prior_arg_columns(site: Site, layout: dict[str, slice]) -> slice:
 
 
 def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """np.savez, but the same arrays give the same bytes (no time stamps in the zip)."""
     buf = io.BytesIO()
-    np.savez(buf, **arrays)
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for key, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with zf.open(info, "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(arr), allow_pickle=False)
     atomic_write(path, buf.getvalue())
 
 
@@ -222,28 +236,40 @@ class TraceStore:
             raise TraceError(f"{self.dir}: a job id appears in two shards")
         return merged
 
-    def consolidate(self) -> None:
-        """Gather pending jobs into a new shard, then remove them."""
-        paths = self.pending_paths()
-        if not paths:
+    def consolidate(self, done: set[int] | None = None, block: int = 1) -> None:
+        """Gather pending jobs into new shards, then remove them: with `done` (every finished
+        job id), one shard per block of `block` consecutive job ids that are all done, and
+        the other pending jobs stay pending; without, all pending jobs into one shard."""
+        groups: dict[int, list[Path]] = {}
+        for p in self.pending_paths():
+            job = int(p.stem.partition("_")[2])
+            groups.setdefault(job // block if done is not None else 0, []).append(p)
+        if done is not None:
+            groups = {b: ps for b, ps in groups.items()
+                      if all(j in done for j in range(b * block, (b + 1) * block))}
+        if not groups:
             return
         in_shards: set[int] = set()
         for p in self.shard_paths():
             in_shards.update(int(j) for j in _load_npz(p)["jobs"])
-        parts = [a for a in (_load_npz(p) for p in paths) if int(a["jobs"][0]) not in in_shards]
-        if parts:
-            merged = merge_arrays(parts)
-            _save_npz(self.dir / f"shard_{int(merged['jobs'].min()):08d}.npz", merged)
-        for p in paths:
-            p.unlink(missing_ok=True)
+        for paths in groups.values():
+            parts = [a for a in (_load_npz(p) for p in paths)
+                     if int(a["jobs"][0]) not in in_shards]
+            if parts:
+                merged = merge_arrays(parts)
+                _save_npz(self.dir / f"shard_{int(merged['jobs'].min()):08d}.npz", merged)
+            for p in paths:
+                p.unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, targets: str, size: int, mirror: bool) -> dict[str, Any]:
+def _worker_setup(grammar: str, text: str, targets: list[Any]) -> dict[str, Any]:
+    """A worker's state from the grammar file's name and text and the targets (data, so a
+    worker on another machine reads no file)."""
     from ngpm_compiler.language.compile import load_grammar
 
-    return {"program": load_grammar(grammar), "targets": load_targets(targets, size, mirror)}
+    return {"program": load_grammar(grammar, text), "targets": targets}
 
 
 def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
@@ -305,8 +331,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest.
 
-    Long because the serial and pooled paths share one try/finally that writes the finished
-    jobs' manifest on any exit (done, Ctrl-C, SIGTERM)."""
+    Long because one try/finally around the backend's driver loop writes the finished
+    jobs' shards and manifest on any exit (done, Ctrl-C, SIGTERM, a failed job)."""
     from ngpm_compiler.language.compile import load_grammar
 
     store = TraceStore(out_dir)
@@ -322,9 +348,9 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         diff = sorted(k for k in key if old.get("key", {}).get(k) != key[k])
         raise TraceError(f"{store.dir}: holds traces of another configuration "
                          f"(differs in {', '.join(diff)}); use a new directory")
-    store.consolidate()
     done = store.finished()
     done_ids = set(int(j) for j in done["jobs"])
+    store.consolidate(done_ids, cfg.shard_size)
     kept = int(done["kept"].sum())
     dropped = len(done_ids) - kept
     layouts = site_layouts(program, targets[0].mask)
@@ -340,16 +366,16 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     bar = tqdm(total=cfg.n, initial=min(kept, cfg.n), desc="traces", unit="trace",
                disable=not progress)
     bar.set_postfix(dropped=dropped)
-    since_shard = 0
     job_seconds: list[float] = list(old.get("job_seconds", [])) if old else []
 
     failed = int((done.get("n_prims", np.zeros(0)) < 0).sum())
     in_a_row = 0  # jobs dropped since the last kept one (this run)
 
     def finish(arrays: dict[str, np.ndarray], seconds: float) -> None:
-        nonlocal kept, dropped, since_shard, failed, in_a_row
+        nonlocal kept, dropped, failed, in_a_row
+        job = int(arrays["jobs"][0])
         store.write_pending(arrays)
-        done_ids.add(int(arrays["jobs"][0]))
+        done_ids.add(job)
         job_seconds.append(seconds)
         if bool(arrays["kept"][0]):
             kept += 1
@@ -369,12 +395,11 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     "(or none survived); make the grammar draw more (a longer axiom or "
                     "derivation; try `ngpmc sample`) or raise its 'max modules:' cap if "
                     "`ngpmc sample` reports that limit")
-        since_shard += 1
-        if since_shard >= cfg.shard_size:
-            store.consolidate()
-            since_shard = 0
+        first = job - job % cfg.shard_size
+        if all(j in done_ids for j in range(first, first + cfg.shard_size)):
+            store.consolidate(done_ids, cfg.shard_size)  # its block is complete
         if on_job:
-            on_job(int(arrays["jobs"][0]))
+            on_job(job)
 
     def next_ids() -> Any:
         j = 0
@@ -384,33 +409,29 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
             j += 1
 
     ids = next_ids()
+    text = Path(cfg.grammar).read_text(encoding="utf-8")
+    jobs = backends.make_backend(cfg.backend, cfg.workers, _worker_setup,
+                                 (cfg.grammar, text, targets), cfg.ray_address)
+    complete = False
     try:
-        if cfg.workers <= 1:
-            pool.setup_here(_worker_setup, cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
-            while kept < cfg.n:
-                finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives,
-                                 cfg.max_modules)))
-        else:
-            _exit_on_sigterm()
-            with pool.spawn_pool(cfg.workers, _worker_setup, (cfg.grammar, cfg.targets,
-                                                              cfg.size, cfg.mirror)) as workers:
-                running: list[Any] = []
-                while kept < cfg.n or running:
-                    while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
-                        job = next(ids)
-                        running.append(workers.apply_async(
-                            _do_job, ((job, cfg.seed, cfg.particles, cfg.min_primitives,
-                                       cfg.max_modules),)))
-                    ready = [r for r in running if r.ready()]
-                    if not ready:
-                        running[0].wait(0.05)
-                        continue
-                    for r in ready:
-                        running.remove(r)
-                        finish(*r.get())
+        with jobs if kept < cfg.n else contextlib.nullcontext():
+            if jobs.separate_processes:
+                _exit_on_sigterm()  # after the backend started (ray.init sets its own)
+            while kept < cfg.n or jobs.running():
+                while kept + jobs.running() < cfg.n and jobs.running() < jobs.capacity:
+                    job = next(ids)
+                    jobs.submit(job, _do_job, (job, cfg.seed, cfg.particles, cfg.min_primitives,
+                                                cfg.max_modules))
+                for job, result in jobs.results(0.05):
+                    if job not in done_ids:  # else: written already (a retried job)
+                        finish(*result)
+            complete = True
     finally:
         bar.close()
-        store.consolidate()
+        if complete:
+            store.consolidate()  # the last, partial block
+        else:
+            store.consolidate(done_ids, cfg.shard_size)
         manifest["seconds"] += time.perf_counter() - t0
         manifest["job_seconds"] = job_seconds
         manifest.update(kept=kept, dropped=dropped, failed=failed, jobs_done=len(done_ids),

@@ -143,3 +143,6 @@ def test_bad_options_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureF
     assert main(["eval", "-o", str(tmp_path), "--traces", str(tmp_path / "missing")]) != 0
     err = capsys.readouterr().err
     assert "--traces" in err and "no such file" in err
+    assert main(["eval", "--quick", "-o", str(tmp_path), "--ray-address", "auto"]) != 0
+    err = capsys.readouterr().err
+    assert "--ray-address needs --backend ray" in err and err.count("\n") == 1

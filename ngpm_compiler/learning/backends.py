@@ -1,0 +1,136 @@
+"""Where jobs run: a `Backend` takes jobs from a driver and hands their results back, in any
+order, as they finish.
+
+A job is `fn(arg)` with `fn` a module-level function (so it pickles by reference) that reads
+what the backend's setup built with `pool.state()`. The setup runs once per worker process
+(`setup(*setup_args)`); its arguments are data, not paths, so that a worker on another
+machine needs none of the driver's files. Backends never write anything: the driver does
+(trace shards, CSV rows), so a job that runs twice (a retry after a worker crash) can never
+be recorded twice.
+
+- `InProcess`: one job at a time in this process (`--workers 1`).
+- `LocalPool`: spawned worker processes on this machine (the default).
+- `RayBackend` (`ray_backend.py`, needs the `cluster` extra): Ray tasks on a local Ray
+  instance or on a cluster (`--backend ray [--ray-address ADDRESS]`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import ExitStack
+from types import TracebackType
+from typing import Any, Protocol
+
+from ngpm_runtime.errors import NgpmError
+
+from ngpm_compiler.learning import pool
+
+BACKENDS = ("local", "ray")
+Job = Callable[[Any], Any]
+
+
+class Backend(Protocol):
+    """A context manager (entering starts the workers, leaving cancels what still runs and
+    stops them) that runs submitted jobs."""
+
+    capacity: int  # jobs worth keeping submitted at once (about 2 per worker)
+    separate_processes: bool  # jobs run outside this process (SIGTERM must stop them)
+
+    def __enter__(self) -> Backend: ...
+
+    def __exit__(self, kind: type[BaseException] | None, err: BaseException | None,
+                 tb: TracebackType | None) -> None: ...
+
+    def submit(self, key: int, fn: Job, arg: Any) -> None:
+        """Queue `fn(arg)`; its result comes back from `results` under `key`."""
+
+    def running(self) -> int:
+        """Jobs submitted whose results have not been handed back yet."""
+
+    def results(self, timeout: float) -> list[tuple[int, Any]]:
+        """(key, result) of jobs finished since the last call, waiting up to `timeout`
+        seconds for the first; a job's exception is raised here."""
+
+
+class InProcess:
+    """Jobs run here, one at a time, when their results are asked for."""
+
+    separate_processes = False
+    capacity = 1
+
+    def __init__(self, setup: pool.Setup, setup_args: tuple[Any, ...]) -> None:
+        self._setup = (setup, setup_args)
+        self._queue: list[tuple[int, Job, Any]] = []
+
+    def __enter__(self) -> InProcess:
+        pool.setup_here(self._setup[0], *self._setup[1])
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._queue.clear()
+
+    def submit(self, key: int, fn: Job, arg: Any) -> None:
+        self._queue.append((key, fn, arg))
+
+    def running(self) -> int:
+        return len(self._queue)
+
+    def results(self, timeout: float) -> list[tuple[int, Any]]:
+        if not self._queue:
+            return []
+        key, fn, arg = self._queue.pop(0)
+        return [(key, fn(arg))]
+
+
+class LocalPool:
+    """`workers` spawned processes on this machine (`pool.spawn_pool`)."""
+
+    separate_processes = True
+
+    def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...]) -> None:
+        self.workers = workers
+        self.capacity = 2 * workers
+        self._setup = (setup, setup_args)
+        self._pool: Any = None
+        self._stack = ExitStack()
+        self._running: dict[int, Any] = {}
+
+    def __enter__(self) -> LocalPool:
+        self._pool = self._stack.enter_context(pool.spawn_pool(self.workers, *self._setup))
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._running.clear()
+        self._stack.close()  # stops the workers, running jobs or not, without hanging
+
+    def submit(self, key: int, fn: Job, arg: Any) -> None:
+        self._running[key] = self._pool.apply_async(fn, (arg,))
+
+    def running(self) -> int:
+        return len(self._running)
+
+    def results(self, timeout: float) -> list[tuple[int, Any]]:
+        if not self._running:
+            return []
+        ready = [k for k, r in self._running.items() if r.ready()]
+        if not ready:
+            next(iter(self._running.values())).wait(timeout)
+            ready = [k for k, r in self._running.items() if r.ready()]
+        return [(k, self._running.pop(k).get()) for k in ready]
+
+
+def make_backend(kind: str, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
+                 address: str | None = None) -> Backend:
+    """The backend named `kind` ("local" or "ray"); `address` is a Ray cluster's (None: a
+    local Ray instance with `workers` CPUs, or the cluster named by $RAY_ADDRESS)."""
+    if kind == "local":
+        if address:
+            raise NgpmError("--ray-address needs --backend ray")
+        if workers <= 1:
+            return InProcess(setup, setup_args)
+        return LocalPool(workers, setup, setup_args)
+    if kind == "ray":
+        from ngpm_compiler.learning.ray_backend import RayBackend
+
+        return RayBackend(workers, setup, setup_args, address=address)
+    raise NgpmError(f"unknown backend {kind!r}; choose from {', '.join(BACKENDS)}")
