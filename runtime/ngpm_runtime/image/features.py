@@ -67,6 +67,8 @@ class FeatureMaker:
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        # features_cached: particle -> (turtle, its site-independent row)
+        self._rows: dict[int, tuple[tuple, np.ndarray]] = {}
         xmin, xmax, ymin, ymax = self.viewport
         self._origin = np.array([xmin, ymax])
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
@@ -137,6 +139,56 @@ class FeatureMaker:
         n = len(idx)
         common = self._common(canvas, idx, np.asarray(turtle, dtype=np.float64).reshape(n, 4),
                               np.asarray(depth, dtype=np.float64).reshape(n))
+        return self._site_rows(sites, common, params, prior_args)
+
+    def forget(self) -> None:
+        """Drop the rows `features_cached` remembers (call it whenever a canvas row, the
+        particle indices or the target change: SMC calls it at the start of every step)."""
+        self._rows.clear()
+
+    def features_cached(self, sites: list[Site], canvas: Canvas | None, idx: list[int],
+                        turtles: list[tuple], depths: list[float], params: list[np.ndarray],
+                        prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """`features_round` with the site-independent columns remembered per particle: a
+        particle asked again at the same turtle state (and, until `forget`, the same canvas
+        row) reuses its turtle and window columns (only its depth column is written anew);
+        the others are computed in one pass. Every row equals the one `features_round`
+        gives (tests/runtime/image/test_features.py)."""
+        rows = self._rows  # particle -> (turtle, its row; the depth column is set below)
+        got: list[np.ndarray | None] = []
+        miss: list[int] = []
+        for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True)):
+            hit = rows.get(i)
+            if hit is not None and hit[0] == turtle:
+                got.append(hit[1])
+            else:
+                got.append(None)
+                miss.append(j)
+        if len(miss) == len(idx):
+            common = self._common(canvas, np.array(idx, dtype=np.intp),
+                                  np.array(turtles, dtype=np.float64).reshape(-1, 4),
+                                  np.array(depths, dtype=np.float64))
+            for i, turtle, r in zip(idx, turtles, common, strict=True):
+                rows[i] = (turtle, r)
+            return self._site_rows(sites, common, params, prior_args)
+        if miss:
+            block = self._common(canvas, np.array([idx[j] for j in miss], dtype=np.intp),
+                                 np.array([turtles[j] for j in miss], dtype=np.float64
+                                          ).reshape(-1, 4),
+                                 np.zeros(len(miss)))
+            for j, r in zip(miss, block, strict=True):
+                got[j] = r
+                rows[idx[j]] = (turtles[j], r)
+        common = np.stack(got)  # type: ignore[arg-type]
+        # the depth column differs between a particle's sites at one turtle state
+        common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
+        return self._site_rows(sites, common, params, prior_args)
+
+    def _site_rows(self, sites: list[Site], common: np.ndarray, params: list[np.ndarray],
+                   prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """Each site's rows: the common columns with its module parameters and prior
+        arguments put in after the first N_LOCAL_BASE."""
+        n = len(common)
         out = []
         pos = 0
         for site, par, args in zip(sites, params, prior_args, strict=True):
@@ -149,7 +201,7 @@ class FeatureMaker:
             out.append(rows)
             pos += m
         if pos != n:
-            raise ValueError(f"features_round: {n} particles, {pos} rows of arguments")
+            raise ValueError(f"features: {n} particles, {pos} rows of arguments")
         return out
 
     def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
