@@ -16,6 +16,8 @@ similarity and mean seconds per N; the unguided N that matches guided N=10's sim
 --profile: where a guided N=10 step's CPU time goes: per part of the SMC loop (wrapped
 with CPU timers, which add ~1 us per call), calls per step and us per call; then cProfile's
 top functions by own time.
+--json PATH: the step table's every run (CPU and wall seconds, steps, similarity) as JSON,
+for comparing two versions run in turn (benchmarks/compare_steps.py).
 --trace-jobs: the 600-particle trace job (values recorded, best replayed) next to recording
 features for every particle.
 
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import json
 import os
 import pstats
 import statistics
@@ -83,8 +86,9 @@ def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict
     return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
 
 
-def step_table(program: Any, guide: Any, targets: list, seeds: int) -> None:
-    """The interleaved step-cost table."""
+def step_table(program: Any, guide: Any, targets: list, seeds: int,
+               json_path: str | None = None) -> None:
+    """The interleaved step-cost table (and every run's figures to `json_path`)."""
     rows: dict[str, list[dict[str, float]]] = {label: [] for label, _, _ in STEP_CONFIGS}
     for _, t in targets[:2]:  # warm-up (imports, caches)
         one_run(program, t, guide, 10, 99)
@@ -93,6 +97,8 @@ def step_table(program: Any, guide: Any, targets: list, seeds: int) -> None:
         for _, t in targets:
             for label, guided, n in STEP_CONFIGS:
                 rows[label].append(one_run(program, t, guide if guided else None, n, seed))
+    if json_path:
+        Path(json_path).write_text(json.dumps(rows))
     print(f"\nstep cost: {len(targets)} held-out targets x {seeds} seeds, interleaved; medians "
           "over runs (ms/step = run time / SMC steps)")
     print(f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
@@ -274,6 +280,7 @@ def main() -> None:
     ap.add_argument("--nets", action="store_true")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--trace-jobs", action="store_true")
+    ap.add_argument("--json", default=None, help="write the step table's runs here")
     args = ap.parse_args()
 
     from ngpm_runtime.bundled import bundled_program, guide_path
@@ -297,7 +304,7 @@ def main() -> None:
         return
     if args.nets:
         nets(guide)
-    step_table(program, guide, targets, args.seeds)
+    step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:
         equal_similarity(program, guide, targets, [int(x) for x in args.ladder.split(",")],
                          args.repeats)

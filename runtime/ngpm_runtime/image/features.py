@@ -67,8 +67,9 @@ class FeatureMaker:
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
-        # features_cached: particle -> (turtle, its site-independent row)
-        self._rows: dict[int, tuple[tuple, np.ndarray]] = {}
+        # features_cached: particle -> turtle state of its site-independent row in _block
+        self._rows: dict[int, tuple] = {}
+        self._block = np.empty((0, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
         self._origin = np.array([xmin, ymax])
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
@@ -154,34 +155,32 @@ class FeatureMaker:
         row) reuses its turtle and window columns (only its depth column is written anew);
         the others are computed in one pass. Every row equals the one `features_round`
         gives (tests/runtime/image/test_features.py)."""
-        rows = self._rows  # particle -> (turtle, its row; the depth column is set below)
-        got: list[np.ndarray | None] = []
-        miss: list[int] = []
-        for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True)):
-            hit = rows.get(i)
-            if hit is not None and hit[0] == turtle:
-                got.append(hit[1])
-            else:
-                got.append(None)
-                miss.append(j)
-        if len(miss) == len(idx):
-            common = self._common(canvas, np.array(idx, dtype=np.intp),
-                                  np.array(turtles, dtype=np.float64).reshape(-1, 4),
+        known = self._rows  # particle -> the turtle state its row in `_block` is for
+        n = len(idx)
+        miss = [j for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True))
+                if known.get(i) != turtle]
+        ia = np.array(idx, dtype=np.intp)
+        top = max(idx) + 1
+        if self._block.shape[0] < top:
+            grown = np.empty((max(top, 2 * self._block.shape[0]), self._block.shape[1]),
+                             dtype=np.float32)
+            grown[:self._block.shape[0]] = self._block
+            self._block = grown
+        if len(miss) == n:
+            common = self._common(canvas, ia, np.array(turtles, dtype=np.float64).reshape(n, 4),
                                   np.array(depths, dtype=np.float64))
-            for i, turtle, r in zip(idx, turtles, common, strict=True):
-                rows[i] = (turtle, r)
-            return self._site_rows(sites, common, params, prior_args)
-        if miss:
-            block = self._common(canvas, np.array([idx[j] for j in miss], dtype=np.intp),
-                                 np.array([turtles[j] for j in miss], dtype=np.float64
-                                          ).reshape(-1, 4),
-                                 np.zeros(len(miss)))
-            for j, r in zip(miss, block, strict=True):
-                got[j] = r
-                rows[idx[j]] = (turtles[j], r)
-        common = np.stack(got)  # type: ignore[arg-type]
-        # the depth column differs between a particle's sites at one turtle state
-        common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
+            self._block[ia] = common
+        else:
+            if miss:
+                sel = ia[miss]
+                self._block[sel] = self._common(
+                    canvas, sel, np.array([turtles[j] for j in miss], dtype=np.float64
+                                          ).reshape(-1, 4), np.zeros(len(miss)))
+            common = self._block[ia]
+            # the depth column differs between a particle's sites at one turtle state
+            common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
+        for j in miss:
+            known[idx[j]] = turtles[j]
         return self._site_rows(sites, common, params, prior_args)
 
     def _site_rows(self, sites: list[Site], common: np.ndarray, params: list[np.ndarray],

@@ -136,7 +136,7 @@ def test_cached_rows_equal_fresh_rows() -> None:
                     t = turtles[i]
                     turtles[i] = (t[0], t[1], t[2] + 25.0, t[3])
             ts = [turtles[i] for i in idx]
-            hits += sum(i in fm._rows and fm._rows[i][0] == turtles[i] for i in idx)
+            hits += sum(fm._rows.get(i) == turtles[i] for i in idx)
             depths = [float(d) for d in rng.integers(0, 40, len(idx))]
             m0 = len(idx) // 2
             sites = [prog.sites[0], prog.sites[1]]
