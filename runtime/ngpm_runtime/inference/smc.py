@@ -604,14 +604,33 @@ def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list
     return np.array(out)
 
 
+# _rows of one shared tuple, by (tuple, n): read-only arrays, reused across rounds and runs
+_SHARED: dict[tuple, np.ndarray] = {}
+
+
 def _rows(rows: list[tuple]) -> np.ndarray | None:
-    """(n, k) float64 from n tuples of k numbers (often one shared tuple); None if ragged."""
+    """(n, k) float64 from n tuples of k numbers (often one shared tuple: then a read-only
+    array remembered in _SHARED, unless the tuple holds a zero, whose sign a look-up by
+    equality could change); None if ragged."""
     first = rows[0]
     k = len(first)
     n = len(rows)
     try:
         if all(r is first for r in rows):
-            return np.repeat(np.array(first, dtype=np.float64).reshape(1, k), n, axis=0)
+            key = (first, n)
+            try:
+                out = _SHARED.get(key)
+                keep = out is None and 0.0 not in first
+            except TypeError:  # an unhashable entry
+                out, keep = None, False
+            if out is None:
+                out = np.repeat(np.array(first, dtype=np.float64).reshape(1, k), n, axis=0)
+                if keep:
+                    if len(_SHARED) >= 4096:
+                        _SHARED.clear()
+                    out.flags.writeable = False
+                    _SHARED[key] = out
+            return out
         if all(len(r) == k for r in rows):
             return np.fromiter(chain.from_iterable(rows), np.float64, n * k).reshape(n, k)
     except (TypeError, ValueError):
