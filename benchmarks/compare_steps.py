@@ -5,8 +5,9 @@
 OLD_RUNTIME_DIR holds an older `ngpm_runtime` package (for example `git archive <commit>
 runtime | tar -x -C /tmp/old`, then /tmp/old/runtime). Each round runs benchmarks/smc.py's
 step table once with the old runtime (PYTHONPATH) and once with this checkout's, one after
-the other; the table pools every run of every round and prints median CPU ms per SMC step
-per configuration for both, and guided N=10 over unguided N=10.
+the other (alternating which goes first); the table pools every run of every round and
+prints the median CPU ms per SMC step of each configuration for both, and guided N=10 over
+unguided N=10.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def main() -> None:
     runs: dict[str, dict[str, list]] = {"before": {}, "after": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
-            for which in ("before", "after"):
+            for which in (("before", "after") if r % 2 == 0 else ("after", "before")):
                 env = dict(os.environ)
                 if which == "before":
                     env["PYTHONPATH"] = str(Path(args.old).resolve())
