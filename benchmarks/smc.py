@@ -8,7 +8,7 @@ particle; then guided N=10's cost per step over unguided N=10's.
 
 --equal-sim: guided N=10 against unguided SMC at a ladder of N on the same targets
 (`--repeats` seeds each, seeds as `ngpmc eval`): mean over targets of the per-target median
-similarity and mean seconds per N; the unguided N that matches guided N=10's similarity
+similarity and mean CPU seconds per N; the unguided N that matches guided N=10's similarity
 (log-interpolated, evaluate.n_to_match) and the time ratio at that similarity
 (evaluate.time_to_reach): the figure docs/results reports for Fig. 4b.
 
@@ -16,6 +16,8 @@ similarity and mean seconds per N; the unguided N that matches guided N=10's sim
 --profile: where a guided N=10 step's CPU time goes: per part of the SMC loop (wrapped
 with CPU timers, which add ~1 us per call), calls per step and us per call; then cProfile's
 top functions by own time.
+--json PATH: the step table's every run (CPU and wall seconds, steps, similarity) as JSON,
+for comparing two versions run in turn (benchmarks/compare_steps.py).
 --trace-jobs: the 600-particle trace job (values recorded, best replayed) next to recording
 features for every particle.
 
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import json
 import os
 import pstats
 import statistics
@@ -83,8 +86,9 @@ def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict
     return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
 
 
-def step_table(program: Any, guide: Any, targets: list, seeds: int) -> None:
-    """The interleaved step-cost table."""
+def step_table(program: Any, guide: Any, targets: list, seeds: int,
+               json_path: str | None = None) -> None:
+    """The interleaved step-cost table (and every run's figures to `json_path`)."""
     rows: dict[str, list[dict[str, float]]] = {label: [] for label, _, _ in STEP_CONFIGS}
     for _, t in targets[:2]:  # warm-up (imports, caches)
         one_run(program, t, guide, 10, 99)
@@ -93,6 +97,8 @@ def step_table(program: Any, guide: Any, targets: list, seeds: int) -> None:
         for _, t in targets:
             for label, guided, n in STEP_CONFIGS:
                 rows[label].append(one_run(program, t, guide if guided else None, n, seed))
+    if json_path:
+        Path(json_path).write_text(json.dumps(rows))
     print(f"\nstep cost: {len(targets)} held-out targets x {seeds} seeds, interleaved; medians "
           "over runs (ms/step = run time / SMC steps)")
     print(f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
@@ -128,10 +134,11 @@ def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
             for model, proposal, ns in (("all", guide, [10]), ("unguided", None, ladder)):
                 for n in ns:
                     r = one_run(program, t, proposal, n, run_seed(0, ti, n, rep))
+                    # CPU seconds: the machine is shared, and wall time counts the others
                     rows.append({"model": model, "n": n, "dataset": ds, "target": t.name,
-                                 "similarity": r["sim"], "seconds": r["wall"]})
+                                 "similarity": r["sim"], "seconds": r["cpu"]})
     print(f"\nequal similarity: {len(targets)} held-out targets x {repeats} repeats; mean over "
-          "targets of the per-target median similarity, mean wall seconds per run")
+          "targets of the per-target median similarity, mean CPU seconds per run")
     for ds in sorted({r["dataset"] for r in rows}) + ["all"]:
         sub = [r for r in rows if ds == "all" or r["dataset"] == ds]
         summary = summarize(sub, ds)
@@ -151,21 +158,21 @@ def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
 
 # (module, owner, attribute, label): the parts of a guided step, outermost first
 PARTS = (
-    ("smc", "_Run", "step", "step (everything)"),
-    ("smc", "_Run", "_derive", " derive: rounds until every particle drew"),
-    ("derive", "Deriver", "advance", "  advance (the deriver, per particle)"),
-    ("smc", "_Run", "_serve", "  serve (one round's sites)"),
-    ("smc", "_Run", "_features", "   features: gather particle state + build rows"),
-    ("features", "FeatureMaker", "_common", "    turtle columns + 3x3x4 windows"),
-    ("guide", "Guide", "propose_round", "   guide: nets + draws"),
-    ("guide", "NumpyNet", "__call__", "    site net (numpy)"),
-    ("distributions", None, "proposal_draw", "    draw + log q"),
-    ("smc", "_Run", "_weigh_site", "   log prior, trace, replay values"),
-    ("smc", "_Run", "_flush", "  apply site weights"),
-    ("smc", "_Run", "_observe", " observe: rasterize + likelihood"),
-    ("raster", "Canvas", "draw", "  rasterize (+ pyramid)"),
-    ("likelihood", "ShapeLikelihood", "increment", "  likelihood increment"),
-    ("smc", "_Run", "_resample", " resample"),
+    ("inference.smc", "_Run", "step", "step (everything)"),
+    ("inference.smc", "_Run", "_derive", " derive: rounds until every particle drew"),
+    ("geometry.derive", "Deriver", "advance", "  advance (the deriver, per particle)"),
+    ("inference.smc", "_Run", "_serve", "  serve (one round's sites)"),
+    ("inference.smc", "_Run", "_features", "   features: gather particle state + build rows"),
+    ("image.features", "FeatureMaker", "_common", "    turtle columns + 3x3x4 windows"),
+    ("inference.guide", "Guide", "propose_round", "   guide: nets + draws"),
+    ("inference.guide", "NumpyNet", "__call__", "    site net (numpy)"),
+    ("inference.distributions", None, "proposal_draw", "    draw + log q"),
+    ("inference.smc", "_Run", "_weigh_site", "   log prior, trace, replay values"),
+    ("inference.smc", "_Run", "_flush", "  apply site weights"),
+    ("inference.smc", "_Run", "_observe", " observe: rasterize + likelihood"),
+    ("image.raster", "Canvas", "draw", "  rasterize (+ pyramid)"),
+    ("inference.likelihood", "ShapeLikelihood", "increment", "  likelihood increment"),
+    ("inference.smc", "_Run", "_resample", " resample"),
 )
 
 
@@ -274,6 +281,7 @@ def main() -> None:
     ap.add_argument("--nets", action="store_true")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--trace-jobs", action="store_true")
+    ap.add_argument("--json", default=None, help="write the step table's runs here")
     args = ap.parse_args()
 
     from ngpm_runtime.bundled import bundled_program, guide_path
@@ -297,7 +305,7 @@ def main() -> None:
         return
     if args.nets:
         nets(guide)
-    step_table(program, guide, targets, args.seeds)
+    step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:
         equal_similarity(program, guide, targets, [int(x) for x in args.ladder.split(",")],
                          args.repeats)

@@ -67,6 +67,9 @@ class FeatureMaker:
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        # features_cached: particle -> turtle state of its site-independent row in _block
+        self._rows: dict[int, tuple] = {}
+        self._block = np.empty((0, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
         self._origin = np.array([xmin, ymax])
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
@@ -137,6 +140,54 @@ class FeatureMaker:
         n = len(idx)
         common = self._common(canvas, idx, np.asarray(turtle, dtype=np.float64).reshape(n, 4),
                               np.asarray(depth, dtype=np.float64).reshape(n))
+        return self._site_rows(sites, common, params, prior_args)
+
+    def forget(self) -> None:
+        """Drop the rows `features_cached` remembers (call it whenever a canvas row, the
+        particle indices or the target change: SMC calls it at the start of every step)."""
+        self._rows.clear()
+
+    def features_cached(self, sites: list[Site], canvas: Canvas | None, idx: list[int],
+                        turtles: list[tuple], depths: list[float], params: list[np.ndarray],
+                        prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """`features_round` with the site-independent columns remembered per particle: a
+        particle asked again at the same turtle state (and, until `forget`, the same canvas
+        row) reuses its turtle and window columns (only its depth column is written anew);
+        the others are computed in one pass. Every row equals the one `features_round`
+        gives (tests/runtime/image/test_features.py)."""
+        known = self._rows  # particle -> the turtle state its row in `_block` is for
+        n = len(idx)
+        miss = [j for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True))
+                if known.get(i) != turtle]
+        ia = np.array(idx, dtype=np.intp)
+        top = max(idx) + 1
+        if self._block.shape[0] < top:
+            grown = np.empty((max(top, 2 * self._block.shape[0]), self._block.shape[1]),
+                             dtype=np.float32)
+            grown[:self._block.shape[0]] = self._block
+            self._block = grown
+        if len(miss) == n:
+            common = self._common(canvas, ia, np.array(turtles, dtype=np.float64).reshape(n, 4),
+                                  np.array(depths, dtype=np.float64))
+            self._block[ia] = common
+        else:
+            if miss:
+                sel = ia[miss]
+                self._block[sel] = self._common(
+                    canvas, sel, np.array([turtles[j] for j in miss], dtype=np.float64
+                                          ).reshape(-1, 4), np.zeros(len(miss)))
+            common = self._block[ia]
+            # the depth column differs between a particle's sites at one turtle state
+            common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
+        for j in miss:
+            known[idx[j]] = turtles[j]
+        return self._site_rows(sites, common, params, prior_args)
+
+    def _site_rows(self, sites: list[Site], common: np.ndarray, params: list[np.ndarray],
+                   prior_args: list[np.ndarray]) -> list[np.ndarray]:
+        """Each site's rows: the common columns with its module parameters and prior
+        arguments put in after the first N_LOCAL_BASE."""
+        n = len(common)
         out = []
         pos = 0
         for site, par, args in zip(sites, params, prior_args, strict=True):
@@ -149,7 +200,7 @@ class FeatureMaker:
             out.append(rows)
             pos += m
         if pos != n:
-            raise ValueError(f"features_round: {n} particles, {pos} rows of arguments")
+            raise ValueError(f"features: {n} particles, {pos} rows of arguments")
         return out
 
     def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,

@@ -296,6 +296,12 @@ class Canvas:
         self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
         self._hp, self._wp, self._starts = padded_layout(self.height, self.width)
         self.pyramid = pyramid
+        # draw(): levels 1.., their (heights, widths), each level's first cell in a padded
+        # row (start + padding) and its weight per pixel (1 / 4^level, float32)
+        lv = np.arange(1, N_LEVELS, dtype=np.intp)
+        self._up = (lv, np.stack([self.height >> lv, self.width >> lv]),
+                    self._starts[1:] + PAD * self._wp[1:] + PAD,
+                    (1.0 / 4.0 ** lv).astype(np.float32))
         blank = padded_pyramid([np.zeros(s, dtype=np.float32)
                                 for s in level_shapes(self.height, self.width)])
         self.padded = np.repeat(blank[None, :] if pyramid else blank[None, :0], self.n, axis=0)
@@ -337,12 +343,14 @@ class Canvas:
             row0 = p * self.padded.shape[1]
             wp, starts = self._wp, self._starts
             pad[row0 + starts[0] + (r + PAD) * wp[0] + (c + PAD)] = 1.0
-            for lv in range(1, N_LEVELS):
-                hl, wl = h >> lv, w >> lv
-                rl, cl = r >> lv, c >> lv
-                ok = (rl < hl) & (cl < wl)
-                np.add.at(pad, row0[ok] + starts[lv] + (rl[ok] + PAD) * wp[lv] + (cl[ok] + PAD),
-                          np.float32(1.0 / 4**lv))
+            # levels 1..3 in one add.at, (pixel, level) in row-major order: every cell
+            # belongs to one level and gets its pixels' additions in the same order as a
+            # loop over levels would give them (the same float32 sums)
+            lv, size, first, wts = self._up
+            rl, cl = r[:, None] >> lv, c[:, None] >> lv
+            ok = (rl < size[0]) & (cl < size[1])
+            at = row0[:, None] + first + rl * wp[1:] + cl
+            np.add.at(pad, at[ok], np.broadcast_to(wts, ok.shape)[ok])
         return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox, hit_k=k, hit_pix=r * w + c)
 
     def take(self, idx: np.ndarray) -> None:

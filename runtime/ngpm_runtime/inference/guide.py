@@ -135,6 +135,13 @@ class Guide:
                       ) -> list[tuple[np.ndarray, np.ndarray]]:
         """`propose` for every site waiting in an SMC round (proposals.RoundProposal): one
         network call for all of them, one draw per group of like sites."""
+        if len(sites) == 1:  # the usual round (the same calls as below, less bookkeeping)
+            site, args = sites[0], prior_args[0]
+            if site.index not in self.nets:
+                return [self.propose(site, args, None, rng)]
+            params = self.params(site.index, None if features is None else features[0],
+                                 len(args))
+            return [dist.proposal_draw(site, args, params, rng)]
         out: list[Any] = [None] * len(sites)
         net = [j for j, site in enumerate(sites) if site.index in self.nets]
         for j, site in enumerate(sites):

@@ -267,6 +267,8 @@ class _Run:
         rounds; returns (particles that drew, particles that ended having drawn nothing)."""
         parts = self.pop.parts
         advance = self.deriver.advance
+        if self.fmaker is not None:
+            self.fmaker.forget()  # the canvas rows changed (or were resampled)
         order = self.order
         drawn: list[int] = []
         empty: list[int] = []
@@ -390,10 +392,10 @@ class _Run:
         parts = self.pop.parts
         idx = [i for g in groups for i in g]
         ps = [parts[i] for i in idx]
-        turtle = np.array([p.turtle for p in ps], dtype=np.float64)
+        turtles = [p.turtle for p in ps]
         tops = [p.stack for p in ps]
         # the axiom pseudo-module has depth -1
-        depth = np.array([max(t[1], 0) for t in tops], dtype=np.float64)  # type: ignore[index]
+        depths = [float(max(t[1], 0)) for t in tops]  # type: ignore[index]
         params_list = []
         pos = 0
         for site, g in zip(sites, groups, strict=True):
@@ -403,8 +405,8 @@ class _Run:
             params_list.append(params)
             pos += len(g)
         assert self.fmaker is not None
-        return self.fmaker.features_round(sites, self.canvas, np.asarray(idx, dtype=np.intp),
-                                          turtle, depth, params_list, args_list)
+        return self.fmaker.features_cached(sites, self.canvas, idx, turtles, depths,
+                                           params_list, args_list)
 
     def _observe(self, drawn: list[int], empty: list[int]) -> None:
         """Rasterize the new primitives and apply the likelihood increments (and the blank
@@ -602,14 +604,33 @@ def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list
     return np.array(out)
 
 
+# _rows of one shared tuple, by (tuple, n): read-only arrays, reused across rounds and runs
+_SHARED: dict[tuple, np.ndarray] = {}
+
+
 def _rows(rows: list[tuple]) -> np.ndarray | None:
-    """(n, k) float64 from n tuples of k numbers (often one shared tuple); None if ragged."""
+    """(n, k) float64 from n tuples of k numbers (often one shared tuple: then a read-only
+    array remembered in _SHARED, unless the tuple holds a zero, whose sign a look-up by
+    equality could change); None if ragged."""
     first = rows[0]
     k = len(first)
     n = len(rows)
     try:
         if all(r is first for r in rows):
-            return np.repeat(np.array(first, dtype=np.float64).reshape(1, k), n, axis=0)
+            key = (first, n)
+            try:
+                out = _SHARED.get(key)
+                keep = out is None and 0.0 not in first
+            except TypeError:  # an unhashable entry
+                out, keep = None, False
+            if out is None:
+                out = np.repeat(np.array(first, dtype=np.float64).reshape(1, k), n, axis=0)
+                if keep:
+                    if len(_SHARED) >= 4096:
+                        _SHARED.clear()
+                    out.flags.writeable = False
+                    _SHARED[key] = out
+            return out
         if all(len(r) == k for r in rows):
             return np.fromiter(chain.from_iterable(rows), np.float64, n * k).reshape(n, k)
     except (TypeError, ValueError):

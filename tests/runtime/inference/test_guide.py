@@ -127,6 +127,21 @@ def test_propose_round_matches_propose(tmp_path):
         np.testing.assert_allclose(q, want, rtol=1e-12, atol=1e-12)
 
 
+def test_propose_round_of_one_site_equals_propose(tmp_path):
+    """A round of one site (propose_round's short path) draws what propose draws, bit for
+    bit, for a site with a net and for a fallback site."""
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    g = Guide.load(path, fake_program())
+    rng = np.random.default_rng(7)
+    for site, arg in ((SITES[0], np.tile([2.0, 3.0], (5, 1))), (SITES[2], np.full((5, 1), 0.3)),
+                      (SITES[3], np.tile([1.0, 1.0, 1.0], (5, 1)))):
+        f = rng.normal(size=(5, N_F)).astype(np.float32)
+        ((v, q),) = g.propose_round([site], [arg], [f], np.random.default_rng(2))
+        v2, q2 = g.propose(site, arg, f, np.random.default_rng(2))
+        np.testing.assert_array_equal(v, v2)
+        np.testing.assert_array_equal(q, q2)
+
+
 def test_fallback_site_uses_the_prior(guide):
     rng = np.random.default_rng(1)
     site = SITES[2]
