@@ -192,7 +192,7 @@ def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
 
 def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, Path | None]:
     """(render, svg, gif) paths, checked before any work is done."""
-    import os
+    from ngpm_compiler.cli.outpaths import check_output_file
 
     out = Path(args.out) if args.out else None
     if out is not None and out.suffix.lower() not in (".png", ".svg"):
@@ -211,15 +211,8 @@ def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, P
     paths = (out, derived(args.svg, ".svg", "--svg"),
              derived(args.steps_gif, ".gif", "--steps-gif"))
     for path in paths:
-        if path is None:
-            continue
-        folder = path.parent
-        if path.is_dir():
-            raise NgpmError(f"{path}: is a folder, not a file to write")
-        if not folder.is_dir():
-            raise NgpmError(f"{path}: cannot write there (no folder {folder})")
-        if not os.access(folder, os.W_OK):
-            raise NgpmError(f"{path}: cannot write there (permission denied)")
+        if path is not None:
+            check_output_file(path)
     return paths
 
 

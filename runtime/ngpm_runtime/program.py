@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
+import hashlib
 import sys
+import types
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -79,19 +80,20 @@ class Program:
         raise KeyError(key)
 
 
-def load_program(path: str | Path) -> Program:
-    """Import a generated `*_sampler.py` file and return its `PROGRAM`."""
+def load_program(path: str | Path, code: str | None = None) -> Program:
+    """Import a generated `*_sampler.py` file and return its `PROGRAM`; with `code`, the
+    file's source read elsewhere (e.g. sent by a cluster's driver), without reading it."""
     path = Path(path)
-    if not path.is_file():
-        raise ProgramError(f"{path}: no such generated sampler")
-    name = f"_ngpm_generated_{path.stem}_{abs(hash(str(path.resolve())))}"
-    spec = importlib.util.spec_from_file_location(name, path)
-    if spec is None or spec.loader is None:
-        raise ProgramError(f"{path}: not a Python module")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # needed so worker processes can pickle references
+    if code is None:
+        if not path.is_file():
+            raise ProgramError(f"{path}: no such generated sampler")
+        code = path.read_text(encoding="utf-8")
+    digest = hashlib.sha256(code.encode("utf-8")).hexdigest()[:12]
+    module = types.ModuleType(f"_ngpm_generated_{path.stem}_{digest}")
+    module.__file__ = str(path)
+    sys.modules[module.__name__] = module  # so worker processes can pickle references
     try:
-        spec.loader.exec_module(module)
+        exec(compile(code, str(path), "exec"), module.__dict__)
     except Exception as err:  # a corrupt or hand-edited file
         raise ProgramError(f"{path}: cannot load generated sampler: {err}") from None
     program = getattr(module, "PROGRAM", None)

@@ -524,9 +524,8 @@ class SiteOrder:
             if x == a or a in rx:
                 rx |= new
 
-    def pick(self, waiting: dict[int, list[int]]) -> int:
-        if len(waiting) == 1:
-            return next(iter(waiting))
+    def _blocked(self, waiting: dict[int, list[int]]) -> set[int]:
+        """The waiting sites that another waiting site leads to."""
         keys = waiting.keys()
         blocked: set[int] = set()
         for a in waiting:
@@ -535,6 +534,12 @@ class SiteOrder:
                 hit = ra & keys
                 hit.discard(a)  # a site that follows itself does not block itself
                 blocked |= hit
+        return blocked
+
+    def pick(self, waiting: dict[int, list[int]]) -> int:
+        if len(waiting) == 1:
+            return next(iter(waiting))
+        blocked = self._blocked(waiting)
         first = [k for k in waiting if k not in blocked]
         return max(first or waiting, key=lambda k: (len(waiting[k]), -k))
 
@@ -544,14 +549,7 @@ class SiteOrder:
         none."""
         if len(waiting) == 1:
             return list(waiting)
-        keys = waiting.keys()
-        blocked: set[int] = set()
-        for a in waiting:
-            ra = self.reach.get(a)
-            if ra:
-                hit = ra & keys
-                hit.discard(a)
-                blocked |= hit
+        blocked = self._blocked(waiting)
         first = sorted(k for k in waiting if k not in blocked)
         return first or [self.pick(waiting)]
 
