@@ -1,6 +1,6 @@
 """SMC speed on the project's held-out targets (glyphs and silhouettes), one core.
 
-Default: the step-cost table. Guided N=10 (the bundled guide, runtime/data/vines_guide.onnx,
+Default: the step-cost table. Guided N=10 (the bundled guide, ngpm_runtime/data/vines_guide.onnx,
 or `--guide PATH`) and unguided N=10/200/600 run interleaved (per seed, per target, every
 configuration in turn) on the same targets; printed per configuration: median ms per SMC
 step (CPU and wall), median seconds per run, median steps, mean similarity of the best
