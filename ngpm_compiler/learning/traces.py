@@ -1,4 +1,9 @@
-"""Training traces: unguided SMC on dataset targets, keep the best particle's trace.
+"""Training traces: SMC on dataset targets, keep the best particle's trace.
+
+SMC proposes from the grammar's prior (the paper) or, with `TraceConfig.guide`, from a
+trained guide (expert iteration): guided SMC weighs each particle by prior / proposal, so
+its particles are weighted samples of the same posterior and the kept best particle is a
+trace of the same kind, only found with far fewer particles.
 
 Job `i` is a pure function of (grammar, base seed, i): its target and SMC seed come from
 `job_spec(base_seed, i, n_targets)`. Jobs run in worker processes (spawn-safe); every finished
@@ -66,6 +71,7 @@ class TraceConfig:
     size: int = 50  # target size (pixels)
     min_primitives: int = MIN_PRIMITIVES
     shard_size: int = 50
+    guide: str | None = None  # guide .onnx proposing in SMC (None: the prior)
 
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
@@ -87,9 +93,10 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     return int(a) % n_targets, int(b)
 
 
-def run_job(program: Program, target: Any, seed: int, particles: int
+def run_job(program: Program, target: Any, seed: int, particles: int, guide: Any = None
             ) -> tuple[list[tuple[int, np.ndarray, float]], int]:
-    """Unguided SMC on one target; the best particle's trace and primitive count.
+    """SMC (guided by `guide`, else unguided) on one target; the best particle's trace and
+    primitive count.
 
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
@@ -98,7 +105,7 @@ def run_job(program: Program, target: Any, seed: int, particles: int
     from ngpm_runtime.inference.smc import replay
 
     start = target.start_pose(program.viewport)
-    best = grow(program, target, None, particles, seed, record_trace="values").smc.best
+    best = grow(program, target, guide, particles, seed, record_trace="values").smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,
                    target_mask=target.mask)
@@ -227,10 +234,21 @@ class TraceStore:
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, targets: str, size: int, mirror: bool) -> dict[str, Any]:
+def _worker_setup(grammar: str, targets: str, size: int, mirror: bool,
+                  guide: str | None = None) -> dict[str, Any]:
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ngpm_compiler.language.compile import load_grammar
 
-    return {"program": load_grammar(grammar), "targets": load_targets(targets, size, mirror)}
+    program = load_grammar(grammar)
+    proposal = None
+    if guide is not None:
+        from ngpm_runtime.inference.guide import Guide
+
+        proposal = Guide.load(guide, program)
+    return {"program": program, "targets": load_targets(targets, size, mirror),
+            "guide": proposal}
 
 
 def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], float]:
@@ -239,7 +257,8 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
     targets = pool.state()["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles)
+        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles,
+                                 pool.state().get("guide"))
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -247,10 +266,22 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[str, Any]:
-    return {"grammar_hash": program.grammar_hash, "grammar": program.name,
-            "targets": [t.name for t in targets], "particles": cfg.particles,
-            "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
-            "min_primitives": cfg.min_primitives}
+    key = {"grammar_hash": program.grammar_hash, "grammar": program.name,
+           "targets": [t.name for t in targets], "particles": cfg.particles,
+           "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
+           "min_primitives": cfg.min_primitives}
+    if cfg.guide is not None:  # unguided directories keep the key they always had
+        key["guide"] = _file_hash(cfg.guide)
+    return key
+
+
+def _file_hash(path: str | None) -> str | None:
+    """sha256 of a file (the guide a traces directory was recorded with), None for None."""
+    if path is None:
+        return None
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _exit_on_sigterm() -> None:
@@ -330,13 +361,14 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     ids = next_ids()
     try:
         if cfg.workers <= 1:
-            pool.setup_here(_worker_setup, cfg.grammar, cfg.targets, cfg.size, cfg.mirror)
+            pool.setup_here(_worker_setup, cfg.grammar, cfg.targets, cfg.size, cfg.mirror,
+                            cfg.guide)
             while kept < cfg.n:
                 finish(*_do_job((next(ids), cfg.seed, cfg.particles, cfg.min_primitives)))
         else:
             _exit_on_sigterm()
-            with pool.spawn_pool(cfg.workers, _worker_setup, (cfg.grammar, cfg.targets,
-                                                              cfg.size, cfg.mirror)) as workers:
+            setup = (cfg.grammar, cfg.targets, cfg.size, cfg.mirror, cfg.guide)
+            with pool.spawn_pool(cfg.workers, _worker_setup, setup) as workers:
                 running: list[Any] = []
                 while kept < cfg.n or running:
                     while kept + len(running) < cfg.n and len(running) < 2 * cfg.workers:
