@@ -45,31 +45,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.set_defaults(handler=cmd_train)
 
-    p = subparsers.add_parser(
-        "iterate", help="expert iteration: guided traces -> train -> repeat, keep the best",
-        description="Rounds of: record traces with SMC guided by the best guide so far, train "
-                    "a guide on all rounds' traces, score it on validation targets at N = 10; "
-                    "the best round's guide is copied to OUT/best.onnx.")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
-    p.add_argument("--targets", required=True, help="training-target directories, comma-separated")
-    p.add_argument("--validate", required=True,
-                   help="validation sets NAME=DIR,... (targets never trained on)")
-    p.add_argument("-o", "--out", required=True, help="work directory (resumed if present)")
-    p.add_argument("--rounds", type=int, default=2, help="rounds (default 2)")
-    p.add_argument("-n", type=int, default=300, help="traces per round and target directory")
-    p.add_argument("--particles", type=int, default=200, help="guided particles (default 200)")
-    p.add_argument("--unguided-particles", type=int, default=600,
-                   help="particles of a round without a guide (default 600)")
-    p.add_argument("--init-guide", help="guide .onnx of round 0 (default: none, round 1 is "
-                                        "unguided)")
-    p.add_argument("--init-traces", default="",
-                   help="traces directories added to every round's training, comma-separated")
-    p.add_argument("--val-targets", type=int, default=12, help="targets per validation set")
-    p.add_argument("--val-repeats", type=int, default=2, help="runs per validation target")
-    p.add_argument("--epochs", type=int, default=40, help="most training epochs (default 40)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
-    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
-    p.set_defaults(handler=cmd_iterate)
+    _register_iterate(subparsers)
 
     p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
     p.add_argument("model", help="model file written by `ngpmc train`")
@@ -101,6 +77,33 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="also write an animation of the growth (default path: the -o file "
                         "with .gif)")
     p.set_defaults(handler=cmd_grow)
+
+def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "iterate", help="expert iteration: guided traces -> train -> repeat, keep the best",
+        description="Rounds of: record traces with SMC guided by the best guide so far, train "
+                    "a guide on all rounds' traces, score it on validation targets at N = 10; "
+                    "the best round's guide is copied to OUT/best.onnx.")
+    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("--targets", required=True, help="training-target directories, comma-separated")
+    p.add_argument("--validate", required=True,
+                   help="validation sets NAME=DIR,... (targets never trained on)")
+    p.add_argument("-o", "--out", required=True, help="work directory (resumed if present)")
+    p.add_argument("--rounds", type=int, default=2, help="rounds (default 2)")
+    p.add_argument("-n", type=int, default=300, help="traces per round and target directory")
+    p.add_argument("--particles", type=int, default=200, help="guided particles (default 200)")
+    p.add_argument("--unguided-particles", type=int, default=600,
+                   help="particles of a round without a guide (default 600)")
+    p.add_argument("--init-guide", help="guide .onnx of round 0 (default: none, round 1 is "
+                                        "unguided)")
+    p.add_argument("--init-traces", default="",
+                   help="traces directories added to every round's training, comma-separated")
+    p.add_argument("--val-targets", type=int, default=12, help="targets per validation set")
+    p.add_argument("--val-repeats", type=int, default=2, help="runs per validation target")
+    p.add_argument("--epochs", type=int, default=40, help="most training epochs (default 40)")
+    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="base seed (default 0)")
+    p.set_defaults(handler=cmd_iterate)
 
 
 # --------------------------------------------------------------------------- traces / train

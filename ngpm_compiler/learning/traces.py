@@ -257,8 +257,9 @@ def _do_job(args: tuple[int, int, int, int]) -> tuple[dict[str, np.ndarray], flo
     targets = pool.state()["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles,
-                                 pool.state().get("guide"))
+        guide = pool.state().get("guide")
+        extra = () if guide is None else (guide,)
+        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles, *extra)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
