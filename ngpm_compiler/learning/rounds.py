@@ -91,11 +91,17 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> t
     """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.traces import load_traces
-    from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
+    from ngpm_compiler.learning.train import TrainConfig, load_model, save_model, train_guide
 
     ts = merge_traces([load_traces(d) for d in trace_dirs])
     folder = Path(cfg.out) / f"round_{r}"
     folder.mkdir(parents=True, exist_ok=True)
+    done, onnx = folder / "model.pt", folder / "guide.onnx"
+    if done.is_file() and onnx.is_file():  # a finished round on the same traces: reuse
+        old = load_model(done)
+        if old.summary.get("traces") == len(ts.kept_jobs):
+            log(f"round {r}: reusing {onnx} ({len(ts.kept_jobs)} traces)")
+            return str(onnx), old.summary
     model = train_guide(ts.sites, ts.layouts, ts.data,
                         TrainConfig(K=cfg.K, epochs=cfg.epochs, seed=cfg.seed),
                         grammar=ts.manifest["key"]["grammar"],

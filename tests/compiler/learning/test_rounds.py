@@ -93,3 +93,7 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     assert (tmp_path / "ei" / "best.onnx").read_bytes() == \
         open(best["guide"], "rb").read()
     assert (tmp_path / "ei" / "rounds.csv").is_file()
+    logs: list[str] = []
+    again = expert_iteration(cfg, log=logs.append)  # resumed: nothing recorded or trained
+    assert [r["validation"] for r in again] == [r["validation"] for r in rows]
+    assert sum("reusing" in m for m in logs) == 2
