@@ -3,7 +3,7 @@
 # Usage: bash scripts/expert_iteration.sh [INIT_GUIDE] [WORKDIR]
 #   INIT_GUIDE: the round-0 guide (default: the bundled one; scripts/train_vines_guide.sh
 #   makes one from unguided traces). About 10 minutes per round on 2 busy cores.
-# Settings of the documented run (docs/results/heldout.md): 3 rounds, 300 traces per round
+# Settings of the documented run (docs/results/README.md): 4 rounds, 300 traces per round
 # and training set (varied + scribbles, mirrored), guided SMC with 200 particles,
 # validation: 12 varied targets + 12 DejaVu glyphs x 2 runs at N = 10.
 set -euo pipefail
@@ -14,10 +14,14 @@ mkdir -p "$W/guides"
 cp "$INIT" "$W/guides/v0.onnx"
 ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
     --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
-    --init-guide "$W/guides/v0.onnx" --rounds 3 -n 300 --particles 200 \
+    --init-guide "$W/guides/v0.onnx" --rounds 4 -n 300 --particles 200 \
     --val-targets 12 --val-repeats 2 -o "$W/ei"
-GUIDES="v0=$W/guides/v0.onnx"
-for r in 1 2 3; do GUIDES="$GUIDES,round$r=$W/ei/round_$r/guide.onnx"; done
+# ablation: round 1 with the paper's teacher (unguided SMC, 600 particles), same targets/seeds
+ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
+    --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
+    --rounds 1 -n 300 --unguided-particles 600 --val-targets 12 --val-repeats 2 -o "$W/abl"
+GUIDES="v0=$W/guides/v0.onnx,unguided_teacher=$W/abl/round_1/guide.onnx"
+for r in 1 2 3 4; do GUIDES="$GUIDES,round$r=$W/ei/round_$r/guide.onnx"; done
 ngpmc eval -o "$W/heldout_eval" --stages heldout \
     --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
     --heldout-guides "$GUIDES" --heldout-targets 16 --repeats 3 --unguided-ns 200,600,2000

@@ -6,7 +6,7 @@
 #    far (200 particles) on scribbles and `varied` targets (strokes of 1-6 px, script-like
 #    loops, blobs, disjoint parts) -> train on all rounds' traces -> keep the round that
 #    scores best on validation targets (varied + DejaVu glyphs, never trained on).
-# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 45 minutes on 2 busy cores)
+# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about an hour on 2 busy cores)
 set -euo pipefail
 W=${1:-work/vines}
 mkdir -p "$W"
@@ -21,7 +21,7 @@ ngpmc targets build varied -o "$W/val_varied" --count 12 --seed 1
 ngpmc targets build glyphs -o "$W/val_glyphs"
 ngpmc iterate grammars/vines.lsys --targets "$W/varied,$W/scribbles" \
     --validate "varied=$W/val_varied,glyphs=$W/val_glyphs" \
-    --init-guide "$W/vines_guide_v0.onnx" --rounds 3 -n 300 --particles 200 \
+    --init-guide "$W/vines_guide_v0.onnx" --rounds 4 -n 300 --particles 200 \
     --val-targets 12 --val-repeats 2 -o "$W/ei"
 cp "$W/ei/best.onnx" "$W/vines_guide.onnx"
 echo "guide: $W/vines_guide.onnx"
