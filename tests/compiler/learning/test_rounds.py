@@ -97,3 +97,25 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     again = expert_iteration(cfg, log=logs.append)  # resumed: nothing recorded or trained
     assert [r["validation"] for r in again] == [r["validation"] for r in rows]
     assert sum("reusing" in m for m in logs) == 2
+
+
+def test_cli_traces_with_a_guide(tmp_path, vines, capsys):
+    from ngpm_compiler.cli import main
+
+    d = _targets(tmp_path, vines, n=1)
+    out = tmp_path / "t"
+    code = main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "--particles", "4",
+                 "--workers", "1", "-o", str(out), "--guide", str(bundled.guide_path())])
+    assert code == 0 and "1 traces kept" in capsys.readouterr().out
+    assert main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "-o", str(tmp_path / "x"),
+                 "--guide", str(tmp_path / "missing.onnx")]) != 0
+
+
+def test_cli_iterate_checks_its_inputs(tmp_path, capsys):
+    from ngpm_compiler.cli import main
+
+    code = main(["iterate", GRAMMAR, "--targets", str(tmp_path / "none"), "--validate",
+                 f"v={tmp_path}", "-o", str(tmp_path / "ei")])
+    assert code != 0 and "no such file or directory" in capsys.readouterr().err
+    assert main(["iterate", GRAMMAR, "--targets", str(tmp_path), "--validate", f"v={tmp_path}",
+                 "-o", str(tmp_path / "ei"), "--rounds", "0"]) != 0
