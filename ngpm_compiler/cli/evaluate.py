@@ -4,6 +4,8 @@ circuits, chain) and write CSV files, PNG plots, README.md and report.md.
     ngpmc eval --quick -o OUT                      # CI-sized, everything made on the fly
     ngpmc eval -o docs/results --work work/eval --traces work/vines/traces \\
         --guide-all work/vines/vines_guide.onnx    # the full run (docs/results/README.md)
+    ngpmc eval -o OUT --stages heldout --heldout script=DIR,silhouettes=DIR \\
+        --heldout-guides bundled=GUIDE.onnx        # held-out sets (scripts/heldout_eval.sh)
 """
 
 from __future__ import annotations
@@ -55,6 +57,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--stages", default=",".join(STAGES),
                    help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
+    p.add_argument("--heldout", help="stage heldout: NAME=DIR,... held-out target sets")
+    p.add_argument("--heldout-guides", default="",
+                   help="stage heldout: NAME=GUIDE.onnx,... guides to compare (default: the "
+                        "bundled guide)")
+    p.add_argument("--heldout-targets", type=int, default=16,
+                   help="stage heldout: targets per set, spread evenly (default 16)")
     p.set_defaults(handler=cmd_eval)
 
 
@@ -98,6 +106,13 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    stages = [s.strip() for s in args.stages.split(",") if s.strip()]
+    if "heldout" in stages:
+        run_heldout_stage(args)
+        stages.remove("heldout")
+        if not stages:
+            return 0
+        args.stages = ",".join(stages)
     cfg = config_from_args(args)
     command = "ngpmc " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else ""
     run_eval(cfg, command=command, log=log_line)
@@ -106,3 +121,27 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def log_line(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
+
+
+def run_heldout_stage(args: argparse.Namespace) -> None:
+    """`--stages heldout`: guides at N = 10 vs unguided N on the --heldout sets."""
+    from ngpm_compiler.experiments.heldout import parse_pairs, run_heldout
+
+    if not args.heldout:
+        raise EvalError("stage heldout needs --heldout NAME=DIR,...")
+    sets = parse_pairs(args.heldout)
+    guides = parse_pairs(args.heldout_guides) if args.heldout_guides else {}
+    if not guides:
+        from ngpm_runtime import bundled
+
+        guides = {"bundled": str(bundled.guide_path())}
+    for path in [*sets.values(), *guides.values()]:
+        if not Path(path).exists():
+            raise EvalError(f"{path}: no such file or directory")
+    root = Path(__file__).resolve().parents[2]
+    grammar = str(root / "grammars" / "vines.lsys")
+    table = run_heldout(args.out, grammar, sets, guides, k=args.heldout_targets,
+                        repeats=args.repeats or 3, workers=args.workers or 2,
+                        unguided_ns=args.unguided_ns or (200, 600, 2000), seed=args.seed,
+                        log=log_line)["table"]
+    print(table)

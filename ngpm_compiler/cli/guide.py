@@ -16,7 +16,8 @@ FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS 
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser("traces", help="record training traces with unguided SMC")
+    p = subparsers.add_parser("traces", help="record training traces with SMC (unguided, or "
+                                             "guided by --guide)")
     p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
     p.add_argument("--targets", required=True, help="dataset directory of target images")
     p.add_argument("-n", type=int, default=1000, help="traces to keep (default 1000)")
@@ -30,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
     argtypes.add_max_modules(p)
     add_backend_arguments(p)
+    p.add_argument("--guide", help="guide .onnx that proposes in SMC (expert iteration; "
+                                   "default: unguided, the prior proposes)")
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
@@ -47,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--allow-missing", action="store_true",
                    help="train even if shards listed in the manifest are missing or unreadable")
     p.set_defaults(handler=cmd_train)
+
+    _register_iterate(subparsers)
 
     p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
     p.add_argument("model", help="model file written by `ngpmc train`")
@@ -81,6 +86,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_grow)
 
 
+def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "iterate", help="expert iteration: guided traces -> train -> repeat, keep the best",
+        description="Rounds of: record traces with SMC guided by the best guide so far, train "
+                    "a guide on all rounds' traces, score it on validation targets at N = 10; "
+                    "the best round's guide is copied to OUT/best.onnx.")
+    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("--targets", required=True, help="training-target directories, comma-separated")
+    p.add_argument("--validate", required=True,
+                   help="validation sets NAME=DIR,... (targets never trained on)")
+    p.add_argument("-o", "--out", required=True, help="work directory (resumed if present)")
+    p.add_argument("--rounds", type=int, default=2, help="rounds (default 2)")
+    p.add_argument("-n", type=int, default=300, help="traces per round and target directory")
+    p.add_argument("--particles", type=int, default=200, help="guided particles (default 200)")
+    p.add_argument("--unguided-particles", type=int, default=600,
+                   help="particles of a round without a guide (default 600)")
+    p.add_argument("--init-guide", help="guide .onnx of round 0 (default: none, round 1 is "
+                                        "unguided)")
+    p.add_argument("--init-traces", default="",
+                   help="traces directories added to every round's training, comma-separated")
+    p.add_argument("--val-targets", type=int, default=12, help="targets per validation set")
+    p.add_argument("--val-repeats", type=int, default=2, help="runs per validation target")
+    p.add_argument("--epochs", type=int, default=40, help="most training epochs (default 40)")
+    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
+    p.set_defaults(handler=cmd_iterate)
+
+
 # --------------------------------------------------------------------------- traces / train
 
 
@@ -104,7 +137,9 @@ def cmd_traces(args: argparse.Namespace) -> int:
                       particles=args.particles, seed=args.seed, workers=args.workers,
                       mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size),
                       max_modules=args.max_modules, backend=args.backend,
-                      ray_address=args.ray_address)
+                      ray_address=args.ray_address, guide=args.guide)
+    if args.guide is not None and not Path(args.guide).is_file():
+        raise NgpmError(f"--guide {args.guide}: no such file")
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
@@ -142,6 +177,40 @@ def cmd_train(args: argparse.Namespace) -> int:
     if unseen:
         print(f"sites unseen in training (prior fallback): {', '.join(unseen)}")
     return 0
+
+
+def cmd_iterate(args: argparse.Namespace) -> int:
+    from ngpm_compiler.experiments.heldout import parse_pairs
+    from ngpm_compiler.learning.rounds import RoundsConfig, expert_iteration
+
+    if args.rounds < 1 or args.n < 1 or args.particles < 1:
+        raise NgpmError("--rounds, -n and --particles must be at least 1")
+    split = [x.strip() for x in args.targets.split(",") if x.strip()]
+    inits = [x.strip() for x in args.init_traces.split(",") if x.strip()]
+    validation = parse_pairs(args.validate)
+    for path in [*split, *inits, *validation.values(), *([args.init_guide] if args.init_guide
+                                                       else [])]:
+        if not Path(path).exists():
+            raise NgpmError(f"{path}: no such file or directory")
+    cfg = RoundsConfig(grammar=args.grammar, targets=split, validation=validation,
+                       out=args.out, rounds=args.rounds, n=args.n, particles=args.particles,
+                       unguided_particles=args.unguided_particles, init_guide=args.init_guide,
+                       init_traces=inits, val_targets=args.val_targets,
+                       val_repeats=args.val_repeats, epochs=args.epochs,
+                       workers=args.workers, seed=args.seed)
+    rows = expert_iteration(cfg, log=_log)
+    print("| round | teacher | traces | validation NLL | validation similarity (N=10) |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['round']} | {r['teacher']} | {r['traces']} | {r['val_nll']} | "
+              f"{r['validation']} |")
+    return 0
+
+
+def _log(text: str) -> None:
+    import time
+
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", flush=True)
 
 
 def _print_epoch(row: dict[str, Any]) -> None:

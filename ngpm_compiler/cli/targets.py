@@ -45,6 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show.add_argument("--max", type=int, default=120, help="at most this many (default 120)")
     show.add_argument("--cols", type=int, default=None, help="columns (default: about square)")
     show.add_argument("--cell", type=int, default=64, help="cell size in pixels (default 64)")
+    show.add_argument("--spread", action="store_true",
+                      help="show --max targets spread evenly over the set, mirrors left out "
+                           "(the ones `ngpmc eval --stages heldout` picks)")
     show.set_defaults(handler=_show)
 
 
@@ -79,7 +82,12 @@ def _show(args: argparse.Namespace) -> int:
         targets = load_dataset(args.source)
     else:
         targets = [load_target(args.source)]
-    shown = targets[: max(1, args.max)]
+    if args.spread:
+        from ngpm_compiler.experiments.shape import pick
+
+        shown = pick([t for t in targets if not t.name.endswith("_m")], max(1, args.max))
+    else:
+        shown = targets[: max(1, args.max)]
     contact_sheet(shown, args.out, cols=args.cols, cell=args.cell)
     print(f"{args.out}: {len(shown)} of {len(targets)} targets")
     return 0

@@ -142,6 +142,130 @@ def build_scribbles(count: int, seed: int, size: int, **_: object) -> Iterator[I
         yield scribble(np.random.default_rng([seed, i]), size), f"synthetic scribble {i}"
 
 
+# --- varied strokes (training targets that cover what users draw) -------------------------
+
+VARIED_KINDS = ("stroke", "script", "blob", "parts")
+VARIED_P = (0.35, 0.25, 0.15, 0.25)
+MIN_WIDTH_PX, MAX_WIDTH_PX = 1.0, 6.0  # stroke widths at 50 x 50
+
+
+def _pen(rng: np.random.Generator, s: float, x: float, y: float, theta: float, base_w: float,
+         sigma: float, length: float) -> list[tuple[float, float, float]]:
+    """Pen positions (x, y, width) of one stroke: curvature a mean-reverting random walk,
+    width varying slowly around `base_w`, steered back near the border."""
+    step, kappa, wmul = 0.5, rng.normal(0, 3 * sigma), 1.0
+    margin = 0.1 * s
+    pts = [(x, y, base_w)]
+    for _ in range(int(length / step)):
+        kappa += -kappa * step / 8.0 + sigma * math.sqrt(step) * rng.normal()
+        theta += kappa * step
+        if min(x, y, s - x, s - y) < margin:
+            to_c = math.atan2(s / 2 - y, s / 2 - x)
+            theta += 0.25 * math.remainder(to_c - theta, 2 * math.pi)
+            kappa *= 0.5
+        x += step * math.cos(theta)
+        y += step * math.sin(theta)
+        wmul = float(np.clip(wmul + 0.03 * rng.normal(), 0.85, 1.15))
+        pts.append((x, y, base_w * wmul))
+    return pts
+
+
+def _blob_poly(rng: np.random.Generator, cx: float, cy: float, r: float
+               ) -> list[tuple[float, float]]:
+    """A smooth random filled blob: a circle with low-frequency radial noise."""
+    t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    rad = np.ones_like(t)
+    for k in (2, 3, 4):
+        rad += rng.normal(0, 0.18 / k) * np.cos(k * t + rng.uniform(0, 2 * np.pi))
+    rad = r * np.clip(rad, 0.5, 1.6)
+    return [(cx + a * math.cos(b), cy + a * math.sin(b)) for a, b in zip(rad, t, strict=True)]
+
+
+def _varied_part(rng: np.random.Generator, kind: str, s: float, scale: float
+                 ) -> tuple[list[tuple[float, float, float]], list[list[tuple[float, float]]],
+                            float]:
+    """One part: (pen points, filled polygons, base width in pixels at 50 x 50)."""
+    px = s / 50
+    x, y = rng.uniform(0.25, 0.75) * s, rng.uniform(0.3, 0.85) * s
+    theta = -math.pi / 2 + rng.normal(0, 0.6) if rng.random() < 0.6 else rng.uniform(-3.1, 3.1)
+    if kind == "script":  # thin, long, loopy, like a cursive letter
+        w = rng.uniform(MIN_WIDTH_PX, 2.2)
+        pts = _pen(rng, s, x, y, theta, w * px, rng.uniform(0.06, 0.16),
+                   rng.uniform(1.5, 3.5) * s * scale)
+        return pts, [], w
+    if kind == "blob":  # a filled blob, sometimes with a stroke growing out of it
+        w = rng.uniform(2.0, MAX_WIDTH_PX)
+        r = rng.uniform(0.12, 0.25) * s * math.sqrt(scale)
+        polys = [_blob_poly(rng, x, y - r * 0.5, r)]
+        pts = (_pen(rng, s, x, y - r * 0.5, theta, w * px, rng.uniform(0.01, 0.06),
+                    rng.uniform(0.4, 1.0) * s * scale) if rng.random() < 0.6 else [])
+        return pts, polys, w
+    w = rng.uniform(MIN_WIDTH_PX, MAX_WIDTH_PX)
+    pts = _pen(rng, s, x, y, theta, w * px, rng.choice([rng.uniform(0.01, 0.04),
+                                                         rng.uniform(0.05, 0.12)]),
+               rng.uniform(0.8, 2.4) * s * scale * (1.0 if w < 4 else 0.7))
+    return pts, [], w
+
+
+def _draw_parts(parts: list[tuple[list, list, float]], size: int) -> list[np.ndarray]:
+    """The mask of each part at the working size."""
+    k = SUPERSAMPLE
+    out = []
+    for pts, polys, _ in parts:
+        img = Image.new("L", (size * k,) * 2, 0)
+        draw = ImageDraw.Draw(img)
+        for px, py, pw in pts:
+            r = max(pw, 1.0) * k / 2
+            draw.ellipse((px * k - r, py * k - r, px * k + r, py * k + r), fill=255)
+        for poly in polys:
+            draw.polygon([(a * k, b * k) for a, b in poly], fill=255)
+        out.append(resize_mask(np.asarray(img) >= 128, size))
+    return out
+
+
+def varied(rng: np.random.Generator, size: int = 50) -> tuple[Target, dict]:
+    """One training target of the `varied` set and what it is made of ({"kind", "widths"
+    (base stroke widths in pixels at 50 x 50, 1 to 6), "parts" (connected components)}).
+
+    Kinds: "stroke" (one scribble of width 1-6 px), "script" (a thin loopy stroke, 1-2.2 px),
+    "blob" (a filled blob, maybe with a stroke out of it), "parts" (2-3 disjoint strokes or
+    blobs; the vine starts on the first)."""
+    kind = str(rng.choice(VARIED_KINDS, p=VARIED_P))
+    for _ in range(200):
+        n_parts = int(rng.integers(2, 4)) if kind == "parts" else 1
+        kinds = ([str(rng.choice(("stroke", "script", "blob"), p=(0.5, 0.3, 0.2)))
+                  for _ in range(n_parts)] if kind == "parts" else [kind])
+        parts = [_varied_part(rng, k, float(size), 0.6 if n_parts > 1 else 1.0) for k in kinds]
+        masks = _draw_parts(parts, size)
+        mask = np.logical_or.reduce(masks)
+        if not 0.02 <= mask.mean() <= 0.45 or int(label(mask).max()) != n_parts:
+            continue
+        if any(int(label(m).max()) != 1 for m in masks):
+            continue
+        pts = parts[0][0]
+        if pts:
+            x0, y0 = pts[0][0], pts[0][1]
+            dx, dy = pts[min(4, len(pts) - 1)][0] - x0, pts[min(4, len(pts) - 1)][1] - y0
+            norm = math.hypot(dx, dy) or 1.0
+            start = (x0 / size, y0 / size, dx / norm, dy / norm)
+        else:
+            start = auto_start(masks[0])
+        row, col = min(int(start[1] * size), size - 1), min(int(start[0] * size), size - 1)
+        if not masks[0][row, col]:
+            continue
+        info = {"kind": kind, "widths": [round(float(p[2]), 3) for p in parts],
+                "parts": n_parts}
+        return Target(mask, start, "varied"), info
+    raise DatasetError("varied generator failed 200 times in a row")  # pragma: no cover
+
+
+def build_varied(count: int, seed: int, size: int, **_: object) -> Iterator[Item]:
+    for i in range(count):
+        target, info = varied(np.random.default_rng([seed, 7, i]), size)
+        widths = ",".join(f"{w:.1f}" for w in info["widths"])
+        yield target, f"varied {info['kind']} {i} (parts {info['parts']}, width px {widths})"
+
+
 # --- glyphs ------------------------------------------------------------------------------
 
 GLYPH_RANGES = ((0x21, 0x7E), (0xC0, 0x17F), (0x391, 0x3C9), (0x410, 0x44F))
@@ -436,6 +560,88 @@ def build_silhouettes(count: int | None, seed: int, size: int,
         j += 1
 
 
+# --- clip-art silhouettes (public domain) ------------------------------------------------
+
+CLIPART_DIR = Path("/usr/share/openclipart/svg/animals")  # Debian package openclipart-svg
+CLIPART_FILL = (0.08, 0.6)  # usable silhouettes fill this fraction of the canvas
+CLIPART_MAX_BOX = 0.75  # ... and at most this fraction of their bounding box (no frames)
+CLIPART_MAIN = 0.8  # ... and their largest part holds this fraction of the pixels
+
+
+def rasterize_svg(svg: Path, png: Path, side: int = 200) -> None:
+    """SVG -> PNG with a transparent background (rsvg-convert, Debian package librsvg2-bin)."""
+    import shutil
+    import subprocess
+
+    exe = shutil.which("rsvg-convert")
+    if exe is None:
+        raise DatasetError("rsvg-convert not found (apt-get install librsvg2-bin)")
+    try:
+        subprocess.run([exe, "-w", str(side), "-h", str(side), "-a", "-o", str(png), str(svg)],
+                       check=True, capture_output=True, timeout=60)
+    except (subprocess.SubprocessError, OSError) as err:
+        raise TargetError(f"{svg}: cannot rasterize ({err.__class__.__name__})") from None
+
+
+def clipart_files(source: Path) -> list[Path]:
+    """SVG and raster images under `source` (recursively), in a fixed order."""
+    return sorted(p for p in source.rglob("*")
+                  if p.is_file() and (p.suffix.lower() == ".svg" or
+                                      p.suffix.lower() in IMAGE_SUFFIXES))
+
+
+def clipart_reject(mask: np.ndarray) -> str | None:
+    """Why a clip-art mask is no usable silhouette (None: usable)."""
+    frac = float(mask.mean())
+    if not CLIPART_FILL[0] <= frac <= CLIPART_FILL[1]:
+        return f"fills {frac:.0%} of the canvas"
+    rows, cols = np.nonzero(mask)
+    box = (rows.max() - rows.min() + 1) * (cols.max() - cols.min() + 1)
+    if mask.sum() > CLIPART_MAX_BOX * box:
+        return f"fills {mask.sum() / box:.0%} of its bounding box (a frame or a disc)"
+    counts = np.bincount(label(mask).ravel())[1:]
+    if counts.max() < CLIPART_MAIN * counts.sum():
+        return "in several large parts"
+    return None
+
+
+def build_clipart(count: int | None, seed: int, size: int,
+                  source_dir: str | os.PathLike | None = None, **_: object) -> Iterator[Item]:
+    """Silhouettes (the opaque pixels) of clip art, by default Openclipart's public-domain
+    animal drawings; files spread evenly over the sorted list, unusable ones skipped
+    (too small, a filled rectangle, one color)."""
+    import tempfile
+
+    src = Path(source_dir) if source_dir is not None else CLIPART_DIR
+    if not src.is_dir():
+        raise DatasetError(f"clip-art directory {src} does not exist "
+                           "(apt-get install openclipart-svg librsvg2-bin)")
+    files = clipart_files(src)
+    order = np.random.default_rng(seed).permutation(len(files)) if seed else range(len(files))
+    made = 0
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in order:
+            if count is not None and made >= count:
+                return
+            path = files[int(i)]
+            try:
+                png = path
+                if path.suffix.lower() == ".svg":
+                    png = Path(tmp) / f"{path.stem}.png"
+                    rasterize_svg(path, png)
+                target = silhouette_from_image(png, size, "alpha")
+            except TargetError as err:
+                warnings.warn(f"skipped {err}", DatasetWarning, stacklevel=2)
+                continue
+            why = clipart_reject(target.mask)
+            if why:
+                warnings.warn(f"skipped {path.name}: {why}", DatasetWarning, stacklevel=2)
+                continue
+            made += 1
+            yield Target(target.mask, target.start, "clipart"), \
+                f"openclipart {path.relative_to(src)}"
+
+
 # --- registry and build ------------------------------------------------------------------
 
 DATASETS: dict[str, DatasetSpec] = {
@@ -449,6 +655,14 @@ DATASETS: dict[str, DatasetSpec] = {
         "silhouettes", "images from --from DIR, scikit-image's horse and procedural animal "
         "and object silhouettes, automatic start unless a sidecar exists (testing)",
         None, build_silhouettes),
+    "varied": DatasetSpec(
+        "varied", "synthetic strokes of width 1-6 px, thin script-like loops, filled blobs "
+        "and 2-3 disjoint parts, start where the first stroke began (training)", 300,
+        build_varied),
+    "clipart": DatasetSpec(
+        "clipart", "silhouettes of public-domain clip art (default: Openclipart animals from "
+        "Debian's openclipart-svg, --from DIR for others), automatic start (testing)",
+        None, build_clipart),
 }
 
 

@@ -17,7 +17,6 @@ import csv
 import io
 import math
 import os
-import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,18 +87,7 @@ def _worker_setup(grammar: str, text: str, targets: dict[str, list[Any]],
 
     program = load_grammar(grammar, text)
     return {"program": program, "targets": targets,
-            "guides": {name: _load_guide(g, program) for name, g in guides.items()}}
-
-
-def _load_guide(guide: str | bytes, program: Any) -> Any:
-    from ngpm_runtime.inference.guide import Guide
-
-    if isinstance(guide, str):
-        return Guide.load(guide, program)
-    with tempfile.TemporaryDirectory(prefix="ngpm_guide_") as tmp:  # read whole by load
-        path = Path(tmp) / "guide.onnx"
-        path.write_bytes(guide)
-        return Guide.load(path, program)
+            "guides": {name: backends.load_guide(g, program) for name, g in guides.items()}}
 
 
 def _run(task: RunTask) -> RunResult:
@@ -118,8 +106,7 @@ def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str
     on the Ray cluster at `address`); results in task order."""
     order = np.random.default_rng(shuffle_seed).permutation(len(tasks))
     shuffled = [tasks[i] for i in order]
-    ship: dict[str, str | bytes] = dict(guides) if backend == "local" else \
-        {name: Path(path).read_bytes() for name, path in guides.items()}
+    ship = {name: backends.ship_file(path, backend) for name, path in guides.items()}
     text = Path(grammar).read_text(encoding="utf-8")
     jobs = backends.make_backend(backend, workers, _worker_setup,
                                  (grammar, text, targets, ship), address)

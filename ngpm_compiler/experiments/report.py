@@ -186,6 +186,7 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
     notes = out / "notes.md"
     if notes.is_file():
         rd += ["## Discussion", "", notes.read_text(encoding="utf-8").strip(), ""]
+    rd += heldout_section(out)
     rd += ["Every number: [report.md](report.md); raw runs: `shape_runs.csv`, "
            "`circuit_runs.csv`, `chain_runs.csv`.", ""]
     readme = atomic_write(out / "README.md", "\n".join(rd).encode("utf-8"))
@@ -224,6 +225,20 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
     rp += ["## Settings", "", "```json", json.dumps(settings, indent=1), "```", ""]
     report = atomic_write(out / "report.md", "\n".join(rp).encode("utf-8"))
     return readme, report
+
+
+def heldout_section(out: Path) -> list[str]:
+    """"Expert iteration and held-out sets": the hand-written `heldout_notes.md` (commands,
+    per-round table, discussion) and the table `ngpmc eval --stages heldout` wrote."""
+    notes, table = out / "heldout_notes.md", out / "heldout.md"
+    if not table.is_file():
+        return []
+    lines = ["## Expert iteration and held-out sets", ""]
+    if notes.is_file():
+        lines += [notes.read_text(encoding="utf-8").strip(), ""]
+    lines += ["### Held-out table (from `heldout.md`; mean over targets of the median "
+              "similarity over runs)", "", table.read_text(encoding="utf-8").strip(), ""]
+    return lines
 
 
 def _settings_lines(s: dict[str, Any]) -> list[str]:

@@ -16,8 +16,10 @@ be recorded twice.
 
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Callable
 from contextlib import ExitStack
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Protocol
 
@@ -134,3 +136,23 @@ def make_backend(kind: str, workers: int, setup: pool.Setup, setup_args: tuple[A
 
         return RayBackend(workers, setup, setup_args, address=address)
     raise NgpmError(f"unknown backend {kind!r}; choose from {', '.join(BACKENDS)}")
+
+
+def ship_file(path: str | None, kind: str) -> str | bytes | None:
+    """What workers get for a file the driver names: its path for the local backend, its
+    bytes for Ray (workers on other machines have no such path); None stays None."""
+    if path is None or kind == "local":
+        return path
+    return Path(path).read_bytes()
+
+
+def load_guide(guide: str | bytes, program: Any) -> Any:
+    """A worker's Guide from a path or from a guide file's bytes (`ship_file`)."""
+    from ngpm_runtime.inference.guide import Guide
+
+    if isinstance(guide, str):
+        return Guide.load(guide, program)
+    with tempfile.TemporaryDirectory(prefix="ngpm_guide_") as tmp:  # read whole by load
+        path = Path(tmp) / "guide.onnx"
+        path.write_bytes(guide)
+        return Guide.load(path, program)

@@ -1,4 +1,9 @@
-"""Training traces: unguided SMC on dataset targets, keep the best particle's trace.
+"""Training traces: SMC on dataset targets, keep the best particle's trace.
+
+SMC proposes from the grammar's prior (the paper) or, with `TraceConfig.guide`, from a
+trained guide (expert iteration): guided SMC weighs each particle by prior / proposal, so
+its particles are weighted samples of the same posterior and the kept best particle is a
+trace of the same kind, only found with far fewer particles.
 
 Job `i` is a pure function of (grammar, base seed, i): its target and SMC seed come from
 `job_spec(base_seed, i, n_targets)`. Jobs run on a backend (`backends.py`: worker processes
@@ -79,6 +84,7 @@ class TraceConfig:
     max_modules: int | None = None  # the "max modules" cap (None: the grammar's or default)
     backend: str = "local"  # backends.BACKENDS: "local" (processes) or "ray"
     ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
+    guide: str | None = None  # guide .onnx proposing in SMC (None: the prior)
 
 
 def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Any]:
@@ -100,9 +106,10 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     return int(a) % n_targets, int(b)
 
 
-def run_job(program: Program, target: Any, seed: int, particles: int,
+def run_job(program: Program, target: Any, seed: int, particles: int, guide: Any = None,
             max_modules: int | None = None) -> tuple[list[tuple[int, np.ndarray, float]], int]:
-    """Unguided SMC on one target; the best particle's trace and primitive count.
+    """SMC (guided by `guide`, else unguided) on one target; the best particle's trace and
+    primitive count.
 
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
@@ -111,7 +118,7 @@ def run_job(program: Program, target: Any, seed: int, particles: int,
     from ngpm_runtime.inference.smc import replay
 
     start = target.start_pose(program.viewport)
-    best = grow(program, target, None, particles, seed, record_trace="values",
+    best = grow(program, target, guide, particles, seed, record_trace="values",
                 max_modules=max_modules).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,
@@ -264,12 +271,19 @@ class TraceStore:
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, text: str, targets: list[Any]) -> dict[str, Any]:
-    """A worker's state from the grammar file's name and text and the targets (data, so a
-    worker on another machine reads no file)."""
+def _worker_setup(grammar: str, text: str, targets: list[Any],
+                  guide: str | bytes | None = None) -> dict[str, Any]:
+    """A worker's state from the grammar file's name and text, the targets and the guide
+    (its path, or its file's bytes for workers on other machines), so a worker on another
+    machine reads no file."""
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ngpm_compiler.language.compile import load_grammar
 
-    return {"program": load_grammar(grammar, text), "targets": targets}
+    program = load_grammar(grammar, text)
+    proposal = None if guide is None else backends.load_guide(guide, program)
+    return {"program": program, "targets": targets, "guide": proposal}
 
 
 def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
@@ -280,7 +294,7 @@ def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
         trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles,
-                                 max_modules=max_modules)
+                                 guide=pool.state().get("guide"), max_modules=max_modules)
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims
@@ -294,7 +308,18 @@ def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[
            "min_primitives": cfg.min_primitives}
     if cfg.max_modules is not None:  # only when set: older traces directories still resume
         key["max_modules"] = cfg.max_modules
+    if cfg.guide is not None:  # unguided directories keep the key they always had
+        key["guide"] = _file_hash(cfg.guide)
     return key
+
+
+def _file_hash(path: str | None) -> str | None:
+    """sha256 of a file (the guide a traces directory was recorded with), None for None."""
+    if path is None:
+        return None
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _exit_on_sigterm() -> None:
@@ -410,8 +435,9 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
 
     ids = next_ids()
     text = Path(cfg.grammar).read_text(encoding="utf-8")
+    guide = backends.ship_file(cfg.guide, cfg.backend)
     jobs = backends.make_backend(cfg.backend, cfg.workers, _worker_setup,
-                                 (cfg.grammar, text, targets), cfg.ray_address)
+                                 (cfg.grammar, text, targets, guide), cfg.ray_address)
     complete = False
     try:
         with jobs if kept < cfg.n else contextlib.nullcontext():

@@ -1,0 +1,159 @@
+"""Held-out evaluation: guides at N = 10 against unguided SMC at several N on target sets
+that no training target comes from (script glyphs, clip-art silhouettes).
+
+Runs are cached in `heldout_runs.csv` of the results directory and keyed by (model, set,
+target, N, repeat), so a later call with another guide only runs what is new (unguided runs,
+which do not depend on the guide, are measured once). Files written:
+- heldout_runs.csv    one row per SMC run (evaluate.RUN_FIELDS)
+- heldout.csv         per set, model and N: mean of per-target medians, 95% CI, seconds
+- heldout.md          the table: guided N = 10 vs unguided N, crossing N, losses per target
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ngpm_compiler.experiments.evaluate import (
+    RUN_FIELDS,
+    SUMMARY_FIELDS,
+    UNGUIDED,
+    RunTask,
+    atomic_write,
+    n_to_match,
+    read_csv,
+    run_seed,
+    run_tasks,
+    summarize,
+    write_csv,
+)
+
+
+def parse_pairs(text: str) -> dict[str, str]:
+    """'a=x,b=y' -> {'a': 'x', 'b': 'y'} (a bare 'x' is named after its file stem)."""
+    out = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, _, value = part.partition("=")
+        if not value:
+            name, value = Path(part).stem, part
+        out[name.strip()] = value.strip()
+    return out
+
+
+def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Any]]:
+    """k targets of each set, spread evenly over the set's sorted files (no mirrors)."""
+    from ngpm_runtime.image.targets import load_dataset
+
+    from ngpm_compiler.experiments.shape import pick
+
+    return {name: pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
+            for name, d in sets.items()}
+
+
+def heldout_tasks(targets: dict[str, list[Any]], guides: list[str], guided_n: int,
+                  unguided_ns: tuple[int, ...], repeats: int, base_seed: int = 0
+                  ) -> list[RunTask]:
+    """Every guide at `guided_n` and unguided SMC at `guided_n` and `unguided_ns`; a run's
+    seed depends on (set, target, N, repeat) only, so models share random numbers."""
+    tasks = []
+    for si, (name, ts) in enumerate(sorted(targets.items())):
+        for ti in range(len(ts)):
+            for rep in range(repeats):
+                for n in sorted({guided_n, *unguided_ns}):
+                    seed = run_seed(base_seed + 1000 * (si + 1), ti, n, rep)
+                    tasks.append(RunTask(UNGUIDED, name, ti, n, rep, seed))
+                    if n == guided_n:
+                        tasks.extend(RunTask(g, name, ti, n, rep, seed) for g in guides)
+    return tasks
+
+
+def _key(row: dict[str, Any]) -> tuple[str, str, str, int, int]:
+    return (str(row["model"]), str(row["dataset"]), str(row["target"]), int(row["n"]),
+            int(row["repeat"]))
+
+
+def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dict[str, str],
+                k: int = 16, repeats: int = 3, guided_n: int = 10,
+                unguided_ns: tuple[int, ...] = (200, 600, 2000), workers: int = 2,
+                seed: int = 0, log: Any = print) -> dict[str, Any]:
+    """Run what `heldout_runs.csv` lacks, then write the summary and table."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs_path = out / "heldout_runs.csv"
+    targets = load_sets(sets, k)
+    tasks = heldout_tasks(targets, list(guides), guided_n, unguided_ns, repeats, seed)
+    old = read_csv(runs_path) if runs_path.is_file() else []
+    have = {_key(r): r for r in old}
+    todo = [t for t in tasks
+            if (t.model, t.dataset, targets[t.dataset][t.target].name, t.n, t.repeat)
+            not in have]
+    log(f"held-out: {len(tasks)} runs, {len(todo)} to do")
+    rows = list(old)
+    if todo:
+        done = 0
+
+        def note(_r: Any) -> None:
+            nonlocal done
+            done += 1
+            if done % 50 == 0:
+                log(f"held-out: {done}/{len(todo)} runs")
+
+        results = run_tasks(grammar, targets, guides, todo, workers=workers, shuffle_seed=seed,
+                            on_result=note)
+        rows += [r.row() for r in results]
+        write_csv(runs_path, rows, RUN_FIELDS)
+    wanted = {(t.model, t.dataset, targets[t.dataset][t.target].name, t.n, t.repeat)
+              for t in tasks}
+    rows = [r for r in rows if _key(r) in wanted]
+    summary = [s for name in sorted(targets)
+               for s in summarize([r for r in rows if r["dataset"] == name], name)]
+    write_csv(out / "heldout.csv", summary, SUMMARY_FIELDS)
+    table = heldout_table(rows, summary, list(guides), guided_n)
+    atomic_write(out / "heldout.md", table.encode("utf-8"))
+    return {"rows": rows, "summary": summary, "table": table}
+
+
+def losses(rows: list[dict[str, Any]], model: str, dataset: str, guided_n: int) -> list[str]:
+    """Targets where `model`'s median similarity over repeats is below unguided's, same N."""
+    def medians(m: str) -> dict[str, float]:
+        by: dict[str, list[float]] = {}
+        for r in rows:
+            if r["model"] == m and r["dataset"] == dataset and int(r["n"]) == guided_n:
+                by.setdefault(str(r["target"]), []).append(float(r["similarity"]))
+        return {t: float(np.median(v)) for t, v in by.items()}
+
+    g, u = medians(model), medians(UNGUIDED)
+    return sorted(t for t in g if t in u and g[t] < u[t])
+
+
+def heldout_table(rows: list[dict[str, Any]], summary: list[dict[str, Any]],
+                  guides: list[str], guided_n: int) -> str:
+    """Markdown: per set, each model's mean similarity at each N, the unguided N that
+    matches the guide at `guided_n`, and the targets where the guide loses to unguided."""
+    lines = []
+    for ds in sorted({s["dataset"] for s in summary}):
+        sub = [s for s in summary if s["dataset"] == ds]
+        uns = sorted({int(s["n"]) for s in sub if s["model"] == UNGUIDED})
+        n_t = max(int(s["targets"]) for s in sub)
+        lines += [f"**{ds}** ({n_t} targets)", "",
+                  "| model | " + " | ".join(f"unguided N={n}" for n in uns)
+                  + f" | guided N={guided_n} | unguided N to match | targets guided < "
+                  f"unguided (N={guided_n}) |",
+                  "|---" * (len(uns) + 4) + "|"]
+        ung = {int(s["n"]): float(s["mean_similarity"]) for s in sub if s["model"] == UNGUIDED}
+        for g in guides:
+            row = [s for s in sub if s["model"] == g and int(s["n"]) == guided_n]
+            if not row:
+                continue
+            sim = float(row[0]["mean_similarity"])
+            match = n_to_match(sub, sim)
+            m = (f">{max(uns)}" if math.isnan(match) else f"{match:.0f}")
+            lost = losses(rows, g, ds, guided_n)
+            lines.append(f"| {g} | " + " | ".join(f"{ung[n]:.3f}" for n in uns)
+                         + f" | {sim:.3f} | {m} | {len(lost)}"
+                         + (f" ({', '.join(lost)})" if lost else "") + " |")
+        lines.append("")
+    return "\n".join(lines)

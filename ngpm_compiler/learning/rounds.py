@@ -1,0 +1,163 @@
+"""Expert iteration: traces from the current guide -> train the next guide -> repeat.
+
+A guide trained on the best particles of unguided SMC can only imitate that teacher. Guided
+SMC weighs every particle by prior / proposal, so its best particle is a trace of the same
+posterior, and with a good guide many particles find better ones than unguided SMC does
+with the same budget. Each round records `n` traces per training-target directory with SMC
+guided by the best guide so far (the first round, with no guide to start from, runs
+unguided SMC), trains a guide on every round's traces together (and on `init_traces`),
+exports it, and scores it on validation targets at N = `val_n`; the best round's guide is
+copied to `best.onnx`. Files under `out`: round_<r>/{traces_<i>, model.pt, guide.onnx},
+validation/ (held-out run cache), rounds.csv, best.onnx.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ngpm_compiler.learning.traces import SiteData, TraceConfig, TraceSet, generate_traces
+
+JOB_STRIDE = 10 ** 8  # job ids of the k-th merged traces directory are offset by k * this
+
+
+@dataclass
+class RoundsConfig:
+    grammar: str
+    targets: list[str]  # training-target directories
+    validation: dict[str, str]  # name -> target directory (never trained on)
+    out: str
+    rounds: int = 2
+    n: int = 300  # kept traces per round and target directory
+    particles: int = 200  # guided SMC particles
+    unguided_particles: int = 600  # particles of a round without a guide (round 1, no init)
+    init_guide: str | None = None  # the guide of round 0 (scored, then proposes in round 1)
+    init_traces: list[str] = field(default_factory=list)  # added to every round's training
+    mirror: bool = True
+    val_targets: int = 12
+    val_repeats: int = 2
+    val_n: int = 10
+    epochs: int = 40
+    K: int = 4
+    workers: int = 2
+    seed: int = 0
+
+
+def merge_traces(sets: list[TraceSet]) -> TraceSet:
+    """One training set from several traces directories of the same grammar (job ids of the
+    k-th set offset by k * JOB_STRIDE, so whole traces stay together in the validation
+    split)."""
+    first = sets[0]
+    for ts in sets[1:]:
+        if ts.manifest["grammar_hash"] != first.manifest["grammar_hash"]:
+            raise ValueError("traces of different grammars cannot be merged")
+    data: dict[int, SiteData] = {}
+    for k, ts in enumerate(sets):
+        for site, d in ts.data.items():
+            part = SiteData(d.features, d.values, d.prior_args, d.jobs + k * JOB_STRIDE)
+            old = data.get(site)
+            data[site] = part if old is None else SiteData(
+                np.concatenate([old.features, part.features]),
+                np.concatenate([old.values, part.values]),
+                np.concatenate([old.prior_args, part.prior_args]),
+                np.concatenate([old.jobs, part.jobs]))
+    kept = np.concatenate([ts.kept_jobs + k * JOB_STRIDE for k, ts in enumerate(sets)])
+    return TraceSet(first.manifest, first.sites, first.layouts, data, kept,
+                    sum(ts.dropped for ts in sets))
+
+
+def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Any) -> list[str]:
+    """Round r's traces, one directory per training-target directory."""
+    dirs = []
+    for i, targets in enumerate(cfg.targets):
+        out = Path(cfg.out) / f"round_{r}" / f"traces_{i}"
+        tc = TraceConfig(grammar=cfg.grammar, targets=targets, n=cfg.n,
+                         particles=cfg.particles if guide else cfg.unguided_particles,
+                         seed=cfg.seed + 1000 * r + i, workers=cfg.workers, mirror=cfg.mirror,
+                         guide=guide)
+        m = generate_traces(tc, out, progress=False)
+        log(f"round {r}: {out}: {m['kept']} traces ({m['dropped']} dropped), "
+            f"{m['seconds']:.0f} s, {'guided by ' + guide if guide else 'unguided'}")
+        dirs.append(str(out))
+    return dirs
+
+
+def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> tuple[str, dict]:
+    """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
+    from ngpm_compiler.learning.export import write_onnx
+    from ngpm_compiler.learning.traces import load_traces
+    from ngpm_compiler.learning.train import TrainConfig, load_model, save_model, train_guide
+
+    ts = merge_traces([load_traces(d) for d in trace_dirs])
+    folder = Path(cfg.out) / f"round_{r}"
+    folder.mkdir(parents=True, exist_ok=True)
+    done, onnx = folder / "model.pt", folder / "guide.onnx"
+    if done.is_file() and onnx.is_file():  # a finished round on the same traces: reuse
+        old = load_model(done)
+        if old.summary.get("traces") == len(ts.kept_jobs):
+            log(f"round {r}: reusing {onnx} ({len(ts.kept_jobs)} traces)")
+            return str(onnx), old.summary
+    model = train_guide(ts.sites, ts.layouts, ts.data,
+                        TrainConfig(K=cfg.K, epochs=cfg.epochs, seed=cfg.seed),
+                        grammar=ts.manifest["key"]["grammar"],
+                        grammar_hash=ts.manifest["grammar_hash"])
+    save_model(model, folder / "model.pt")
+    path = write_onnx(model, folder / "guide.onnx")
+    s = model.summary
+    log(f"round {r}: trained on {s['traces']} traces, validation NLL {s['val_nll']:.2f}, "
+        f"{s['seconds']:.0f} s")
+    return str(path), s
+
+
+def validate(cfg: RoundsConfig, name: str, guide: str, log: Any) -> float:
+    """Mean over validation targets of the median similarity at N = val_n."""
+    from ngpm_compiler.experiments.heldout import run_heldout
+
+    res = run_heldout(Path(cfg.out) / "validation", cfg.grammar, cfg.validation, {name: guide},
+                      k=cfg.val_targets, repeats=cfg.val_repeats, guided_n=cfg.val_n,
+                      unguided_ns=(), workers=cfg.workers, seed=cfg.seed, log=lambda _m: None)
+    sims = [float(s["mean_similarity"]) for s in res["summary"]
+            if s["model"] == name and int(s["n"]) == cfg.val_n]
+    score = float(np.mean(sims))
+    log(f"{name}: validation similarity {score:.3f} at N = {cfg.val_n}")
+    return score
+
+
+def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]]:
+    """Run the rounds (resuming finished ones); one row per round, best guide copied to
+    out/best.onnx."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(asdict(cfg), indent=1), encoding="utf-8")
+    rows: list[dict[str, Any]] = []
+    best: tuple[float, str | None] = (-np.inf, None)
+    if cfg.init_guide:
+        score = validate(cfg, "round_0", cfg.init_guide, log)
+        rows.append({"round": 0, "teacher": "initial guide", "traces": "", "val_nll": "",
+                     "validation": round(score, 4), "guide": cfg.init_guide})
+        best = (score, cfg.init_guide)
+    trace_dirs = list(cfg.init_traces)
+    for r in range(1, cfg.rounds + 1):
+        teacher = best[1]
+        trace_dirs += record_round(cfg, r, teacher, log)
+        path, summary = train_round(cfg, r, trace_dirs, log)
+        score = validate(cfg, f"round_{r}", path, log)
+        rows.append({"round": r, "teacher": f"guided N={cfg.particles}" if teacher else
+                     f"unguided N={cfg.unguided_particles}", "traces": summary["traces"],
+                     "val_nll": round(float(summary["val_nll"]), 3),
+                     "validation": round(score, 4), "guide": path})
+        if score > best[0]:
+            best = (score, path)
+    if best[1] is not None:
+        shutil.copyfile(best[1], out / "best.onnx")
+    from ngpm_compiler.experiments.evaluate import write_csv
+
+    write_csv(out / "rounds.csv", rows, ("round", "teacher", "traces", "val_nll", "validation",
+                                         "guide"))
+    log(f"best: {best[1]} (validation {best[0]:.3f}) -> {out / 'best.onnx'}")
+    return rows

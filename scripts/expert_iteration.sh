@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Expert iteration from a starting guide, then the held-out table of every round.
+# Usage: bash scripts/expert_iteration.sh [INIT_GUIDE] [WORKDIR]
+#   INIT_GUIDE: the round-0 guide (default: the bundled one; scripts/train_vines_guide.sh
+#   makes one from unguided traces). About 10 minutes per round on 2 busy cores.
+# Settings of the documented run (docs/results/README.md): 4 rounds, 300 traces per round
+# and training set (varied + scribbles, mirrored), guided SMC with 200 particles,
+# validation: 12 varied targets + 12 DejaVu glyphs x 2 runs at N = 10.
+set -euo pipefail
+INIT=${1:-runtime/ngpm_runtime/data/vines_guide.onnx}
+W=${2:-work}
+[ -d "$W/heldout/sil_all" ] || bash scripts/heldout_sets.sh "$W"
+mkdir -p "$W/guides"
+cp "$INIT" "$W/guides/v0.onnx"
+ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
+    --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
+    --init-guide "$W/guides/v0.onnx" --rounds 4 -n 300 --particles 200 \
+    --val-targets 12 --val-repeats 2 -o "$W/ei"
+# round 5: a stronger teacher (600 guided particles) on every round's traces (shipped guide)
+ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
+    --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
+    --init-guide "$W/ei/best.onnx" --init-traces "$(ls -d "$W"/ei/round_*/traces_* | paste -sd, -)" \
+    --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5"
+# ablation: round 1 with the paper's teacher (unguided SMC, 600 particles), same targets/seeds
+ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
+    --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
+    --rounds 1 -n 300 --unguided-particles 600 --val-targets 12 --val-repeats 2 -o "$W/abl"
+GUIDES="v0=$W/guides/v0.onnx,unguided_teacher=$W/abl/round_1/guide.onnx"
+for r in 1 2 3 4; do GUIDES="$GUIDES,round$r=$W/ei/round_$r/guide.onnx"; done
+GUIDES="$GUIDES,round5=$W/ei5/round_1/guide.onnx"
+ngpmc eval -o "$W/heldout_eval" --stages heldout \
+    --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
+    --heldout-guides "$GUIDES" --heldout-targets 16 --repeats 3 --unguided-ns 200,600,2000
+echo "best guide: $W/ei5/best.onnx; table: $W/heldout_eval/heldout.md"

@@ -1,0 +1,121 @@
+"""Guided traces (expert iteration's teacher) and the round loop on a tiny configuration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ngpm_runtime import bundled
+from ngpm_runtime.grow import grow
+from ngpm_runtime.image.targets import save_target
+from ngpm_runtime.inference.smc import replay, smc
+from repo_paths import REPO
+
+from ngpm_compiler.learning.rounds import (
+    JOB_STRIDE,
+    RoundsConfig,
+    expert_iteration,
+    merge_traces,
+)
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces, run_job
+
+GRAMMAR = str(REPO / "grammars" / "vines.lsys")
+
+
+@pytest.fixture(scope="module")
+def vines():
+    program = bundled.bundled_program()
+    return program, bundled.bundled_guide(program), bundled.demo_targets()
+
+
+def test_guided_trace_replays_to_the_same_primitives(vines):
+    program, guide, targets = vines
+    target = targets[0]
+    trace, n_prims = run_job(program, target, seed=3, particles=8, guide=guide)
+    values = [(s, v) for s, _, v in trace]
+    again = replay(program, values, start=target.start_pose(program.viewport),
+                   canvas_size=target.size, target_mask=target.mask)
+    assert len(again.primitives) == n_prims > 0
+    assert all(f is not None and np.isfinite(f).all() for _, f, _ in trace)
+
+
+def test_guided_smc_weights_are_exact(vines):
+    """Guided SMC charges each particle its prior density (not the guide's): the best
+    particle's log prior is the prior density of its values, as a replay computes it."""
+    program, guide, targets = vines
+    target = targets[1]
+    res = grow(program, target, guide, 6, seed=1, record_trace="values")
+    best = res.smc.best
+    values = [(s, v) for s, _, v in best.trace]
+    again = replay(program, values, start=target.start_pose(program.viewport),
+                   canvas_size=target.size, target_mask=target.mask)
+    assert again.primitives == best.primitives
+    assert best.log_prior == pytest.approx(again.log_prior, rel=1e-9, abs=1e-9)
+    # without likelihood or resampling, a particle's weight is log prior - log proposal
+    one = smc(program, None, 1, proposal=guide, seed=2,
+              start=target.start_pose(program.viewport), canvas_size=target.size,
+              target_mask=target.mask)
+    assert np.isfinite(one.log_weights[0]) and one.log_weights[0] != 0.0
+    prior_only = smc(program, None, 1, seed=2, start=target.start_pose(program.viewport))
+    assert prior_only.log_weights[0] == 0.0
+
+
+def _targets(tmp_path, vines, n=2):
+    d = tmp_path / "targets"
+    d.mkdir()
+    for t in vines[2][:n]:
+        save_target(t, d / f"{t.name}.png")
+    return d
+
+
+def test_guided_traces_directory_records_the_guide(tmp_path, vines):
+    d = _targets(tmp_path, vines)
+    guide = str(bundled.guide_path())
+    cfg = TraceConfig(grammar=GRAMMAR, targets=str(d), n=2, particles=5, workers=1,
+                      guide=guide)
+    m = generate_traces(cfg, tmp_path / "traces", progress=False)
+    assert m["kept"] == 2 and len(m["key"]["guide"]) == 64
+    unguided = TraceConfig(grammar=GRAMMAR, targets=str(d), n=1, particles=5, workers=1)
+    assert "guide" not in generate_traces(unguided, tmp_path / "u", progress=False)["key"]
+    ts = merge_traces([load_traces(tmp_path / "traces"), load_traces(tmp_path / "u")])
+    assert len(ts.kept_jobs) == 3 and (ts.kept_jobs >= JOB_STRIDE).sum() == 1
+
+
+def test_round_loop_keeps_the_best_round(tmp_path, vines):
+    d = _targets(tmp_path, vines)
+    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
+                       out=str(tmp_path / "ei"), rounds=2, n=2, particles=5,
+                       init_guide=str(bundled.guide_path()), val_targets=1, val_repeats=1,
+                       epochs=1, workers=1, mirror=False)
+    rows = expert_iteration(cfg, log=lambda _m: None)
+    assert [r["round"] for r in rows] == [0, 1, 2]
+    assert rows[2]["traces"] == 4  # round 2 trains on both rounds' traces
+    best = max(rows, key=lambda r: r["validation"])
+    assert (tmp_path / "ei" / "best.onnx").read_bytes() == \
+        open(best["guide"], "rb").read()
+    assert (tmp_path / "ei" / "rounds.csv").is_file()
+    logs: list[str] = []
+    again = expert_iteration(cfg, log=logs.append)  # resumed: nothing recorded or trained
+    assert [r["validation"] for r in again] == [r["validation"] for r in rows]
+    assert sum("reusing" in m for m in logs) == 2
+
+
+def test_cli_traces_with_a_guide(tmp_path, vines, capsys):
+    from ngpm_compiler.cli import main
+
+    d = _targets(tmp_path, vines, n=1)
+    out = tmp_path / "t"
+    code = main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "--particles", "4",
+                 "--workers", "1", "-o", str(out), "--guide", str(bundled.guide_path())])
+    assert code == 0 and "1 traces kept" in capsys.readouterr().out
+    assert main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "-o", str(tmp_path / "x"),
+                 "--guide", str(tmp_path / "missing.onnx")]) != 0
+
+
+def test_cli_iterate_checks_its_inputs(tmp_path, capsys):
+    from ngpm_compiler.cli import main
+
+    code = main(["iterate", GRAMMAR, "--targets", str(tmp_path / "none"), "--validate",
+                 f"v={tmp_path}", "-o", str(tmp_path / "ei")])
+    assert code != 0 and "no such file or directory" in capsys.readouterr().err
+    assert main(["iterate", GRAMMAR, "--targets", str(tmp_path), "--validate", f"v={tmp_path}",
+                 "-o", str(tmp_path / "ei"), "--rounds", "0"]) != 0
