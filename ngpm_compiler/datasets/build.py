@@ -91,20 +91,7 @@ def _try_scribble(rng: np.random.Generator, size: int) -> Target | None:
         x, y = rng.uniform(0.25, 0.75) * s, rng.uniform(0.25, 0.75) * s
         theta = rng.uniform(-math.pi, math.pi)
     start = (x / s, y / s, math.cos(theta), math.sin(theta))
-    step, kappa, wmul = 0.5, rng.normal(0, 3 * sigma), 1.0
-    margin = 0.12 * s
-    pts = [(x, y, base_w)]
-    for _ in range(int(length / step)):
-        kappa += -kappa * step / 8.0 + sigma * math.sqrt(step) * rng.normal()
-        theta += kappa * step
-        if min(x, y, s - x, s - y) < margin:  # steer toward the center
-            to_c = math.atan2(s / 2 - y, s / 2 - x)
-            theta += 0.25 * math.remainder(to_c - theta, 2 * math.pi)
-            kappa *= 0.5
-        x += step * math.cos(theta)
-        y += step * math.sin(theta)
-        wmul = float(np.clip(wmul + 0.03 * rng.normal(), 0.7, 1.3))
-        pts.append((x, y, base_w * wmul))
+    pts = _pen(rng, s, x, y, theta, base_w, sigma, length, margin=0.12, widths=(0.7, 1.3))
     blobs = []
     if rng.random() < 0.3:
         for _ in range(rng.integers(1, 3)):
@@ -150,11 +137,13 @@ MIN_WIDTH_PX, MAX_WIDTH_PX = 1.0, 6.0  # stroke widths at 50 x 50
 
 
 def _pen(rng: np.random.Generator, s: float, x: float, y: float, theta: float, base_w: float,
-         sigma: float, length: float) -> list[tuple[float, float, float]]:
+         sigma: float, length: float, margin: float = 0.1,
+         widths: tuple[float, float] = (0.85, 1.15)) -> list[tuple[float, float, float]]:
     """Pen positions (x, y, width) of one stroke: curvature a mean-reverting random walk,
-    width varying slowly around `base_w`, steered back near the border."""
+    width varying slowly around `base_w` (within `widths` x base_w), steered back toward the
+    center within `margin` x s of the border."""
     step, kappa, wmul = 0.5, rng.normal(0, 3 * sigma), 1.0
-    margin = 0.1 * s
+    margin = margin * s
     pts = [(x, y, base_w)]
     for _ in range(int(length / step)):
         kappa += -kappa * step / 8.0 + sigma * math.sqrt(step) * rng.normal()
@@ -165,7 +154,7 @@ def _pen(rng: np.random.Generator, s: float, x: float, y: float, theta: float, b
             kappa *= 0.5
         x += step * math.cos(theta)
         y += step * math.sin(theta)
-        wmul = float(np.clip(wmul + 0.03 * rng.normal(), 0.85, 1.15))
+        wmul = float(np.clip(wmul + 0.03 * rng.normal(), *widths))
         pts.append((x, y, base_w * wmul))
     return pts
 
