@@ -12,7 +12,7 @@ from ngpm_runtime.program import Program
 
 from ngpm_compiler.cli import argtypes
 
-FEATURE_SETS = ("const", "local", "local+target", "all")  # = nets.FEATURE_SETS (no torch here)
+FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")  # = nets.FEATURE_SETS (no torch here)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -24,12 +24,13 @@ import numpy as np
 import torch
 from torch import nn
 
-FEATURE_SETS = ("const", "local", "local+target", "all")
+FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
 FEATURE_GROUPS = {
     "const": (),
     "local": ("local",),
     "local+target": ("local", "target"),
     "all": ("local", "target", "partial"),
+    "all+context": ("local", "target", "partial", "context"),  # issue #11's experiment
 }
 MIN_HIDDEN = 8
 MEAN_BOUND = 10.0  # |mixture mean| in prior units (normal) or in logit space (uniform)
@@ -45,6 +46,9 @@ def select_columns(layout: dict[str, slice], feature_set: str) -> list[int]:
         raise ValueError(f"unknown feature set {feature_set!r} (one of {', '.join(FEATURE_SETS)})")
     cols: list[int] = []
     for group in FEATURE_GROUPS[feature_set]:
+        if group not in layout:
+            raise ValueError(f"feature set {feature_set!r} needs the {group!r} columns, which "
+                             "these traces lack (recorded by an older ngpm: record new ones)")
         sl = layout[group]
         cols.extend(range(sl.start, sl.stop))
     return cols

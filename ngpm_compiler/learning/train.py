@@ -24,6 +24,7 @@ from ngpm_runtime.program import Site
 from tqdm import tqdm
 
 from ngpm_compiler.learning.nets import (
+    FEATURE_GROUPS,
     FEATURE_SETS,
     GuideModel,
     NetSpec,
@@ -107,7 +108,11 @@ def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
         if len(rows) == 0:
             rows = d.features
         sel = rows[:, cols].astype(np.float64)
-        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=d.features.shape[1],
+        # rows end at the context group only for guides that read it: the others take the
+        # rows of older traces (and the runtime does not compute context for them)
+        last = "context" if "context" in FEATURE_GROUPS[config.feature_set] else "partial"
+        n_f = layouts[site.index][last].stop
+        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=n_f,
                        cols=cols, K=config.K, k=site.k)
         nets[site.index] = SiteNet(spec, sel.mean(0), sel.std(0), prior_probs=site.probs,
                                    seed=config.seed + site.index)

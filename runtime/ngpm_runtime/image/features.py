@@ -6,6 +6,13 @@ width, depth / derivation_length] + module parameters (site.arity) + prior argum
 H/8) the 3x3 cells around the turtle's pixel (row-major, top row first), -1 outside the image.
 The turtle's pixel at a level of size (h, w) is (floor(v * h), floor(u * w)) with (u, v) its
 normalized image position (u right, v down from ymax).
+
+With `context=True` (issue #11's feature experiment) a `context` group (17) follows: the
+target's unfilled and overdrawn fractions (sum of max(t - c, 0) and of max(c - t, 0) over
+sum t, pyramid level 2), then "look-ahead" samples of the unfilled target max(t - c, 0) at
+level 1 (H/2), -1 outside the image, at the points `RAY_DIST` x viewport width away from the
+turtle in the directions heading + `RAY_ANGLES` degrees (angle-major). Unlike the windows,
+which lie on image axes, these turn with the turtle.
 """
 
 from __future__ import annotations
@@ -26,6 +33,10 @@ from ngpm_runtime.program import Program, Site
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
+RAY_ANGLES = (-45.0, -22.5, 0.0, 22.5, 45.0)  # look-ahead directions, degrees from heading
+RAY_DIST = (1 / 12, 1 / 6, 1 / 3)  # look-ahead distances, fractions of the viewport width
+N_CONTEXT = 2 + len(RAY_ANGLES) * len(RAY_DIST)
+_RAY_LEVEL, _FILL_LEVEL = 1, 2
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
 _TWO_NEG = np.array([2.0, -2.0])
@@ -59,8 +70,10 @@ class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
     def __init__(self, program: Program, viewport: Viewport,
-                 target_mask: np.ndarray | None) -> None:
+                 target_mask: np.ndarray | None, context: bool = False) -> None:
         self.program = program
+        self.context = bool(context)
+        self.n_common = N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if context else 0)
         self.viewport = tuple(float(x) for x in viewport)
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (None if target_mask is None
@@ -69,7 +82,7 @@ class FeatureMaker:
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         # features_cached: particle -> turtle state of its site-independent row in _block
         self._rows: dict[int, tuple] = {}
-        self._block = np.empty((0, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
+        self._block = np.empty((0, self.n_common), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
         self._origin = np.array([xmin, ymax])
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
@@ -92,11 +105,14 @@ class FeatureMaker:
     def layout(self, site: Site) -> dict[str, slice]:
         """Column ranges of the feature groups for a site."""
         nl = self.n_local(site)
-        return {"local": slice(0, nl), "target": slice(nl, nl + N_WINDOW),
-                "partial": slice(nl + N_WINDOW, nl + 2 * N_WINDOW)}
+        out = {"local": slice(0, nl), "target": slice(nl, nl + N_WINDOW),
+               "partial": slice(nl + N_WINDOW, nl + 2 * N_WINDOW)}
+        if self.context:
+            out["context"] = slice(nl + 2 * N_WINDOW, nl + 2 * N_WINDOW + N_CONTEXT)
+        return out
 
     def n_features(self, site: Site) -> int:
-        return self.n_local(site) + 2 * N_WINDOW
+        return self.n_local(site) + self.n_common - N_LOCAL_BASE
 
     def _windows(self, h: int, w: int) -> tuple[np.ndarray, ...]:
         """Per canvas size, in raster's padded pyramid layout: (2, L) level (heights,
@@ -205,12 +221,13 @@ class FeatureMaker:
 
     def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
                 depth: np.ndarray) -> np.ndarray:
-        """(n, 7 + 72) float32: the site-independent columns (turtle state, depth, target and
-        partial windows) of every particle, in few numpy calls (SMC's batches are small)."""
+        """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
+        target and partial windows, context) of every particle, in few numpy calls (SMC's
+        batches are small)."""
         n = len(idx)
         # (u, v): normalized image position, u right, v down from ymax
         uv = (turtle[:, :2] - self._origin) / self._span
-        out = np.empty((n, N_LOCAL_BASE + 2 * N_WINDOW), dtype=np.float32)
+        out = np.empty((n, self.n_common), dtype=np.float32)
         out[:, :2] = uv * _TWO_NEG + _ONE_POS  # 2u - 1, 1 - 2v
         heading = turtle[:, 2]
         out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
@@ -221,8 +238,10 @@ class FeatureMaker:
         out[:, 6] = depth / self.derivation_length
         nl = N_LOCAL_BASE
         target = out[:, nl:nl + N_WINDOW]
-        partial = out[:, nl + N_WINDOW:]
+        partial = out[:, nl + N_WINDOW:nl + 2 * N_WINDOW]
         h, w = self._shape(canvas)
+        if self.context:
+            out[:, nl + 2 * N_WINDOW:] = 0.0
         if h == 0 or w == 0:
             target[:] = 0.0 if self.target_levels is None else -1.0
             partial[:] = 0.0 if canvas is None else -1.0
@@ -245,4 +264,37 @@ class FeatureMaker:
             partial[:] = 0.0
         else:
             partial[:] = canvas.padded[idx[:, None], at]
+        if self.context and self.target_levels is not None and canvas is not None:
+            self._context(out[:, nl + 2 * N_WINDOW:], canvas, idx, uv, turtle[:, 2], h, w)
         return out
+
+    def _context(self, out: np.ndarray, canvas: Canvas, idx: np.ndarray, uv: np.ndarray,
+                 heading: np.ndarray, h: int, w: int) -> None:
+        """The context group (module docstring) of n particles into `out` (n, N_CONTEXT)."""
+        hp, wp, starts = padded_layout(h, w)
+        flat = self._padded_target()
+        lv = _FILL_LEVEL
+        hl, wl = h >> lv, w >> lv
+        cells = (starts[lv] + (np.arange(hl)[:, None] + PAD) * wp[lv]
+                 + np.arange(wl)[None, :] + PAD).reshape(-1)
+        t = flat[cells]
+        c = canvas.padded[idx[:, None], cells]
+        total = max(float(t.sum()), 1e-6)
+        out[:, 0] = np.maximum(t - c, 0.0).sum(axis=1) / total
+        out[:, 1] = np.maximum(c - t, 0.0).sum(axis=1) / total
+        # look-ahead points in (u, v): heading is counterclockwise from +x, v grows downwards
+        ang = np.radians(heading[:, None] + np.asarray(RAY_ANGLES)[None, :])  # (n, A)
+        dist = np.asarray(RAY_DIST)[None, None, :]
+        aspect = -self._span[0] / self._span[1]  # viewport width / height
+        pu = uv[:, None, None, 0] + np.cos(ang)[:, :, None] * dist
+        pv = uv[:, None, None, 1] - np.sin(ang)[:, :, None] * dist * aspect
+        lv = _RAY_LEVEL
+        hl, wl = h >> lv, w >> lv
+        r = np.floor(pv * hl).reshape(len(idx), -1)
+        q = np.floor(pu * wl).reshape(len(idx), -1)
+        inside = (r >= 0) & (r < hl) & (q >= 0) & (q < wl)
+        r = np.where(inside, r, 0).astype(np.intp)
+        q = np.where(inside, q, 0).astype(np.intp)
+        at = starts[lv] + (r + PAD) * wp[lv] + q + PAD
+        ahead = np.maximum(flat[at] - canvas.padded[idx[:, None], at], 0.0)
+        out[:, 2:] = np.where(inside, ahead, -1.0)

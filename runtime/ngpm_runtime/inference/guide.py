@@ -26,6 +26,7 @@ import onnxruntime as ort
 
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.inference import distributions as dist
+from ngpm_runtime.image.features import N_CONTEXT
 from ngpm_runtime.program import Program, Site
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
@@ -44,6 +45,7 @@ class Guide:
         self.nets: dict[int, dict[str, Any]] = {int(k): v for k, v in meta["nets"].items()}
         self.feature_set: str = meta["features"].get("feature_set", "all")
         self.uses_features = self.feature_set != "const"
+        self.feature_context = "context" in self.feature_set.split("+")
         self.K = int(meta["K"])
         self.training: dict[str, Any] = meta["training"]
         self.fallback_sites: list[int] = [s.index for s in program.sites
@@ -111,6 +113,9 @@ class Guide:
                 raise GuideError(f"{self.path}: site {site} needs features")
             return np.zeros((n, net["n_f"]), dtype=np.float32)
         x = np.ascontiguousarray(features, dtype=np.float32)
+        if (x.ndim == 2 and not self.feature_context
+                and x.shape[1] == net["n_f"] + N_CONTEXT):
+            x = x[:, :net["n_f"]]  # a recorded trace's row: its context columns are not read
         if x.ndim != 2 or x.shape[1] != net["n_f"]:
             raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
                              f"got shape {x.shape} (features changed since training?)")

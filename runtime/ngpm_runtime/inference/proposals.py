@@ -24,6 +24,7 @@ from ngpm_runtime.program import Site
 
 class Proposal(Protocol):
     uses_features: bool
+    # optional `feature_context: bool`: rows carry the context group (image/features.py)
 
     def propose(
         self,
@@ -56,6 +57,7 @@ class PriorProposal:
     """Sample the prior: log q equals log prior, so site weights cancel."""
 
     uses_features = False
+    feature_context = False
 
     def propose(
         self,
@@ -72,6 +74,7 @@ class FixedProposal:
     outputs (layouts in distributions.py), used for every particle at that site."""
 
     uses_features = False
+    feature_context = False
 
     def __init__(self, params: Mapping[int | str, np.ndarray | list[float]]) -> None:
         self.params = {k: np.asarray(v, dtype=np.float64).reshape(1, -1) for k, v in
@@ -101,6 +104,7 @@ class ReplayProposal:
     one particle replays one derivation. A different site or too few values is an error."""
 
     uses_features = False
+    feature_context = False
 
     def __init__(self, values: list[tuple[int, float]]) -> None:
         self.values = list(values)

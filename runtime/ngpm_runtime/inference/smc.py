@@ -221,10 +221,19 @@ class _Run:
             self.canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]),
                                  program.viewport, pyramid=need_features)
         self.fmaker = None
+        self.trim = 0  # context columns to cut from the rows the proposal is given
         if need_features:
             from ngpm_runtime.image.features import FeatureMaker
 
-            self.fmaker = FeatureMaker(program, program.viewport, target_mask)
+            # recorded traces carry the context columns; a guide reads them if trained on them
+            # (an optional attribute: proposals written before it existed read no context)
+            reads = bool(getattr(self.proposal, "feature_context", False))
+            context = record_trace is True or reads
+            self.fmaker = FeatureMaker(program, program.viewport, target_mask, context)
+            if context and not reads:
+                from ngpm_runtime.image.features import N_CONTEXT
+
+                self.trim = N_CONTEXT
         self.like_state = likelihood.start(n) if likelihood is not None else {}
         self.blank_ll = (likelihood.blank_loglik(self.canvas.height, self.canvas.width)
                          if likelihood is not None and self.canvas is not None else None)
@@ -338,6 +347,8 @@ class _Run:
             args_list.append(args)
         feats = self._features(objs, groups, args_list) if self.fmaker is not None else None
         given = feats if self.use_features else None
+        if given is not None and self.trim:  # recorded with context, the guide reads less
+            given = [f[:, :f.shape[1] - self.trim] for f in given]
         if self.batched:
             answers = self.proposal.propose_round(  # type: ignore[attr-defined]
                 objs, args_list, given, self.rng)

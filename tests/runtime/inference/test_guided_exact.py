@@ -16,7 +16,7 @@ from fixtures.tiny_programs import (  # noqa: E402
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.image.features import FeatureMaker  # noqa: E402
+from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
 from ngpm_runtime.inference.guide import Guide  # noqa: E402
 from ngpm_runtime.inference.smc import smc  # noqa: E402
@@ -88,7 +88,7 @@ def site_data(program, traces):
     for job, trace in enumerate(traces):
         for s, f, v in trace:
             rows.setdefault(s, []).append((f, v, job))
-    fm = FeatureMaker(program, VIEWPORT, None)
+    fm = FeatureMaker(program, VIEWPORT, None, context=True)  # recorded rows carry context
     data = {}
     for s, items in rows.items():
         f = np.stack([r[0] for r in items]).astype(np.float32)
@@ -113,7 +113,7 @@ def log_q(guide, program, trace):
     for s, f, v in trace:
         site = program.sites[s]
         args = f[None, prior_arg_columns(site, guide_layout(program, site))].astype(float)
-        params = guide.params(s, f[None, :])
+        params = guide.params(s, f[None, :-N_CONTEXT])  # the guide reads no context
         total += float(proposal_logpdf(site, args, params, np.array([v]))[0])
     return total
 
@@ -203,7 +203,8 @@ def test_guided_smc_stays_exact_gaussian(tmp_path, K):
         args = np.array([[M1, S1] if s == 0 else [M2, S2]])
         xs = samples[:, s]
         nll = [-proposal_logpdf(site, np.repeat(args, len(xs), 0),
-                                np.repeat(g.params(s, f), len(xs), 0), xs).mean()
+                                np.repeat(g.params(s, f[:, :-N_CONTEXT]), len(xs), 0),
+                                xs).mean()
                for g in (untrained, guide)]
         true_sd = math.sqrt(cov[s, s])
         entropy = 0.5 * math.log(2 * math.pi * math.e * true_sd**2)
