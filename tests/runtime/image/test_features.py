@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from ngpm_runtime.image.features import FeatureMaker
+import pytest
+from ngpm_runtime.image.features import N_CONTEXT, RAY_ANGLES, RAY_DIST, FeatureMaker
 from ngpm_runtime.image.raster import Canvas
 from ngpm_runtime.program import Program, Site
 
@@ -44,6 +45,25 @@ def _slow_windows(img: np.ndarray, x: float, y: float) -> list[float]:
     return vals
 
 
+def _slow_context(img: np.ndarray, target: np.ndarray, x: float, y: float,
+                  heading: float) -> list[float]:
+    """The context group by its definition, one number at a time."""
+    t2, c2 = _slow_level(target.astype(float), 2), _slow_level(img.astype(float), 2)
+    total = t2.sum()
+    vals = [np.maximum(t2 - c2, 0).sum() / total, np.maximum(c2 - t2, 0).sum() / total]
+    t1, c1 = _slow_level(target.astype(float), 1), _slow_level(img.astype(float), 1)
+    h, w = t1.shape
+    for a in RAY_ANGLES:
+        for d in RAY_DIST:
+            px = x + d * 24 * math.cos(math.radians(heading + a))
+            py = y + d * 24 * math.sin(math.radians(heading + a))
+            r = math.floor((VP[3] - py) / 24 * h)
+            c = math.floor((px - VP[0]) / 24 * w)
+            inside = 0 <= r < h and 0 <= c < w
+            vals.append(max(t1[r, c] - c1[r, c], 0.0) if inside else -1.0)
+    return vals
+
+
 def _slow_row(site: Site, img, target, turtle, depth, params, args) -> list[float]:
     x, y, h, w = turtle
     local = [2 * (x + 12) / 24 - 1, 2 * (y + 22) / 24 - 1, (h % 360) / 180 - 1,
@@ -70,8 +90,8 @@ def test_features_match_slow_computation() -> None:
     turtle = np.stack([xs, ys, rng.uniform(-400, 400, n), rng.uniform(0.1, 1, n)], axis=1)
     depth = rng.integers(0, 40, n).astype(float)
     idx = np.array([6, 0, 3, 2, 2, 5, 1])
-    for tmask in (target, None):
-        fm = FeatureMaker(prog, VP, tmask)
+    for tmask, context in ((target, False), (None, False), (target, True), (None, True)):
+        fm = FeatureMaker(prog, VP, tmask, context=context)
         for site, params, args in ((prog.sites[0], rng.normal(size=(n, 1)),
                                     rng.normal(size=(n, 2))),
                                    (prog.sites[1], np.zeros((n, 0)),
@@ -82,6 +102,9 @@ def test_features_match_slow_computation() -> None:
             for k in range(n):
                 want = _slow_row(site, canvas.image[idx[k]], tmask, turtle[k], depth[k],
                                  params[k], args[k])
+                if context:
+                    want += ([0.0] * N_CONTEXT if tmask is None else _slow_context(
+                        canvas.image[idx[k]], tmask, *turtle[k, :3]))
                 np.testing.assert_allclose(got[k], want, rtol=1e-5, atol=1e-6)
 
 
@@ -109,7 +132,8 @@ def test_features_round_rows_equal_features_per_site() -> None:
         np.testing.assert_array_equal(rows, want)
 
 
-def test_cached_rows_equal_fresh_rows() -> None:
+@pytest.mark.parametrize("context", [False, True])
+def test_cached_rows_equal_fresh_rows(context: bool) -> None:
     """features_cached (rows remembered per particle and turtle state, depth written anew)
     gives exactly features_round's rows, over rounds mixing hits, misses and new depths."""
     rng = np.random.default_rng(5)
@@ -120,7 +144,7 @@ def test_cached_rows_equal_fresh_rows() -> None:
     canvas = Canvas(n, 50, 50, VP, pyramid=True)
     canvas.draw(np.arange(n), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0)
                                for _ in range(n)])
-    fm = FeatureMaker(prog, VP, target)
+    fm = FeatureMaker(prog, VP, target, context=context)
     turtles = [(float(rng.uniform(-14, 14)), float(rng.uniform(-24, 4)),
                 float(rng.uniform(-400, 400)), float(rng.uniform(0.1, 1))) for _ in range(n)]
     hits = 0
@@ -160,6 +184,10 @@ def test_layout_slices() -> None:
     assert lay["partial"] == slice(46, 82)
     assert fm.layout(prog.sites[1])["local"] == slice(0, 10)
     assert fm.n_features(prog.sites[1]) == 82
+    wide = FeatureMaker(prog, VP, None, context=True)
+    assert wide.layout(prog.sites[0])["context"] == slice(82, 82 + N_CONTEXT)
+    assert wide.n_features(prog.sites[1]) == 82 + N_CONTEXT == 99
+    assert "context" not in lay
 
 
 def test_no_canvas_no_target_gives_zero_windows() -> None:

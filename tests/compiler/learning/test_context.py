@@ -1,0 +1,71 @@
+"""The context feature group end to end: traces record it, `all+context` guides read it,
+`all` guides trained on the same traces read rows without it (like every older guide)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fixtures.datasets import CHAIN, make_dataset
+from ngpm_runtime.grow import grow
+from ngpm_runtime.image.features import N_CONTEXT
+from ngpm_runtime.image.targets import load_target
+from ngpm_runtime.inference.guide import Guide
+
+from ngpm_compiler.language.compile import load_grammar
+from ngpm_compiler.learning.export import write_onnx
+from ngpm_compiler.learning.nets import select_columns
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces
+from ngpm_compiler.learning.train import TrainConfig, train_guide
+
+
+@pytest.fixture(scope="module")
+def traces(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("context")
+    data = make_dataset(tmp / "data")
+    generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=8, seed=1,
+                                workers=1), tmp / "traces", progress=False)
+    return tmp, data, load_traces(tmp / "traces")
+
+
+def test_traces_record_the_context_group(traces) -> None:
+    _, _, ts = traces
+    lay = ts.layouts[0]
+    assert lay["context"] == slice(lay["partial"].stop, lay["partial"].stop + N_CONTEXT)
+    f = ts.data[0].features
+    assert f.shape[1] == lay["context"].stop
+    ctx = f[:, lay["context"]]
+    assert ((ctx[:, :2] >= 0) & (ctx[:, :2] <= 1.5)).all()  # fractions of the target
+    assert ((ctx[:, 2:] >= -1) & (ctx[:, 2:] <= 1)).all()  # look-ahead samples
+    assert (ctx[:, 2:] > 0).any() and (ctx[:, 0] < 1).any()  # the chain fills its bar
+
+
+@pytest.mark.parametrize("feature_set", ["all", "all+context"])
+def test_guides_with_and_without_context(traces, feature_set) -> None:
+    tmp, data, ts = traces
+    program = load_grammar(CHAIN)
+    model = train_guide(ts.sites, ts.layouts, ts.data,
+                        TrainConfig(feature_set=feature_set, epochs=2, val_fraction=0.0),
+                        grammar=program.name, grammar_hash=program.grammar_hash)
+    path = write_onnx(model, tmp / f"{feature_set}.onnx")
+    guide = Guide.load(path, program)
+    lay = ts.layouts[0]
+    wants_context = feature_set == "all+context"
+    assert guide.feature_context is wants_context
+    assert guide.nets[0]["n_f"] == lay["context" if wants_context else "partial"].stop
+    target = load_target(data / "bar0.png")
+    res = grow(program, target, guide, 6, seed=2, record_trace=True)
+    assert np.isfinite(res.smc.log_evidence)
+    # every recorded row (context included) is scored by the guide as SMC proposed with it
+    for s, row, _ in res.smc.best.trace:
+        assert row.shape == (lay["context"].stop,)
+        assert guide.params(s, row[None, :]).shape[0] == 1
+    # seeded runs repeat
+    again = grow(program, target, guide, 6, seed=2)
+    assert again.similarity == res.similarity
+
+
+def test_context_needs_traces_that_have_it() -> None:
+    old = {"local": slice(0, 9), "target": slice(9, 45), "partial": slice(45, 81)}
+    assert len(select_columns(old, "all")) == 81
+    with pytest.raises(ValueError, match="record new ones"):
+        select_columns(old, "all+context")
