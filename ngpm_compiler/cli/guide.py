@@ -12,7 +12,8 @@ from ngpm_runtime.program import Program
 
 from ngpm_compiler.cli import argtypes
 
-FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")  # = nets.FEATURE_SETS (no torch here)
+# = nets.FEATURE_SETS (no torch here)
+FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -108,6 +109,8 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
                    help="traces directories added to every round's training, comma-separated")
     p.add_argument("--val-targets", type=int, default=12, help="targets per validation set")
     p.add_argument("--val-repeats", type=int, default=2, help="runs per validation target")
+    p.add_argument("--features", default="all", choices=FEATURE_SETS,
+                   help="feature set of every round's guide (default all)")
     p.add_argument("--epochs", type=int, default=40, help="most training epochs (default 40)")
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
@@ -196,8 +199,8 @@ def cmd_iterate(args: argparse.Namespace) -> int:
                        out=args.out, rounds=args.rounds, n=args.n, particles=args.particles,
                        unguided_particles=args.unguided_particles, init_guide=args.init_guide,
                        init_traces=inits, val_targets=args.val_targets,
-                       val_repeats=args.val_repeats, epochs=args.epochs,
-                       workers=args.workers, seed=args.seed)
+                       val_repeats=args.val_repeats, feature_set=args.features,
+                       epochs=args.epochs, workers=args.workers, seed=args.seed)
     rows = expert_iteration(cfg, log=_log)
     print("| round | teacher | traces | validation NLL | validation similarity (N=10) |")
     print("|---|---|---|---|---|")

@@ -42,6 +42,7 @@ class RoundsConfig:
     val_targets: int = 12
     val_repeats: int = 2
     val_n: int = 10
+    feature_set: str = "all"
     epochs: int = 40
     K: int = 4
     workers: int = 2
@@ -99,11 +100,13 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> t
     done, onnx = folder / "model.pt", folder / "guide.onnx"
     if done.is_file() and onnx.is_file():  # a finished round on the same traces: reuse
         old = load_model(done)
-        if old.summary.get("traces") == len(ts.kept_jobs):
+        if (old.summary.get("traces") == len(ts.kept_jobs)
+                and old.feature_set == cfg.feature_set):
             log(f"round {r}: reusing {onnx} ({len(ts.kept_jobs)} traces)")
             return str(onnx), old.summary
     model = train_guide(ts.sites, ts.layouts, ts.data,
-                        TrainConfig(K=cfg.K, epochs=cfg.epochs, seed=cfg.seed),
+                        TrainConfig(feature_set=cfg.feature_set, K=cfg.K, epochs=cfg.epochs,
+                                    seed=cfg.seed),
                         grammar=ts.manifest["key"]["grammar"],
                         grammar_hash=ts.manifest["grammar_hash"])
     save_model(model, folder / "model.pt")

@@ -25,8 +25,8 @@ import numpy as np
 import onnxruntime as ort
 
 from ngpm_runtime.errors import GuideError
-from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.image.features import N_CONTEXT
+from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.program import Program, Site
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
