@@ -37,7 +37,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_traces)
 
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
-    p.add_argument("traces", help="traces directory written by `ngpmc traces`")
+    p.add_argument("traces", help="traces directory written by `ngpmc traces` (several: "
+                                  "comma-separated, trained on together)")
     p.add_argument("-o", "--out", required=True, help="model file to write (model.pt)")
     p.add_argument("--features", default="all", choices=FEATURE_SETS,
                    help="feature set (default all)")
@@ -154,11 +155,14 @@ def cmd_traces(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     from ngpm_compiler.cli.outpaths import check_output_file
+    from ngpm_compiler.learning.rounds import merge_traces
     from ngpm_compiler.learning.traces import load_traces
     from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
 
     check_output_file(args.out, "model file")
-    ts = load_traces(args.traces, allow_missing=args.allow_missing)
+    dirs = [d for d in args.traces.split(",") if d]
+    sets = [load_traces(d, allow_missing=args.allow_missing) for d in dirs]
+    ts = sets[0] if len(sets) == 1 else merge_traces(sets)
     if not ts.data:
         raise NgpmError(f"{args.traces}: holds no site visits to train on")
     cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,

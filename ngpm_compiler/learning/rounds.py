@@ -21,7 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from ngpm_compiler.learning.traces import SiteData, TraceConfig, TraceSet, generate_traces
+from ngpm_compiler.learning.traces import (
+    SiteData,
+    TraceConfig,
+    TraceError,
+    TraceSet,
+    generate_traces,
+)
 
 JOB_STRIDE = 10 ** 8  # job ids of the k-th merged traces directory are offset by k * this
 
@@ -56,7 +62,10 @@ def merge_traces(sets: list[TraceSet]) -> TraceSet:
     first = sets[0]
     for ts in sets[1:]:
         if ts.manifest["grammar_hash"] != first.manifest["grammar_hash"]:
-            raise ValueError("traces of different grammars cannot be merged")
+            raise TraceError("traces of different grammars cannot be merged")
+        if ts.layouts != first.layouts:
+            raise TraceError("traces with different feature layouts cannot be merged (some "
+                             "were recorded by an older ngpm, without the context columns)")
     data: dict[int, SiteData] = {}
     for k, ts in enumerate(sets):
         for site, d in ts.data.items():

@@ -10,13 +10,21 @@ from ngpm_runtime.image.targets import save_target
 from ngpm_runtime.inference.smc import replay, smc
 from repo_paths import REPO
 
+from ngpm_compiler.cli import main
 from ngpm_compiler.learning.rounds import (
     JOB_STRIDE,
     RoundsConfig,
     expert_iteration,
     merge_traces,
 )
-from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces, run_job
+from ngpm_compiler.learning.traces import (
+    TraceConfig,
+    TraceError,
+    generate_traces,
+    load_traces,
+    run_job,
+)
+from ngpm_compiler.learning.train import load_model
 
 GRAMMAR = str(REPO / "grammars" / "vines.lsys")
 
@@ -78,6 +86,17 @@ def test_guided_traces_directory_records_the_guide(tmp_path, vines):
     assert "guide" not in generate_traces(unguided, tmp_path / "u", progress=False)["key"]
     ts = merge_traces([load_traces(tmp_path / "traces"), load_traces(tmp_path / "u")])
     assert len(ts.kept_jobs) == 3 and (ts.kept_jobs >= JOB_STRIDE).sum() == 1
+    # `ngpmc train` takes several directories
+    out = tmp_path / "m.pt"
+    assert main(["train", f"{tmp_path / 'traces'},{tmp_path / 'u'}", "-o", str(out),
+                 "--epochs", "1"]) == 0
+    assert load_model(out).summary["traces"] == 3
+    # traces of an older ngpm (no context columns) do not mix with new ones
+    old = load_traces(tmp_path / "u")
+    old.layouts = {i: {g: sl for g, sl in lay.items() if g != "context"}
+                   for i, lay in old.layouts.items()}
+    with pytest.raises(TraceError, match="feature layouts"):
+        merge_traces([load_traces(tmp_path / "traces"), old])
 
 
 def test_round_loop_keeps_the_best_round(tmp_path, vines):
