@@ -265,36 +265,47 @@ class FeatureMaker:
         else:
             partial[:] = canvas.padded[idx[:, None], at]
         if self.context and self.target_levels is not None and canvas is not None:
-            self._context(out[:, nl + 2 * N_WINDOW:], canvas, idx, uv, turtle[:, 2], h, w)
+            self._context(out[:, nl + 2 * N_WINDOW:], canvas, idx, uv, heading, h, w)
         return out
+
+    def _context_geometry(self, h: int, w: int) -> tuple:
+        """Per canvas size: the fill level's cells in the padded row, the target there and
+        its sum; the look-ahead level's first cell (start + padding), padded width, height
+        and width; the 15 look-ahead (angle, distance) pairs and the viewport's aspect."""
+        key = ("context", h, w)
+        if key not in self._geom:
+            _, wp, starts = padded_layout(h, w)
+            lv = _FILL_LEVEL
+            cells = (starts[lv] + (np.arange(h >> lv)[:, None] + PAD) * wp[lv]
+                     + np.arange(w >> lv)[None, :] + PAD).reshape(-1)
+            t = self._padded_target()[cells]
+            lv = _RAY_LEVEL
+            base = int(starts[lv] + PAD * wp[lv] + PAD)
+            angles = np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST))
+            dist = np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES))
+            aspect = -self._span[0] / self._span[1]  # viewport width / height
+            self._geom[key] = (cells, t, max(float(t.sum()), 1e-6), base, int(wp[lv]),
+                               h >> lv, w >> lv, angles, dist, aspect)
+        return self._geom[key]
 
     def _context(self, out: np.ndarray, canvas: Canvas, idx: np.ndarray, uv: np.ndarray,
                  heading: np.ndarray, h: int, w: int) -> None:
         """The context group (module docstring) of n particles into `out` (n, N_CONTEXT)."""
-        hp, wp, starts = padded_layout(h, w)
-        flat = self._padded_target()
-        lv = _FILL_LEVEL
-        hl, wl = h >> lv, w >> lv
-        cells = (starts[lv] + (np.arange(hl)[:, None] + PAD) * wp[lv]
-                 + np.arange(wl)[None, :] + PAD).reshape(-1)
-        t = flat[cells]
-        c = canvas.padded[idx[:, None], cells]
-        total = max(float(t.sum()), 1e-6)
-        out[:, 0] = np.maximum(t - c, 0.0).sum(axis=1) / total
-        out[:, 1] = np.maximum(c - t, 0.0).sum(axis=1) / total
-        # look-ahead points in (u, v): heading is counterclockwise from +x, v grows downwards
-        ang = np.radians(heading[:, None] + np.asarray(RAY_ANGLES)[None, :])  # (n, A)
-        dist = np.asarray(RAY_DIST)[None, None, :]
-        aspect = -self._span[0] / self._span[1]  # viewport width / height
-        pu = uv[:, None, None, 0] + np.cos(ang)[:, :, None] * dist
-        pv = uv[:, None, None, 1] - np.sin(ang)[:, :, None] * dist * aspect
-        lv = _RAY_LEVEL
-        hl, wl = h >> lv, w >> lv
-        r = np.floor(pv * hl).reshape(len(idx), -1)
-        q = np.floor(pu * wl).reshape(len(idx), -1)
-        inside = (r >= 0) & (r < hl) & (q >= 0) & (q < wl)
-        r = np.where(inside, r, 0).astype(np.intp)
-        q = np.where(inside, q, 0).astype(np.intp)
-        at = starts[lv] + (r + PAD) * wp[lv] + q + PAD
-        ahead = np.maximum(flat[at] - canvas.padded[idx[:, None], at], 0.0)
-        out[:, 2:] = np.where(inside, ahead, -1.0)
+        cells, t, total, base, wp, hl, wl, angles, dist, aspect = self._context_geometry(h, w)
+        d = t - canvas.padded[idx[:, None], cells]
+        unfilled = np.maximum(d, 0.0).sum(axis=1)
+        out[:, 0] = unfilled / total
+        out[:, 1] = (unfilled - d.sum(axis=1)) / total  # sum of max(-d, 0)
+        # (n, 15) look-ahead cells; one outside the image lands in the padding (-1 in the
+        # target's row)
+        ang = np.radians(heading[:, None] + angles)
+        row = np.floor((uv[:, 1:] - np.sin(ang) * dist * aspect) * hl)
+        col = np.floor((uv[:, :1] + np.cos(ang) * dist) * wl)
+        np.maximum(row, -1.0, out=row)
+        np.minimum(row, hl, out=row)
+        np.maximum(col, -1.0, out=col)
+        np.minimum(col, wl, out=col)
+        at = (row * wp + col).astype(np.intp) + base
+        tv = self._padded_target()[at]
+        ahead = np.maximum(tv - canvas.padded[idx[:, None], at], 0.0)
+        out[:, 2:] = np.where(tv < 0, -1.0, ahead)
