@@ -31,4 +31,25 @@ GUIDES="$GUIDES,round5=$W/ei5/round_1/guide.onnx"
 ngpmc eval -o "$W/heldout_eval" --stages heldout \
     --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
     --heldout-guides "$GUIDES" --heldout-targets 16 --repeats 3 --unguided-ns 200,600,2000
+# round 6 and the feature experiment (issue #11, item 3): 2400 new traces from SMC guided by
+# round 5 with 600 particles (they carry the context columns); on the same traces an `all`
+# guide and an `all+context` guide; the one that scores better on validation targets ships
+R6=$W/r6
+ngpmc targets build varied -o "$W/data/val_varied36" --count 36 --seed 1
+for d in varied scribbles; do
+    ngpmc traces grammars/vines.lsys --targets "$W/data/$d" -n 1200 --particles 600 \
+        --guide "$W/ei5/best.onnx" -o "$R6/traces_$d" --workers 2 --seed 6
+done
+for fs in all all+context; do
+    ngpmc train "$R6/traces_varied,$R6/traces_scribbles" -o "$R6/$fs.pt" --features "$fs"
+    ngpmc export "$R6/$fs.pt" -o "$R6/$fs.onnx"
+done
+R6G="round5=$W/ei5/best.onnx,round6_all=$R6/all.onnx,round6_context=$R6/all+context.onnx"
+ngpmc eval -o "$R6/validation" --stages heldout --heldout-guides "$R6G" \
+    --heldout "varied=$W/data/val_varied36,glyphs=$W/data/val_glyphs" \
+    --heldout-targets 36 --repeats 3 --unguided-ns 10
+ngpmc eval -o "$R6/heldout" --stages heldout --heldout-guides "$R6G" \
+    --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
+    --heldout-targets 40 --repeats 3 --unguided-ns 200,600,2000
 echo "best guide: $W/ei5/best.onnx; table: $W/heldout_eval/heldout.md"
+echo "round 6: validation $R6/validation/heldout.md, held-out $R6/heldout/heldout.md"
