@@ -539,14 +539,16 @@ def build_silhouettes(count: int | None, seed: int, size: int,
     fitted, _ = fit_mask(~horse(), size)  # the horse is dark (False) on white
     made += 1
     yield Target(fitted, auto_start(fitted), "horse"), "skimage.data.horse"
-    limit = count if count is not None else made + 2 * len(SHAPE_KINDS)
-    j = 0
-    while made < limit:
+    limit = count - made if count is not None else 2 * len(SHAPE_KINDS)
+    yield from build_shapes(limit, seed, size)
+
+
+def build_shapes(count: int | None, seed: int, size: int, **_: object) -> Iterator[Item]:
+    """Procedural animal and object silhouettes alone (the kinds in turn)."""
+    for j in range(300 if count is None else count):
         kind = SHAPE_KINDS[j % len(SHAPE_KINDS)]
         target = procedural_silhouette(kind, np.random.default_rng([seed, j]), size)
-        made += 1
         yield target, f"procedural {kind} {j // len(SHAPE_KINDS)}"
-        j += 1
 
 
 # --- clip-art silhouettes (public domain) ------------------------------------------------
@@ -644,6 +646,10 @@ DATASETS: dict[str, DatasetSpec] = {
         "silhouettes", "images from --from DIR, scikit-image's horse and procedural animal "
         "and object silhouettes, automatic start unless a sidecar exists (testing)",
         None, build_silhouettes),
+    "shapes": DatasetSpec(
+        "shapes", "procedural animal and object silhouettes (those of `silhouettes` without "
+        "the horse; use another --seed than a test set's), automatic start (training)",
+        300, build_shapes),
     "varied": DatasetSpec(
         "varied", "synthetic strokes of width 1-6 px, thin script-like loops, filled blobs "
         "and 2-3 disjoint parts, start where the first stroke began (training)", 300,

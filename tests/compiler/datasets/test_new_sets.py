@@ -1,4 +1,4 @@
-"""The varied training targets, clip-art silhouettes and script-font held-out glyphs."""
+"""The varied and shapes training targets, clip-art silhouettes and script-font held-out glyphs."""
 
 from __future__ import annotations
 
@@ -46,6 +46,17 @@ def test_varied_targets_keep_their_promises():
 def test_varied_dataset_builds(tmp_path):
     files = build_dataset("varied", tmp_path / "v", count=4, mirror=True)
     assert len(files) == 8 and len(load_dataset(tmp_path / "v")) == 8
+
+
+def test_shapes_are_the_procedural_silhouettes_without_the_horse(tmp_path):
+    build_dataset("shapes", tmp_path / "s", count=3, seed=5)
+    build_dataset("silhouettes", tmp_path / "sil", count=4, seed=5)
+    shapes, sil = load_dataset(tmp_path / "s"), load_dataset(tmp_path / "sil")
+    assert len(shapes) == 3 and len(sil) == 4
+    for a, b in zip(shapes, sil[1:], strict=True):  # silhouettes: the horse first
+        assert np.array_equal(a.mask, b.mask)
+    build_dataset("shapes", tmp_path / "s6", count=3, seed=6)
+    assert not np.array_equal(load_dataset(tmp_path / "s6")[0].mask, shapes[0].mask)
 
 
 def test_clipart_reject():
