@@ -1,10 +1,11 @@
 """The letter "G" check of issue #11: does guided N = 10 fill a "G" in every run?
 
 The authors' 2016 sketch demo grows vines into a hand-drawn "G"; their guide at N = 10 fills
-it in 5 of 5 runs. We do not have their drawing, so three G targets stand in for it: a
-sketched G (a brush stroke of about 4 px along an open circle with a bar, drawn here with
-Pillow), the DejaVu Sans Bold "G" (a filled glyph) and the URW Z003 "G" (a thin script glyph,
-when fonts-urw-base35 is installed). Each guide runs `--seeds` seeded SMC runs per target
+it in 5 of 5 runs. We do not have their drawing, so G targets stand in for it: a sketched G
+(a brush stroke of about 4 px along an open circle with a bar, drawn here with Pillow) with
+the automatic start and with the pen's start (where a hand would begin a G), the DejaVu Sans
+Bold "G" (a filled glyph) and the URW Z003 "G" (a thin script glyph, when fonts-urw-base35
+is installed). Each guide runs `--seeds` seeded SMC runs per target
 (seeds 0..S-1); printed per run: similarity and coverage (the fraction of the target's pixels
 the vine covers); a run "fills" the letter when coverage >= `--fill` (default 0.5). With
 `-o PNG` a grid of every run's vine over its target is written (rows: guide x target).
@@ -54,12 +55,21 @@ def font_g(font: Path, size: int = SIZE) -> np.ndarray:
 
 
 def targets() -> dict[str, Target]:
-    masks = {"sketched G": sketched_g()}
-    dejavu = Path(ImageFont.truetype("DejaVuSans-Bold.ttf", 10).path)
-    masks["DejaVu Sans Bold G"] = font_g(dejavu)
+    """Automatic starts, and the sketched G also with the pen's start: the upper end of
+    the arc, heading along the stroke (up and left), as a sketch pad records it."""
+    sketch = sketched_g()
+    a = np.radians(330.0)  # Pillow's arc angles run clockwise from 3 o'clock (y down)
+    pen = (0.5 + 0.36 * np.cos(a), 0.5 + 0.36 * np.sin(a), np.sin(a), -np.cos(a))
+    out = {"sketched G": Target(sketch, auto_start(sketch), "sketched G"),
+           "sketched G, pen start": Target(sketch, tuple(float(v) for v in pen),
+                                           "sketched G, pen start")}
+    fonts = {"DejaVu Sans Bold G": Path(ImageFont.truetype("DejaVuSans-Bold.ttf", 10).path)}
     if Z003.is_file():
-        masks["URW Z003 G"] = font_g(Z003)
-    return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
+        fonts["URW Z003 G"] = Z003
+    for name, font in fonts.items():
+        mask = font_g(font)
+        out[name] = Target(mask, auto_start(mask), name)
+    return out
 
 
 def main() -> None:

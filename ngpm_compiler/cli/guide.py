@@ -43,6 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--features", default="all", choices=FEATURE_SETS,
                    help="feature set (default all)")
     p.add_argument("--K", type=int, default=4, help="mixture components (default 4)")
+    p.add_argument("--hidden", type=int, default=0,
+                   help="hidden units per site network (default: half its inputs, >= 8)")
     p.add_argument("--epochs", type=int, default=40, help="most epochs (default 40)")
     p.add_argument("--batch-size", type=int, default=256, help="site visits per step")
     p.add_argument("--lr", type=float, default=0.005, help="Adam step size (default 0.005)")
@@ -167,7 +169,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise NgpmError(f"{args.traces}: holds no site visits to train on")
     cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,
                       batch_size=args.batch_size, lr=args.lr, patience=args.patience,
-                      seed=args.seed, threads=args.threads)
+                      seed=args.seed, threads=args.threads, hidden=args.hidden)
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
     model = train_guide(ts.sites, ts.layouts, ts.data, cfg,

@@ -48,6 +48,7 @@ class TrainConfig:
     patience: int = 4
     seed: int = 0
     threads: int = 1
+    hidden: int = 0  # hidden units per site network; 0: half the inputs (at least 8)
 
 
 @dataclass
@@ -113,7 +114,7 @@ def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
         last = "context" if "context" in FEATURE_GROUPS[config.feature_set] else "partial"
         n_f = layouts[site.index][last].stop
         spec = NetSpec(site_index=site.index, kind=site.kind, n_f=n_f,
-                       cols=cols, K=config.K, k=site.k)
+                       cols=cols, K=config.K, k=site.k, hidden=config.hidden)
         nets[site.index] = SiteNet(spec, sel.mean(0), sel.std(0), prior_probs=site.probs,
                                    seed=config.seed + site.index)
     json_layouts = {i: {g: [s.start, s.stop] for g, s in lay.items()}

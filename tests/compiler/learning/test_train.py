@@ -108,6 +108,15 @@ def test_const_features_learn_the_marginal():
     assert p == pytest.approx(data[2].values.mean(), abs=0.05)
 
 
+def test_hidden_width_is_a_setting():
+    data, _ = synthetic(n_jobs=10, per_job=20, seed=4)
+    auto = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=1))
+    wide = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=1, hidden=24))
+    for i, net in wide.nets.items():
+        assert net.spec.hidden == 24 and net.l1.out_features == 24
+        assert auto.nets[i].spec.hidden == max(8, len(auto.nets[i].spec.cols) // 2)
+
+
 def test_holdout_is_by_job():
     jobs = np.repeat(np.arange(50), 7)
     val = split_jobs(jobs, 0.1, seed=0)
