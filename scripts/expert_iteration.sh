@@ -31,21 +31,30 @@ GUIDES="$GUIDES,round5=$W/ei5/round_1/guide.onnx"
 ngpmc eval -o "$W/heldout_eval" --stages heldout \
     --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
     --heldout-guides "$GUIDES" --heldout-targets 16 --repeats 3 --unguided-ns 200,600,2000
-# round 6 and the feature experiment (issue #11, item 3): 2400 new traces from SMC guided by
-# round 5 with 600 particles (they carry the context columns); on the same traces an `all`
-# guide and an `all+context` guide; the one that scores better on validation targets ships
+# round 6 and the feature experiment (issue #11, item 3): new traces from SMC guided by round
+# 5 with 600 particles on varied (1200), scribbles (600; the documented run kept 602, as it was
+# stopped and resumed) and procedural `shapes` (600, seed 5); they carry the context columns.
+# On the same 2400 traces: an `all` and an `all+context` guide (and two wider context nets);
+# the best on validation targets ships (all+context: runtime/ngpm_runtime/data/vines_guide.onnx)
 R6=$W/r6
 ngpmc targets build varied -o "$W/data/val_varied36" --count 36 --seed 1
-for d in varied scribbles; do
-    ngpmc traces grammars/vines.lsys --targets "$W/data/$d" -n 1200 --particles 600 \
-        --guide "$W/ei5/best.onnx" -o "$R6/traces_$d" --workers 2 --seed 6
+ngpmc targets build shapes -o "$W/data/shapes" --count 300 --seed 5 --mirror
+for d in varied:1200 scribbles:600 shapes:600; do
+    ngpmc traces grammars/vines.lsys --targets "$W/data/${d%:*}" -n "${d#*:}" --particles 600 \
+        --guide "$W/ei5/best.onnx" -o "$R6/traces_${d%:*}" --workers 2 --seed 6
 done
+TR="$R6/traces_varied,$R6/traces_scribbles,$R6/traces_shapes"
 for fs in all all+context; do
-    ngpmc train "$R6/traces_varied,$R6/traces_scribbles" -o "$R6/$fs.pt" --features "$fs"
+    ngpmc train "$TR" -o "$R6/$fs.pt" --features "$fs"
     ngpmc export "$R6/$fs.pt" -o "$R6/$fs.onnx"
 done
+for h in 96 192; do
+    ngpmc train "$TR" -o "$R6/ctx_h$h.pt" --features all+context --hidden "$h"
+    ngpmc export "$R6/ctx_h$h.pt" -o "$R6/ctx_h$h.onnx"
+done
 R6G="round5=$W/ei5/best.onnx,round6_all=$R6/all.onnx,round6_context=$R6/all+context.onnx"
-ngpmc eval -o "$R6/validation" --stages heldout --heldout-guides "$R6G" \
+ngpmc eval -o "$R6/validation" --stages heldout \
+    --heldout-guides "$R6G,context_h96=$R6/ctx_h96.onnx,context_h192=$R6/ctx_h192.onnx" \
     --heldout "varied=$W/data/val_varied36,glyphs=$W/data/val_glyphs" \
     --heldout-targets 36 --repeats 3 --unguided-ns 10
 ngpmc eval -o "$R6/heldout" --stages heldout --heldout-guides "$R6G" \
