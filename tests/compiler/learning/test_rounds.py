@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from ngpm_runtime import bundled
 from ngpm_runtime.grow import grow
 from ngpm_runtime.image.targets import save_target
+from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import replay, smc
 from repo_paths import REPO
 
@@ -116,6 +119,11 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     again = expert_iteration(cfg, log=logs.append)  # resumed: nothing recorded or trained
     assert [r["validation"] for r in again] == [r["validation"] for r in rows]
     assert sum("reusing" in m for m in logs) == 2
+    # another feature set: the rounds' guides are trained anew, with the context columns
+    logs.clear()
+    ctx = expert_iteration(replace(cfg, feature_set="all+context"), log=logs.append)
+    assert not any("reusing" in m for m in logs)
+    assert all(Guide.load(r["guide"], vines[0]).feature_context for r in ctx[1:])
 
 
 def test_cli_traces_with_a_guide(tmp_path, vines, capsys):
