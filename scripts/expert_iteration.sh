@@ -32,27 +32,29 @@ ngpmc eval -o "$W/heldout_eval" --stages heldout \
     --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
     --heldout-guides "$GUIDES" --heldout-targets 16 --repeats 3 --unguided-ns 200,600,2000
 # round 6 and the feature experiment (issue #11, item 3): new traces from SMC guided by round
-# 5 with 600 particles on varied (1200), scribbles (600; the documented run kept 602, as it was
-# stopped and resumed) and procedural `shapes` (600, seed 5); they carry the context columns.
-# On the same 2400 traces: an `all` and an `all+context` guide (and two wider context nets);
-# the best on validation targets ships (all+context: runtime/ngpm_runtime/data/vines_guide.onnx)
+# 5 with 600 particles on varied (1200), scribbles and procedural `shapes` (600, seed 5); they
+# carry the context columns. (a) 2400 traces (scribbles: 600; the documented run kept 602,
+# as it was stopped and resumed): an `all` and an `all+context` guide, and two wider context
+# nets; (b) scribbles resumed to 1200, 3000 traces: `all` and `all+context` (shipped).
 R6=$W/r6
 ngpmc targets build varied -o "$W/data/val_varied36" --count 36 --seed 1
 ngpmc targets build shapes -o "$W/data/shapes" --count 300 --seed 5 --mirror
-for d in varied:1200 scribbles:600 shapes:600; do
-    ngpmc traces grammars/vines.lsys --targets "$W/data/${d%:*}" -n "${d#*:}" --particles 600 \
-        --guide "$W/ei5/best.onnx" -o "$R6/traces_${d%:*}" --workers 2 --seed 6
-done
-TR="$R6/traces_varied,$R6/traces_scribbles,$R6/traces_shapes"
-for fs in all all+context; do
-    ngpmc train "$TR" -o "$R6/$fs.pt" --features "$fs"
-    ngpmc export "$R6/$fs.pt" -o "$R6/$fs.onnx"
-done
-for h in 96 192; do
-    ngpmc train "$TR" -o "$R6/ctx_h$h.pt" --features all+context --hidden "$h"
-    ngpmc export "$R6/ctx_h$h.pt" -o "$R6/ctx_h$h.onnx"
-done
+record() {  # record DATASET N: guided traces into $R6/traces_DATASET (resumes)
+    ngpmc traces grammars/vines.lsys --targets "$W/data/$1" -n "$2" --particles 600 \
+        --guide "$W/ei5/best.onnx" -o "$R6/traces_$1" --workers 2 --seed 6
+}
+train() {  # train OUT FEATURES [ngpmc train options]: on the three traces directories
+    ngpmc train "$R6/traces_varied,$R6/traces_scribbles,$R6/traces_shapes" -o "$R6/$1.pt" \
+        --features "$2" "${@:3}"
+    ngpmc export "$R6/$1.pt" -o "$R6/$1.onnx"
+}
+record varied 1200; record scribbles 600; record shapes 600
+train all all; train all+context all+context
+train ctx_h96 all+context --hidden 96; train ctx_h192 all+context --hidden 192
+record scribbles 1200
+train t3000_all all; train t3000_all+context all+context
 R6G="round5=$W/ei5/best.onnx,round6_all=$R6/all.onnx,round6_context=$R6/all+context.onnx"
+R6G="$R6G,round6b_all=$R6/t3000_all.onnx,round6b_context=$R6/t3000_all+context.onnx"
 ngpmc eval -o "$R6/validation" --stages heldout \
     --heldout-guides "$R6G,context_h96=$R6/ctx_h96.onnx,context_h192=$R6/ctx_h192.onnx" \
     --heldout "varied=$W/data/val_varied36,glyphs=$W/data/val_glyphs" \
@@ -61,4 +63,5 @@ ngpmc eval -o "$R6/heldout" --stages heldout --heldout-guides "$R6G" \
     --heldout "script=$W/heldout/z003_all,silhouettes=$W/heldout/sil_all" \
     --heldout-targets 40 --repeats 3 --unguided-ns 200,600,2000
 echo "best guide: $W/ei5/best.onnx; table: $W/heldout_eval/heldout.md"
-echo "round 6: validation $R6/validation/heldout.md, held-out $R6/heldout/heldout.md"
+echo "round 6: validation $R6/validation/heldout.md, held-out $R6/heldout/heldout.md;"
+echo "shipped: $R6/t3000_all+context.onnx"

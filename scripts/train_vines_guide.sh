@@ -6,8 +6,10 @@
 #    far (200 particles) on scribbles and `varied` targets (strokes of 1-6 px, script-like
 #    loops, blobs, disjoint parts) -> train on all rounds' traces -> keep the round that
 #    scores best on validation targets (varied + DejaVu glyphs, never trained on);
-#    then one round more with 600 guided particles (the shipped guide: round 5).
-# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 75 minutes on 2 busy cores)
+#    then one round more with 600 guided particles (round 5);
+# 3. round 6: 3000 new traces from SMC guided by round 5 (also on procedural `shapes`),
+#    trained with the context features (feature set all+context): the shipped guide.
+# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 2.5 hours on 2 busy cores)
 set -euo pipefail
 W=${1:-work/vines}
 mkdir -p "$W"
@@ -29,5 +31,14 @@ ngpmc iterate grammars/vines.lsys --targets "$W/varied,$W/scribbles" \
     --validate "varied=$W/val_varied,glyphs=$W/val_glyphs" \
     --init-guide "$W/ei/best.onnx" --init-traces "$(ls -d "$W"/ei/round_*/traces_* | paste -sd, -)" \
     --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5"
-cp "$W/ei5/best.onnx" "$W/vines_guide.onnx"
+# round 6 (the shipped guide): 3000 traces from SMC guided by round 5 (600 particles) on
+# varied, scribbles and procedural shapes, trained with the context features (all+context)
+ngpmc targets build shapes -o "$W/shapes" --count 300 --seed 5 --mirror
+for d in varied:1200 scribbles:1200 shapes:600; do
+    ngpmc traces grammars/vines.lsys --targets "$W/${d%:*}" -n "${d#*:}" --particles 600 \
+        --guide "$W/ei5/best.onnx" -o "$W/r6/traces_${d%:*}" --workers 2 --seed 6
+done
+ngpmc train "$W/r6/traces_varied,$W/r6/traces_scribbles,$W/r6/traces_shapes" \
+    -o "$W/r6/all+context.pt" --features all+context
+ngpmc export "$W/r6/all+context.pt" -o "$W/vines_guide.onnx"
 echo "guide: $W/vines_guide.onnx"

@@ -17,7 +17,7 @@ from ngpm_runtime.inference.guide import Guide
 from repo_paths import REPO
 
 VINES = REPO / "grammars" / "vines.lsys"
-MIN_TRACES = 500  # the bundled guide comes from scripts/train_vines_guide.sh (1200 traces)
+MIN_TRACES = 500  # the bundled guide comes from scripts/train_vines_guide.sh (3000 traces)
 
 
 def vines_hash() -> str:
