@@ -129,12 +129,11 @@ def run_job(program: Program, target: Any, seed: int, particles: int, guide: Any
     return list(again.trace or []), len(best.primitives)
 
 
-def site_layouts(program: Program, target_mask: np.ndarray | None,
-                 context: bool = True) -> dict[int, dict[str, slice]]:
+def site_layouts(program: Program, target_mask: np.ndarray | None) -> dict[int, dict[str, slice]]:
     """FeatureMaker.layout for every site (traces record the context group too)."""
     from ngpm_runtime.image.features import FeatureMaker
 
-    fm = FeatureMaker(program, program.viewport, target_mask, context)
+    fm = FeatureMaker(program, program.viewport, target_mask, context=True)
     return {s.index: fm.layout(s) for s in program.sites}
 
 

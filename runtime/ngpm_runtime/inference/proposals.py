@@ -57,7 +57,6 @@ class PriorProposal:
     """Sample the prior: log q equals log prior, so site weights cancel."""
 
     uses_features = False
-    feature_context = False
 
     def propose(
         self,
@@ -74,7 +73,6 @@ class FixedProposal:
     outputs (layouts in distributions.py), used for every particle at that site."""
 
     uses_features = False
-    feature_context = False
 
     def __init__(self, params: Mapping[int | str, np.ndarray | list[float]]) -> None:
         self.params = {k: np.asarray(v, dtype=np.float64).reshape(1, -1) for k, v in
@@ -104,7 +102,6 @@ class ReplayProposal:
     one particle replays one derivation. A different site or too few values is an error."""
 
     uses_features = False
-    feature_context = False
 
     def __init__(self, values: list[tuple[int, float]]) -> None:
         self.values = list(values)
