@@ -356,13 +356,15 @@ def auto_start(mask: np.ndarray) -> Start:
     """A deterministic start for a mask without annotation.
 
     Take the largest connected component's skeleton, prune its spurs (remove end pixels
-    as many times as the shape's half thickness) and pick its lowest pixel (ties: nearest
-    the component's center column, then leftmost). From there the skeleton leaves in one or
-    more branches; the direction is the mean offset of each branch's pixels within `reach`
-    steps (15% of the larger side, at least 3), and the most upward branch wins (ties: the
-    one going right). Straight up when the skeleton is a single pixel. The point then moves
-    backwards along the direction to the last pixel inside the shape, so growth starts at
-    the shape's edge: a vertical bar starts at its bottom heading up.
+    as many times as the shape's half thickness) and pick its lowest end pixel, so growth
+    starts at the end of a stroke rather than in its middle (the lowest pixel of all when
+    the skeleton has no end: a closed loop, a single pixel; ties: nearest the component's
+    center column, then leftmost). From there the skeleton leaves in one or more branches
+    (one from an end); the direction is the mean offset of each branch's pixels within
+    `reach` steps (15% of the larger side, at least 3), and the most upward branch wins
+    (ties: the one going right). Straight up when the skeleton is a single pixel. The point
+    then moves backwards along the direction to the last pixel inside the shape, so growth
+    starts at the shape's edge: a vertical bar starts at its bottom heading up.
     """
     mask = np.asarray(mask, dtype=bool)
     if not mask.any():
@@ -377,7 +379,8 @@ def auto_start(mask: np.ndarray) -> Start:
         skel = comp.copy()
     half = int(math.ceil(max_edt(comp)))
     skel = _prune(skel, half)
-    rows, cols = np.nonzero(skel)
+    ends = skel & (neighbor_count(skel) == 1)
+    rows, cols = np.nonzero(ends if ends.any() else skel)
     center = float(np.nonzero(comp)[1].mean())
     low = int(rows.max())
     cand = cols[rows == low]

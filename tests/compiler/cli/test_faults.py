@@ -275,11 +275,11 @@ def bare_images(tmp_path: Path) -> Path:
 
 def test_folder_without_sidecars_loads_with_automatic_starts(bare_images: Path,
                                                              tmp_path: Path, capsys) -> None:
-    from ngpm_runtime.image.targets import auto_start, load_dataset
+    from ngpm_runtime.image.targets import Target, auto_start, load_dataset
 
     targets = load_dataset(bare_images)
     assert [t.name for t in targets] == ["heart", "horse"]
-    assert all(t.start == auto_start(t.mask) for t in targets)
+    assert all(t.start == Target(t.mask, auto_start(t.mask)).start for t in targets)
     code, out, err = run(capsys, "targets", "show", str(bare_images), "-o",
                          str(tmp_path / "sheet.png"))
     assert code == 0 and "2 of 2 targets" in out, err

@@ -287,9 +287,9 @@ def test_auto_start_vertical_bar_starts_at_bottom_heading_up():
 def test_auto_start_other_shapes():
     m = np.zeros((50, 50), bool)
     m[35:40, 5:45] = True
-    m[10:40, 23:28] = True  # inverted T: bottom center, heading up the stem
+    m[10:40, 23:28] = True  # inverted T: the left end of its base (the lower ends), heading right
     x, y, dx, dy = auto_start(m)
-    assert abs(x - 0.5) < 0.04 and y > 0.76 and dy < -0.95
+    assert x < 0.15 and 0.7 < y < 0.8 and dx > 0.95
     d = disk_mask(50, 50, 25, 25, 10)  # a disk: bottom, straight up
     x, y, dx, dy = auto_start(d)
     assert abs(x - 0.5) < 0.04 and y > 0.65 and (dx, dy) == pytest.approx((0, -1))
@@ -299,6 +299,25 @@ def test_auto_start_other_shapes():
     x, y, dx, dy = auto_start(slanted)
     assert dy < 0 and dx < 0  # from the bottom-right end, up and to the left
     assert y > 0.7
+
+
+def _ring(width: int, gap_rows: slice | None = None) -> np.ndarray:
+    yy, xx = np.mgrid[0:50, 0:50]
+    r = np.hypot(yy - 25, xx - 25)
+    m = (r >= 15 - width / 2) & (r <= 15 + width / 2)
+    if gap_rows is not None:
+        m[gap_rows, 25:] = False  # open on the right: a C
+    return m
+
+
+def test_auto_start_prefers_a_stroke_end():
+    # a C open on the right: start at its lower end (not mid-stroke at the bottom of the
+    # arc), heading along the stroke, to the left
+    x, y, dx, dy = auto_start(_ring(4, slice(20, 31)))
+    assert x > 0.6 and 0.6 < y < 0.85 and dx < -0.5
+    # a closed ring has no end: from its lowest point, along the bottom of the ring
+    x, y, dx, dy = auto_start(_ring(4))
+    assert y > 0.75 and abs(dx) > 0.95
 
 
 def test_auto_start_is_inside_largest_component_and_deterministic():
