@@ -62,6 +62,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", required=True, help="ONNX file to write")
     p.set_defaults(handler=cmd_export)
 
+    _register_tune(subparsers)
+
     p = subparsers.add_parser(
         "grow", help="grow a vine (or any grammar) into a picture with SMC",
         description="Grow a grammar into a target image with SMC. With no --grammar it grows "
@@ -118,6 +120,78 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_iterate)
+
+
+def _register_tune(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "tune", help="choose a guide's proposal temperatures and ESS threshold on validation "
+                     "targets",
+        description="Score guided SMC (N = 10) on validation targets for every combination of "
+                    "the settings below and write a copy of the guide that proposes with the "
+                    "best one (its metadata; `grow`, `eval`, `traces` and the web page use it). "
+                    "Weights stay exact with every setting.")
+    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
+    p.add_argument("--validate", required=True,
+                   help="validation sets NAME=DIR,... (targets never trained on, not held out)")
+    p.add_argument("-o", "--out", required=True, help="tuned guide .onnx to write")
+    p.add_argument("--work", help="runs and candidates, resumed if present (default: OUT "
+                                  "without .onnx, plus _tune)")
+    p.add_argument("--temperatures", type=_floats, default=(1.0,),
+                   help="continuous-value temperatures, comma-separated (default 1)")
+    p.add_argument("--choice-temperatures", type=_floats, default=(1.0, 0.7, 0.5, 0.3, 0.2),
+                   help="choice temperatures (default 1,0.7,0.5,0.3,0.2; < 1 is sharper)")
+    p.add_argument("--ess", type=_ess_list, default=(None, 0.5),
+                   help="ESS thresholds as fractions of N, 'none' = resample every step "
+                        "(default none,0.5)")
+    p.add_argument("--targets", type=int, default=36, help="targets per set (default 36)")
+    p.add_argument("--repeats", type=int, default=5, help="runs per target (default 5)")
+    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
+    p.set_defaults(handler=cmd_tune)
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        out = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected numbers like 1,0.5, got {text!r}") from None
+    if not out:
+        raise argparse.ArgumentTypeError("expected at least one number")
+    return out
+
+
+def _ess_list(text: str) -> tuple[float | None, ...]:
+    parts = [x.strip() for x in text.split(",") if x.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError("expected at least one threshold")
+    return tuple(None if x.lower() == "none" else _floats(x)[0] for x in parts)
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from ngpm_runtime.inference.guide import Guide
+
+    from ngpm_compiler.cli.outpaths import check_output_file
+    from ngpm_compiler.experiments.heldout import parse_pairs
+    from ngpm_compiler.language.compile import load_grammar
+    from ngpm_compiler.learning.tune import grid, tune
+
+    check_output_file(args.out, "ONNX file")
+    if args.targets < 1 or args.repeats < 1:
+        raise NgpmError("--targets and --repeats must be at least 1")
+    validation = parse_pairs(args.validate)
+    for path in validation.values():
+        if not Path(path).is_dir():
+            raise NgpmError(f"{path}: no such directory of validation targets")
+    Guide.load(args.guide, load_grammar(args.grammar))  # names a wrong or corrupt file first
+    settings = grid(args.temperatures, args.choice_temperatures, args.ess)
+    work = args.work or str(Path(args.out).with_suffix("")) + "_tune"
+    res = tune(args.grammar, args.guide, validation, args.out, work, settings,
+               k=args.targets, repeats=args.repeats, workers=args.workers, seed=args.seed,
+               log=_log)
+    print(res["table"], end="")
+    print(f"{args.out}: proposes with {res['best'].label()} (runs in {work})")
+    return 0
 
 
 # --------------------------------------------------------------------------- traces / train

@@ -217,6 +217,37 @@ def _probs(params: np.ndarray) -> np.ndarray:
     return np.where(total > 0, p, 1.0 / p.shape[1])
 
 
+def temper(kind: str, params: np.ndarray, temperature: float = 1.0,
+           choice_temperature: float = 1.0) -> np.ndarray:
+    """Guide outputs of a sharper (< 1) or flatter (> 1) proposal, in the same layout.
+
+    Choices (bernoulli, categorical): probabilities `p ** (1 / choice_temperature)`,
+    renormalized. Mixtures (normal, uniform): log weights `/ temperature`, sds
+    `* sqrt(temperature)` (each component's density to the power `1 / temperature`). The
+    result is an ordinary proposal, so SMC weights with it stay exact."""
+    if kind in ("bernoulli", "categorical"):
+        if choice_temperature == 1.0:
+            return params
+        p = np.clip(np.asarray(params, dtype=np.float64), 0.0, 1.0 if kind == "bernoulli"
+                    else None)
+        if kind == "bernoulli":
+            p = np.concatenate([p[:, :1], 1.0 - p[:, :1]], axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            logp = np.log(p) / choice_temperature
+            logp -= _logsumexp_rows(logp)[:, None]
+        q = np.exp(logp)
+        empty = ~np.isfinite(logp).any(axis=1)  # all-zero rows stay as they were
+        q[empty] = p[empty]
+        return q[:, :1] if kind == "bernoulli" else q
+    if temperature == 1.0:
+        return params
+    out = np.array(params, dtype=np.float64)
+    k = out.shape[1] // 3
+    out[:, :k] /= temperature
+    out[:, 2 * k:] += 0.5 * math.log(temperature)
+    return out
+
+
 def proposal_sample(
     site: Site, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
 ) -> np.ndarray:

@@ -13,11 +13,17 @@ kind and parameter layout (the rows of all of them at once).
 Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
 file's own weights, float32 like onnxruntime); any other graph, or every net when
 `Guide.numpy_nets` is emptied, runs in onnxruntime.
+
+Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
+tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
+values (distributions.temper, applied to every network output, so weights stay exact) and
+the ESS fraction below which guided SMC resamples (`grow` reads it).
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -30,15 +36,52 @@ from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.program import Program, Site
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
+PROPOSAL_KEY = "proposal"  # optional metadata: ProposalSettings as JSON
 SITE_KEYS = ("id", "kind", "k")  # what must agree between the guide's and program's sites
+
+
+@dataclass(frozen=True)
+class ProposalSettings:
+    """How a guide proposes: temperature (mixtures), choice_temperature (bernoulli and
+    categorical sites) and ess_threshold (resample when ESS < this fraction of N; None:
+    every step). The defaults are the trained networks as they are."""
+
+    temperature: float = 1.0
+    choice_temperature: float = 1.0
+    ess_threshold: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("temperature", "choice_temperature"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.05 <= v <= 20.0):
+                raise GuideError(f"{name} must be a number in [0.05, 20], got {v!r}")
+        e = self.ess_threshold
+        if e is not None and not (isinstance(e, (int, float)) and 0.0 < e <= 1.0):
+            raise GuideError(f"ess_threshold must be in (0, 1] or none, got {e!r}")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> ProposalSettings:
+        d = json.loads(text)
+        if not isinstance(d, dict) or set(d) - {f.name for f in fields(cls)}:
+            raise ValueError("unknown proposal settings")
+        return cls(**d)
+
+    def label(self) -> str:
+        ess = "none" if self.ess_threshold is None else f"{self.ess_threshold:g}"
+        return (f"T={self.temperature:g},Tc={self.choice_temperature:g},ess={ess}")
 
 
 class Guide:
     """Proposal that runs the per-site networks of one ONNX file."""
 
     def __init__(self, session: ort.InferenceSession, program: Program, path: str,
-                 meta: dict[str, Any]) -> None:
+                 meta: dict[str, Any], settings: ProposalSettings | None = None) -> None:
         self.session = session
+        self.settings = settings or ProposalSettings()
+        self._kinds = {s.index: s.kind for s in program.sites}
         self.program = program
         self.path = path
         self.meta = meta
@@ -59,7 +102,10 @@ class Guide:
         self.numpy_nets: dict[int, NumpyNet] = {}
 
     @classmethod
-    def load(cls, path: str | Path, program: Program) -> Guide:
+    def load(cls, path: str | Path, program: Program,
+             settings: ProposalSettings | None = None) -> Guide:
+        """The guide in `path` for `program`, proposing with `settings` (default: the
+        file's own, else ProposalSettings())."""
         path = str(path)
         if not Path(path).is_file():
             raise GuideError(f"{path}: no such guide file")
@@ -83,7 +129,12 @@ class Guide:
             raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
         _check_program(path, meta, program)
         validate_guide_graph(path, session, meta, program)
-        guide = cls(session, program, path, meta)
+        if settings is None and PROPOSAL_KEY in props:
+            try:
+                settings = ProposalSettings.from_json(props[PROPOSAL_KEY])
+            except (ValueError, TypeError, GuideError):
+                raise GuideError(f"{path}: guide proposal settings are corrupt") from None
+        guide = cls(session, program, path, meta, settings)
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
@@ -95,7 +146,7 @@ class Guide:
         x = self._input(site, features, n or 0)
         numpy_net = self.numpy_nets.get(site)
         if numpy_net is not None:
-            return numpy_net(x)
+            return self._temper(site, numpy_net(x))
         sess = self.site_sessions.get(site)
         if sess is not None:
             (out,) = sess.run(None, {f"f_{site}": x})
@@ -103,7 +154,13 @@ class Guide:
             feeds = dict(self._empty)
             feeds[f"f_{site}"] = x
             (out,) = self.session.run([f"p_{site}"], feeds)
-        return out.astype(np.float64)
+        return self._temper(site, out.astype(np.float64))
+
+    def _temper(self, site: int, params: np.ndarray) -> np.ndarray:
+        st = self.settings
+        if st.temperature == 1.0 and st.choice_temperature == 1.0:
+            return params
+        return dist.temper(self._kinds[site], params, st.temperature, st.choice_temperature)
 
     def _input(self, site: int, features: np.ndarray | None, n: int) -> np.ndarray:
         """The float32 feature rows the site's network reads (checked)."""
@@ -133,7 +190,7 @@ class Guide:
         for s, f, n in zip(sites, features, ns, strict=True):
             feeds[f"f_{s}"] = self._input(s, f, n)
         outs = self.session.run([f"p_{s}" for s in sites], feeds)
-        return [o.astype(np.float64) for o in outs]
+        return [self._temper(s, o.astype(np.float64)) for s, o in zip(sites, outs, strict=True)]
 
     def propose_round(self, sites: list[Site], prior_args: list[np.ndarray],
                       features: list[np.ndarray] | None, rng: np.random.Generator

@@ -9,6 +9,7 @@ from ngpm_runtime.inference.distributions import (
     proposal_draw,
     proposal_logpdf,
     proposal_sample,
+    temper,
 )
 from ngpm_runtime.program import Site
 
@@ -261,3 +262,39 @@ def test_lean_normal_draw_matches_the_general_path() -> None:
     bad[2, 0] = np.inf
     assert _lean_normal_draw(args, bad, rng(0)) is None
     assert _lean_normal_draw(np.tile([0.0, 0.0], (6, 1)), np.zeros((6, 12)), rng(0)) is None
+
+
+def test_temper_choices_raise_probabilities_to_a_power() -> None:
+    p = np.array([[0.2, 0.3, 0.5], [0.0, 0.25, 0.75], [0.0, 0.0, 0.0]])
+    q = temper("categorical", p, choice_temperature=0.5)
+    want = p[:2] ** 2 / (p[:2] ** 2).sum(axis=1, keepdims=True)
+    np.testing.assert_allclose(q[:2], want)
+    assert q[1, 0] == 0.0  # an impossible choice stays impossible
+    np.testing.assert_array_equal(q[2], p[2])  # an all-zero row is left to _probs
+    b = temper("bernoulli", np.array([[0.8], [1.0], [0.0]]), choice_temperature=0.5)
+    np.testing.assert_allclose(b[:, 0], [0.64 / (0.64 + 0.04), 1.0, 0.0])
+    assert temper("categorical", p, temperature=0.3) is p  # mixtures' T does not touch choices
+    # flatter than 1 moves toward uniform; log q stays a normalized distribution
+    flat = temper("categorical", p[:1], choice_temperature=4.0)
+    assert flat[0, 0] > p[0, 0] and np.isclose(flat.sum(), 1.0)
+
+
+def test_temper_mixture_scales_weights_and_sds() -> None:
+    k = 2
+    params = np.array([[0.0, 1.0, -0.5, 0.5, 0.1, -0.3]])
+    out = temper("normal", params, temperature=0.25, choice_temperature=0.1)
+    np.testing.assert_allclose(out[:, :k], params[:, :k] / 0.25)
+    np.testing.assert_allclose(out[:, k:2 * k], params[:, k:2 * k])
+    np.testing.assert_allclose(np.exp(out[:, 2 * k:]), np.exp(params[:, 2 * k:]) * 0.5)
+    assert temper("uniform", params, temperature=1.0) is params
+    # one component: exactly the density to the power 1/T, renormalized (a narrower normal)
+    one = np.array([[0.0, 0.4, np.log(0.7)]])
+    args = np.array([[1.0, 2.0]])
+    xs = np.linspace(-8, 10, 4001)
+    t = 0.5
+    got = proposal_logpdf(NORMAL, np.repeat(args, len(xs), 0),
+                          np.repeat(temper("normal", one, temperature=t), len(xs), 0), xs)
+    base = proposal_logpdf(NORMAL, np.repeat(args, len(xs), 0), np.repeat(one, len(xs), 0), xs)
+    powered = base / t
+    powered -= np.log(np.sum(np.exp(powered)) * (xs[1] - xs[0]))
+    np.testing.assert_allclose(got, powered, atol=1e-6)

@@ -18,7 +18,7 @@ from fixtures.tiny_programs import (  # noqa: E402
 )
 from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
-from ngpm_runtime.inference.guide import Guide  # noqa: E402
+from ngpm_runtime.inference.guide import Guide, ProposalSettings  # noqa: E402
 from ngpm_runtime.inference.smc import smc  # noqa: E402
 
 from ngpm_compiler.learning.export import write_onnx  # noqa: E402
@@ -173,6 +173,26 @@ def test_guided_smc_stays_exact_discrete(discrete_case, tmp_path):
     assert not check(bad_post, bad_log_z, want_post, want_log_z, 0.06)
 
 
+
+def test_tuned_guide_stays_exact_discrete(discrete_case, tmp_path):
+    """Settings of `ngpmc tune` (sharper or flatter choices, adaptive resampling) change the
+    proposal, not the answers: enumerated posterior and evidence again."""
+    program, like, post, traces = discrete_case
+    rng = np.random.default_rng(2)
+    data, layouts = site_data(program, [traces[i] for i in rng.choice(len(traces), 1500,
+                                                                      p=post)])
+    guide = learned_guide(program, data, layouts, tmp_path, 15, feature_set="all", lr=0.02)
+    want_post, want_log_z = exact(program, like)
+    f = np.zeros((1, guide.nets[0]["n_f"]), np.float32)
+    for tc in (0.5, 2.0):
+        tuned = Guide.load(guide.path, program,
+                           settings=ProposalSettings(choice_temperature=tc, ess_threshold=0.5))
+        assert not np.allclose(tuned.params(0, f), guide.params(0, f))  # q does change
+        got_post, got_log_z = pooled(program, like, tuned, "residual", 0.5, n=3000, runs=4)
+        assert check(got_post, got_log_z, want_post, want_log_z, 0.06), \
+            (tc, tv(got_post, want_post), got_log_z, want_log_z)
+
+
 @pytest.mark.parametrize("K", [1, 4])
 def test_guided_smc_stays_exact_gaussian(tmp_path, K):
     program = with_viewport(gauss_program())
@@ -209,9 +229,11 @@ def test_guided_smc_stays_exact_gaussian(tmp_path, K):
         true_sd = math.sqrt(cov[s, s])
         entropy = 0.5 * math.log(2 * math.pi * math.e * true_sd**2)
         assert nll[1] - entropy < 0.25 * (nll[0] - entropy) and nll[1] - entropy < 0.02, nll
-    r = smc(program, like, 8000, proposal=guide, seed=3, resample="systematic")
-    w = np.exp(r.log_weights - r.log_weights.max())
-    w /= w.sum()
-    first = np.array([p.primitives[0][3] for p in r.particles])
-    assert abs(float(w @ first) - want_mean) < 0.03
-    assert abs(r.log_evidence - want_log_z) < 0.05
+    sharp = Guide.load(guide.path, program, settings=ProposalSettings(temperature=0.5))
+    for g in (guide, sharp):  # a sharper mixture (ngpmc tune) stays exact too
+        r = smc(program, like, 8000, proposal=g, seed=3, resample="systematic")
+        w = np.exp(r.log_weights - r.log_weights.max())
+        w /= w.sum()
+        first = np.array([p.primitives[0][3] for p in r.particles])
+        assert abs(float(w @ first) - want_mean) < 0.03
+        assert abs(r.log_evidence - want_log_z) < 0.05
