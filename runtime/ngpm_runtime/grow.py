@@ -81,8 +81,8 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
     per-particle state, the canvas, the step's draw batch with `.idx` and `.prims`); it may
     raise to stop the run (a progress bar, live frames). record_trace, start (world pose
     overriding the target's), canvas_size (default: the target's size) and max_modules (the
-    grammar's "max modules" cap, overridden) go to `smc`. A guide's settings give the ESS
-    threshold (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
+    grammar's "max modules" cap, overridden) go to `smc`, which resamples as the guide's
+    settings say (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
     """
     viewport = program.viewport
     if viewport is None:
@@ -96,11 +96,9 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
     if start is None and target is not None:
         start = target.start_pose(viewport)
     t0 = time.perf_counter()
-    settings = getattr(guide, "settings", None)
     result = smc(program, like, n_particles, proposal=guide, seed=seed,
                  record_trace=record_trace, start=start, canvas_size=canvas_size,
-                 target_mask=mask, max_modules=max_modules,
-                 ess_threshold=getattr(settings, "ess_threshold", None))
+                 target_mask=mask, max_modules=max_modules)
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
     image = rasterize(prims, viewport, *canvas_size)

@@ -101,7 +101,7 @@ def smc(
     proposal: Proposal | None = None,
     seed: int = 0,
     resample: str = "residual",
-    ess_threshold: float | None = None,
+    ess_threshold: float | str | None = "proposal",
     record_trace: bool | str = False,
     start: tuple[float, float, float] | None = None,
     canvas_size: tuple[int, int] = (50, 50),
@@ -116,14 +116,18 @@ def smc(
     `PrimBatch` (idx, bbox, prims); with a canvas, the DrawBatch also carries `.prims`.
 
     `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
-    (None: every step). `max_primitives` overrides `program.max_primitives`, `max_modules`
-    `program.max_modules` (modules one particle may expand or interpret in one step).
+    (None: every step; "proposal", the default: the proposal's `settings.ess_threshold`, which
+    a tuned Guide carries, else every step). `max_primitives` overrides
+    `program.max_primitives`, `max_modules` `program.max_modules` (modules one particle may
+    expand or interpret in one step).
     `record_trace=True` records every particle's trace with features; `"values"` records
     (site, None, value) only, at no feature cost (`replay` adds the features afterwards).
     """
     t0 = time.perf_counter()
     check_run_options(n_particles, seed, max_modules)
     n = int(n_particles)
+    if ess_threshold == "proposal":
+        ess_threshold = getattr(getattr(proposal, "settings", None), "ess_threshold", None)
     _check_options(n, resample, record_trace, ess_threshold, target_mask, canvas_size)
     run = _Run(program, likelihood, n, proposal, seed, resample, record_trace, start,
                canvas_size, target_mask, max_primitives, module_cap(program, max_modules))
@@ -138,7 +142,7 @@ def smc(
 
 
 def _check_options(n: int, resample: str, record_trace: bool | str,
-                   ess_threshold: float | None, target_mask: np.ndarray | None,
+                   ess_threshold: Any, target_mask: np.ndarray | None,
                    canvas_size: tuple[int, int]) -> None:
     if n < 1:
         raise SMCOptionError(f"need at least one particle, got {n}")
@@ -148,8 +152,10 @@ def _check_options(n: int, resample: str, record_trace: bool | str,
     if record_trace not in (False, True, "values"):
         raise SMCOptionError(f"record_trace must be True, False or 'values', "
                              f"got {record_trace!r}")
-    if ess_threshold is not None and not 0.0 < ess_threshold <= 1.0:
-        raise SMCOptionError(f"ess_threshold must be in (0, 1], got {ess_threshold}")
+    if ess_threshold is not None and not (isinstance(ess_threshold, (int, float))
+                                          and 0.0 < ess_threshold <= 1.0):
+        raise SMCOptionError(f"ess_threshold must be in (0, 1], None or 'proposal', "
+                             f"got {ess_threshold!r}")
     if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
         raise SMCOptionError(f"target mask {tuple(np.shape(target_mask))} and canvas size "
                              f"{tuple(canvas_size)} differ")

@@ -232,6 +232,24 @@ def test_ess_threshold_resamples_less() -> None:
     assert some.info["resamples"] < some.steps - 1
 
 
+def test_ess_threshold_defaults_to_the_proposals_settings() -> None:
+    """A proposal with `settings.ess_threshold` (a tuned Guide) sets when SMC resamples,
+    unless the caller says otherwise."""
+
+    class Tuned(PriorProposal):
+        class settings:  # noqa: N801 (stands in for ProposalSettings)
+            ess_threshold = 0.5
+
+    like = SumXLikelihood(2.0, 3.0)
+    tuned = smc(discrete_program(), like, 100, proposal=Tuned(), seed=1)
+    want = smc(discrete_program(), like, 100, proposal=PriorProposal(), seed=1,
+               ess_threshold=0.5)
+    every = smc(discrete_program(), like, 100, proposal=Tuned(), seed=1, ess_threshold=None)
+    assert tuned.info["resamples"] == want.info["resamples"] < tuned.steps - 1
+    assert np.array_equal(tuned.log_weights, want.log_weights)
+    assert every.info["resamples"] == every.steps - 1
+
+
 def test_options_are_checked() -> None:
     prog = discrete_program()
     with pytest.raises(SMCOptionError):
@@ -240,6 +258,8 @@ def test_options_are_checked() -> None:
         smc(prog, None, 5, resample="bogus")
     with pytest.raises(SMCOptionError):
         smc(prog, None, 5, ess_threshold=1.5)
+    with pytest.raises(SMCOptionError, match="'often'"):
+        smc(prog, None, 5, ess_threshold="often")
     with pytest.raises(SMCOptionError, match="differ"):
         smc(prog, None, 5, target_mask=np.zeros((40, 40), bool))
 
