@@ -8,8 +8,10 @@
 #    scores best on validation targets (varied + DejaVu glyphs, never trained on);
 #    then one round more with 600 guided particles (round 5);
 # 3. round 6: 3000 new traces from SMC guided by round 5 (also on procedural `shapes`),
-#    trained with the context features (feature set all+context): the shipped guide.
-# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 2.5 hours on 2 busy cores)
+#    trained with the context features (feature set all+context);
+# 4. ngpmc tune: the proposal settings (choice and mixture temperatures, ESS threshold) that
+#    score best on the validation targets, written into the shipped guide's metadata.
+# Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 3 hours on 2 busy cores)
 set -euo pipefail
 W=${1:-work/vines}
 mkdir -p "$W"
@@ -40,5 +42,10 @@ for d in varied:1200 scribbles:1200 shapes:600; do
 done
 ngpmc train "$W/r6/traces_varied,$W/r6/traces_scribbles,$W/r6/traces_shapes" \
     -o "$W/r6/all+context.pt" --features all+context
-ngpmc export "$W/r6/all+context.pt" -o "$W/vines_guide.onnx"
+ngpmc export "$W/r6/all+context.pt" -o "$W/vines_guide_r6.onnx"
+# the shipped guide: round 6 with the proposal settings that score best on validation
+ngpmc targets build varied -o "$W/val_varied36" --count 36 --seed 1
+ngpmc tune grammars/vines.lsys "$W/vines_guide_r6.onnx" \
+    --validate "varied=$W/val_varied36,glyphs=$W/val_glyphs" \
+    --temperatures 0.7,1,1.3 --ess none,0.3,0.5 -o "$W/vines_guide.onnx"
 echo "guide: $W/vines_guide.onnx"

@@ -105,4 +105,7 @@ def guide_summary(guide: Any) -> str:
         parts.append(f"best epoch {t['best_epoch']} of {t.get('epochs_run', '?')}")
     if isinstance(t.get("val_nll"), (int, float)):
         parts.append(f"validation NLL {t['val_nll']:.3f} per trace")
+    settings = getattr(guide, "settings", None)
+    if settings is not None and settings != type(settings)():
+        parts.append(f"proposes with {settings.label()} (ngpmc tune)")
     return ", ".join(parts)

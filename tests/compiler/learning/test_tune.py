@@ -52,6 +52,8 @@ def test_settings_travel_in_the_guide_file(tmp_path: Path) -> None:
     onnx.checker.check_model(onnx.load(str(out)), full_check=True)
     g = Guide.load(out, program)
     assert g.settings == st
+    assert "proposes with T=1.3,Tc=0.3,ess=0.5 (ngpmc tune)" in bundled.guide_summary(g)
+    assert "proposes" not in bundled.guide_summary(Guide.load(src, program))
     # the same networks: only the proposal they describe is sharper
     plain = Guide.load(src, program)
     f = np.zeros((3, plain.nets[2]["n_f"]), np.float32)
