@@ -45,7 +45,7 @@ def test_grid_puts_the_untouched_networks_first_and_names_settings() -> None:
 
 def test_settings_travel_in_the_guide_file(tmp_path: Path) -> None:
     program = bundled.bundled_program()
-    src = bundled.guide_path()
+    src = with_settings(bundled.guide_path(), tmp_path / "plain.onnx", ProposalSettings())
     assert Guide.load(src, program).settings == ProposalSettings()
     st = ProposalSettings(temperature=1.3, choice_temperature=0.3, ess_threshold=0.5)
     out = with_settings(src, tmp_path / "tuned.onnx", st)
