@@ -142,15 +142,19 @@ def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys, monkeypatch) -> Non
     end = README.index("\n## ", start + 5)
     tour = [ln for b in blocks("bash", README[start:end]) for ln in commands(b)]
     assert [shlex.split(ln)[1] for ln in tour] == [
-        "check", "compile", "sample", "targets", "traces", "train", "export", "grow", "grow"]
+        "check", "compile", "sample", "targets", "traces", "train", "export", "targets", "tune",
+        "grow", "grow"]
     monkeypatch.chdir(tmp_path)
     for line in tour:
         argv = shlex.split(line)[1:]
         argv = [SMALLER.get(argv[i - 1], a) if i else a for i, a in enumerate(argv)]
-        argv += {"traces": ["--workers", "1"], "train": ["--epochs", "2"]}.get(argv[0], [])
+        argv += {"traces": ["--workers", "1"], "train": ["--epochs", "2"],
+                 "tune": ["--targets", "2", "--repeats", "1", "--choice-temperatures", "1,0.5",
+                          "--ess", "none", "--workers", "1"]}.get(argv[0], [])
         assert main(argv) == 0, line
     out = capsys.readouterr().out
     assert "(guided)" in out and "(unguided)" in out
     stem = name[:-5]
-    for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx"):
+    for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx",
+                f"out/{stem}_tuned.onnx"):
         assert (tmp_path / out).is_file(), out
