@@ -122,7 +122,18 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_iterate)
 
 
+# `ngpmc tune`'s default grid of proposal settings (learning/tune.py)
+TUNE_GRID: dict[str, tuple[float | None, ...]] = {
+    "temperature": (1.0,),
+    "choice_temperature": (1.0, 0.7, 0.5, 0.3, 0.2),
+    "ess_threshold": (None, 0.5),
+}
+
+
 def _register_tune(subparsers: argparse._SubParsersAction) -> None:
+    def listed(values: tuple) -> str:
+        return ",".join("none" if v is None else f"{v:g}" for v in values)
+
     p = subparsers.add_parser(
         "tune", help="choose a guide's proposal temperatures and ESS threshold on validation "
                      "targets",
@@ -137,13 +148,15 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", required=True, help="tuned guide .onnx to write")
     p.add_argument("--work", help="runs and candidates, resumed if present (default: OUT "
                                   "without .onnx, plus _tune)")
-    p.add_argument("--temperatures", type=_floats, default=(1.0,),
-                   help="continuous-value temperatures, comma-separated (default 1)")
-    p.add_argument("--choice-temperatures", type=_floats, default=(1.0, 0.7, 0.5, 0.3, 0.2),
-                   help="choice temperatures (default 1,0.7,0.5,0.3,0.2; < 1 is sharper)")
-    p.add_argument("--ess", type=_ess_list, default=(None, 0.5),
+    p.add_argument("--temperatures", type=_floats, default=TUNE_GRID["temperature"],
+                   help="continuous-value temperatures, comma-separated (default "
+                        f"{listed(TUNE_GRID['temperature'])})")
+    p.add_argument("--choice-temperatures", type=_floats, default=TUNE_GRID["choice_temperature"],
+                   help=f"choice temperatures (default {listed(TUNE_GRID['choice_temperature'])}; "
+                        "< 1 is sharper)")
+    p.add_argument("--ess", type=_ess_list, default=TUNE_GRID["ess_threshold"],
                    help="ESS thresholds as fractions of N, 'none' = resample every step "
-                        "(default none,0.5)")
+                        f"(default {listed(TUNE_GRID['ess_threshold'])})")
     p.add_argument("--targets", type=int, default=36, help="targets per set (default 36)")
     p.add_argument("--repeats", type=int, default=5, help="runs per target (default 5)")
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")

@@ -26,17 +26,13 @@ from ngpm_runtime.inference.guide import PROPOSAL_KEY, ProposalSettings
 from ngpm_compiler.experiments.evaluate import write_csv
 from ngpm_compiler.experiments.heldout import run_heldout
 
-GRID: dict[str, tuple[Any, ...]] = {
-    "temperature": (1.0,),
-    "choice_temperature": (1.0, 0.7, 0.5, 0.3, 0.2),
-    "ess_threshold": (None, 0.5),
-}
 TUNE_FIELDS = ["setting", "temperature", "choice_temperature", "ess_threshold"]
 
 
 def grid(temperatures: tuple[float, ...], choice_temperatures: tuple[float, ...],
          ess: tuple[float | None, ...]) -> list[ProposalSettings]:
-    """Every combination, the untouched networks (1, 1, none) first when present."""
+    """Every combination in product order (ties in `tune` go to the earlier), duplicates
+    dropped."""
     out = [ProposalSettings(t, c, e)
            for t, c, e in itertools.product(temperatures, choice_temperatures, ess)]
     return sorted(set(out), key=out.index)

@@ -17,7 +17,7 @@ file's own weights, float32 like onnxruntime); any other graph, or every net whe
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
 values (distributions.temper, applied to every network output, so weights stay exact) and
-the ESS fraction below which guided SMC resamples (`grow` reads it).
+the ESS fraction below which guided SMC resamples (`smc` reads it).
 """
 
 from __future__ import annotations
