@@ -40,8 +40,7 @@ def grid(temperatures: tuple[float, ...], choice_temperatures: tuple[float, ...]
 
 def name(s: ProposalSettings) -> str:
     """A file- and CSV-friendly name of one setting: T1_Tc0.3_ess0.5."""
-    ess = "none" if s.ess_threshold is None else f"{s.ess_threshold:g}"
-    return f"T{s.temperature:g}_Tc{s.choice_temperature:g}_ess{ess}"
+    return s.label().replace("=", "").replace(",", "_")
 
 
 def with_settings(src: str | Path, dst: str | Path, settings: ProposalSettings) -> Path:

@@ -71,7 +71,7 @@ class ProposalSettings:
 
     def label(self) -> str:
         ess = "none" if self.ess_threshold is None else f"{self.ess_threshold:g}"
-        return (f"T={self.temperature:g},Tc={self.choice_temperature:g},ess={ess}")
+        return f"T={self.temperature:g},Tc={self.choice_temperature:g},ess={ess}"
 
 
 class Guide:
