@@ -224,12 +224,16 @@ class GuideModel:
     summary: dict[str, Any] = field(default_factory=dict)
 
     def state(self) -> dict[str, Any]:
-        """Plain dict (tensors, lists, strings) for torch.save(weights_only=True)."""
+        """Plain dict (tensors, lists, strings) for torch.save(weights_only=True).
+
+        The tensors are copies: a state kept as the best epoch's must not change when
+        training goes on."""
         return {
             "format": GUIDE_FORMAT, "grammar": self.grammar, "grammar_hash": self.grammar_hash,
             "sites": self.sites, "feature_set": self.feature_set, "K": self.K,
             "layouts": {str(i): v for i, v in self.layouts.items()}, "summary": self.summary,
-            "nets": {str(i): {"spec": net.spec.to_json(), "state": net.state_dict()}
+            "nets": {str(i): {"spec": net.spec.to_json(),
+                              "state": {k: v.detach().clone() for k, v in net.state_dict().items()}}
                      for i, net in self.nets.items()},
         }
 

@@ -135,10 +135,59 @@ def test_checkpoint_resume_gives_the_same_model(tmp_path):
     resumed = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=4, **cfg), checkpoint=ck)
     assert [h["val_nll"] for h in resumed.summary["history"]] == \
         [h["val_nll"] for h in full.summary["history"]]
-    for i in full.nets:
-        for (name, a), b in zip(full.nets[i].state_dict().items(),
-                                resumed.nets[i].state_dict().values(), strict=True):
-            assert torch.equal(a, b), name
+    assert_same_weights(full, resumed)
     save_model(resumed, tmp_path / "m.pt")
     again = load_model(tmp_path / "m.pt")
     assert again.summary == resumed.summary and sorted(again.nets) == sorted(resumed.nets)
+
+
+# a setting whose validation NLL rises before early stopping ends the run
+EARLY = dict(feature_set="local", K=2, batch_size=16, lr=0.05, patience=2, epochs=30)
+
+
+def val_nll_of(model, data, config) -> float:
+    """The validation NLL per held-out trace of `model`, computed afresh from its weights."""
+    all_jobs = np.concatenate([d.jobs for d in data.values()])
+    val_jobs = split_jobs(all_jobs, config.val_fraction, config.seed)
+    total = 0.0
+    for i, net in model.nets.items():
+        rows = np.flatnonzero(np.isin(data[i].jobs, val_jobs))
+        total += _nll(net, _splits(SITES[i], data[i], rows))
+    return total / len(val_jobs)
+
+
+def test_early_stopping_returns_the_best_epochs_weights():
+    data, _ = synthetic(n_jobs=12, per_job=15, seed=5)
+    config = TrainConfig(**EARLY)
+    model = train_guide(SITES, LAYOUTS, data, config)
+    s = model.summary
+    assert s["best_epoch"] < s["epochs_run"], s["history"]  # it did stop early
+    assert s["val_nll"] == min(h["val_nll"] for h in s["history"])
+    assert val_nll_of(model, data, config) == pytest.approx(s["val_nll"], rel=1e-5)
+
+
+def assert_same_weights(a, b) -> None:
+    assert sorted(a.nets) == sorted(b.nets)
+    for i in a.nets:
+        for (name, x), y in zip(a.nets[i].state_dict().items(),
+                                b.nets[i].state_dict().values(), strict=True):
+            assert torch.equal(x, y), (i, name)
+
+
+def test_a_run_killed_after_any_epoch_resumes_to_the_uninterrupted_result(tmp_path):
+    data, _ = synthetic(n_jobs=12, per_job=15, seed=5)
+    config = TrainConfig(**EARLY)
+    full = train_guide(SITES, LAYOUTS, data, config)
+    for kill_at in range(1, full.summary["epochs_run"] + 1):
+        ck = tmp_path / f"kill{kill_at}.ckpt"
+
+        def kill(row, kill_at=kill_at):
+            if row["epoch"] == kill_at:
+                raise KeyboardInterrupt
+
+        with pytest.raises(KeyboardInterrupt):
+            train_guide(SITES, LAYOUTS, data, config, checkpoint=ck, on_epoch=kill)
+        resumed = train_guide(SITES, LAYOUTS, data, config, checkpoint=ck)
+        assert resumed.summary["best_epoch"] == full.summary["best_epoch"], kill_at
+        assert resumed.summary["val_nll"] == full.summary["val_nll"], kill_at
+        assert_same_weights(full, resumed)
