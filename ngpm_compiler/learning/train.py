@@ -21,7 +21,6 @@ import torch
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Site
-from tqdm import tqdm
 
 from ngpm_compiler.learning.nets import (
     FEATURE_GROUPS,
@@ -33,6 +32,7 @@ from ngpm_compiler.learning.nets import (
     select_columns,
 )
 from ngpm_compiler.learning.traces import SiteData
+from ngpm_compiler.progress import Progress
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
 
@@ -178,9 +178,8 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
             first_epoch = len(history)
     n_train_jobs = max(1, n_jobs - len(val_jobs))
     n_val_jobs = len(val_jobs)
-    bar = tqdm(range(first_epoch, config.epochs), desc="train", unit="epoch",
-               disable=not progress, initial=first_epoch, total=config.epochs)
-    for epoch in bar:
+    bar = Progress("train", config.epochs, "epoch", initial=first_epoch, enabled=progress)
+    for epoch in range(first_epoch, config.epochs):
         if bad >= config.patience:
             break
         for i, net in model.nets.items():
@@ -204,6 +203,7 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
         else:
             bad += 1
         bar.set_postfix(val_nll=f"{val_nll:.3f}", train_nll=f"{train_nll:.3f}")
+        bar.update()
         if on_epoch:
             on_epoch(row)
         if checkpoint:
