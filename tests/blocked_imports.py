@@ -14,7 +14,7 @@ BLOCKED = {blocked!r}
 class Blocker(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
         if name.split(".")[0] in BLOCKED:
-            raise ImportError(f"blocked: {{name}}")
+            raise ModuleNotFoundError(f"blocked: {{name}}", name=name)
         return None
 
 sys.meta_path.insert(0, Blocker())

@@ -11,6 +11,7 @@ import sys
 from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.cli import pipes
+from ngpm_compiler.cli.extras import missing_extra
 
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
@@ -45,6 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     except NgpmError as err:
         print(f"ngpmc: error: {err}", file=sys.stderr)
         return err.exit_code
+    except ImportError as err:
+        hint = missing_extra(args.command, err)
+        if hint is None:
+            raise
+        print(f"ngpmc: error: {hint}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("ngpmc: interrupted", file=sys.stderr)
         return 130

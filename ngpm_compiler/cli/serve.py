@@ -6,7 +6,7 @@ import argparse
 
 from ngpm_runtime.errors import NgpmError
 
-WEB_EXTRA = 'pip install -e ".[web]"'
+from ngpm_compiler.cli.extras import missing_extra
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -35,8 +35,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         import starlette  # noqa: F401
         import uvicorn  # noqa: F401
     except ImportError as err:
-        raise NgpmError(f"ngpmc serve needs the web extra ({err.name} is missing): "
-                        f"{WEB_EXTRA}") from None
+        raise NgpmError(missing_extra("serve", err) or str(err)) from None
     from ngpm_compiler.web.app import Limits, bind, load_config, make_server
 
     if not 0 <= args.port <= 65535:
