@@ -24,10 +24,25 @@ COMMAND_MODULES = [
 ]
 
 
+class _Version(argparse.Action):
+    """--version, looked up only when asked (start-up stays free of importlib.metadata)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            text = version("ngpm")
+        except PackageNotFoundError:  # a checkout that is not installed
+            text = "(not installed)"
+        parser.exit(message=f"ngpmc {text}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ngpmc", description="Compile, train and grow neurally-guided procedural models."
     )
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="show the version of ngpm and exit")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(subparsers)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -74,3 +75,10 @@ def test_sample_renders(tmp_path: Path, suffix: str, capsys: pytest.CaptureFixtu
 def test_sample_rejects_other_suffix(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["sample", str(VINES), "-o", str(tmp_path / "x.jpg")]) == 1
     assert ".png or .svg" in capsys.readouterr().err
+
+
+def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0
+    assert re.fullmatch(r"ngpmc (\d+\.\d+\.\d+\S*|\(not installed\))\n", capsys.readouterr().out)
