@@ -34,7 +34,8 @@ class _Version(argparse.Action):
             text = version("ngpm")
         except PackageNotFoundError:  # a checkout that is not installed
             text = "(not installed)"
-        parser.exit(message=f"ngpmc {text}\n")
+        print(f"ngpmc {text}")
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
