@@ -381,8 +381,9 @@ def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, P
     return paths
 
 
-def _grow_guide(choice: str | None, program: Program) -> Any:
-    """The guide to use: a file, 'none', or by default the bundled guide for vines.lsys."""
+def _grow_guide(choice: str | None, program: Program, likelihood: str) -> Any:
+    """The guide to use: a file, 'none', or by default the bundled guide for this grammar
+    and likelihood (none bundled: unguided, saying so)."""
     from ngpm_runtime import bundled
     from ngpm_runtime.inference.guide import Guide
 
@@ -390,11 +391,12 @@ def _grow_guide(choice: str | None, program: Program) -> Any:
         return None
     if choice is not None:
         return Guide.load(choice, program)
-    if program.grammar_hash != bundled.bundled_program().grammar_hash:
-        print(f"no guide for grammar {program.name}: unguided SMC (train one with "
-              "ngpmc traces, train and export; pass it with --guide)")
-        return None
-    return bundled.bundled_guide(program)
+    guide = bundled.default_guide(program, likelihood)
+    if guide is None:
+        print(f"no bundled guide for grammar {program.name} with the {likelihood} "
+              "likelihood: unguided SMC (train one with ngpmc traces, train and export; "
+              "pass it with --guide)")
+    return guide
 
 
 def cmd_grow(args: argparse.Namespace) -> int:
@@ -416,7 +418,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
             raise NgpmError(f"{grammar}: no such grammar file")
         program = load_grammar(grammar)
     target = load_target(image, size=args.size) if image is not None else None
-    guide = _grow_guide(args.guide, program)
+    guide = _grow_guide(args.guide, program, args.likelihood)
     if guide is not None and guide.fallback_sites:
         ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
         print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "

@@ -80,6 +80,21 @@ def bundled_guide(program: Program | None = None) -> Any:
     return Guide.load(path, bundled_program() if program is None else program)
 
 
+# the bundled guide of each likelihood (a guide is trained for one likelihood)
+LIKELIHOOD_GUIDES = {"shape": GUIDE_FILE}
+
+
+def default_guide(program: Program, likelihood: str = "shape") -> Any:
+    """The bundled guide for `program` under `likelihood`, or None when none is bundled
+    (another grammar, or a likelihood with no trained guide: unguided SMC, never a guide
+    trained for another likelihood)."""
+    if likelihood not in LIKELIHOOD_GUIDES:
+        return None
+    if program.grammar_hash != bundled_program().grammar_hash:
+        return None
+    return bundled_guide(program)
+
+
 def demo_targets(size: int = 50) -> list[Any]:
     """The built-in demo targets (`ngpm_runtime.image.targets.Target`), in DEMO_TARGETS order."""
     from ngpm_runtime.image.targets import Target, load_target

@@ -101,6 +101,16 @@ def test_bundled_guide_rejects_another_grammar() -> None:
         bundled.bundled_guide(other)
 
 
+def test_default_guide_by_grammar_and_likelihood() -> None:
+    from ngpm_compiler.language.compile import compile_grammar
+
+    vines = bundled.bundled_program()
+    assert bundled.default_guide(vines, "shape").path == str(bundled.guide_path())
+    assert bundled.default_guide(vines, "circuit") is None  # never the shape guide
+    other = compile_grammar(REPO / "grammars" / "chain.lsys").program()
+    assert bundled.default_guide(other, "shape") is None
+
+
 def test_missing_guide_names_the_regeneration_command(tmp_path: Path, monkeypatch) -> None:
     program = bundled.bundled_program()
     monkeypatch.setattr(bundled, "DATA_DIR", tmp_path)

@@ -107,7 +107,7 @@ def test_guide_choices(horse: Path, capsys) -> None:
     assert code == 0 and "(guided)" in text
     # another grammar has no default guide
     code, text, _ = run(capsys, "grow", str(horse), "--grammar", CHAIN, "-N", "3")
-    assert code == 0 and "no guide for grammar chain" in text and "(unguided)" in text
+    assert code == 0 and "no bundled guide for grammar chain" in text and "(unguided)" in text
 
 
 def test_older_form_grammar_then_target(horse: Path, capsys) -> None:
@@ -115,11 +115,16 @@ def test_older_form_grammar_then_target(horse: Path, capsys) -> None:
     assert code == 0 and LINE_RE.search(text).group(4) == "guided"
 
 
-def test_circuit_likelihood_needs_no_image(capsys) -> None:
+def test_circuit_likelihood_needs_no_image_and_never_takes_the_shape_guide(capsys) -> None:
     code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3")
     assert code == 0
-    assert re.search(r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(guided\)", text,
-                     re.M), text
+    assert "no bundled guide for grammar vines with the circuit likelihood" in text
+    assert re.search(r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(unguided\)",
+                     text, re.M), text
+    # a guide given explicitly is still used
+    code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3", "--guide",
+                        str(bundled.guide_path()))
+    assert code == 0 and "(guided)" in text
 
 
 # --- bad input ---------------------------------------------------------------------------
