@@ -14,6 +14,7 @@ from ngpm_compiler.cli import argtypes
 
 # = nets.FEATURE_SETS (no torch here)
 FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
+GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -68,12 +69,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "grow", help="grow a vine (or any grammar) into a picture with SMC",
         description="Grow a grammar into a target image with SMC. With no --grammar it grows "
                     "the bundled vines model, guided by the bundled pretrained guide.")
-    p.add_argument("inputs", nargs="*", metavar="IMAGE",
+    p.add_argument("image", nargs="?", metavar="IMAGE",
                    help="target image; a .txt sidecar beside it gives the start "
                         "(`x y` then `dx dy`), else it is found automatically")
     p.add_argument("--grammar", help="the .lsys file or a generated *_sampler.py "
                                      "(default: the bundled vines model)")
-    p.add_argument("--target", help=argparse.SUPPRESS)  # older form: grow GRAMMAR --target IMG
     p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
                                    "bundled vines guide when the grammar is vines.lsys)")
     p.add_argument("-N", "--particles", type=int, default=10, help="particles (default 10)")
@@ -82,7 +82,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
                    help="shape: match the image (default); circuit: the paper's circuit-like "
                         "density (the image, if any, only gives the start)")
-    p.add_argument("-o", "--out", help="render of the best particle (.png or .svg)")
+    p.add_argument("-o", "--out", help="render of the best particle, .png or .svg (default: "
+                                       f"IMAGE{GROW_SUFFIX}.png in the current folder)")
     p.add_argument("--svg", nargs="?", const="", metavar="PATH",
                    help="also write an SVG (default path: the -o file with .svg)")
     p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
@@ -337,15 +338,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
     """(grammar or None for the bundled vines, image or None) from the command line."""
-    grammar, image = args.grammar, args.target
-    pos = list(args.inputs)
-    if image is not None:  # older form: grow GRAMMAR --target IMAGE
-        if len(pos) > 1 or (pos and grammar):
-            raise NgpmError("give the grammar once: ngpmc grow IMAGE --grammar GRAMMAR")
-        return (pos[0] if pos else grammar), image
-    if len(pos) > 1:
-        raise NgpmError(f"one target image at a time, got {len(pos)}: {' '.join(pos)}")
-    image = pos[0] if pos else None
+    grammar, image = args.grammar, args.image
     if image is not None and Path(image).is_dir():
         raise NgpmError(f"{image} is a folder: grow wants one target image "
                         "(ngpmc grow IMAGE -o vine.png), so run it once per image")
@@ -355,20 +348,19 @@ def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
     return grammar, image
 
 
-def _grow_outputs(args: argparse.Namespace) -> tuple[Path | None, Path | None, Path | None]:
+def _grow_outputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | None]:
     """(render, svg, gif) paths, checked before any work is done."""
     from ngpm_compiler.cli.outpaths import check_output_file
 
-    out = Path(args.out) if args.out else None
-    if out is not None and out.suffix.lower() not in (".png", ".svg"):
+    stem = Path(args.image).stem if args.image else "circuit"
+    out = Path(args.out) if args.out else Path(f"{stem}{GROW_SUFFIX}.png")
+    if out.suffix.lower() not in (".png", ".svg"):
         raise NgpmError(f"{out}: the output must be a .png or .svg file")
 
     def derived(value: str | None, suffix: str, flag: str) -> Path | None:
         if value is None:
             return None
-        path = Path(value) if value else (out.with_suffix(suffix) if out else None)
-        if path is None:
-            raise NgpmError(f"{flag} needs a path or -o")
+        path = Path(value) if value else out.with_suffix(suffix)
         if path.suffix.lower() != suffix:
             raise NgpmError(f"{path}: {flag} writes a {suffix} file")
         return path

@@ -191,20 +191,21 @@ def test_cli_pipeline_and_errors(tmp_path, capsys):
     assert not Path(str(model) + ".ckpt").exists()
     assert main(["export", str(model), "-o", str(onnx_path)]) == 0
     png = tmp_path / "grown.png"
-    assert main(["grow", CHAIN, "--guide", str(onnx_path), "--target",
-                 str(data / "bar0.png"), "-N", "5", "-o", str(png)]) == 0
+    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "--guide", str(onnx_path),
+                 "-N", "5", "-o", str(png)]) == 0
     out = capsys.readouterr().out
     assert "similarity" in out and "(guided)" in out and png.is_file()
-    assert main(["grow", CHAIN, "--target", str(data / "bar0.png"), "-N", "5"]) == 0
+    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "-N", "5",
+                 "-o", str(png)]) == 0
     assert "(unguided)" in capsys.readouterr().out
     # a guide for another grammar, a corrupt guide, a corrupt model: one-line errors
     vines = str(Path(CHAIN).with_name("vines.lsys"))
-    assert main(["grow", vines, "--guide", str(onnx_path), "--target",
-                 str(data / "bar0.png")]) == 1
+    assert main(["grow", str(data / "bar0.png"), "--grammar", vines, "--guide",
+                 str(onnx_path), "-o", str(png)]) == 1
     assert "trained for grammar" in capsys.readouterr().err
     onnx_path.write_bytes(onnx_path.read_bytes()[:100])
-    assert main(["grow", CHAIN, "--guide", str(onnx_path), "--target",
-                 str(data / "bar0.png")]) == 1
+    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "--guide",
+                 str(onnx_path), "-o", str(png)]) == 1
     assert "corrupt or truncated" in capsys.readouterr().err
     model.write_bytes(b"junk")
     assert main(["export", str(model), "-o", str(onnx_path)]) == 1
