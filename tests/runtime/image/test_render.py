@@ -14,7 +14,9 @@ from ngpm_runtime.image.render import (
     LEAF,
     TARGET,
     render_array,
+    render_frames,
     save_render,
+    save_steps_gif,
 )
 from PIL import Image
 
@@ -67,3 +69,15 @@ def test_save_png_and_svg(tmp_path) -> None:
 def test_bad_suffix_is_a_user_error(tmp_path) -> None:
     with pytest.raises(NgpmError):
         save_render(PRIMS, tmp_path / "a.jpg")
+
+
+def test_growth_frames_equal_renders_of_each_prefix(tmp_path) -> None:
+    prims = PRIMS + [("seg", 1.0, 1.0, 1.0, 9.0, 0.5), ("disk", 5.0, 5.0, 2.0)]
+    counts = [0, 1, 3, 6]
+    mask = np.zeros((5, 5), bool)
+    mask[1:3, 1:4] = True
+    for k, frame in zip(counts, render_frames(prims, counts, VP, 60, mask), strict=True):
+        assert np.array_equal(frame, render_array(prims[:k], VP, 60, mask)), k
+    gif = save_steps_gif(prims, tmp_path / "g.gif", VP, mask, size=60)
+    with Image.open(gif) as img:
+        assert img.n_frames == len(prims) + 1
