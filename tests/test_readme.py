@@ -7,52 +7,28 @@ import contextlib
 import io
 import re
 import shlex
-import shutil
 from pathlib import Path
 
 import pytest
-from ngpm_runtime import bundled
 from PIL import Image
 from repo_paths import REPO
 
-from ngpm_compiler.cli import build_parser, main
+from ngpm_compiler.cli import build_parser
+from ngpm_compiler.experiments import tour
+from ngpm_compiler.experiments.tour import commands
 
 README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [
-    'pip install torch==2.13.0 && pip install -e ".[train,dev,web]" && ngpmc demo -o demo_out',
-    'pip install torch==2.13.0 && pip install -e ".[train,dev,web]" && python3 -m pytest',
+    'pip install -e . && ngpmc demo -o demo_out',
+    "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu && "
+    'pip install -e ".[train,dev,web]" && python3 -m pytest',
 ]
 # the tour, scaled down so that it runs in seconds
 SMALLER = {"--count": "3", "-n": "3", "--particles": "8"}
 
 
-def fences(text: str) -> list[tuple[str, str]]:
-    """(language, body) of every fenced block, in order."""
-    out, lang, body = [], None, []
-    for line in text.splitlines():
-        if line.startswith("```"):
-            if lang is None:
-                lang, body = line[3:].strip(), []
-            else:
-                out.append((lang, "\n".join(body) + "\n"))
-                lang = None
-        elif lang is not None:
-            body.append(line)
-    return out
-
-
 def blocks(lang: str, text: str = README) -> list[str]:
-    return [body for fence_lang, body in fences(text) if fence_lang == lang]
-
-
-def commands(block: str) -> list[str]:
-    """Command lines of a bash block, without comments."""
-    out = []
-    for line in block.splitlines():
-        line = re.sub(r"\s+#.*$", "", line).strip()
-        if line and not line.startswith("#"):
-            out.append(line)
-    return out
+    return tour.blocks(lang, text)
 
 
 def ngpmc_lines() -> list[str]:
@@ -130,31 +106,23 @@ def test_readme_python_runs(monkeypatch) -> None:
     assert m and int(m.group(1)) >= 10, out.getvalue()  # a grown vine, not an empty one
 
 
-def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys, monkeypatch) -> None:
-    grammars = [b for b in blocks("") if "endlsystem" in b]
-    assert len(grammars) == 1
-    name = re.search(r"Save this as `(\w+\.lsys)`", README).group(1)
-    (tmp_path / name).write_text(grammars[0], encoding="utf-8")
-    horse = bundled.demo_target_path("horse")
-    shutil.copy(horse, tmp_path / "my_picture.png")
-    shutil.copy(horse.with_suffix(".txt"), tmp_path / "my_picture.txt")
-    start = README.index("## Quick tour")
-    end = README.index("\n## ", start + 5)
-    tour = [ln for b in blocks("bash", README[start:end]) for ln in commands(b)]
-    assert [shlex.split(ln)[1] for ln in tour] == [
+def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
+    assert [argv[0] for argv in tour.tour_commands(README)] == [
         "check", "compile", "sample", "targets", "traces", "train", "export", "targets", "tune",
         "grow", "grow"]
-    monkeypatch.chdir(tmp_path)
-    for line in tour:
-        argv = shlex.split(line)[1:]
+
+    def smaller(argv: list[str]) -> list[str]:
         argv = [SMALLER.get(argv[i - 1], a) if i else a for i, a in enumerate(argv)]
-        argv += {"traces": ["--workers", "1"], "train": ["--epochs", "2"],
-                 "tune": ["--targets", "2", "--repeats", "1", "--choice-temperatures", "1,0.5",
-                          "--ess", "none", "--workers", "1"]}.get(argv[0], [])
-        assert main(argv) == 0, line
-    out = capsys.readouterr().out
+        return argv + {"traces": ["--workers", "1"], "train": ["--epochs", "2"],
+                       "tune": ["--targets", "2", "--repeats", "1", "--choice-temperatures",
+                                "1,0.5", "--ess", "none", "--workers", "1"]}.get(argv[0], [])
+
+    steps = tour.run_tour(README, tmp_path, smaller)
+    assert [s.code for s in steps] == [0] * 11, steps[-1]
+    out = "".join(s.output for s in steps)
     assert "(guided)" in out and "(unguided)" in out
-    stem = name[:-5]
+    assert tour.similarity(steps[-1].output) is not None
+    stem = tour.prepare(README, tmp_path)[:-5]
     for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx",
                 f"out/{stem}_tuned.onnx"):
         assert (tmp_path / out).is_file(), out
