@@ -1,0 +1,37 @@
+"""How much of a picture's shape survives the reduction to the working size, and which size
+would keep it: thin strokes vanish when a large picture shrinks to 50 x 50."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+KEEP_WARNING = 0.6  # below this share of the shape kept, grow warns and suggests a size
+KEEP_GOOD = 0.8  # a suggested size keeps at least this share
+SIZES = (64, 100, 128, 160, 200)  # sizes to suggest, smallest first
+
+
+def shape_kept(square: np.ndarray, small: np.ndarray) -> float:
+    """Share of the full-size square mask's shape pixels that lie in shape cells of the
+    reduced mask `small` (1.0 when the square is empty)."""
+    square = np.asarray(square, dtype=bool)
+    total = int(square.sum())
+    if total == 0:
+        return 1.0
+    side, n = square.shape[0], small.shape[0]
+    idx = (np.arange(side) * n) // side  # the cell of each full-size row / column
+    covered = np.asarray(small, dtype=bool)[idx[:, None], idx[None, :]]
+    return float((square & covered).sum()) / total
+
+
+def suggest_size(square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndarray],
+                 current: int) -> int | None:
+    """The smallest size in SIZES above `current` that keeps KEEP_GOOD of the shape, where
+    `resize(square, size)` is the loader's reduction; None when none does (or the picture
+    is smaller than those sizes)."""
+    side = np.asarray(square).shape[0]
+    for size in SIZES:
+        if current < size <= side and shape_kept(square, resize(square, size)) >= KEEP_GOOD:
+            return size
+    return None
