@@ -4,6 +4,11 @@ grow), the validation run (cached, resumable) and the CLI's errors."""
 from __future__ import annotations
 
 import csv
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +23,10 @@ from ngpm_runtime.inference.guide import PROPOSAL_KEY, Guide, ProposalSettings
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.experiments import evaluate
+from ngpm_compiler.experiments import evaluate, heldout
+from ngpm_compiler.experiments.evaluate import RUN_FIELDS
+from ngpm_compiler.experiments.heldout import HELDOUT_FIELDS
+from ngpm_compiler.experiments.runcache import read_runs
 from ngpm_compiler.learning.tune import grid, name, tune, tune_table, with_settings
 
 VINES = str(REPO / "grammars" / "vines.lsys")
@@ -136,6 +144,41 @@ def test_an_interrupted_tune_resumes_where_it_stopped(tmp_path: Path, monkeypatc
                  log=logs.append, **kw)
     assert logs == ["held-out: 6 runs, 2 to do"]
     assert _scores(again) == _scores(whole) and again["best"] == whole["best"]
+
+
+def test_a_tune_killed_by_sigterm_keeps_its_finished_runs(tmp_path: Path,
+                                                          monkeypatch) -> None:
+    """Finding 4 as reported: `ngpmc tune` killed by SIGTERM in the middle of its runs; run
+    again, it has only the runs the killed one had not finished left to do."""
+    val = bars(tmp_path / "a")
+    work = tmp_path / "w"
+    proc = subprocess.Popen([sys.executable, "-m", "ngpm_compiler.cli", "tune", VINES,
+                             str(bundled.guide_path()), "--validate", f"a={val}", "-o",
+                             str(tmp_path / "t.onnx"), "--work", str(work),
+                             "--choice-temperatures", "0.5", "--ess", "none", "--targets",
+                             "2", "--repeats", "30", "--workers", "1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    runs = work / "heldout_runs.csv"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not (
+            runs.is_file() and runs.read_text().count("\n") > 3):
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert runs.is_file(), "no run was kept"
+    done = len(read_runs(runs, HELDOUT_FIELDS, RUN_FIELDS, log=lambda _m: None))
+    assert 3 <= done < 120
+    logs: list[str] = []
+
+    def stop(*_a, **_k):
+        raise KeyboardInterrupt  # the count of runs to do is all this test needs
+
+    monkeypatch.setattr(heldout, "run_tasks", stop)
+    with pytest.raises(KeyboardInterrupt):
+        tune(VINES, str(bundled.guide_path()), {"a": str(val)}, tmp_path / "t.onnx", work,
+             grid((1.0,), (0.5,), (None,)), k=2, repeats=30, workers=1, log=logs.append)
+    assert logs == [f"held-out: 120 runs, {120 - done} to do"]
 
 
 def test_a_reused_work_folder_never_serves_stale_runs(tmp_path: Path) -> None:
