@@ -10,7 +10,8 @@ runs, which do not depend on the guide, are measured once), and a guide, target 
 changed under the same name is run again, never served from the cache. Files written:
 - heldout_runs.csv    one row per SMC run (evaluate.RUN_FIELDS, then guide_sha, target_sha,
                       grammar_sha: the first 16 hex digits of sha256; guide_sha is empty for
-                      unguided runs, all three for rows of an older ngpm, never reused)
+                      unguided runs; rows of an older ngpm have all three empty: kept in
+                      the file, never reused)
 - heldout.csv         per set, model and N: mean of per-target medians, 95% CI, seconds
 - heldout.md          the table: guided N = 10 vs unguided N, crossing N, losses per target
 """
