@@ -158,7 +158,8 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ess", type=_ess_list, default=TUNE_GRID["ess_threshold"],
                    help="ESS thresholds as fractions of N, 'none' = resample every step "
                         f"(default {listed(TUNE_GRID['ess_threshold'])})")
-    p.add_argument("--targets", type=int, default=36, help="targets per set (default 36)")
+    p.add_argument("--targets", type=int, default=36,
+                   help="targets per set (default 36; all of a smaller set)")
     p.add_argument("--repeats", type=int, default=5, help="runs per target (default 5)")
     p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")

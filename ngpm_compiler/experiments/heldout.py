@@ -1,16 +1,24 @@
 """Held-out evaluation: guides at N = 10 against unguided SMC at several N on target sets
 that no training target comes from (script glyphs, clip-art silhouettes).
 
-Runs are cached in `heldout_runs.csv` of the results directory and keyed by (model, set,
-target, N, repeat), so a later call with another guide only runs what is new (unguided runs,
-which do not depend on the guide, are measured once). Files written:
-- heldout_runs.csv    one row per SMC run (evaluate.RUN_FIELDS)
+Runs are cached in `heldout_runs.csv` of the results directory, one line appended as each
+run finishes (experiments/runcache.py), so an interrupted call resumes where it stopped. A
+run is keyed by (model, set, target, N, repeat, seed) and by the content hashes of the
+guide file (which holds its proposal settings), of the loaded target (mask and start) and
+of the grammar file, so a later call with another guide only runs what is new (unguided
+runs, which do not depend on the guide, are measured once), and a guide, target or grammar
+changed under the same name is run again, never served from the cache. Files written:
+- heldout_runs.csv    one row per SMC run (evaluate.RUN_FIELDS, then guide_sha, target_sha,
+                      grammar_sha: the first 16 hex digits of sha256; guide_sha is empty for
+                      unguided runs; rows of an older ngpm have all three empty: kept in
+                      the file, never reused)
 - heldout.csv         per set, model and N: mean of per-target medians, 95% CI, seconds
 - heldout.md          the table: guided N = 10 vs unguided N, crossing N, losses per target
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 from pathlib import Path
 from typing import Any
@@ -24,12 +32,16 @@ from ngpm_compiler.experiments.evaluate import (
     RunTask,
     atomic_write,
     n_to_match,
-    read_csv,
     run_seed,
     run_tasks,
     summarize,
     write_csv,
 )
+from ngpm_compiler.experiments.runcache import append_run, read_runs
+
+RUNS_FILE = "heldout_runs.csv"
+HASH_FIELDS = ("guide_sha", "target_sha", "grammar_sha")
+HELDOUT_FIELDS = (*RUN_FIELDS, *HASH_FIELDS)
 
 
 def parse_pairs(text: str) -> dict[str, str]:
@@ -70,9 +82,35 @@ def heldout_tasks(targets: dict[str, list[Any]], guides: list[str], guided_n: in
     return tasks
 
 
-def _key(row: dict[str, Any]) -> tuple[str, str, str, int, int]:
+def short_hash(data: bytes) -> str:
+    """The first 16 hex digits of sha256: a content hash for the run cache."""
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def target_hash(target: Any) -> str:
+    """Content hash of a loaded target: what a run sees of it, its mask and start."""
+    mask = np.ascontiguousarray(target.mask, dtype=bool)
+    shape_start = repr((mask.shape, tuple(float(v) for v in target.start))).encode()
+    return short_hash(shape_start + np.packbits(mask).tobytes())
+
+
+def run_ids(tasks: list[RunTask], targets: dict[str, list[Any]], grammar: str,
+            guides: dict[str, str]) -> dict[RunTask, dict[str, Any]]:
+    """Each task's cache identity: the key columns of its row in heldout_runs.csv."""
+    grammar_sha = short_hash(Path(grammar).read_bytes())
+    guide_sha = {name: short_hash(Path(path).read_bytes()) for name, path in guides.items()}
+    target_sha = {(name, i): target_hash(t) for name, ts in targets.items()
+                  for i, t in enumerate(ts)}
+    return {t: {"model": t.model, "dataset": t.dataset,
+                "target": targets[t.dataset][t.target].name, "n": t.n, "repeat": t.repeat,
+                "seed": t.seed, "guide_sha": guide_sha.get(t.model, ""),
+                "target_sha": target_sha[(t.dataset, t.target)], "grammar_sha": grammar_sha}
+            for t in tasks}
+
+
+def _key(row: dict[str, Any]) -> tuple[Any, ...]:
     return (str(row["model"]), str(row["dataset"]), str(row["target"]), int(row["n"]),
-            int(row["repeat"]))
+            int(row["repeat"]), int(row["seed"]), *(str(row[f]) for f in HASH_FIELDS))
 
 
 def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dict[str, str],
@@ -82,38 +120,41 @@ def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dic
     """Run what `heldout_runs.csv` lacks, then write the summary and table."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    runs_path = out / "heldout_runs.csv"
+    runs_path = out / RUNS_FILE
     targets = load_sets(sets, k)
     tasks = heldout_tasks(targets, list(guides), guided_n, unguided_ns, repeats, seed)
-    old = read_csv(runs_path) if runs_path.is_file() else []
-    have = {_key(r): r for r in old}
-    todo = [t for t in tasks
-            if (t.model, t.dataset, targets[t.dataset][t.target].name, t.n, t.repeat)
-            not in have]
+    ids = run_ids(tasks, targets, grammar, guides)
+    have = {_key(r): r for r in read_runs(runs_path, HELDOUT_FIELDS, RUN_FIELDS, log)}
+    todo = [t for t in tasks if _key(ids[t]) not in have]
     log(f"held-out: {len(tasks)} runs, {len(todo)} to do")
-    rows = list(old)
     if todo:
-        done = 0
-
-        def note(_r: Any) -> None:
-            nonlocal done
-            done += 1
-            if done % 50 == 0:
-                log(f"held-out: {done}/{len(todo)} runs")
-
-        results = run_tasks(grammar, targets, guides, todo, workers=workers, shuffle_seed=seed,
-                            on_result=note)
-        rows += [r.row() for r in results]
-        write_csv(runs_path, rows, RUN_FIELDS)
-    wanted = {(t.model, t.dataset, targets[t.dataset][t.target].name, t.n, t.repeat)
-              for t in tasks}
-    rows = [r for r in rows if _key(r) in wanted]
+        _run_todo(runs_path, grammar, targets, guides, todo, ids, have, workers, seed, log)
+    rows = [have[_key(ids[t])] for t in tasks]
     summary = [s for name in sorted(targets)
                for s in summarize([r for r in rows if r["dataset"] == name], name)]
     write_csv(out / "heldout.csv", summary, SUMMARY_FIELDS)
     table = heldout_table(rows, summary, list(guides), guided_n)
     atomic_write(out / "heldout.md", table.encode("utf-8"))
     return {"rows": rows, "summary": summary, "table": table}
+
+
+def _run_todo(runs_path: Path, grammar: str, targets: dict[str, list[Any]],
+              guides: dict[str, str], todo: list[RunTask], ids: dict[RunTask, dict[str, Any]],
+              have: dict[tuple[Any, ...], dict[str, str]], workers: int, seed: int,
+              log: Any) -> None:
+    """Run `todo`, appending each run to `runs_path` (and to `have`) as it finishes."""
+    done = 0
+    with open(runs_path, "a", encoding="utf-8", newline="") as fh:
+        def note(r: Any) -> None:
+            nonlocal done
+            row = append_run(fh, {**r.row(), **ids[r.task]}, HELDOUT_FIELDS)
+            have[_key(row)] = row
+            done += 1
+            if done % 50 == 0:
+                log(f"held-out: {done}/{len(todo)} runs")
+
+        run_tasks(grammar, targets, guides, todo, workers=workers, shuffle_seed=seed,
+                  on_result=note)
 
 
 def losses(rows: list[dict[str, Any]], model: str, dataset: str, guided_n: int) -> list[str]:

@@ -8,18 +8,20 @@ guided by the best guide so far (the first round, with no guide to start from, r
 unguided SMC), trains a guide on every round's traces together (and on `init_traces`),
 exports it, and scores it on validation targets at N = `val_n`; the best round's guide is
 copied to `best.onnx`. Files under `out`: round_<r>/{traces_<i>, model.pt, guide.onnx},
-validation/ (held-out run cache), rounds.csv, best.onnx.
+validation/ (the run cache of experiments/heldout.py: appended run by run and keyed by the
+content hashes of each round's guide and of the targets, so a resumed iteration scores a
+retrained round anew), rounds.csv, best.onnx.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.learning.traces import (
     SiteData,
@@ -145,7 +147,7 @@ def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]
     out/best.onnx."""
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(asdict(cfg), indent=1), encoding="utf-8")
+    atomic_write(out / "config.json", json.dumps(asdict(cfg), indent=1))
     rows: list[dict[str, Any]] = []
     best: tuple[float, str | None] = (-np.inf, None)
     if cfg.init_guide:
@@ -166,7 +168,7 @@ def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]
         if score > best[0]:
             best = (score, path)
     if best[1] is not None:
-        shutil.copyfile(best[1], out / "best.onnx")
+        atomic_write(out / "best.onnx", Path(best[1]).read_bytes())
     from ngpm_compiler.experiments.evaluate import write_csv
 
     write_csv(out / "rounds.csv", rows, ("round", "teacher", "traces", "val_nll", "validation",

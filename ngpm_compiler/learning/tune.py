@@ -60,20 +60,19 @@ def with_settings(src: str | Path, dst: str | Path, settings: ProposalSettings) 
 def tune(grammar: str, guide: str, validation: dict[str, str], out: str | Path,
          work: str | Path, settings: list[ProposalSettings], k: int = 36, repeats: int = 5,
          workers: int = 2, seed: int = 0, log: Any = print) -> dict[str, Any]:
-    """Score every setting on `validation` (guided N = 10, k targets per set, `repeats`
-    runs), write `out` with the best; returns {"best", "rows", "table"}."""
+    """Score every setting on `validation` (guided N = 10, k targets per set or all of a
+    smaller set, `repeats` runs), write `out` with the best; returns {"best", "rows",
+    "table"}."""
     work = Path(work)
     digest = hashlib.sha256(Path(guide).read_bytes()).hexdigest()
-    source = work / "source.txt"
-    if source.is_file() and source.read_text().split()[0] != digest:
-        raise NgpmError(f"{work}: tuned another guide before (source.txt); give a new --work")
-    atomic_write(source, f"{digest} {guide}\n")
+    atomic_write(work / "source.txt", f"{digest} {guide}\n")
     paths = {name(s): str(with_settings(guide, work / "candidates" / f"{name(s)}.onnx", s))
              for s in settings}
     res = run_heldout(work, grammar, validation, paths, k=k, repeats=repeats, guided_n=10,
                       unguided_ns=(), workers=workers, seed=seed, log=log)
     sets = sorted(validation)
     means = {(r["model"], r["dataset"]): float(r["mean_similarity"]) for r in res["summary"]}
+    counts = {str(r["dataset"]): int(r["targets"]) for r in res["summary"]}
     rows = []
     for s in settings:
         row: dict[str, Any] = {"setting": name(s), "temperature": s.temperature,
@@ -86,16 +85,20 @@ def tune(grammar: str, guide: str, validation: dict[str, str], out: str | Path,
     best_row = max(rows, key=lambda r: r["mean"])  # the first of equals: grid order
     best = settings[rows.index(best_row)]
     write_csv(work / "tune.csv", rows, [*TUNE_FIELDS, *sets, "mean"])
-    table = tune_table(rows, sets, best_row["setting"], k, repeats)
+    table = tune_table(rows, sets, best_row["setting"], counts, repeats)
     atomic_write(work / "tune.md", table)
     with_settings(guide, out, best)
     return {"best": best, "rows": rows, "table": table}
 
 
-def tune_table(rows: list[dict[str, Any]], sets: list[str], best: str, k: int,
-               repeats: int) -> str:
-    """Markdown: one row per setting, the chosen one in bold."""
-    lines = [f"Guided SMC, N = 10, {k} targets per set, {repeats} runs each: mean over "
+def tune_table(rows: list[dict[str, Any]], sets: list[str], best: str,
+               counts: dict[str, int], repeats: int) -> str:
+    """Markdown: one row per setting, the chosen one in bold; `counts`: targets per set."""
+    if len({counts[d] for d in sets}) == 1:
+        per_set = f"{counts[sets[0]]} targets per set"
+    else:
+        per_set = "targets per set: " + ", ".join(f"{d} {counts[d]}" for d in sets)
+    lines = [f"Guided SMC, N = 10, {per_set}, {repeats} runs each: mean over "
              "targets of the median similarity.", "",
              "| temperature | choice temperature | ESS threshold | "
              + " | ".join(sets) + " | mean |",

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from fixtures.guides import perturbed_guide
 from ngpm_runtime import bundled
 from ngpm_runtime.grow import grow
 from ngpm_runtime.image.targets import save_target
@@ -146,3 +148,27 @@ def test_cli_iterate_checks_its_inputs(tmp_path, capsys):
     assert code != 0 and "no such file or directory" in capsys.readouterr().err
     assert main(["iterate", GRAMMAR, "--targets", str(tmp_path), "--validate", f"v={tmp_path}",
                  "-o", str(tmp_path / "ei"), "--rounds", "0"]) != 0
+
+
+def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path, vines):
+    """Finding 4: a round whose guide changed since it was scored (retrained with more
+    traces, say) is scored again on resume, not served its old score from validation/;
+    the rows and best.onnx are a fresh scoring's."""
+    d = _targets(tmp_path, vines)
+    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
+                       out=str(tmp_path / "ei"), rounds=1, n=2, particles=5,
+                       init_guide=str(bundled.guide_path()), val_targets=2, val_repeats=1,
+                       epochs=1, workers=1, mirror=False)
+    first = expert_iteration(cfg, log=lambda _m: None)
+    guide = tmp_path / "ei" / "round_1" / "guide.onnx"
+    perturbed_guide(bundled.guide_path(), guide)  # as if round 1 had been trained again
+    shutil.copytree(tmp_path / "ei", tmp_path / "fresh")
+    (tmp_path / "fresh" / "validation" / "heldout_runs.csv").unlink()
+    logs: list[str] = []
+    resumed = expert_iteration(cfg, log=logs.append)
+    fresh = expert_iteration(replace(cfg, out=str(tmp_path / "fresh")), log=lambda _m: None)
+    assert "round_1: validation similarity" in logs[-2]
+    assert resumed[1]["validation"] != first[1]["validation"]
+    assert [r["validation"] for r in resumed] == [r["validation"] for r in fresh]
+    assert ((tmp_path / "ei" / "best.onnx").read_bytes()
+            == (tmp_path / "fresh" / "best.onnx").read_bytes())

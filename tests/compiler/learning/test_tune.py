@@ -4,20 +4,30 @@ grow), the validation run (cached, resumable) and the CLI's errors."""
 from __future__ import annotations
 
 import csv
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import onnx
 import pytest
+from fixtures.guides import perturbed_guide
 from ngpm_runtime import bundled
-from ngpm_runtime.errors import GuideError, NgpmError
+from ngpm_runtime.errors import GuideError
 from ngpm_runtime.grow import grow
 from ngpm_runtime.image.targets import Target, save_target
 from ngpm_runtime.inference.guide import PROPOSAL_KEY, Guide, ProposalSettings
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.learning.tune import grid, name, tune, with_settings
+from ngpm_compiler.experiments import evaluate, heldout
+from ngpm_compiler.experiments.evaluate import RUN_FIELDS
+from ngpm_compiler.experiments.heldout import HELDOUT_FIELDS
+from ngpm_compiler.experiments.runcache import read_runs
+from ngpm_compiler.learning.tune import grid, name, tune, tune_table, with_settings
 
 VINES = str(REPO / "grammars" / "vines.lsys")
 
@@ -100,11 +110,115 @@ def test_tune_picks_the_best_setting_and_resumes(tmp_path: Path) -> None:
     again = tune(VINES, str(bundled.guide_path()), val, tmp_path / "t2.onnx", tmp_path / "w",
                  settings, k=2, repeats=1, workers=1, log=logs.append)
     assert logs == ["held-out: 12 runs, 0 to do"] and again["rows"] == res["rows"]
-    other = tmp_path / "other.onnx"
-    other.write_bytes((tmp_path / "t.onnx").read_bytes())
-    with pytest.raises(NgpmError, match="tuned another guide before"):
-        tune(VINES, str(other), val, tmp_path / "t3.onnx", tmp_path / "w", settings, k=2,
-             repeats=1, workers=1, log=logs.append)
+
+
+def _scores(res: dict) -> list[tuple]:
+    return [(r["setting"], r["a"], r["mean"]) for r in res["rows"]]
+
+
+def test_an_interrupted_tune_resumes_where_it_stopped(tmp_path: Path, monkeypatch) -> None:
+    """Finding 4: every run is in heldout_runs.csv as soon as it ends, so a tune stopped
+    after 4 of 6 runs does only the last 2 when run again, and chooses as an uninterrupted
+    tune does."""
+    val = {"a": str(bars(tmp_path / "a"))}
+    settings = grid((1.0,), (1.0, 0.3), (None,))
+    guide = str(bundled.guide_path())
+    kw = dict(k=2, repeats=1, workers=1)
+    whole = tune(VINES, guide, val, tmp_path / "t.onnx", tmp_path / "w", settings,
+                 log=lambda _m: None, **kw)
+    real, calls = evaluate.grow_once, []
+
+    def grow_once(*a, **k):
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        calls.append(a)
+        return real(*a, **k)
+
+    monkeypatch.setattr(evaluate, "grow_once", grow_once)
+    with pytest.raises(KeyboardInterrupt):
+        tune(VINES, guide, val, tmp_path / "t2.onnx", tmp_path / "w2", settings,
+             log=lambda _m: None, **kw)
+    monkeypatch.setattr(evaluate, "grow_once", real)
+    logs: list[str] = []
+    again = tune(VINES, guide, val, tmp_path / "t2.onnx", tmp_path / "w2", settings,
+                 log=logs.append, **kw)
+    assert logs == ["held-out: 6 runs, 2 to do"]
+    assert _scores(again) == _scores(whole) and again["best"] == whole["best"]
+
+
+def test_a_tune_killed_by_sigterm_keeps_its_finished_runs(tmp_path: Path,
+                                                          monkeypatch) -> None:
+    """Finding 4 as reported: `ngpmc tune` killed by SIGTERM in the middle of its runs; run
+    again, it has only the runs the killed one had not finished left to do."""
+    val = bars(tmp_path / "a")
+    work = tmp_path / "w"
+    proc = subprocess.Popen([sys.executable, "-m", "ngpm_compiler.cli", "tune", VINES,
+                             str(bundled.guide_path()), "--validate", f"a={val}", "-o",
+                             str(tmp_path / "t.onnx"), "--work", str(work),
+                             "--choice-temperatures", "0.5", "--ess", "none", "--targets",
+                             "2", "--repeats", "30", "--workers", "1"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    runs = work / "heldout_runs.csv"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None and not (
+            runs.is_file() and runs.read_text().count("\n") > 3):
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGTERM)
+    proc.communicate(timeout=60)
+    assert runs.is_file(), "no run was kept"
+    done = len(read_runs(runs, HELDOUT_FIELDS, RUN_FIELDS, log=lambda _m: None))
+    assert 3 <= done < 120
+    logs: list[str] = []
+
+    def stop(*_a, **_k):
+        raise KeyboardInterrupt  # the count of runs to do is all this test needs
+
+    monkeypatch.setattr(heldout, "run_tasks", stop)
+    with pytest.raises(KeyboardInterrupt):
+        tune(VINES, str(bundled.guide_path()), {"a": str(val)}, tmp_path / "t.onnx", work,
+             grid((1.0,), (0.5,), (None,)), k=2, repeats=30, workers=1, log=logs.append)
+    assert logs == [f"held-out: 120 runs, {120 - done} to do"]
+
+
+def test_a_reused_work_folder_never_serves_stale_runs(tmp_path: Path) -> None:
+    """Finding 4: a work folder reused with another guide, or after a validation image
+    changed under the same name, runs what changed and chooses as a fresh tune does."""
+    val = {"a": str(bars(tmp_path / "a"))}
+    settings = grid((1.0,), (1.0, 0.3), (None,))
+    other = perturbed_guide(bundled.guide_path(), tmp_path / "other.onnx")
+    kw = dict(k=2, repeats=1, workers=1)
+    quiet = lambda _m: None  # noqa: E731
+    tune(VINES, str(bundled.guide_path()), val, tmp_path / "t.onnx", tmp_path / "w", settings,
+         log=quiet, **kw)
+    logs: list[str] = []
+    res = tune(VINES, str(other), val, tmp_path / "t.onnx", tmp_path / "w", settings,
+               log=logs.append, **kw)
+    assert logs == ["held-out: 6 runs, 4 to do"]  # the unguided runs are the same
+    fresh = tune(VINES, str(other), val, tmp_path / "f.onnx", tmp_path / "f", settings,
+                 log=quiet, **kw)
+    assert _scores(res) == _scores(fresh)
+    assert (tmp_path / "w" / "source.txt").read_text().endswith(f" {other}\n")
+    t0 = Path(val["a"]) / "t0.png"
+    mask = np.zeros((50, 50), bool)
+    mask[10:40, 10:14] = True  # a thin bar where the old target had its stem
+    save_target(Target(mask, (0.24, 0.78, 0.0, -1.0), "t0"), t0)
+    logs.clear()
+    res = tune(VINES, str(other), val, tmp_path / "t.onnx", tmp_path / "w", settings,
+               log=logs.append, **kw)
+    assert logs == ["held-out: 6 runs, 3 to do"]  # t0: unguided and 2 settings
+    fresh = tune(VINES, str(other), val, tmp_path / "f2.onnx", tmp_path / "f2", settings,
+                 log=quiet, **kw)
+    assert _scores(res) == _scores(fresh)
+
+
+def test_the_table_counts_the_targets_it_ran() -> None:
+    rows = [{"setting": "s", "temperature": 1.0, "choice_temperature": 1.0,
+             "ess_threshold": None, "a": 0.5, "b": 0.25, "mean": 0.375}]
+    table = tune_table(rows, ["a", "b"], "s", {"a": 12, "b": 12}, 5)
+    assert table.startswith("Guided SMC, N = 10, 12 targets per set, 5 runs each")
+    table = tune_table(rows, ["a", "b"], "s", {"a": 12, "b": 36}, 5)
+    assert table.startswith("Guided SMC, N = 10, targets per set: a 12, b 36, 5 runs each")
 
 
 def test_cli_tune_and_its_errors(tmp_path: Path, capsys) -> None:
@@ -112,10 +226,11 @@ def test_cli_tune_and_its_errors(tmp_path: Path, capsys) -> None:
     guide = str(bundled.guide_path())
     out = tmp_path / "g.onnx"
     code = main(["tune", VINES, guide, "--validate", f"v={val}", "-o", str(out),
-                 "--choice-temperatures", "0.5", "--ess", "0.5", "--targets", "2",
+                 "--choice-temperatures", "0.5", "--ess", "0.5", "--targets", "5",
                  "--repeats", "1", "--workers", "1"])
     text = capsys.readouterr().out
     assert code == 0 and out.is_file()
+    assert "N = 10, 2 targets per set, 1 runs each" in text  # all the set has, not 5
     assert f"{out}: proposes with T=1,Tc=0.5,ess=0.5 (runs in {tmp_path / 'g_tune'})" in text
     assert Guide.load(out, bundled.bundled_program()).settings == ProposalSettings(1.0, 0.5, 0.5)
     for args, want in (
