@@ -23,7 +23,7 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.inference.guide import PROPOSAL_KEY, ProposalSettings
 
-from ngpm_compiler.experiments.evaluate import write_csv
+from ngpm_compiler.experiments.evaluate import UNGUIDED, write_csv
 from ngpm_compiler.experiments.heldout import run_heldout
 
 TUNE_FIELDS = ["setting", "temperature", "choice_temperature", "ess_threshold"]
@@ -72,6 +72,8 @@ def tune(grammar: str, guide: str, validation: dict[str, str], out: str | Path,
                       unguided_ns=(), workers=workers, seed=seed, log=log)
     sets = sorted(validation)
     means = {(r["model"], r["dataset"]): float(r["mean_similarity"]) for r in res["summary"]}
+    spread = {(r["model"], r["dataset"]): (float(r["ci_high"]) - float(r["ci_low"])) / 2
+              for r in res["summary"]}
     counts = {str(r["dataset"]): int(r["targets"]) for r in res["summary"]}
     rows = []
     for s in settings:
@@ -80,34 +82,48 @@ def tune(grammar: str, guide: str, validation: dict[str, str], out: str | Path,
                                "ess_threshold": s.ess_threshold}
         for d in sets:
             row[d] = round(means[(name(s), d)], 4)
+            row[f"{d}_ci95"] = round(spread[(name(s), d)], 4)
         row["mean"] = round(sum(means[(name(s), d)] for d in sets) / len(sets), 4)
         rows.append(row)
+    baseline = {d: (means[(UNGUIDED, d)], spread[(UNGUIDED, d)]) for d in sets}
     best_row = max(rows, key=lambda r: r["mean"])  # the first of equals: grid order
     best = settings[rows.index(best_row)]
-    write_csv(work / "tune.csv", rows, [*TUNE_FIELDS, *sets, "mean"])
-    table = tune_table(rows, sets, best_row["setting"], counts, repeats)
+    write_csv(work / "tune.csv", rows,
+              [*TUNE_FIELDS, *sets, *(f"{d}_ci95" for d in sets), "mean"])
+    table = tune_table(rows, sets, best_row["setting"], counts, repeats, baseline)
     atomic_write(work / "tune.md", table)
     with_settings(guide, out, best)
     return {"best": best, "rows": rows, "table": table}
 
 
 def tune_table(rows: list[dict[str, Any]], sets: list[str], best: str,
-               counts: dict[str, int], repeats: int) -> str:
-    """Markdown: one row per setting, the chosen one in bold; `counts`: targets per set."""
+               counts: dict[str, int], repeats: int,
+               baseline: dict[str, tuple[float, float]] | None = None) -> str:
+    """Markdown: one row per setting, the chosen one in bold, each set's mean +- the half
+    width of its 95% interval over targets when known; `counts`: targets per set;
+    `baseline`: unguided SMC's (mean, half width) per set at the same N."""
     if len({counts[d] for d in sets}) == 1:
         per_set = f"{counts[sets[0]]} targets per set"
     else:
         per_set = "targets per set: " + ", ".join(f"{d} {counts[d]}" for d in sets)
     lines = [f"Guided SMC, N = 10, {per_set}, {repeats} runs each: mean over "
-             "targets of the median similarity.", "",
+             "targets of the median similarity (+- half the 95% interval over targets).", "",
              "| temperature | choice temperature | ESS threshold | "
              + " | ".join(sets) + " | mean |",
              "|---" * (4 + len(sets)) + "|"]
+
+    def cell(mean: float, half: float | None) -> str:
+        return f"{mean:.3f}" if half is None else f"{mean:.3f} +- {half:.3f}"
+
     for r in rows:
         ess = "none" if r["ess_threshold"] is None else f"{r['ess_threshold']:g}"
         cells = [f"{r['temperature']:g}", f"{r['choice_temperature']:g}", ess,
-                 *(f"{r[d]:.3f}" for d in sets), f"{r['mean']:.3f}"]
+                 *(cell(r[d], r.get(f"{d}_ci95")) for d in sets), f"{r['mean']:.3f}"]
         if r["setting"] == best:
             cells = [f"**{c}**" for c in cells]
         lines.append("| " + " | ".join(cells) + " |")
+    if baseline:
+        mean = sum(baseline[d][0] for d in sets) / len(sets)
+        lines.append("| unguided SMC, N = 10 | | | "
+                     + " | ".join(cell(*baseline[d]) for d in sets) + f" | {mean:.3f} |")
     return "\n".join(lines) + "\n"

@@ -105,6 +105,11 @@ def test_tune_picks_the_best_setting_and_resumes(tmp_path: Path) -> None:
     program = bundled.bundled_program()
     assert Guide.load(tmp_path / "t.onnx", program).settings == res["best"]
     assert "**" in res["table"] and "| a | b | mean |" in res["table"]
+    # unguided SMC at the same N as the baseline, and the spread over targets
+    base = res["table"].splitlines()[-1]
+    assert base.startswith("| unguided SMC, N = 10 | | | ") and base.count(" +- ") == 2
+    for r in rows:
+        assert float(r["a_ci95"]) >= 0 and f"{float(r['a']):.3f} +- " in res["table"]
     assert logs[0] == "held-out: 12 runs, 12 to do"  # 2 settings + unguided, 2 x 2 targets
     logs.clear()
     again = tune(VINES, str(bundled.guide_path()), val, tmp_path / "t2.onnx", tmp_path / "w",
