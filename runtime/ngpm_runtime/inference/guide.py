@@ -1,18 +1,22 @@
 """A learned guide: the ONNX file written by `ngpmc export`, run with onnxruntime.
 
 `Guide.load(path, program)` checks that the file is an ngpm guide for this grammar (hash and
-site table); `Guide.propose` implements the Proposal protocol (docs/architecture.md section 5):
-one onnxruntime call per propose (one small session per site net when the `onnx`
-package can split the file), then sampling with distributions.proposal_draw. Sites without a
-network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+site table) and, in guide_checks, everything else it reads: the metadata's schema, the
+network parameters (finite, in range) and a probe run of every network; a damaged or hostile
+file is one GuideError, never a traceback or a silently different proposal.
+
+`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): one
+onnxruntime call per propose (one small session per site net when the `onnx` package can
+split the file), then sampling with distributions.proposal_draw. Sites without a network
+(unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
 
 `Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
 one network call per waiting site, then one proposal_draw per group of sites with the same
 kind and parameter layout (the rows of all of them at once).
 
 Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
-file's own weights, float32 like onnxruntime); any other graph, or every net when
-`Guide.numpy_nets` is emptied, runs in onnxruntime.
+file's own weights, float32 like onnxruntime) if it gives onnxruntime's outputs on the probe
+rows; any other graph, or every net when `Guide.numpy_nets` is emptied, runs in onnxruntime.
 
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
@@ -160,6 +164,8 @@ class Guide:
     def _probe(self, rows: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
         """Every site network's outputs on `rows`, from the whole file (GuideError naming
         the failure if onnxruntime cannot run them)."""
+        if not rows:  # no site networks: nothing to run
+            return {}
         quiet = ort.RunOptions()
         quiet.log_severity_level = 4  # the error is reported once, below
         try:
@@ -458,13 +464,6 @@ def format_message(path: str, fmt: Any) -> str:
     return f"{path}: not an ngpm guide (written by `ngpmc export`?)"
 
 
-def _expected_outputs(site: Site, K: int) -> int:
-    """Columns of a site network's output (docs/architecture.md section 5)."""
-    if site.kind in ("normal", "uniform"):
-        return 3 * K
-    return 1 if site.kind == "bernoulli" else int(site.k or 0)
-
-
 def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
                          program: Program) -> None:
     """GuideError unless the ONNX graph has, for every site net the metadata lists, the
@@ -484,7 +483,7 @@ def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
             raise GuideError(f"{path}: site {i} ({site.id}) network is for a {net['kind']!r} "
                              f"site; the grammar's is {site.kind!r}")
         n_f, n_out = net["n_f"], net["n_out"]
-        want = _expected_outputs(site, K)
+        want = checks.expected_outputs(site, K)
         if n_out != want:
             raise GuideError(f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
                              f"a {site.kind} site needs {want}")

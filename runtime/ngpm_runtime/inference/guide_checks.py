@@ -254,6 +254,13 @@ def probe_rows(nets: dict[int, dict[str, Any]]) -> dict[int, np.ndarray]:
     return rows
 
 
+def expected_outputs(site: Site, K: int) -> int:
+    """Columns of a site network's output (docs/architecture.md section 5)."""
+    if site.kind in ("normal", "uniform"):
+        return 3 * K
+    return 1 if site.kind == "bernoulli" else int(site.k or 0)
+
+
 def check_outputs(path: str, outputs: dict[int, np.ndarray], program: Program, K: int) -> None:
     """GuideError unless every site network's outputs on `probe_rows` are valid proposal
     parameters of its site's kind (finite; probabilities and mixture weights sum to 1)."""
@@ -267,7 +274,7 @@ def check_outputs(path: str, outputs: dict[int, np.ndarray], program: Program, K
 
 def _invalid(site: Site, out: np.ndarray, K: int) -> str:
     """Why `out` (PROBE_ROWS rows) are not proposal parameters of `site`; '' if they are."""
-    if out.ndim != 2 or out.shape[0] != PROBE_ROWS:
+    if out.shape != (PROBE_ROWS, expected_outputs(site, K)):
         return f"outputs of shape {list(out.shape)}"
     if not np.isfinite(out).all():
         return "values that are not finite"

@@ -219,6 +219,7 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "an extra input": (graph(_extra_input), "inputs do not match"),
         "softmax over the batch": (_set_attr("p_2", "axis", 0), "site 2"),
         "log-softmax over the batch": (_set_attr("s0_logw", "axis", 0), "site 0"),
+        "concat over the batch": (_set_attr("p_0", "axis", 0), "p_0|fail|readable"),
         "bounds on the raw output": (graph(_rewire_mul), "engines agree"),
         "relu for tanh": (graph(_tanh_to_relu), "Relu"),
         # harmless: the same networks and settings
@@ -371,3 +372,38 @@ def test_grow_with_a_hostile_guide_in_a_process(tmp_path: Path) -> None:
     assert proc.returncode != 0 and proc.stderr.count("\n") == 1, proc.stderr
     assert proc.stderr.startswith(f"ngpmc: error: {bad}: the guide's networks fail")
     assert not out.exists()
+
+
+def test_without_the_onnx_package_the_probe_run_refuses(tmp_path: Path) -> None:
+    """The runtime installed alone has no `onnx` package, so no parameter checks: the bundled
+    guide still loads (onnxruntime only), and the probe run refuses NaN weights and a graph
+    that cannot run."""
+    import textwrap
+
+    from blocked_imports import run_blocked
+
+    bad = [str(_write(tmp_path, name, VARIANTS[name][0]))
+           for name in ("NaN weight", "a bias short", "softmax over the batch")]
+    body = textwrap.dedent("""
+        from ngpm_runtime import bundled
+        from ngpm_runtime.errors import GuideError
+        from ngpm_runtime.inference.guide import Guide
+
+        g = Guide.load(bundled.guide_path(), bundled.bundled_program())
+        assert g.numpy_nets == {} and g.site_sessions == {} and len(g.nets) == 8
+        for path in sys.argv[1:]:
+            try:
+                Guide.load(path, bundled.bundled_program())
+            except GuideError as err:
+                print(err)
+            else:
+                raise AssertionError(path + " loaded")
+        """)
+    proc = run_blocked(body, tmp_path, *bad, blocked=("onnx", "torch", "ngpm_compiler"),
+                       timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = proc.stdout.splitlines()
+    assert lines[-1] == "ok" and len(lines) == 4, proc.stdout
+    assert "s0_w1" not in lines[0] and "site 0 (S/0/normal0) network gives values that are " \
+        "not finite" in lines[0]
+    assert "networks fail on test rows" in lines[1] and "do not sum to 1" in lines[2]
