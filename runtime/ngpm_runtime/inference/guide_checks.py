@@ -138,7 +138,7 @@ def _check_features(path: str, features: Any, nets: dict[str, Any]) -> None:
     if not isinstance(features, dict):
         raise _bad(path, "'features'", "an object", features)
     fs = features.get("feature_set")
-    if fs not in FEATURE_GROUPS:
+    if not isinstance(fs, str) or fs not in FEATURE_GROUPS:
         raise _bad(path, "'features'['feature_set']", f"one of {', '.join(FEATURE_GROUPS)}", fs)
     layouts, columns = features.get("layouts"), features.get("columns")
     for name, value in (("layouts", layouts), ("columns", columns)):
@@ -181,7 +181,7 @@ def _check_training(path: str, training: Any) -> None:
         raise _bad(path, "'training'", "an object (the training summary)", training)
     for key in ("traces", "val_traces", "best_epoch", "epochs_run", "val_nll"):
         v = training.get(key)
-        number = _is_int(v, 0, 2**62) or (key == "val_nll" and type(v) is float)
+        number = (type(v) in (int, float) if key == "val_nll" else _is_int(v, 0, 2**62))
         if v is not None and not number:
             raise _bad(path, f"'training'[{key!r}]", "a number", v)
 

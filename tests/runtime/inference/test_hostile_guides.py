@@ -179,6 +179,8 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "n_out null": (net_field("n_out", None), "n_out"),
         "feature set a number": (meta_json("features", lambda f: f.__setitem__(
             "feature_set", 7)), "feature_set"),
+        "feature set a list": (meta_json("features", lambda f: f.__setitem__(
+            "feature_set", ["all"])), "feature_set"),
         "feature set unknown": (meta_json("features", lambda f: f.__setitem__(
             "feature_set", "all+colour")), "feature_set"),
         "feature set const": (meta_json("features", lambda f: f.__setitem__(
