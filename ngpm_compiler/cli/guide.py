@@ -8,12 +8,11 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.image.features import FEATURE_SETS
 from ngpm_runtime.program import Program
 
 from ngpm_compiler.cli import argtypes
 
-# = nets.FEATURE_SETS (no torch here)
-FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
 GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
 
 

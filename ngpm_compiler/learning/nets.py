@@ -22,16 +22,9 @@ from typing import Any
 
 import numpy as np
 import torch
+from ngpm_runtime.image.features import FEATURE_GROUPS, FEATURE_SETS
 from torch import nn
 
-FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
-FEATURE_GROUPS = {
-    "const": (),
-    "local": ("local",),
-    "local+target": ("local", "target"),
-    "all": ("local", "target", "partial"),
-    "all+context": ("local", "target", "partial", "context"),  # issue #11's experiment
-}
 MIN_HIDDEN = 8
 MEAN_BOUND = 10.0  # |mixture mean| in prior units (normal) or in logit space (uniform)
 LOGSD_BOUND = 5.0  # |log sd|

@@ -37,6 +37,16 @@ RAY_ANGLES = (-45.0, -22.5, 0.0, 22.5, 45.0)  # look-ahead directions, degrees f
 RAY_DIST = (1 / 12, 1 / 6, 1 / 3)  # look-ahead distances, fractions of the viewport width
 N_CONTEXT = 2 + len(RAY_ANGLES) * len(RAY_DIST)
 _RAY_LEVEL, _FILL_LEVEL = 1, 2
+# the feature sets a guide network may read: the column groups of `FeatureMaker.layout` it
+# selects (ngpm_compiler/learning/nets.py trains them; inference/guide.py checks a file's)
+FEATURE_GROUPS = {
+    "const": (),
+    "local": ("local",),
+    "local+target": ("local", "target"),
+    "all": ("local", "target", "partial"),
+    "all+context": ("local", "target", "partial", "context"),  # issue #11's experiment
+}
+FEATURE_SETS = tuple(FEATURE_GROUPS)
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
 _TWO_NEG = np.array([2.0, -2.0])
@@ -297,14 +307,14 @@ class FeatureMaker:
         out[:, 0] = unfilled / total
         out[:, 1] = (unfilled - d.sum(axis=1)) / total  # sum of max(-d, 0)
         # (n, 15) look-ahead cells; one outside the image lands in the padding (-1 in the
-        # target's row)
+        # target's row), and so does one of a heading that is not finite (fmax: NaN -> -1)
         ang = np.radians(heading[:, None] + angles)
         row = np.floor((uv[:, 1:] - np.sin(ang) * dist * aspect) * hl)
         col = np.floor((uv[:, :1] + np.cos(ang) * dist) * wl)
-        np.maximum(row, -1.0, out=row)
-        np.minimum(row, hl, out=row)
-        np.maximum(col, -1.0, out=col)
-        np.minimum(col, wl, out=col)
+        np.fmax(row, -1.0, out=row)
+        np.fmin(row, hl, out=row)
+        np.fmax(col, -1.0, out=col)
+        np.fmin(col, wl, out=col)
         at = (row * wp + col).astype(np.intp) + base
         tv = self._padded_target()[at]
         ahead = np.maximum(tv - canvas.padded[idx[:, None], at], 0.0)

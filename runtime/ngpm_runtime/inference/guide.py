@@ -1,18 +1,22 @@
 """A learned guide: the ONNX file written by `ngpmc export`, run with onnxruntime.
 
 `Guide.load(path, program)` checks that the file is an ngpm guide for this grammar (hash and
-site table); `Guide.propose` implements the Proposal protocol (docs/architecture.md section 5):
-one onnxruntime call per propose (one small session per site net when the `onnx`
-package can split the file), then sampling with distributions.proposal_draw. Sites without a
-network (unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+site table) and, in guide_checks, everything else it reads: the metadata's schema, the
+network parameters (finite, in range) and a probe run of every network; a damaged or hostile
+file is one GuideError, never a traceback or a silently different proposal.
+
+`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): one
+onnxruntime call per propose (one small session per site net when the `onnx` package can
+split the file), then sampling with distributions.proposal_draw. Sites without a network
+(unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
 
 `Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
 one network call per waiting site, then one proposal_draw per group of sites with the same
 kind and parameter layout (the rows of all of them at once).
 
 Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
-file's own weights, float32 like onnxruntime); any other graph, or every net when
-`Guide.numpy_nets` is emptied, runs in onnxruntime.
+file's own weights, float32 like onnxruntime) if it gives onnxruntime's outputs on the probe
+rows; any other graph, or every net when `Guide.numpy_nets` is emptied, runs in onnxruntime.
 
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
@@ -33,6 +37,7 @@ import onnxruntime as ort
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.image.features import N_CONTEXT
 from ngpm_runtime.inference import distributions as dist
+from ngpm_runtime.inference import guide_checks as checks
 from ngpm_runtime.program import Program, Site
 
 ONNX_FORMAT = "ngpm-guide-onnx/1"
@@ -53,25 +58,42 @@ class ProposalSettings:
     def __post_init__(self) -> None:
         for name in ("temperature", "choice_temperature"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and 0.05 <= v <= 20.0):
-                raise GuideError(f"{name} must be a number in [0.05, 20], got {v!r}")
+            if not (_is_number(v) and 0.05 <= v <= 20.0):
+                raise GuideError(f"{name} must be a number in [0.05, 20], got {checks.show(v)}")
         e = self.ess_threshold
-        if e is not None and not (isinstance(e, (int, float)) and 0.0 < e <= 1.0):
-            raise GuideError(f"ess_threshold must be in (0, 1] or none, got {e!r}")
+        if e is not None and not (_is_number(e) and 0.0 < e <= 1.0):
+            raise GuideError(f"ess_threshold must be in (0, 1] or none, got {checks.show(e)}")
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> ProposalSettings:
-        d = json.loads(text)
-        if not isinstance(d, dict) or set(d) - {f.name for f in fields(cls)}:
-            raise ValueError("unknown proposal settings")
+        """The settings `to_json` wrote (GuideError if `text` holds anything else)."""
+        try:
+            d = json.loads(text)
+        except (ValueError, RecursionError):
+            raise GuideError("not valid JSON") from None
+        names = [f.name for f in fields(cls)]
+        if not isinstance(d, dict) or set(d) - set(names):
+            raise GuideError(f"want an object of {', '.join(names)}, got {checks.show(d)}")
         return cls(**d)
 
     def label(self) -> str:
         ess = "none" if self.ess_threshold is None else f"{self.ess_threshold:g}"
         return f"T={self.temperature:g},Tc={self.choice_temperature:g},ess={ess}"
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _file_settings(path: str, text: str) -> ProposalSettings:
+    """The settings in a guide file's `proposal` metadata (GuideError naming the cause)."""
+    try:
+        return ProposalSettings.from_json(text)
+    except GuideError as err:
+        raise GuideError(f"{path}: guide proposal settings are corrupt ({err})") from None
 
 
 class Guide:
@@ -105,41 +127,55 @@ class Guide:
     def load(cls, path: str | Path, program: Program,
              settings: ProposalSettings | None = None) -> Guide:
         """The guide in `path` for `program`, proposing with `settings` (default: the
-        file's own, else ProposalSettings())."""
+        file's own, else ProposalSettings()). A damaged, hostile or foreign file raises
+        GuideError naming the file and the cause (guide_checks: metadata, parameters and
+        a probe run of every network)."""
         path = str(path)
-        if not Path(path).is_file():
-            raise GuideError(f"{path}: no such guide file")
+        data = checks.read_guide(path)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 3
-        try:
-            session = ort.InferenceSession(path, opts, providers=["CPUExecutionProvider"])
+        try:  # from the bytes read: the file cannot point onnxruntime at other files
+            session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
             props = session.get_modelmeta().custom_metadata_map
         except Exception:  # onnxruntime raises several types for unreadable files
             raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
                 from None
         if props.get("ngpm_format") != ONNX_FORMAT:
             raise GuideError(format_message(path, props.get("ngpm_format")))
-        try:
-            meta = {k: props[k] for k in ("grammar", "grammar_hash", "K")}
-            for key in ("sites", "features", "nets", "training"):
-                meta[key] = json.loads(props[key])
-        except (KeyError, ValueError):
-            raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
+        meta = checks.read_meta(path, props)
         _check_program(path, meta, program)
         validate_guide_graph(path, session, meta, program)
         if settings is None and PROPOSAL_KEY in props:
-            try:
-                settings = ProposalSettings.from_json(props[PROPOSAL_KEY])
-            except (ValueError, TypeError, GuideError):
-                raise GuideError(f"{path}: guide proposal settings are corrupt") from None
+            settings = _file_settings(path, props[PROPOSAL_KEY])
         guide = cls(session, program, path, meta, settings)
         names = {i.name for i in session.get_inputs()}
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
-        guide.site_sessions, guide.numpy_nets = _site_engines(path, list(guide.nets), opts)
+        model = _onnx_model(path, data)
+        if model is not None:
+            checks.check_model(path, model, meta)
+        rows = checks.probe_rows(guide.nets)
+        checks.check_outputs(path, guide._probe(rows), program, guide.K)
+        guide.site_sessions, guide.numpy_nets = _site_engines(model, rows, opts)
         return guide
+
+    def _probe(self, rows: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+        """Every site network's outputs on `rows`, from the whole file (GuideError naming
+        the failure if onnxruntime cannot run them)."""
+        if not rows:  # no site networks: nothing to run
+            return {}
+        quiet = ort.RunOptions()
+        quiet.log_severity_level = 4  # the error is reported once, below
+        try:
+            outs = self.session.run([f"p_{i}" for i in rows],
+                                    {f"f_{i}": x for i, x in rows.items()}, quiet)
+        except Exception as err:  # onnxruntime's errors for a graph that cannot run
+            why = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+            raise GuideError(f"{self.path}: the guide's networks fail on test rows "
+                             f"(damaged file?): {why}") from None
+        return dict(zip(rows, outs, strict=True))
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
         """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
@@ -244,19 +280,32 @@ class Guide:
         return dist.proposal_draw(site, prior_args, params, rng)
 
 
-def _site_engines(path: str, sites: list[int], opts: ort.SessionOptions
-                  ) -> tuple[dict[int, ort.InferenceSession], dict[int, NumpyNet]]:
-    """One onnxruntime session per site net, cut from the file's graph (a call then runs
-    only that net), and a NumpyNet for each cut graph of the usual form; both empty when the
-    `onnx` package is missing or cannot split the file."""
+def _onnx_model(path: str, data: bytes) -> Any:
+    """The file's ONNX model (the `onnx` package's), or None without that package."""
     try:
         import onnx
-        import onnx.utils
     except ImportError:
-        return {}, {}
+        return None
     try:
-        extractor = onnx.utils.Extractor(onnx.load(path))
-        models = {s: extractor.extract_model([f"f_{s}"], [f"p_{s}"]) for s in sites}
+        return onnx.load_from_string(data)
+    except Exception:  # protobuf's DecodeError and others: the file is damaged
+        raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
+            from None
+
+
+def _site_engines(model: Any, rows: dict[int, np.ndarray], opts: ort.SessionOptions
+                  ) -> tuple[dict[int, ort.InferenceSession], dict[int, NumpyNet]]:
+    """One onnxruntime session per site net, cut from the file's graph `model` (a call then
+    runs only that net), and a NumpyNet for each cut graph of the usual form that gives the
+    session's outputs on `rows`; both empty when the `onnx` package is missing (`model`
+    None) or cannot split the file."""
+    if model is None:
+        return {}, {}
+    import onnx.utils
+
+    try:
+        extractor = onnx.utils.Extractor(model)
+        models = {s: extractor.extract_model([f"f_{s}"], [f"p_{s}"]) for s in rows}
         sessions = {s: ort.InferenceSession(m.SerializeToString(), opts,
                                             providers=["CPUExecutionProvider"])
                     for s, m in models.items()}
@@ -265,13 +314,33 @@ def _site_engines(path: str, sites: list[int], opts: ort.SessionOptions
     nets = {}
     for s, m in models.items():
         net = NumpyNet.from_graph(m.graph)
-        if net is not None:
+        if net is not None and net.agrees(sessions[s], f"f_{s}", rows[s]):
             nets[s] = net
     return sessions, nets
 
 
 _HEADS = {("Slice", "Slice", "LogSoftmax", "Concat"): "mixture", ("Softmax",): "softmax",
           ("Sigmoid",): "sigmoid"}
+
+
+def _wired(graph: Any, nodes: list[Any], head: str) -> bool:
+    """Whether the nodes of a graph of the export's usual form feed each other as NumpyNet
+    computes: a chain from the input to the Mul, then the head (along axis 1) to the
+    output."""
+    from onnx import helper
+
+    first = [n.input[0] for n in nodes]
+    out = [n.output[0] if len(n.output) == 1 else "" for n in nodes]
+    axes = [{a.name: helper.get_attribute_value(a) for a in n.attribute}.get("axis", 1)
+            for n in nodes[6:] if n.op_type != "Slice"]
+    if head == "mixture":
+        feeds = (first[6:9] == [out[5], out[5], out[6]]
+                 and list(nodes[9].input) == [out[8], out[7]])
+    else:
+        feeds = first[6] == out[5]
+    return (first[:6] == [graph.input[0].name, *out[:5]] and feeds
+            and len(graph.output) == 1 and graph.output[0].name == out[-1]
+            and all(a in (1, -1) for a in axes))
 
 
 class NumpyNet:
@@ -307,7 +376,8 @@ class NumpyNet:
         nodes = list(graph.node)
         ops = tuple(n.op_type for n in nodes)
         head = _HEADS.get(ops[6:])
-        if ops[:6] != ("Gather", "Gemm", "Tanh", "Gemm", "Tanh", "Mul") or head is None:
+        if (ops[:6] != ("Gather", "Gemm", "Tanh", "Gemm", "Tanh", "Mul") or head is None
+                or not _wired(graph, nodes, head)):
             return None
         consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
         for gemm in (nodes[1], nodes[3]):
@@ -338,6 +408,15 @@ class NumpyNet:
             return None
         n_f = graph.input[0].type.tensor_type.shape.dim[1].dim_value
         return cls(int(n_f), cols, w1, b1, w2, b2, bounds, head, k)
+
+    def agrees(self, session: ort.InferenceSession, name: str, x: np.ndarray) -> bool:
+        """Whether this net gives `session`'s outputs (float rounding aside) on rows `x`
+        fed to its input `name`."""
+        try:
+            (want,) = session.run(None, {name: x})
+        except Exception:  # onnxruntime's errors: that engine cannot run these rows either
+            return False
+        return np.allclose(self(x), want, rtol=1e-4, atol=1e-5)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
@@ -385,23 +464,14 @@ def format_message(path: str, fmt: Any) -> str:
     return f"{path}: not an ngpm guide (written by `ngpmc export`?)"
 
 
-def _expected_outputs(site: Site, K: int) -> int:
-    """Columns of a site network's output (docs/architecture.md section 5)."""
-    if site.kind in ("normal", "uniform"):
-        return 3 * K
-    return 1 if site.kind == "bernoulli" else int(site.k or 0)
-
-
 def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
                          program: Program) -> None:
     """GuideError unless the ONNX graph has, for every site net the metadata lists, the
     input `f_<i>` of shape (n, n_f) and the output `p_<i>` of shape (n, n_out) that the
-    metadata and the site's kind call for; so a broken file fails at load, not in a run."""
-    try:
-        K = int(meta["K"])
-        nets = {int(i): dict(n) for i, n in meta["nets"].items()}
-    except (TypeError, ValueError, AttributeError):
-        raise GuideError(f"{path}: guide metadata is missing or corrupt") from None
+    metadata and the site's kind call for; so a broken file fails at load, not in a run.
+    `meta` is guide_checks.read_meta's."""
+    K = int(meta["K"])
+    nets = {int(i): n for i, n in meta["nets"].items()}
     inputs = {i.name: i.shape for i in session.get_inputs()}
     outputs = {o.name: o.shape for o in session.get_outputs()}
     for i, net in sorted(nets.items()):
@@ -409,8 +479,11 @@ def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
             raise GuideError(f"{path}: guide has a network for site {i}, but grammar "
                              f"{program.name!r} has {len(program.sites)} sites")
         site = program.sites[i]
-        n_f, n_out = net.get("n_f"), net.get("n_out")
-        want = _expected_outputs(site, K)
+        if net["kind"] != site.kind:
+            raise GuideError(f"{path}: site {i} ({site.id}) network is for a {net['kind']!r} "
+                             f"site; the grammar's is {site.kind!r}")
+        n_f, n_out = net["n_f"], net["n_out"]
+        want = checks.expected_outputs(site, K)
         if n_out != want:
             raise GuideError(f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
                              f"a {site.kind} site needs {want}")

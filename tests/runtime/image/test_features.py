@@ -199,3 +199,20 @@ def test_no_canvas_no_target_gives_zero_windows() -> None:
     lay = fm.layout(site)
     assert not got[:, lay["target"]].any() and not got[:, lay["partial"]].any()
     np.testing.assert_allclose(got[:, 7:10], 1 / 3, rtol=1e-6)
+
+
+@pytest.mark.filterwarnings("ignore:invalid value:RuntimeWarning")
+def test_heading_not_finite_looks_ahead_outside() -> None:
+    """Issue #27: a NaN or inf heading (from a damaged guide's proposal) gave an IndexError
+    in the look-ahead; its look-ahead cells now read as outside the image (-1)."""
+    prog = _program()
+    target = np.zeros((50, 50), dtype=bool)
+    target[5:30, 10:40] = True
+    canvas = Canvas(3, 50, 50, VP, pyramid=True)
+    fm = FeatureMaker(prog, VP, target, context=True)
+    turtle = np.array([[0.0, -10.0, math.nan, 1.0], [0.0, -10.0, math.inf, 1.0],
+                       [0.0, -10.0, 90.0, 1.0]])
+    rows = fm.features(prog.sites[1], canvas, np.arange(3), turtle, np.zeros(3),
+                       np.zeros((3, 0)), np.full((3, 3), 1 / 3))
+    ahead = rows[:, fm.layout(prog.sites[1])["context"]][:, 2:]
+    assert (ahead[:2] == -1).all() and (ahead[2] >= 0).all()
