@@ -51,7 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--circuit-traces", type=argtypes.count, help="circuit traces (default 200)")
     p.add_argument("--circuit-repeats", type=argtypes.count,
                    help="circuit runs of each kind (default 5)")
-    p.add_argument("--stages", type=argtypes.choices((*STAGES, "heldout"), "stage"), default=STAGES,
+    p.add_argument("--stages", type=argtypes.choices((*STAGES, "heldout"), "stage"),
+                   default=STAGES,
                    help=f"comma-separated subset of {','.join(STAGES)},heldout (default: all "
                         "but heldout)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
