@@ -17,12 +17,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Grow the vines model into a few built-in targets with the bundled "
                     "pretrained guide and without it (prior proposals), with the same number "
                     "of particles, and write a side-by-side comparison.")
-    p.add_argument("-o", "--out", default=DEFAULT_OUT,
+    p.add_argument("-o", "--out", type=argtypes.path, default=DEFAULT_OUT,
                    help=f"output folder (default: {DEFAULT_OUT})")
-    p.add_argument("-N", "--particles", type=int, default=10,
-                   help="particles per run, guided and unguided (default 10)")
+    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
+                   help="particles per run, guided and unguided (default 10, at most "
+                        f"{argtypes.MAX_PARTICLES})")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="first seed (default 0)")
-    p.add_argument("--runs", type=int, default=3,
+    p.add_argument("--runs", type=argtypes.count, default=3,
                    help="runs per target and kind, seeds seed, seed+1, ... (default 3)")
     p.set_defaults(handler=cmd_demo)
 
@@ -30,10 +31,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def cmd_demo(args: argparse.Namespace) -> int:
     from ngpm_runtime.bundled import DEMO_TARGETS, bundled_guide, bundled_program
 
-    if args.particles < 1:
-        raise demo.DemoError("-N must be at least 1")
-    if args.runs < 1:
-        raise demo.DemoError("--runs must be at least 1")
     program = bundled_program()
     guide = bundled_guide(program)
     demo.prepare_out_dir(args.out)

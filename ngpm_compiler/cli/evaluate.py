@@ -22,46 +22,46 @@ from ngpm_compiler.experiments.config import EvalConfig, quick_config
 from ngpm_compiler.experiments.pipeline import STAGES, EvalError, run_eval
 
 
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        vals = tuple(int(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") \
-            from None
-    if not vals or min(vals) < 1:
-        raise argparse.ArgumentTypeError(f"expected positive integers, got {text!r}")
-    return vals
-
-
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("eval", help="run the paper's experiments and write results",
                               description=__doc__.split("\n\n")[0])
-    p.add_argument("-o", "--out", required=True, help="results directory (CSV, PNG, Markdown)")
-    p.add_argument("--work", help="scratch directory (default: OUT/work)")
+    p.add_argument("-o", "--out", required=True, type=argtypes.path,
+                   help="results directory (CSV, PNG, Markdown)")
+    p.add_argument("--work", type=argtypes.path, help="scratch directory (default: OUT/work)")
     p.add_argument("--quick", action="store_true",
                    help="CI-sized run: tiny N, 2 targets, models from a few fresh traces")
-    p.add_argument("--traces", help="shape-matching traces directory (`ngpmc traces`)")
-    p.add_argument("--guide-all", help="use this .onnx as the all-features K=4 guide")
-    p.add_argument("--glyphs", help="glyph dataset directory (default: built in --work)")
-    p.add_argument("--silhouettes", help="silhouette dataset directory (default: built)")
-    p.add_argument("--n-glyphs", type=int, help="test glyphs (default 12)")
-    p.add_argument("--n-silhouettes", type=int, help="test silhouettes (default 6)")
-    p.add_argument("--ns", type=_ints, help="particle counts, e.g. 1,2,5,10,20,50,100,200")
-    p.add_argument("--unguided-ns", type=_ints,
+    p.add_argument("--traces", type=argtypes.path,
+                   help="shape-matching traces directory (`ngpmc traces`)")
+    p.add_argument("--guide-all", type=argtypes.path,
+                   help="use this .onnx as the all-features K=4 guide")
+    p.add_argument("--glyphs", type=argtypes.path,
+                   help="glyph dataset directory (default: built in --work)")
+    p.add_argument("--silhouettes", type=argtypes.path,
+                   help="silhouette dataset directory (default: built)")
+    p.add_argument("--n-glyphs", type=argtypes.count, help="test glyphs (default 12)")
+    p.add_argument("--n-silhouettes", type=argtypes.count, help="test silhouettes (default 6)")
+    particle_counts = argtypes.integers(1, argtypes.MAX_PARTICLES)
+    p.add_argument("--ns", type=particle_counts,
+                   help="particle counts, e.g. 1,2,5,10,20,50,100,200")
+    p.add_argument("--unguided-ns", type=particle_counts,
                    help="extra particle counts for unguided SMC only (default 600)")
-    p.add_argument("--repeats", type=int, help="SMC runs per target and N (default 3)")
-    p.add_argument("--workers", type=int, help="processes (default 2; quick: 1)")
+    p.add_argument("--repeats", type=argtypes.count, help="SMC runs per target and N (default 3)")
+    argtypes.add_workers(p, None, "2; quick: 1")
     add_backend_arguments(p)
-    p.add_argument("--circuit-traces", type=int, help="circuit traces (default 200)")
-    p.add_argument("--circuit-repeats", type=int, help="circuit runs of each kind (default 5)")
-    p.add_argument("--stages", default=",".join(STAGES),
-                   help=f"comma-separated subset of {','.join(STAGES)} (default: all)")
+    p.add_argument("--circuit-traces", type=argtypes.count, help="circuit traces (default 200)")
+    p.add_argument("--circuit-repeats", type=argtypes.count,
+                   help="circuit runs of each kind (default 5)")
+    p.add_argument("--stages", type=argtypes.choices((*STAGES, "heldout"), "stage"),
+                   default=STAGES,
+                   help=f"comma-separated subset of {','.join(STAGES)},heldout (default: all "
+                        "but heldout)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
-    p.add_argument("--heldout", help="stage heldout: NAME=DIR,... held-out target sets")
-    p.add_argument("--heldout-guides", default="",
+    p.add_argument("--heldout", type=argtypes.pairs,
+                   help="stage heldout: NAME=DIR,... held-out target sets")
+    p.add_argument("--heldout-guides", type=argtypes.pairs, default={},
                    help="stage heldout: NAME=GUIDE.onnx,... guides to compare (default: the "
                         "bundled guide)")
-    p.add_argument("--heldout-targets", type=int, default=16,
+    p.add_argument("--heldout-targets", type=argtypes.count, default=16,
                    help="stage heldout: targets per set, spread evenly (default 16)")
     p.set_defaults(handler=cmd_eval)
 
@@ -73,12 +73,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         cfg = quick_config(out, work, workers=args.workers or 1)
     else:
         cfg = EvalConfig(out=out, work=work)
-    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip())
-    bad = [s for s in stages if s not in STAGES]
-    if bad or not stages:
-        raise EvalError(f"unknown stage(s) {', '.join(bad) or '(none)'}; "
-                        f"choose from {', '.join(STAGES)}")
-    cfg.stages = stages
+    cfg.stages = tuple(args.stages)
     for key in ("traces", "guide_all", "glyphs", "silhouettes", "n_glyphs", "n_silhouettes",
                 "ns", "repeats", "workers", "circuit_traces", "circuit_repeats",
                 "unguided_ns", "backend", "ray_address"):
@@ -87,8 +82,6 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         if v is not None:
             setattr(cfg, key, v)
     cfg.seed = args.seed
-    if cfg.repeats < 1 or cfg.workers < 1:
-        raise EvalError("--repeats and --workers must be at least 1")
     if cfg.ray_address and cfg.backend != "ray":
         raise EvalError("--ray-address needs --backend ray")
     for key in ("traces", "guide_all", "glyphs", "silhouettes"):
@@ -106,13 +99,13 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    stages = [s.strip() for s in args.stages.split(",") if s.strip()]
+    stages = list(args.stages)
     if "heldout" in stages:
         run_heldout_stage(args)
         stages.remove("heldout")
         if not stages:
             return 0
-        args.stages = ",".join(stages)
+        args.stages = tuple(stages)
     cfg = config_from_args(args)
     command = "ngpmc " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else ""
     run_eval(cfg, command=command, log=log_line)
@@ -125,12 +118,11 @@ def log_line(text: str) -> None:
 
 def run_heldout_stage(args: argparse.Namespace) -> None:
     """`--stages heldout`: guides at N = 10 vs unguided N on the --heldout sets."""
-    from ngpm_compiler.experiments.heldout import parse_pairs, run_heldout
+    from ngpm_compiler.experiments.heldout import run_heldout
 
     if not args.heldout:
         raise EvalError("stage heldout needs --heldout NAME=DIR,...")
-    sets = parse_pairs(args.heldout)
-    guides = parse_pairs(args.heldout_guides) if args.heldout_guides else {}
+    sets, guides = args.heldout, dict(args.heldout_guides)
     if not guides:
         from ngpm_runtime import bundled
 

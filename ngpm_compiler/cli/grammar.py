@@ -14,7 +14,8 @@ from ngpm_compiler.language.compile import CompiledGrammar, compile_grammar, wri
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("compile", help="compile a .lsys grammar into a Python sampler")
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument("-o", "--out", default=".", help="output folder (default: current)")
+    p.add_argument("-o", "--out", type=argtypes.path, default=".",
+                   help="output folder (default: current)")
     p.set_defaults(handler=cmd_compile)
 
     p = subparsers.add_parser("check", help="check a .lsys grammar and list its sites")
@@ -24,7 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("sample", help="draw one forward sample of a grammar's prior")
     p.add_argument("grammar", help="the .lsys file")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
-    p.add_argument("-o", "--out", required=True, help="image to write (.png or .svg)")
+    p.add_argument("-o", "--out", required=True, type=argtypes.path,
+                   help="image to write (.png or .svg)")
     p.add_argument("--size", type=argtypes.render_size, default=512,
                    help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
     argtypes.add_max_modules(p)

@@ -17,53 +17,76 @@ GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    _register_traces(subparsers)
+    _register_train(subparsers)
+    _register_iterate(subparsers)
+    p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
+    p.add_argument("model", help="model file written by `ngpmc train`")
+    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".onnx"),
+                   help="ONNX file to write (.onnx)")
+    p.set_defaults(handler=cmd_export)
+    _register_tune(subparsers)
+    _register_grow(subparsers)
+
+
+def _register_traces(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("traces", help="record training traces with SMC (unguided, or "
                                              "guided by --guide)")
     p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
-    p.add_argument("--targets", required=True, help="dataset directory of target images")
-    p.add_argument("-n", type=int, default=1000, help="traces to keep (default 1000)")
-    p.add_argument("--particles", type=int, default=600, help="SMC particles (default 600)")
-    p.add_argument("-o", "--out", required=True, help="traces directory (resumed if present)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--targets", required=True, type=argtypes.path,
+                   help="dataset directory of target images")
+    p.add_argument("-n", type=argtypes.count, default=1000,
+                   help=f"traces to keep (default 1000, at most {argtypes.MAX_COUNT})")
+    p.add_argument("--particles", type=argtypes.particles, default=600,
+                   help=f"SMC particles (default 600, at most {argtypes.MAX_PARTICLES})")
+    p.add_argument("-o", "--out", required=True, type=argtypes.path,
+                   help="traces directory (resumed if present)")
+    argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.add_argument("--mirror", action="store_true",
                    help="add mirrored copies of targets that have none")
-    p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
-    p.add_argument("--shard-size", type=int, default=50, help="jobs per shard (default 50)")
+    argtypes.add_target_size(p)
+    p.add_argument("--shard-size", type=argtypes.count, default=50,
+                   help="jobs per shard (default 50)")
     argtypes.add_max_modules(p)
     add_backend_arguments(p)
-    p.add_argument("--guide", help="guide .onnx that proposes in SMC (expert iteration; "
-                                   "default: unguided, the prior proposes)")
+    p.add_argument("--guide", type=argtypes.path,
+                   help="guide .onnx that proposes in SMC (expert iteration; default: "
+                        "unguided, the prior proposes)")
     p.set_defaults(handler=cmd_traces)
 
+
+def _register_train(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
-    p.add_argument("traces", help="traces directory written by `ngpmc traces` (several: "
-                                  "comma-separated, trained on together)")
-    p.add_argument("-o", "--out", required=True, help="model file to write (model.pt)")
+    p.add_argument("traces", type=argtypes.paths,
+                   help="traces directory written by `ngpmc traces` (several: "
+                        "comma-separated, trained on together)")
+    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".pt"),
+                   help="model file to write (model.pt)")
     p.add_argument("--features", default="all", choices=FEATURE_SETS,
                    help="feature set (default all)")
-    p.add_argument("--K", type=int, default=4, help="mixture components (default 4)")
-    p.add_argument("--hidden", type=int, default=0,
-                   help="hidden units per site network (default: half its inputs, >= 8)")
-    p.add_argument("--epochs", type=int, default=40, help="most epochs (default 40)")
-    p.add_argument("--batch-size", type=int, default=256, help="site visits per step")
-    p.add_argument("--lr", type=float, default=0.005, help="Adam step size (default 0.005)")
-    p.add_argument("--patience", type=int, default=4, help="early-stopping patience (epochs)")
+    p.add_argument("--K", type=argtypes.integer(1, argtypes.MAX_K), default=4,
+                   help=f"mixture components (default 4, at most {argtypes.MAX_K})")
+    p.add_argument("--hidden", type=argtypes.integer(0, argtypes.MAX_HIDDEN), default=0,
+                   help="hidden units per site network (default 0: half its inputs, >= 8; "
+                        f"at most {argtypes.MAX_HIDDEN})")
+    p.add_argument("--epochs", type=argtypes.count, default=40,
+                   help="most training epochs (default 40)")
+    p.add_argument("--batch-size", type=argtypes.count, default=256,
+                   help="site visits per step (default 256)")
+    p.add_argument("--lr", type=argtypes.positive_number(1.0), default=0.005,
+                   help="Adam step size, above 0 and at most 1 (default 0.005)")
+    p.add_argument("--patience", type=argtypes.count, default=4,
+                   help="early-stopping patience in epochs (default 4)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--threads", type=argtypes.workers, default=1,
+                   help="torch threads (default 1)")
     p.add_argument("--allow-missing", action="store_true",
                    help="train even if shards listed in the manifest are missing or unreadable")
     p.set_defaults(handler=cmd_train)
 
-    _register_iterate(subparsers)
 
-    p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
-    p.add_argument("model", help="model file written by `ngpmc train`")
-    p.add_argument("-o", "--out", required=True, help="ONNX file to write")
-    p.set_defaults(handler=cmd_export)
-
-    _register_tune(subparsers)
-
+def _register_grow(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "grow", help="grow a vine (or any grammar) into a picture with SMC",
         description="Grow a grammar into a target image with SMC. With no --grammar it grows "
@@ -73,16 +96,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(`x y` then `dx dy`), else it is found automatically")
     p.add_argument("--grammar", help="the .lsys file or a generated *_sampler.py "
                                      "(default: the bundled vines model)")
-    p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
-                                   "bundled vines guide when the grammar is vines.lsys)")
-    p.add_argument("-N", "--particles", type=int, default=10, help="particles (default 10)")
+    p.add_argument("--guide", type=argtypes.path,
+                   help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
+                        "for the grammar and likelihood, if any)")
+    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
+                   help=f"particles (default 10, at most {argtypes.MAX_PARTICLES})")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
-    p.add_argument("--size", type=int, default=50, help="target size in pixels (default 50)")
+    argtypes.add_target_size(p)
     p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
                    help="shape: match the image (default); circuit: the paper's circuit-like "
                         "density (the image, if any, only gives the start)")
-    p.add_argument("-o", "--out", help="render of the best particle, .png or .svg (default: "
-                                       f"IMAGE{GROW_SUFFIX}.png in the current folder)")
+    p.add_argument("-o", "--out", type=argtypes.path,
+                   help="render of the best particle, .png or .svg (default: "
+                        f"IMAGE{GROW_SUFFIX}.png in the current folder)")
     p.add_argument("--svg", nargs="?", const="", metavar="PATH",
                    help="also write an SVG (default path: the -o file with .svg)")
     p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
@@ -99,25 +125,32 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
                     "a guide on all rounds' traces, score it on validation targets at N = 10; "
                     "the best round's guide is copied to OUT/best.onnx.")
     p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
-    p.add_argument("--targets", required=True, help="training-target directories, comma-separated")
-    p.add_argument("--validate", required=True,
+    p.add_argument("--targets", required=True, type=argtypes.paths,
+                   help="training-target directories, comma-separated")
+    p.add_argument("--validate", required=True, type=argtypes.pairs,
                    help="validation sets NAME=DIR,... (targets never trained on)")
-    p.add_argument("-o", "--out", required=True, help="work directory (resumed if present)")
-    p.add_argument("--rounds", type=int, default=2, help="rounds (default 2)")
-    p.add_argument("-n", type=int, default=300, help="traces per round and target directory")
-    p.add_argument("--particles", type=int, default=200, help="guided particles (default 200)")
-    p.add_argument("--unguided-particles", type=int, default=600,
+    p.add_argument("-o", "--out", required=True, type=argtypes.path,
+                   help="work directory (resumed if present)")
+    p.add_argument("--rounds", type=argtypes.count, default=2, help="rounds (default 2)")
+    p.add_argument("-n", type=argtypes.count, default=300,
+                   help="traces per round and target directory (default 300)")
+    p.add_argument("--particles", type=argtypes.particles, default=200,
+                   help="guided particles (default 200)")
+    p.add_argument("--unguided-particles", type=argtypes.particles, default=600,
                    help="particles of a round without a guide (default 600)")
-    p.add_argument("--init-guide", help="guide .onnx of round 0 (default: none, round 1 is "
-                                        "unguided)")
-    p.add_argument("--init-traces", default="",
+    p.add_argument("--init-guide", type=argtypes.path,
+                   help="guide .onnx of round 0 (default: none, round 1 is unguided)")
+    p.add_argument("--init-traces", type=argtypes.paths, default=(),
                    help="traces directories added to every round's training, comma-separated")
-    p.add_argument("--val-targets", type=int, default=12, help="targets per validation set")
-    p.add_argument("--val-repeats", type=int, default=2, help="runs per validation target")
+    p.add_argument("--val-targets", type=argtypes.count, default=12,
+                   help="targets per validation set (default 12)")
+    p.add_argument("--val-repeats", type=argtypes.count, default=2,
+                   help="runs per validation target (default 2)")
     p.add_argument("--features", default="all", choices=FEATURE_SETS,
                    help="feature set of every round's guide (default all)")
-    p.add_argument("--epochs", type=int, default=40, help="most training epochs (default 40)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--epochs", type=argtypes.count, default=40,
+                   help="most training epochs (default 40)")
+    argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_iterate)
 
@@ -143,57 +176,42 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
                     "Weights stay exact with every setting.")
     p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
     p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
-    p.add_argument("--validate", required=True,
+    p.add_argument("--validate", required=True, type=argtypes.pairs,
                    help="validation sets NAME=DIR,... (targets never trained on, not held out)")
-    p.add_argument("-o", "--out", required=True, help="tuned guide .onnx to write")
-    p.add_argument("--work", help="runs and candidates, resumed if present (default: OUT "
-                                  "without .onnx, plus _tune)")
-    p.add_argument("--temperatures", type=_floats, default=TUNE_GRID["temperature"],
+    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".onnx"),
+                   help="tuned guide .onnx to write")
+    p.add_argument("--work", type=argtypes.path,
+                   help="runs and candidates, resumed if present (default: OUT without "
+                        ".onnx, plus _tune)")
+    p.add_argument("--temperatures", type=argtypes.temperatures,
+                   default=TUNE_GRID["temperature"],
                    help="continuous-value temperatures, comma-separated (default "
                         f"{listed(TUNE_GRID['temperature'])})")
-    p.add_argument("--choice-temperatures", type=_floats, default=TUNE_GRID["choice_temperature"],
+    p.add_argument("--choice-temperatures", type=argtypes.temperatures,
+                   default=TUNE_GRID["choice_temperature"],
                    help=f"choice temperatures (default {listed(TUNE_GRID['choice_temperature'])}; "
-                        "< 1 is sharper)")
-    p.add_argument("--ess", type=_ess_list, default=TUNE_GRID["ess_threshold"],
+                        "< 1 is sharper; 0.05 to 20)")
+    p.add_argument("--ess", type=argtypes.ess_thresholds, default=TUNE_GRID["ess_threshold"],
                    help="ESS thresholds as fractions of N, 'none' = resample every step "
                         f"(default {listed(TUNE_GRID['ess_threshold'])})")
-    p.add_argument("--targets", type=int, default=36,
-                   help="targets per set (default 36; all of a smaller set)")
-    p.add_argument("--repeats", type=int, default=5, help="runs per target (default 5)")
-    p.add_argument("--workers", type=int, default=2, help="processes (default 2)")
+    p.add_argument("--guide", type=argtypes.path,
+                   help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
+                        "for the grammar and likelihood, if any)")
+    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
+                   help=f"particles (default 10, at most {argtypes.MAX_PARTICLES})")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_tune)
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        out = tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected numbers like 1,0.5, got {text!r}") from None
-    if not out:
-        raise argparse.ArgumentTypeError("expected at least one number")
-    return out
-
-
-def _ess_list(text: str) -> tuple[float | None, ...]:
-    parts = [x.strip() for x in text.split(",") if x.strip()]
-    if not parts:
-        raise argparse.ArgumentTypeError("expected at least one threshold")
-    return tuple(None if x.lower() == "none" else _floats(x)[0] for x in parts)
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
     from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.cli.outpaths import check_output_file
-    from ngpm_compiler.experiments.heldout import parse_pairs
     from ngpm_compiler.language.compile import load_grammar
     from ngpm_compiler.learning.tune import grid, tune
 
     check_output_file(args.out, "ONNX file")
-    if args.targets < 1 or args.repeats < 1:
-        raise NgpmError("--targets and --repeats must be at least 1")
-    validation = parse_pairs(args.validate)
+    validation = args.validate
     for path in validation.values():
         if not Path(path).is_dir():
             raise NgpmError(f"{path}: no such directory of validation targets")
@@ -225,11 +243,9 @@ def add_backend_arguments(p: argparse.ArgumentParser) -> None:
 def cmd_traces(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
-    if args.n < 1 or args.particles < 1 or args.workers < 1:
-        raise NgpmError("-n, --particles and --workers must be at least 1")
     cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
                       particles=args.particles, seed=args.seed, workers=args.workers,
-                      mirror=args.mirror, size=args.size, shard_size=max(1, args.shard_size),
+                      mirror=args.mirror, size=args.size, shard_size=args.shard_size,
                       max_modules=args.max_modules, backend=args.backend,
                       ray_address=args.ray_address, guide=args.guide)
     if args.guide is not None and not Path(args.guide).is_file():
@@ -250,11 +266,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
 
     check_output_file(args.out, "model file")
-    dirs = [d for d in args.traces.split(",") if d]
-    sets = [load_traces(d, allow_missing=args.allow_missing) for d in dirs]
+    sets = [load_traces(d, allow_missing=args.allow_missing) for d in args.traces]
     ts = sets[0] if len(sets) == 1 else merge_traces(sets)
     if not ts.data:
-        raise NgpmError(f"{args.traces}: holds no site visits to train on")
+        raise NgpmError(f"{','.join(args.traces)}: holds no site visits to train on")
     cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,
                       batch_size=args.batch_size, lr=args.lr, patience=args.patience,
                       seed=args.seed, threads=args.threads, hidden=args.hidden)
@@ -277,14 +292,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_iterate(args: argparse.Namespace) -> int:
-    from ngpm_compiler.experiments.heldout import parse_pairs
     from ngpm_compiler.learning.rounds import RoundsConfig, expert_iteration
 
-    if args.rounds < 1 or args.n < 1 or args.particles < 1:
-        raise NgpmError("--rounds, -n and --particles must be at least 1")
-    split = [x.strip() for x in args.targets.split(",") if x.strip()]
-    inits = [x.strip() for x in args.init_traces.split(",") if x.strip()]
-    validation = parse_pairs(args.validate)
+    split, inits, validation = list(args.targets), list(args.init_traces), args.validate
     for path in [*split, *inits, *validation.values(), *([args.init_guide] if args.init_guide
                                                        else [])]:
         if not Path(path).exists():
@@ -397,8 +407,6 @@ def cmd_grow(args: argparse.Namespace) -> int:
 
     from ngpm_compiler.language.compile import load_grammar
 
-    if args.particles < 1:
-        raise NgpmError("-N must be at least 1")
     grammar, image = _grow_inputs(args)
     if image is None and args.likelihood == "shape":
         raise NgpmError("give a target image: ngpmc grow IMAGE -o vine.png")

@@ -6,6 +6,7 @@ import argparse
 
 from ngpm_runtime.errors import NgpmError
 
+from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.extras import missing_extra
 
 
@@ -15,16 +16,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Start a local web server (127.0.0.1 only) with a page where you draw a "
                     "shape or upload a picture and watch guided SMC grow a vine into it. It "
                     "offers the bundled vines model and guide, plus --grammar/--guide.")
-    p.add_argument("--port", type=int, default=8000,
+    p.add_argument("--port", type=argtypes.integer(0, 65535), default=8000,
                    help="port on 127.0.0.1 (default 8000; 0 picks a free one)")
     p.add_argument("--grammar", help="also offer this .lsys file or generated *_sampler.py")
     p.add_argument("--guide", help="guide .onnx for --grammar (alone: another guide for the "
                                    "bundled vines), or 'none'")
-    p.add_argument("--max-particles", type=int, default=500,
+    p.add_argument("--max-particles", type=argtypes.particles, default=500,
                    help="the most particles a run may ask for (default 500)")
-    p.add_argument("--timeout", type=float, default=60.0,
-                   help="seconds a run may take before it is stopped (default 60)")
-    p.add_argument("--max-runs", type=int, default=2,
+    p.add_argument("--timeout", type=argtypes.positive_number(argtypes.MAX_TIMEOUT),
+                   default=60.0, help="seconds a run may take before it is stopped "
+                                      f"(default 60, at most {argtypes.MAX_TIMEOUT:g})")
+    p.add_argument("--max-runs", type=argtypes.workers, default=2,
                    help="runs at once over all clients (default 2)")
     p.add_argument("--open", action="store_true", help="open the page in a web browser")
     p.set_defaults(handler=cmd_serve)

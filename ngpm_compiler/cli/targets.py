@@ -10,6 +10,7 @@ from pathlib import Path
 from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 
 from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli.outpaths import check_output_file
 from ngpm_compiler.datasets.build import DATASETS, DatasetWarning, build_dataset, contact_sheet
 
 
@@ -22,14 +23,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     build = sub.add_parser("build", help="build a dataset into a directory")
     build.add_argument("name", choices=sorted(DATASETS), help="dataset to build")
-    build.add_argument("-o", "--out", required=True, type=Path, help="output directory")
-    build.add_argument("--count", type=int, default=None,
-                       help="number of targets (default: the dataset's own)")
+    build.add_argument("-o", "--out", required=True, type=_path, help="output directory")
+    build.add_argument("--count", type=argtypes.count, default=None,
+                       help="number of targets (default: the dataset's own; at most "
+                            f"{argtypes.MAX_COUNT})")
     build.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
-    build.add_argument("--size", type=int, default=50, help="working resolution (default 50)")
-    build.add_argument("--font", type=Path, default=None,
+    argtypes.add_target_size(build)
+    build.add_argument("--font", type=_path, default=None,
                        help="TTF/OTF font for glyphs (default DejaVu Sans Bold)")
-    build.add_argument("--from", dest="source_dir", type=Path, default=None,
+    build.add_argument("--from", dest="source_dir", type=_path, default=None,
                        help="directory of silhouette images")
     build.add_argument("--polarity", choices=POLARITIES, default="auto",
                        help="how to read --from images (default auto)")
@@ -40,15 +42,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     lst.set_defaults(handler=_list)
 
     show = sub.add_parser("show", help="draw a contact sheet of a dataset or images")
-    show.add_argument("source", type=Path, help="dataset directory or one image")
-    show.add_argument("-o", "--out", required=True, type=Path, help="output PNG")
-    show.add_argument("--max", type=int, default=120, help="at most this many (default 120)")
-    show.add_argument("--cols", type=int, default=None, help="columns (default: about square)")
-    show.add_argument("--cell", type=int, default=64, help="cell size in pixels (default 64)")
+    show.add_argument("source", type=_path, help="dataset directory or one image")
+    show.add_argument("-o", "--out", required=True, type=argtypes.output_file(".png"),
+                      help="output PNG")
+    show.add_argument("--max", type=argtypes.integer(1, argtypes.MAX_SHEET), default=120,
+                      help=f"at most this many (default 120, at most {argtypes.MAX_SHEET})")
+    show.add_argument("--cols", type=argtypes.integer(1, argtypes.MAX_COLUMNS), default=None,
+                      help=f"columns (default: about square; at most {argtypes.MAX_COLUMNS})")
+    show.add_argument("--cell", type=argtypes.integer(8, argtypes.MAX_CELL), default=64,
+                      help=f"cell size in pixels (default 64, 8 to {argtypes.MAX_CELL})")
     show.add_argument("--spread", action="store_true",
                       help="show --max targets spread evenly over the set, mirrors left out "
                            "(the ones `ngpmc eval --stages heldout` picks)")
     show.set_defaults(handler=_show)
+
+
+def _path(text: str) -> Path:
+    return Path(argtypes.path(text))
 
 
 def _help(parser: argparse.ArgumentParser) -> int:
@@ -78,6 +88,7 @@ def _list(_args: argparse.Namespace) -> int:
 
 
 def _show(args: argparse.Namespace) -> int:
+    check_output_file(args.out, "PNG file")
     if args.source.is_dir():
         targets = load_dataset(args.source)
     else:
@@ -85,9 +96,9 @@ def _show(args: argparse.Namespace) -> int:
     if args.spread:
         from ngpm_compiler.experiments.shape import pick
 
-        shown = pick([t for t in targets if not t.name.endswith("_m")], max(1, args.max))
+        shown = pick([t for t in targets if not t.name.endswith("_m")], args.max)
     else:
-        shown = targets[: max(1, args.max)]
+        shown = targets[: args.max]
     contact_sheet(shown, args.out, cols=args.cols, cell=args.cell)
     print(f"{args.out}: {len(shown)} of {len(targets)} targets")
     return 0

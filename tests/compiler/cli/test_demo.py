@@ -117,10 +117,12 @@ def test_unwritable_output_path(tmp_path: Path) -> None:
 
 
 def test_bad_particle_count(tmp_path: Path) -> None:
-    line = one_line_error(ngpmc("demo", "-N", "0", "-o", "x", cwd=tmp_path))
-    assert "-N must be at least 1" in line
-    line = one_line_error(ngpmc("demo", "--runs", "0", "-o", "x", cwd=tmp_path))
-    assert "--runs must be at least 1" in line
+    """Refused by argparse (exit code 2), after its usage line."""
+    proc = ngpmc("demo", "-N", "0", "-o", "x", cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "argument -N/--particles: must be from 1 to" in proc.stderr.splitlines()[-1]
+    proc = ngpmc("demo", "--runs", "0", "-o", "x", cwd=tmp_path)
+    assert proc.returncode == 2 and "argument --runs: must be from 1 to" in proc.stderr
     assert not (tmp_path / "x").exists()
 
 

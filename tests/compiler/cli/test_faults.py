@@ -64,7 +64,7 @@ def write(path: Path, text: str) -> str:
 @pytest.mark.parametrize("command", [
     ["grow", "x.png"], ["sample", VINES, "-o", "x.png"], ["demo"],
     ["targets", "build", "scribbles", "-o", "x"], ["traces", VINES, "--targets", "t", "-o", "o"],
-    ["train", "t", "-o", "o"], ["eval", "-o", "x"]])
+    ["train", "t", "-o", "o.pt"], ["eval", "-o", "x"]])
 def test_negative_seed_is_refused_at_parsing(capsys, command: list[str]) -> None:
     line = error_line(capsys, *command, "--seed", "-1")
     assert "--seed" in line and "seeds are integers from 0" in line and "-1" in line
@@ -169,8 +169,8 @@ def test_traces_on_an_exponential_grammar_ends(tmp_path: Path) -> None:
 
 
 def test_module_cap_option_is_checked(capsys) -> None:
-    assert "must be at least 1" in error_line(capsys, "sample", VINES, "-o", "x.png",
-                                              "--max-modules", "0")
+    assert "argument --max-modules: must be from 1 to" in error_line(
+        capsys, "sample", VINES, "-o", "x.png", "--max-modules", "0")
 
 
 def test_traces_killed_by_timeout_exits_promptly(tmp_path: Path) -> None:
@@ -235,12 +235,13 @@ def test_train_stops_on_a_missing_shard(traces_dir: Path, tmp_path: Path, capsys
 
 def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Path,
                                                  capsys) -> None:
-    (tmp_path / "existing").mkdir()
-    line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "existing"))
+    (tmp_path / "existing.pt").mkdir()
+    line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "existing.pt"))
     assert "is a folder; -o wants the model file to write" in line
     line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "no" / "m.pt"))
     assert "cannot write there (no folder" in line
-    line = error_line(capsys, "export", "m.pt", "-o", str(tmp_path / "existing"))
+    (tmp_path / "existing.onnx").mkdir()
+    line = error_line(capsys, "export", "m.pt", "-o", str(tmp_path / "existing.onnx"))
     assert "is a folder; -o wants the ONNX file to write" in line
 
 
@@ -303,6 +304,27 @@ def test_errors_name_the_users_path_not_a_temp_file(tmp_path: Path, capsys) -> N
         atomic_write(target, b"data")
     assert info.value.filename == str(target) and ".tmp" not in str(info.value)
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_o_on_a_symlink_writes_through_to_its_target(tmp_path: Path, horse: Path,
+                                                    capsys) -> None:
+    """Issue #27, finding 8: `-o LINK` replaces the file the link points to (atomically,
+    beside that file); the link stays a link. A link loop is one error line."""
+    real = tmp_path / "kept" / "sheet.png"
+    real.parent.mkdir()
+    real.write_bytes(b"old")
+    link = tmp_path / "link.png"
+    link.symlink_to(real)
+    code, _, err = run(capsys, "targets", "show", str(horse), "-o", str(link))
+    assert code == 0, err
+    assert link.is_symlink() and link.readlink() == real
+    assert real.read_bytes().startswith(b"\x89PNG")
+    assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".tmp")]
+    loop = tmp_path / "loop.png"
+    loop.symlink_to(loop)
+    line = error_line(capsys, "targets", "show", str(horse), "-o", str(loop))
+    assert line == f"ngpmc: error: Too many levels of symbolic links: {loop}"
+    assert loop.is_symlink()
 
 
 def test_compile_o_wants_a_folder(tmp_path: Path, capsys) -> None:

@@ -188,7 +188,9 @@ def test_unwritable_or_wrong_outputs(horse: Path, capsys) -> None:
     assert "is a folder" in one_line_error(capsys, "grow", str(horse), "-o", str(folder))
     assert "writes a .gif file" in one_line_error(capsys, "grow", str(horse), "-o", str(out),
                                                   "--steps-gif", str(out))
-    assert "-N must be at least 1" in one_line_error(capsys, "grow", str(horse), "-N", "0")
+    with pytest.raises(SystemExit, match="2"):
+        main(["grow", str(horse), "-N", "0"])
+    assert "argument -N/--particles: must be from 1 to" in capsys.readouterr().err
     assert not out.exists()
 
 
