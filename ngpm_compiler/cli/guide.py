@@ -194,11 +194,11 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ess", type=argtypes.ess_thresholds, default=TUNE_GRID["ess_threshold"],
                    help="ESS thresholds as fractions of N, 'none' = resample every step "
                         f"(default {listed(TUNE_GRID['ess_threshold'])})")
-    p.add_argument("--guide", type=argtypes.path,
-                   help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
-                        "for the grammar and likelihood, if any)")
-    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
-                   help=f"particles (default 10, at most {argtypes.MAX_PARTICLES})")
+    p.add_argument("--targets", type=argtypes.count, default=36,
+                   help="targets per set (default 36; all of a smaller set)")
+    p.add_argument("--repeats", type=argtypes.count, default=5,
+                   help="runs per target (default 5)")
+    argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_tune)
 
