@@ -60,7 +60,7 @@ log = logging.getLogger("ngpmc.serve")
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DATA_URL_RE = re.compile(r"^data:([\w.+/-]*)((?:;[\w.+-]+=[\w.+-]+)*)(;base64)?,", re.ASCII)
-JSON_STRING_RE = re.compile(rb'"[^"\\]*(?:\\.[^"\\]*)*"', re.DOTALL)
+NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")  # bytes.translate deletes
 MAX_JSON_DEPTH = 8  # nested [ ] and { } in a request (the API needs 2)
 MAX_JSON_VALUES = 256  # values and containers in a request (the API needs about 12)
 POLARITIES = ("auto", "dark", "light", "alpha")
@@ -223,19 +223,26 @@ async def read_json(request: Request, limit: int) -> dict[str, Any]:
 
 
 def check_json_shape(body: bytes) -> None:
-    """Refuse JSON nested deeper than MAX_JSON_DEPTH or with more than MAX_JSON_VALUES
-    values, before parsing it (deep nesting overflows the parser's stack; many small values
-    take far more memory than their bytes). Strings are skipped; a vectorized scan."""
-    bare = np.frombuffer(JSON_STRING_RE.sub(b'""', body), dtype=np.uint8)
-    opens = (bare == ord("[")) | (bare == ord("{"))
-    closes = (bare == ord("]")) | (bare == ord("}"))
-    depth = np.cumsum(opens.astype(np.int32) - closes.astype(np.int32))
-    if depth.size and int(depth.max()) > MAX_JSON_DEPTH:
-        raise ApiError(400, f"the request body is nested too deeply (more than "
-                            f"{MAX_JSON_DEPTH} levels of [ ] and {{ }})")
-    if int(opens.sum()) + int((bare == ord(",")).sum()) > MAX_JSON_VALUES:
-        raise ApiError(400, f"the request body holds too many values (more than "
-                            f"{MAX_JSON_VALUES})")
+    """Refuse JSON with more than MAX_JSON_VALUES values or nested deeper than
+    MAX_JSON_DEPTH, before parsing it: deep nesting overflows the parser's stack, and many
+    small values take far more memory than their bytes. A few passes at C speed: escapes
+    dropped, strings cut out, then the brackets counted (at most 2 * MAX_JSON_VALUES + 1)."""
+    plain = body.replace(b"\\\\", b"").replace(b'\\"', b"")  # now every quote is a delimiter
+    too_many = ApiError(400, f"the request body holds too many values (more than "
+                             f"{MAX_JSON_VALUES})")
+    if plain.count(b'"') > 2 * MAX_JSON_VALUES:
+        raise too_many
+    outside = b"".join(plain.split(b'"')[::2])  # the text outside strings
+    if sum(outside.count(c) for c in (b"[", b"{", b",")) > MAX_JSON_VALUES:
+        raise too_many
+    depth = 0
+    for byte in outside.translate(None, NOT_BRACKETS):
+        depth += 1 if byte in b"[{" else -1
+        if depth > MAX_JSON_DEPTH:
+            raise ApiError(400, f"the request body is nested too deeply (more than "
+                                f"{MAX_JSON_DEPTH} levels of [ ] and {{ }})")
+        if depth < 0:  # unbalanced: the parser will say it is not JSON
+            return
 
 
 def _mib(n: int) -> str:

@@ -337,7 +337,8 @@ def resize_mask(mask: np.ndarray, size: int) -> np.ndarray:
     """Resize a square mask to size x size: area average (box filter), foreground >= 1/2."""
     if mask.shape == (size, size):
         return mask.astype(bool, copy=True)
-    img = Image.fromarray(mask.astype(np.uint8) * 255)
+    levels = np.asarray(mask, dtype=bool).view(np.uint8) * np.uint8(255)  # one copy, not two
+    img = Image.fromarray(levels)
     small = np.asarray(img.resize((size, size), Image.Resampling.BOX), dtype=np.uint8)
     return small >= 128
 

@@ -323,8 +323,11 @@ def test_deep_or_crowded_json_is_a_400_not_a_crash(client: TestClient) -> None:
     and the count of values are checked before parsing; strings may hold anything."""
     json_type = {"content-type": "application/json"}
     deep = b'{"image": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    nine = b'{"image": ' + b"[" * 8 + b"]" * 8 + b"}"
     for path in ("/api/grow", "/api/shape"):
         assert_error(client.post(path, content=deep, headers=json_type), 400,
+                     "too many values (more than 256)")
+        assert_error(client.post(path, content=nine, headers=json_type), 400,
                      "nested too deeply (more than 8 levels")
     crowded = json.dumps({"image": png_url(drawing(100)), "seed": [0] * 5000}).encode()
     assert_error(client.post("/api/grow", content=crowded, headers=json_type), 400,
