@@ -302,17 +302,30 @@ def plain_mode(img: Image.Image, name: str = "image") -> Image.Image:
 
 
 def _gray(img: Image.Image) -> np.ndarray:
-    """8-bit gray levels; 16-bit and float images are stretched from their min to max."""
-    if img.mode in ("I", "F") or img.mode.startswith("I;"):
-        values = np.array(img, dtype=np.float64)
-        bad = ~np.isfinite(values)
-        if bad.any():  # NaN or infinity in a float image: the lowest finite level
-            values[bad] = np.min(values, where=~bad, initial=np.inf) if not bad.all() else 0.0
-        lo, hi = float(values.min()), float(values.max())
-        values -= lo  # in place: a big float image makes one float64 copy, not three
-        values *= 255.0 / (hi - lo) if hi > lo else 0.0
-        return np.round(values, out=values).astype(np.uint8)
-    return np.asarray(img.convert("L"), dtype=np.uint8)
+    """8-bit gray levels; 16-bit and float images are stretched from their min to max
+    (NaN and infinity count as the lowest finite level)."""
+    if not (img.mode in ("I", "F") or img.mode.startswith("I;")):
+        return np.asarray(img.convert("L"), dtype=np.uint8)
+    values = np.asarray(img)  # as stored (32-bit at most); float64 only a block at a time
+    lo, hi = _finite_range(values)
+    scale = 255.0 / (hi - lo) if hi > lo else 0.0
+    out = np.empty(values.shape, dtype=np.uint8)
+    for r in range(0, values.shape[0], 256):
+        block = values[r:r + 256].astype(np.float64)
+        block[~np.isfinite(block)] = lo
+        out[r:r + 256] = np.round((block - lo) * scale)
+    return out
+
+
+def _finite_range(values: np.ndarray) -> tuple[float, float]:
+    """(min, max) of the finite values; (0, 0) when there is none."""
+    if values.dtype.kind != "f":
+        return float(values.min()), float(values.max())
+    finite = np.isfinite(values)
+    if not finite.any():
+        return 0.0, 0.0
+    return (float(np.min(values, where=finite, initial=np.inf)),
+            float(np.max(values, where=finite, initial=-np.inf)))
 
 
 def _alpha(img: Image.Image) -> np.ndarray | None:
