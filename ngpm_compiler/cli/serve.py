@@ -25,7 +25,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--timeout", type=float, default=60.0,
                    help="seconds a run may take before it is stopped (default 60)")
     p.add_argument("--max-runs", type=int, default=2,
-                   help="runs at once over all clients (default 2)")
+                   help="runs at once over all clients, and pictures read at once "
+                        "(default 2)")
     p.add_argument("--open", action="store_true", help="open the page in a web browser")
     p.set_defaults(handler=cmd_serve)
 
