@@ -27,7 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    default=60.0, help="seconds a run may take before it is stopped "
                                       f"(default 60, at most {argtypes.MAX_TIMEOUT:g})")
     p.add_argument("--max-runs", type=argtypes.workers, default=2,
-                   help="runs at once over all clients (default 2)")
+                   help="runs at once over all clients, and pictures read at once "
+                        "(default 2)")
     p.add_argument("--open", action="store_true", help="open the page in a web browser")
     p.set_defaults(handler=cmd_serve)
 

@@ -13,9 +13,14 @@ Routes (every error is JSON `{"error": "..."}` with a fitting status code):
   PNG mask the page paints onto its canvas.
 - `GET /api/examples`, `GET /api/examples/{name}`: the demo's pictures as masks + starts.
 
-SMC runs in a worker thread, one run per client (cookie or `X-Client-Id` header; else the
-address) and at most `Limits.max_runs` at once; a run stops at its time limit or when its
-client goes away (checked at every SMC step through `grow(..., on_step=...)`).
+Pictures are decoded by the runtime's one loader (`ngpm_runtime.image.targets.read_image`,
+as `ngpmc grow` does: size checked from the header first, an animation's first frame that
+holds a shape), at most `Limits.max_runs` at once. SMC runs in a worker thread, one run per
+client address (not per anything the client declares) and at most `Limits.max_runs` at
+once; a run stops at its time limit or when its client goes away (checked at every SMC
+step through `grow(..., on_step=...)`). A request's JSON is bounded in size, depth and
+count of values; its line, headers and body must arrive within `Limits.request_timeout_s`
+(`DeadlineProtocol`), and uvicorn answers 503 beyond `Limits.max_connections`.
 """
 
 from __future__ import annotations
@@ -28,7 +33,6 @@ import json
 import logging
 import math
 import re
-import secrets
 import socket
 import tempfile
 import threading
@@ -41,12 +45,12 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.errors import GuideError, NgpmError, TargetError
 from ngpm_runtime.program import Program
-from PIL import Image, ImageOps, UnidentifiedImageError
+from PIL import Image
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
@@ -55,11 +59,10 @@ from starlette.types import Receive, Scope, Send
 log = logging.getLogger("ngpmc.serve")
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
-COOKIE = "ngpm_client"
-CLIENT_ID_RE = re.compile(r"[A-Za-z0-9_-]{8,64}")
 DATA_URL_RE = re.compile(r"^data:([\w.+/-]*)((?:;[\w.+-]+=[\w.+-]+)*)(;base64)?,", re.ASCII)
-FORMATS = {"PNG": "PNG", "JPEG": "JPEG", "MPO": "JPEG", "GIF": "GIF", "BMP": "BMP",
-           "TIFF": "TIFF", "WEBP": "WebP"}
+NOT_BRACKETS = bytes(c for c in range(256) if c not in b"[]{}")  # bytes.translate deletes
+MAX_JSON_DEPTH = 8  # nested [ ] and { } in a request (the API needs 2)
+MAX_JSON_VALUES = 256  # values and containers in a request (the API needs about 12)
 POLARITIES = ("auto", "dark", "light", "alpha")
 GROW_KEYS = ("image", "grammar", "guide", "particles", "seed", "start", "polarity")
 SHAPE_SIZE = 256  # side of the masks /api/shape and /api/examples return
@@ -81,8 +84,10 @@ class Limits:
     max_particles: int = 500
     default_particles: int = 10
     timeout_s: float = 60.0  # per run
-    max_runs: int = 2  # runs at once, over all clients
+    max_runs: int = 2  # runs at once, over all clients; also pictures decoded at once
     target_size: int = 50  # the model's target resolution (as `ngpmc grow --size`)
+    request_timeout_s: float = 10.0  # a request's line, headers and body must arrive in it
+    max_connections: int = 32  # uvicorn's limit_concurrency: beyond it requests get 503
 
 
 @dataclass
@@ -191,7 +196,7 @@ async def _server_error(request: Request, exc: Exception) -> Response:
 
 
 async def read_json(request: Request, limit: int) -> dict[str, Any]:
-    """The request's JSON object, read with a size cap."""
+    """The request's JSON object, read with a cap on its size, depth and count of values."""
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
     if ctype != "application/json":
         raise ApiError(415, "send the request as JSON (Content-Type: application/json)")
@@ -200,17 +205,44 @@ async def read_json(request: Request, limit: int) -> dict[str, Any]:
     if length is not None and length.isdigit() and int(length) > limit:
         raise ApiError(413, too_big)
     body = bytearray()
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > limit:
-            raise ApiError(413, too_big)
+    try:
+        async for chunk in request.stream():
+            body += chunk
+            if len(body) > limit:
+                raise ApiError(413, too_big)
+    except ClientDisconnect:  # gone, or cut off by the request deadline
+        raise ApiError(400, "the request body did not arrive (in time)") from None
+    check_json_shape(bytes(body))
     try:
         data = json.loads(bytes(body))
-    except (ValueError, UnicodeDecodeError):
+    except (ValueError, UnicodeDecodeError, RecursionError):
         raise ApiError(400, "the request body is not valid JSON") from None
     if not isinstance(data, dict):
         raise ApiError(400, "the request body must be a JSON object")
     return data
+
+
+def check_json_shape(body: bytes) -> None:
+    """Refuse JSON with more than MAX_JSON_VALUES values or nested deeper than
+    MAX_JSON_DEPTH, before parsing it: deep nesting overflows the parser's stack, and many
+    small values take far more memory than their bytes. A few passes at C speed: escapes
+    dropped, strings cut out, then the brackets counted (at most 2 * MAX_JSON_VALUES + 1)."""
+    plain = body.replace(b"\\\\", b"").replace(b'\\"', b"")  # now every quote is a delimiter
+    too_many = ApiError(400, f"the request body holds too many values (more than "
+                             f"{MAX_JSON_VALUES})")
+    if plain.count(b'"') > 2 * MAX_JSON_VALUES:
+        raise too_many
+    outside = b"".join(plain.split(b'"')[::2])  # the text outside strings
+    if sum(outside.count(c) for c in (b"[", b"{", b",")) > MAX_JSON_VALUES:
+        raise too_many
+    depth = 0
+    for byte in outside.translate(None, NOT_BRACKETS):
+        depth += 1 if byte in b"[{" else -1
+        if depth > MAX_JSON_DEPTH:
+            raise ApiError(400, f"the request body is nested too deeply (more than "
+                                f"{MAX_JSON_DEPTH} levels of [ ] and {{ }})")
+        if depth < 0:  # unbalanced: the parser will say it is not JSON
+            return
 
 
 def _mib(n: int) -> str:
@@ -218,7 +250,15 @@ def _mib(n: int) -> str:
 
 
 def decode_image(value: Any, limits: Limits) -> Image.Image:
-    """A PIL image from a data URL (or bare base64), checked for size and format."""
+    """A PIL image from a data URL (or bare base64), through the runtime's one loader:
+    format and size checked from the header before any pixel is decoded."""
+    from ngpm_runtime.image.targets import (
+        ImageDecodeError,
+        ImageFormatError,
+        ImageSizeError,
+        read_image,
+    )
+
     if not isinstance(value, str) or not value:
         raise ApiError(400, "'image' must be an image as a data URL "
                             "(data:image/png;base64,...)")
@@ -233,30 +273,17 @@ def decode_image(value: Any, limits: Limits) -> Image.Image:
         raw = base64.b64decode(value, validate=True)
     except (binascii.Error, ValueError):
         raise ApiError(400, "'image' is not valid base64") from None
-    kinds = "PNG, JPEG, GIF, BMP, TIFF or WebP"
     try:
-        img = Image.open(io.BytesIO(raw))
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError):
-        raise ApiError(415, f"not an image that can be read: send a {kinds} file") from None
-    except Image.DecompressionBombError:
-        raise ApiError(413, "the image has too many pixels") from None
-    if img.format not in FORMATS:
-        raise ApiError(415, f"{img.format or 'unknown'} images are not accepted: send a {kinds} "
-                            "file")
-    w, h = img.size
-    if w > limits.max_side or h > limits.max_side:
-        raise ApiError(413, f"the image is {w} x {h} px; the limit is {limits.max_side} x "
-                            f"{limits.max_side}")
-    try:  # max_side keeps it far below PIL's decompression-bomb limit
-        img.load()
-        info = dict(img.info)
-        out = ImageOps.exif_transpose(img)
-        out.info = info
-    except (OSError, ValueError, SyntaxError, EOFError, Image.DecompressionBombError) as err:
-        raise ApiError(400, f"cannot decode the {FORMATS[img.format]} image: "
-                            f"{str(err).splitlines()[0][:120] if str(err) else type(err).__name__}"
-                       ) from None
-    return out
+        return read_image(io.BytesIO(raw), "the picture", max_side=limits.max_side,
+                          max_pixels=limits.max_side ** 2)
+    except ImageFormatError as err:
+        raise ApiError(415, str(err)) from None
+    except ImageSizeError as err:
+        raise ApiError(413, str(err)) from None
+    except ImageDecodeError as err:
+        raise ApiError(400, str(err)) from None
+    except TargetError as err:  # an animation without a frame that holds a shape
+        raise ApiError(422, _target_message(err)) from None
 
 
 def _int(body: dict[str, Any], key: str, default: int, lo: int, hi: int) -> int:
@@ -352,7 +379,7 @@ def _target_message(err: TargetError) -> str:
     text = str(err)
     if "flat" in text or "no shape" in text:
         return "the picture holds no shape: draw one (or upload a picture) first"
-    return text.replace("picture: ", "the picture: ", 1)
+    return "the " + text if text.startswith("picture: ") else text
 
 
 # --------------------------------------------------------------------------- runs
@@ -378,7 +405,7 @@ class Run:
 
 
 class RunSlots:
-    """One run per client, at most `max_runs` runs at once."""
+    """One run per client address, at most `max_runs` runs at once."""
 
     def __init__(self, max_runs: int, timeout_s: float) -> None:
         self.max_runs = max_runs
@@ -389,8 +416,8 @@ class RunSlots:
     def acquire(self, client: str) -> Run:
         with self._lock:
             if client in self._active:
-                raise ApiError(409, "a run of yours is still going: wait for it to finish or "
-                                    "stop it first")
+                raise ApiError(409, f"a run from your address ({client}) is still going: wait "
+                                    "for it to finish or stop it first")
             if len(self._active) >= self.max_runs:
                 raise ApiError(503, f"the server is busy with {len(self._active)} runs; try "
                                     "again in a moment", {"Retry-After": "2"})
@@ -409,10 +436,28 @@ class RunSlots:
 
 
 def client_id(request: Request) -> str:
-    for value in (request.cookies.get(COOKIE), request.headers.get("x-client-id")):
-        if value and CLIENT_ID_RE.fullmatch(value):
-            return value
-    return "addr:" + (request.client.host if request.client else "unknown")
+    """Whose run it is: the peer's address. Not a cookie or a header: those are the
+    client's own word, and a client that changed them at will could take every slot."""
+    return request.client.host if request.client else "unknown"
+
+
+async def in_decode_slot(request: Request, work: Callable[..., Any], *args: Any) -> Any:
+    """`work(*args)` (which decodes a picture) in a worker thread, holding one of the
+    `max_runs` decode slots, so that many uploads at once cannot take the memory; 503 when
+    every slot is taken. The thread itself gives the slot back, even if the request is
+    abandoned meanwhile."""
+    slots: threading.BoundedSemaphore = request.app.state.decode_slots
+    if not slots.acquire(blocking=False):
+        raise ApiError(503, "the server is busy reading other pictures; try again in a "
+                            "moment", {"Retry-After": "2"})
+
+    def held() -> Any:
+        try:
+            return work(*args)
+        finally:
+            slots.release()
+
+    return await asyncio.to_thread(held)
 
 
 def prim_json(p: tuple) -> list[Any]:
@@ -561,10 +606,7 @@ class RunStream(StreamingResponse):
 
 
 async def index(request: Request) -> Response:
-    resp = FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
-    if not CLIENT_ID_RE.fullmatch(request.cookies.get(COOKIE) or ""):
-        resp.set_cookie(COOKIE, secrets.token_urlsafe(16), httponly=True, samesite="strict")
-    return resp
+    return FileResponse(STATIC_DIR / "index.html", headers={"Cache-Control": "no-cache"})
 
 async def options(request: Request) -> Response:
     config: WebConfig = request.app.state.config
@@ -588,7 +630,7 @@ async def grow_route(request: Request) -> Response:
     limits = config.limits
     slots: RunSlots = request.app.state.slots
     body = await read_json(request, limits.max_body_bytes)
-    job = await asyncio.to_thread(parse_grow, body, config)
+    job = await in_decode_slot(request, parse_grow, body, config)
     run = slots.acquire(client_id(request))
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue[tuple[str, dict[str, Any]]] = asyncio.Queue()
@@ -623,8 +665,8 @@ async def shape_route(request: Request) -> Response:
         raise ApiError(400, f"unknown field(s): {', '.join(unknown)} (expected image, "
                             "polarity)")
     polarity = _polarity(body)
-    return JSONResponse(await asyncio.to_thread(_shape, body.get("image"), polarity,
-                                                limits))
+    return JSONResponse(await in_decode_slot(request, _shape, body.get("image"), polarity,
+                                             limits))
 
 async def examples(request: Request) -> Response:
     from ngpm_runtime import bundled
@@ -669,6 +711,7 @@ def create_app(config: WebConfig, hosts: tuple[str, ...] = HOSTS) -> Starlette:
     )
     app.state.config = config
     app.state.slots = slots
+    app.state.decode_slots = threading.BoundedSemaphore(limits.max_runs)
     return app
 
 
@@ -734,13 +777,67 @@ def warm_up(config: WebConfig) -> None:
 
 def make_server(config: WebConfig, sock: socket.socket, log_level: str = "warning") -> Any:
     """A uvicorn Server for the app (after a warm-up run); run it with
-    `server.run(sockets=[sock])`."""
+    `server.run(sockets=[sock])`. Requests must arrive within `request_timeout_s`, and at
+    most `max_connections` connections are served at once (uvicorn answers 503 beyond)."""
     import uvicorn
 
     warm_up(config)
 
     host, port = sock.getsockname()[:2]
     hosts = tuple(sorted(set(HOSTS) | {host}))
+    limits = config.limits
     uconfig = uvicorn.Config(create_app(config, hosts), log_level=log_level,
-                             access_log=False, timeout_graceful_shutdown=2)
+                             access_log=False, timeout_graceful_shutdown=2,
+                             http=deadline_protocol(limits.request_timeout_s),
+                             limit_concurrency=limits.max_connections)
     return uvicorn.Server(uconfig)
+
+
+def deadline_protocol(timeout_s: float) -> type[asyncio.Protocol]:
+    """uvicorn's HTTP/1.1 protocol (h11) with a deadline: a request's line, headers and body
+    must arrive within `timeout_s` of the connection opening (or of the previous response),
+    else the connection is closed. uvicorn has no such timeout: its keep-alive timeout
+    starts only after a response and any byte resets it, so a client sending a byte now
+    and then would hold its connection forever."""
+    import h11
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    arriving = (h11.IDLE, h11.SEND_BODY)  # the client's states while a request comes in
+
+    class DeadlineProtocol(H11Protocol):
+        deadline: asyncio.TimerHandle | None = None
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self._arm()
+
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)
+            if self.conn.their_state not in arriving:  # the request is in (or it failed)
+                self._disarm()
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            self._disarm()
+            if not self.transport.is_closing() and self.conn.their_state in arriving:
+                self._arm()  # the next request (or the rest of this one's body)
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+        def _arm(self) -> None:
+            self._disarm()
+            self.deadline = self.loop.call_later(timeout_s, self._expire)
+
+        def _disarm(self) -> None:
+            if self.deadline is not None:
+                self.deadline.cancel()
+                self.deadline = None
+
+        def _expire(self) -> None:
+            self.deadline = None
+            if not self.transport.is_closing():
+                self.transport.close()
+
+    return DeadlineProtocol

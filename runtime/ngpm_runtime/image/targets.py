@@ -18,6 +18,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from PIL import Image, ImageOps, PngImagePlugin, UnidentifiedImageError
@@ -41,6 +42,23 @@ MIN_FOREGROUND = 0.004  # smallest foreground fraction after resizing (10 px at 
 MAX_FOREGROUND = 0.95  # largest foreground fraction: above it there is no shape to match
 POLARITY_KEY = "ngpm-polarity"  # PNG text chunk save_target writes (always "dark")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp")
+IMAGE_FORMATS = ("PNG", "JPEG", "MPO", "GIF", "BMP", "TIFF", "WEBP")  # PIL's format names
+FORMAT_NAMES = "PNG, JPEG, GIF, BMP, TIFF or WebP"
+MAX_SIDE = 8192  # largest accepted image side, in pixels (so the padded square is bounded)
+MAX_PIXELS = 2**25  # largest accepted width x height (33.5 million pixels, 8192 x 4096)
+MAX_FRAMES = 32  # frames of an animation searched for one that holds a shape
+
+
+class ImageFormatError(TargetError):
+    """Not an image, or an image of a format that is not accepted."""
+
+
+class ImageSizeError(TargetError):
+    """An image with more pixels than the limits (found from its header, before decoding)."""
+
+
+class ImageDecodeError(TargetError):
+    """An image whose data cannot be decoded (truncated or damaged)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,40 +150,91 @@ def _check_start(start: Sequence[float], where: str) -> Start:
 # --- images -> masks ---------------------------------------------------------------------
 
 
-def read_image(path: str | os.PathLike) -> Image.Image:
-    """Open an image fully (so the file is closed), or raise a TargetError naming it."""
-    path = Path(path)
-    try:
-        with Image.open(path) as img:
+def read_image(source: str | os.PathLike | BinaryIO, name: str | None = None, *,
+               max_side: int = MAX_SIDE, max_pixels: int = MAX_PIXELS) -> Image.Image:
+    """Open and decode an image: a path, or a binary file object that `name` describes
+    (default: "target image PATH"). The one loader of the command line, the server and
+    `targets build --from`.
+
+    The header's size is checked against `max_side` (each side, which bounds the square
+    the image is padded to) and `max_pixels` before any pixel is decoded. Formats: PNG,
+    JPEG, GIF, BMP, TIFF, WebP. An animation (or a multi-page TIFF) gives its first frame
+    that holds a shape (see `_first_shape_frame`); a photo is turned as its EXIF
+    orientation says. Every problem is a TargetError naming the image: ImageFormatError,
+    ImageSizeError, ImageDecodeError, or a plain TargetError (missing file, no frame with
+    a shape).
+    """
+    if name is None:
+        name = f"target image {source}"
+    img = _open_image(source, name)
+    with img:
+        _check_image(img, name, max_side, max_pixels)
+        try:
+            if getattr(img, "is_animated", False):
+                return _first_shape_frame(img, name, max_side, max_pixels)
             img.load()
             info = dict(img.info)
-            if getattr(img, "n_frames", 1) > 1:  # animated GIF/PNG/WebP
-                return _first_shape_frame(img, path, info)
             out = ImageOps.exif_transpose(img)  # photos: honor the camera's orientation
             out.info = info
             return out
+        except TargetError:
+            raise
+        except Exception as err:  # a damaged file can make PIL raise nearly anything
+            raise ImageDecodeError(f"cannot decode {name}: {_reason(err)}") from None
+
+
+def _open_image(source: str | os.PathLike | BinaryIO, name: str) -> Image.Image:
+    """PIL's lazy open: the header only, no pixels."""
+    try:
+        return Image.open(source)
     except IsADirectoryError:
-        raise TargetError(f"{path} is a folder, not an image") from None
+        raise TargetError(f"{source} is a folder, not an image") from None
     except FileNotFoundError:
-        raise TargetError(f"target image {path} does not exist") from None
-    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, ValueError,
-            SyntaxError) as err:
-        raise TargetError(f"cannot read target image {path}: {_reason(err)}") from None
+        raise TargetError(f"{name} does not exist") from None
+    except UnidentifiedImageError:
+        raise ImageFormatError(f"cannot read {name}: not an image ({FORMAT_NAMES})") from None
+    except Image.DecompressionBombError as err:
+        raise ImageSizeError(f"cannot read {name}: {_reason(err)}") from None
+    except (OSError, ValueError, SyntaxError, EOFError) as err:
+        raise TargetError(f"cannot read {name}: {_reason(err)}") from None
 
 
-def _first_shape_frame(img: Image.Image, path: Path, info: dict) -> Image.Image:
-    """The first frame of an animation that holds a shape (not one flat color); its index
-    is kept in `info["ngpm_frame"]`. An animation often starts blank (a growth GIF does)."""
-    for k in range(img.n_frames):
-        img.seek(k)
-        frame = img.convert("RGBA")
-        rgba = np.asarray(frame)
-        gray = np.asarray(frame.convert("L"))
-        alpha = rgba[..., 3]
-        if int(alpha.max()) - int(alpha.min()) > 32 or int(gray.max()) - int(gray.min()) > 16:
+def _check_image(img: Image.Image, name: str, max_side: int, max_pixels: int) -> None:
+    """Refuse a format that is not accepted and a size over the limits (from the header)."""
+    if img.format not in IMAGE_FORMATS:
+        raise ImageFormatError(f"cannot read {name}: {img.format or 'unknown'} images are not "
+                               f"accepted ({FORMAT_NAMES})")
+    w, h = img.size
+    if max(w, h) > max_side or w * h > max_pixels:
+        raise ImageSizeError(f"cannot read {name}: the image is {w} x {h} px; the limit is "
+                             f"{max_side} px a side and {max_pixels:,} px in all")
+
+
+def _first_shape_frame(img: Image.Image, name: str, max_side: int,
+                       max_pixels: int) -> Image.Image:
+    """The first frame of an animation (or page of a TIFF) that holds a shape (not one flat
+    color), among the first MAX_FRAMES; its index is kept in `info["ngpm_frame"]`. An
+    animation often starts blank (a growth GIF does). Each frame's size is checked before
+    it is decoded (a TIFF's pages may differ)."""
+    info = dict(img.info)
+    count = 0
+    for k in range(MAX_FRAMES):
+        try:
+            img.seek(k)
+        except EOFError:
+            break
+        count = k + 1
+        _check_image(img, name, max_side, max_pixels)
+        img.load()
+        frame = plain_mode(img.copy(), name)
+        alpha = _alpha(frame)
+        gray = _gray(frame)
+        if (alpha is not None and int(alpha.max()) - int(alpha.min()) > 32) or \
+                int(gray.max()) - int(gray.min()) > 16:
             frame.info = {**info, "ngpm_frame": k}
             return frame
-    raise TargetError(f"{path}: none of the animation's {img.n_frames} frames holds a shape "
+    first = "first " if count == MAX_FRAMES else ""
+    raise TargetError(f"{name}: none of the animation's {first}{count} frames holds a shape "
                       "(every frame is one flat color)")
 
 
@@ -180,6 +249,7 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     """
     if polarity not in POLARITIES:
         raise TargetError(f"{name}: polarity must be one of {', '.join(POLARITIES)}")
+    img = plain_mode(img, name)
     if min(img.size) < MIN_SIDE:
         raise TargetError(f"{name}: image is tiny ({img.width} x {img.height} px, "
                           f"need at least {MIN_SIDE} x {MIN_SIDE})")
@@ -211,14 +281,51 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
     return dark if dark.mean() <= 0.5 else ~dark
 
 
+# modes PIL cannot take gray levels (or alpha) from directly, and the mode to convert to
+_PLAIN_VIA = {"LAB": "RGB", "La": "LA", "RGBa": "RGBA"}
+_READABLE_MODES = ("1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "CMYK", "YCbCr", "HSV",
+                   "I", "F")
+
+
+def plain_mode(img: Image.Image, name: str = "image") -> Image.Image:
+    """The image in a mode whose gray levels and alpha this module reads: LAB becomes RGB,
+    the premultiplied La and RGBa become LA and RGBA, any other new mode RGBA; the modes
+    it reads (L, RGB, CMYK, 16-bit, float, ...) are kept as they are."""
+    if img.mode in _READABLE_MODES or img.mode.startswith("I;"):
+        return img
+    try:
+        out = img.convert(_PLAIN_VIA.get(img.mode, "RGBA"))
+    except ValueError:
+        raise TargetError(f"{name}: images in PIL mode {img.mode} are not supported") from None
+    out.info = dict(img.info)
+    return out
+
+
 def _gray(img: Image.Image) -> np.ndarray:
-    """8-bit gray levels; 16-bit and float images are stretched from their min to max."""
-    if img.mode in ("I", "F") or img.mode.startswith("I;"):
-        values = np.asarray(img, dtype=np.float64)
-        lo, hi = float(values.min()), float(values.max())
-        scale = 255.0 / (hi - lo) if hi > lo else 0.0
-        return np.round((values - lo) * scale).astype(np.uint8)
-    return np.asarray(img.convert("L"), dtype=np.uint8)
+    """8-bit gray levels; 16-bit and float images are stretched from their min to max
+    (NaN and infinity count as the lowest finite level)."""
+    if not (img.mode in ("I", "F") or img.mode.startswith("I;")):
+        return np.asarray(img.convert("L"), dtype=np.uint8)
+    values = np.asarray(img)  # as stored (32-bit at most); float64 only a block at a time
+    lo, hi = _finite_range(values)
+    scale = 255.0 / (hi - lo) if hi > lo else 0.0
+    out = np.empty(values.shape, dtype=np.uint8)
+    for r in range(0, values.shape[0], 256):
+        block = values[r:r + 256].astype(np.float64)
+        block[~np.isfinite(block)] = lo
+        out[r:r + 256] = np.round((block - lo) * scale)
+    return out
+
+
+def _finite_range(values: np.ndarray) -> tuple[float, float]:
+    """(min, max) of the finite values; (0, 0) when there is none."""
+    if values.dtype.kind != "f":
+        return float(values.min()), float(values.max())
+    finite = np.isfinite(values)
+    if not finite.any():
+        return 0.0, 0.0
+    return (float(np.min(values, where=finite, initial=np.inf)),
+            float(np.max(values, where=finite, initial=-np.inf)))
 
 
 def _alpha(img: Image.Image) -> np.ndarray | None:
@@ -243,7 +350,8 @@ def resize_mask(mask: np.ndarray, size: int) -> np.ndarray:
     """Resize a square mask to size x size: area average (box filter), foreground >= 1/2."""
     if mask.shape == (size, size):
         return mask.astype(bool, copy=True)
-    img = Image.fromarray(mask.astype(np.uint8) * 255)
+    levels = np.asarray(mask, dtype=bool).view(np.uint8) * np.uint8(255)  # one copy, not two
+    img = Image.fromarray(levels)
     small = np.asarray(img.resize((size, size), Image.Resampling.BOX), dtype=np.uint8)
     return small >= 128
 

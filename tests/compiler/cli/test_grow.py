@@ -4,11 +4,13 @@
 from __future__ import annotations
 
 import re
+import resource
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from ngpm_runtime import bundled
 from PIL import Image
@@ -155,6 +157,27 @@ def test_missing_and_unreadable_images(tmp_path: Path, capsys) -> None:
     fake.write_text("this is not an image")
     assert "cannot read target image" in one_line_error(capsys, "grow", str(fake))
     assert "give a target image" in one_line_error(capsys, "grow")
+
+
+def test_a_tall_tiny_png_is_refused_before_it_takes_memory(tmp_path: Path) -> None:
+    """Issue #27 finding 6: a 8 x 60000 PNG of 200 bytes made `ngpmc grow` pad it to a
+    60000 x 60000 square (3.35 GiB; a MemoryError traceback under a memory limit). Run
+    here under a 2 GiB address-space limit: one line naming the file and the limit."""
+    pixels = np.full((60000, 8), 255, np.uint8)
+    pixels[:30000, 2:6] = 0
+    tall = tmp_path / "tall.png"
+    Image.fromarray(pixels).convert("1").save(tall)
+
+    def two_gib() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
+
+    proc = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "grow", str(tall),
+                           "-o", str(tmp_path / "v.png")], capture_output=True, text=True,
+                          timeout=120, preexec_fn=two_gib)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == (f"ngpmc: error: cannot read target image {tall}: the image "
+                                   "is 8 x 60000 px; the limit is 8192 px a side and "
+                                   "33,554,432 px in all")
 
 
 def test_grammar_given_as_the_image(capsys) -> None:

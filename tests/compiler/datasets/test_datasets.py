@@ -151,6 +151,31 @@ def test_silhouettes_from_dir_skip_bad_files(tmp_path):
     assert (dx, dy) == pytest.approx((0, -1))
 
 
+def test_silhouettes_from_dir_read_any_mode_and_skip_huge_images(tmp_path):
+    """Issue #27: a LAB TIFF crashed `targets build --from` (finding 7), and a 8 x 60000 PNG
+    of 200 bytes took gigabytes once framed in a square (finding 6). The runtime's one
+    loader reads every mode and checks the size from the header first."""
+    src = tmp_path / "src"
+    src.mkdir()
+    yy, xx = np.mgrid[:120, :80]
+    blob = ((yy - 60) / 40) ** 2 + ((xx - 40) / 25) ** 2 < 1
+    gray = Image.fromarray(np.where(blob, 10, 250).astype(np.uint8))
+    gray.convert("RGB").convert("LAB").save(src / "a_lab.tif")
+    gray.save(src / "c_gray.png")
+    tall = np.full((60000, 8), 255, np.uint8)
+    tall[:30000, 2:6] = 0
+    Image.fromarray(tall).convert("1").save(src / "b_tall.png")
+    with pytest.warns(DatasetWarning) as record:
+        build_dataset("silhouettes", tmp_path / "out", count=2, source_dir=src)
+    assert [str(w.message) for w in record] == [
+        f"skipped cannot read target image {src / 'b_tall.png'}: the image is 8 x 60000 px; "
+        "the limit is 8192 px a side and 33,554,432 px in all"]
+    index = json.loads((tmp_path / "out" / "index.json").read_text())
+    assert index["sources"] == ["file a_lab.tif", "file c_gray.png"]
+    lab, plain = load_dataset(tmp_path / "out")
+    assert np.array_equal(lab.mask, plain.mask)
+
+
 def test_silhouettes_default_has_horse_and_procedural(tmp_path):
     files = build_dataset("silhouettes", tmp_path)
     index = json.loads((tmp_path / "index.json").read_text())

@@ -8,6 +8,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import math
 import re
 import shutil
 import signal
@@ -15,8 +16,12 @@ import socket
 import subprocess
 import sys
 import threading
+import time
+import urllib.error
 import urllib.request
 import warnings
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -33,6 +38,7 @@ with warnings.catch_warnings():  # Starlette 1.x prefers httpx2 and warns about 
                     allow_module_level=True)
 
 from ngpm_runtime import bundled  # noqa: E402
+from ngpm_runtime.image.targets import load_target  # noqa: E402
 from PIL import Image, ImageDraw  # noqa: E402
 from repo_paths import REPO  # noqa: E402
 
@@ -42,8 +48,10 @@ from ngpm_compiler.web.app import (  # noqa: E402
     Limits,
     Run,
     RunStopped,
+    bind,
     create_app,
     load_config,
+    make_server,
 )
 
 BASE = "http://127.0.0.1"
@@ -124,12 +132,11 @@ def assert_error(resp: Any, status: int, *words: str) -> None:
 # --------------------------------------------------------------------------- the page
 
 
-def test_page_sets_a_client_cookie_and_serves_its_files(client: TestClient) -> None:
+def test_page_and_its_files_are_served(client: TestClient) -> None:
     resp = client.get("/")
     assert resp.status_code == 200
     assert "text/html" in resp.headers["content-type"]
     assert 'id="ink"' in resp.text and 'id="grow"' in resp.text
-    assert "ngpm_client" in resp.cookies
     for path, kind in (("/static/app.js", "javascript"), ("/static/style.css", "text/css")):
         r = client.get(path)
         assert r.status_code == 200 and kind in r.headers["content-type"]
@@ -311,6 +318,24 @@ def test_bodies_that_are_not_json_objects_are_refused(client: TestClient) -> Non
     assert_error(client.post("/api/grow", json={}), 400, "'image' is missing")
 
 
+def test_deep_or_crowded_json_is_a_400_not_a_crash(client: TestClient) -> None:
+    """Finding 7: deeply nested JSON made the parser raise RecursionError (a 500). Depth
+    and the count of values are checked before parsing; strings may hold anything."""
+    json_type = {"content-type": "application/json"}
+    deep = b'{"image": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
+    nine = b'{"image": ' + b"[" * 8 + b"]" * 8 + b"}"
+    for path in ("/api/grow", "/api/shape"):
+        assert_error(client.post(path, content=deep, headers=json_type), 400,
+                     "too many values (more than 256)")
+        assert_error(client.post(path, content=nine, headers=json_type), 400,
+                     "nested too deeply (more than 8 levels")
+    crowded = json.dumps({"image": png_url(drawing(100)), "seed": [0] * 5000}).encode()
+    assert_error(client.post("/api/grow", content=crowded, headers=json_type), 400,
+                 "too many values")
+    odd = {"image": png_url(drawing(100)), "grammar": '[[[[[[[[[[{{{{,,,,\\"'}
+    assert_error(client.post("/api/grow", json=odd), 400, "unknown grammar")
+
+
 def test_oversized_requests_and_images_are_413(config: Any) -> None:
     small = load_config(limits=Limits(max_body_bytes=2000, max_image_bytes=1000))
     client = TestClient(create_app(small), base_url=BASE)
@@ -323,24 +348,42 @@ def test_oversized_requests_and_images_are_413(config: Any) -> None:
                  "image file is larger than")
 
 
+def peer(app: Any, address: str) -> TestClient:
+    """A test client that connects from `address`."""
+    return TestClient(app, base_url=BASE, client=(address, 50000))
+
+
 def test_one_run_per_client_and_a_busy_server(config: Any) -> None:
     app = create_app(load_config(limits=Limits(max_runs=2)))
-    client = TestClient(app, base_url=BASE)
     body = {"image": png_url(drawing(100)), "particles": 1}
-    mine = app.state.slots.acquire("client-aaaaaaaa")  # a run of this client is going
-    assert_error(client.post("/api/grow", json=body, headers={"x-client-id": "client-aaaaaaaa"}),
-                 409, "still going")
-    other = app.state.slots.acquire("client-bbbbbbbb")  # and a second client's: full
-    resp = client.post("/api/grow", json=body, headers={"x-client-id": "client-cccccccc"})
+    mine = app.state.slots.acquire("127.0.0.2")  # a run of this client is going
+    assert_error(peer(app, "127.0.0.2").post("/api/grow", json=body), 409,
+                 "from your address (127.0.0.2) is still going")
+    other = app.state.slots.acquire("127.0.0.3")  # and a second client's: full
+    resp = peer(app, "127.0.0.4").post("/api/grow", json=body)
     assert_error(resp, 503, "busy")
     assert resp.headers["retry-after"] == "2"
     app.state.slots.release(mine)
     app.state.slots.release(other)
-    with client.stream("POST", "/api/grow", json=body,
-                       headers={"x-client-id": "client-aaaaaaaa"}) as resp:
+    with peer(app, "127.0.0.2").stream("POST", "/api/grow", json=body) as resp:
         assert resp.status_code == 200
         assert events(resp)[-1][0] == "done"
     assert app.state.slots.active() == 0
+
+
+def test_a_client_cannot_take_more_slots_by_naming_itself_anew(config: Any) -> None:
+    """Finding 8: run slots belong to the client's address, not to a header or cookie it
+    sends (rotating X-Client-Id used to take every slot)."""
+    app = create_app(load_config(limits=Limits(max_runs=2)))
+    mine = app.state.slots.acquire("127.0.0.2")
+    client = peer(app, "127.0.0.2")
+    body = {"image": png_url(drawing(100)), "particles": 1}
+    for name in ("client-aaaaaaaa", "client-bbbbbbbb"):
+        resp = client.post("/api/grow", json=body,
+                           headers={"x-client-id": name, "cookie": f"ngpm_client={name}"})
+        assert_error(resp, 409, "still going")
+    assert app.state.slots.active() == 1
+    app.state.slots.release(mine)
 
 
 def test_two_clients_grow_at_once_as_they_would_alone(config: Any) -> None:
@@ -350,8 +393,7 @@ def test_two_clients_grow_at_once_as_they_would_alone(config: Any) -> None:
     results: dict[int, Any] = {}
 
     def one(seed: int) -> None:
-        client = TestClient(app, base_url=BASE, headers={"x-client-id": f"client-{seed:08d}"})
-        results[seed] = grow(client, seed=seed, particles=6)[-1]
+        results[seed] = grow(peer(app, f"127.0.0.{seed + 1}"), seed=seed, particles=6)[-1]
 
     threads = [threading.Thread(target=one, args=(s,)) for s in (1, 2)]
     for t in threads:
@@ -386,6 +428,53 @@ def test_shape_finds_the_shape_of_an_uploaded_picture(client: TestClient) -> Non
     assert_error(client.post("/api/shape", json={"image": png_url(Image.new("L", (50, 50)))}),
                  422, "no shape")
     assert_error(client.post("/api/shape", json={"image": "x", "extra": 1}), 400, "extra")
+
+
+def data_url(img: Image.Image, fmt: str, **save: Any) -> str:
+    buf = io.BytesIO()
+    img.save(buf, format=fmt, **save)
+    return f"data:image/{fmt.lower()};base64," + base64.b64encode(buf.getvalue()).decode()
+
+
+def test_pictures_are_read_as_ngpmc_grow_reads_them(client: TestClient,
+                                                     tmp_path: Path) -> None:
+    """Findings 7 and 8: a LAB TIFF was a 500, and an animated GIF whose first frame is
+    blank was refused (422) although `ngpmc grow` takes its first frame with a shape. Both
+    now go through the runtime's one loader: the same mask as the command line's."""
+    shape = drawing(160)
+    blank = Image.new("RGB", shape.size, "white")
+    gif = tmp_path / "anim.gif"
+    blank.save(gif, save_all=True, append_images=[shape], duration=100, loop=0)
+    lab = tmp_path / "lab.tif"
+    shape.convert("LAB").save(lab)
+    for path in (gif, lab):
+        url = data_url(Image.open(path), "GIF" if path == gif else "TIFF", save_all=True)
+        resp = client.post("/api/shape", json={"image": url})
+        assert resp.status_code == 200, resp.text
+        evs = grow(client, image=url, particles=2)
+        assert evs[-1][0] == "done", evs[-1]
+        png = Image.open(io.BytesIO(decode_data_url(evs[0][1]["mask"], "image/png")))
+        assert np.array_equal(np.asarray(png)[..., 3] > 0, load_target(path).mask), path.name
+    flat = [Image.new("RGB", shape.size, (250 - k,) * 3) for k in range(3)]
+    url = data_url(flat[0], "GIF", save_all=True, append_images=flat[1:])
+    assert_error(client.post("/api/shape", json={"image": url}), 422, "holds no shape")
+
+
+def test_pictures_are_decoded_a_few_at_a_time(config: Any) -> None:
+    """Finding 6: /api/shape was not bounded by --max-runs (twelve float TIFFs at once
+    took 2.5 GB); every picture, /api/grow's too, now takes one of max_runs decode slots."""
+    app = create_app(load_config(limits=Limits(max_runs=1)))
+    client = TestClient(app, base_url=BASE)
+    body = {"image": png_url(drawing(100))}
+    assert app.state.decode_slots.acquire(blocking=False)  # a picture is being read
+    for path in ("/api/shape", "/api/grow"):
+        resp = client.post(path, json=body)
+        assert_error(resp, 503, "busy reading other pictures")
+        assert resp.headers["retry-after"] == "2"
+    app.state.decode_slots.release()
+    assert client.post("/api/shape", json=body).status_code == 200
+    assert app.state.decode_slots.acquire(blocking=False)  # the slot was given back
+    app.state.decode_slots.release()
 
 
 def test_examples_are_the_demo_pictures_with_their_starts(client: TestClient) -> None:
@@ -433,6 +522,97 @@ def test_serve_command_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -
         assert main(["serve", "--port", str(port)]) == 1
     err = capsys.readouterr().err
     assert "cannot listen on 127.0.0.1" in err and "Traceback" not in err
+
+
+@pytest.fixture()
+def live() -> Iterator[int]:
+    """The port of a real server (uvicorn, in a thread, on 127.0.0.1) whose requests must
+    arrive within 1 s, serving at most 8 connections at once."""
+    pytest.importorskip("uvicorn", reason="ngpmc serve needs the [web] extra (uvicorn)")
+    limits = Limits(request_timeout_s=1.0, max_connections=8)
+    sock = bind(0)
+    server = make_server(load_config(guide="none", limits=limits), sock)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        for _ in range(600):
+            if server.started:
+                break
+            time.sleep(0.05)
+        assert server.started, "the server did not start in 30 s"
+        yield sock.getsockname()[1]
+    finally:
+        server.should_exit = True
+        thread.join(30)
+        sock.close()
+
+
+def seconds_held(socks: list[socket.socket], trickles: list[bytes],
+                 limit: float = 6.0) -> list[float]:
+    """Send each socket the next byte of its trickle every 0.2 s until the server closes
+    it: the seconds each stayed open (inf: still open after `limit`)."""
+    t0 = time.monotonic()
+    held = [math.inf] * len(socks)
+    for s in socks:
+        s.setblocking(False)
+    step = 0
+    while time.monotonic() - t0 < limit and math.inf in held:
+        for i, s in enumerate(socks):
+            if held[i] != math.inf:
+                continue
+            try:
+                if s.recv(65536) == b"":
+                    held[i] = time.monotonic() - t0
+                    continue
+            except BlockingIOError:
+                pass
+            except OSError:
+                held[i] = time.monotonic() - t0
+                continue
+            try:
+                s.send(trickles[i][step % len(trickles[i]):][:1])
+            except BlockingIOError:
+                pass
+            except OSError:
+                held[i] = time.monotonic() - t0
+        step += 1
+        time.sleep(0.2)
+    return held
+
+
+def status_of(port: int, path: str) -> int:
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=10) as resp:
+            return resp.status
+    except urllib.error.HTTPError as err:
+        return err.code
+
+
+def test_slow_clients_are_cut_off_and_cannot_crowd_the_server(live: int) -> None:
+    """Finding 8: clients that send their request slowly (a header byte now and then, or a
+    body byte) were held forever. Now a request must arrive within request_timeout_s (1 s
+    here); connections beyond max_connections (8) get 503 meanwhile."""
+    head = b"GET /api/options HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+    post = (b"POST /api/shape HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+            b"application/json\r\nContent-Length: 5000\r\n\r\n{")
+    socks, trickles = [], []
+    for k in range(10):
+        s = socket.create_connection(("127.0.0.1", live), timeout=10)
+        if k == 0:  # one full request first, then the next one slowly (keep-alive)
+            s.sendall(head + b"\r\n")
+            assert s.recv(65536).startswith(b"HTTP/1.1 200")
+        else:
+            s.sendall(post if k % 2 else head)
+        socks.append(s)
+        trickles.append(b" " if k % 2 else b"X-Slow: 1\r\n")
+    try:
+        assert status_of(live, "/api/options") == 503  # 10 connections held: full
+        held = seconds_held(socks, trickles)
+    finally:
+        for s in socks:
+            s.close()
+    assert max(held) < 4.0, held  # 1 s, plus slack for a busy machine
+    assert status_of(live, "/api/options") == 200
 
 
 def test_serve_prints_the_url_answers_and_stops_on_ctrl_c() -> None:

@@ -12,17 +12,22 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ngpm_runtime.errors import NgpmError, TargetError
 from ngpm_runtime.image.targets import (
+    MAX_FRAMES,
+    ImageDecodeError,
+    ImageFormatError,
+    ImageSizeError,
     Target,
     auto_start,
     image_to_mask,
     load_dataset,
     load_target,
+    read_image,
     read_sidecar,
     resize_mask,
     save_target,
     write_sidecar,
 )
-from PIL import Image
+from PIL import Image, ImageDraw, ImageFile
 
 
 def disk_mask(h: int = 100, w: int = 100, cy: float = 50, cx: float = 50, r: float = 25):
@@ -154,6 +159,129 @@ def test_palette_png_with_transparency(tmp_path):
     img.info["transparency"] = 0
     img.save(tmp_path / "pal.png", transparency=0)
     assert np.array_equal(load_target(tmp_path / "pal.png", size=100).mask, m)
+
+
+# --- every PIL mode, sizes, animations (issue #27) ----------------------------------------
+
+
+def colored_disk() -> Image.Image:
+    """A dark blue disk on an off-white background, 96 x 64 px."""
+    img = Image.new("RGB", (96, 64), (250, 245, 235))
+    ImageDraw.Draw(img).ellipse((28, 12, 68, 52), fill=(20, 30, 110))
+    return img
+
+
+def in_mode(base: Image.Image, mode: str) -> Image.Image:
+    """`base` in PIL mode `mode` (16-bit modes: the gray levels scaled to 0..65535)."""
+    if mode.startswith("I;16"):
+        order = {"I;16B": ">u2"}.get(mode, "<u2" if mode != "I;16N" else "=u2")
+        levels = np.asarray(base.convert("L"), np.uint16) * 257
+        return Image.frombytes(mode, base.size, levels.astype(order).tobytes())
+    if mode in ("La", "RGBa"):
+        return base.convert("RGBA").convert(mode)
+    if mode == "PA":
+        return base.convert("P").convert("PA")
+    if mode == "1":
+        return base.convert("1", dither=Image.Dither.NONE)
+    return base.convert(mode)
+
+
+@pytest.mark.parametrize("mode", Image.MODES)
+def test_every_pil_mode_gives_the_shape(tmp_path, mode):
+    """Finding 7: a TIFF in LAB mode raised a ValueError traceback. Each mode PIL can write
+    (as TIFF, else PNG) is loaded from a file, the others are read in memory."""
+    base = colored_disk()
+    want = image_to_mask(base)
+    img = in_mode(base, mode)
+    for fmt in ("TIFF", "PNG"):
+        path = tmp_path / f"shape.{fmt.lower()}"
+        try:
+            img.save(path, format=fmt)
+        except (OSError, ValueError, KeyError):
+            continue
+        got = load_target(path, size=None).mask[16:80]  # unpad the 96 x 96 square
+        break
+    else:
+        got = image_to_mask(img, name="in memory")
+    assert iou(got, want) > 0.98, mode
+
+
+def test_lab_tiff_loads_like_its_rgb(tmp_path):
+    base = colored_disk()
+    base.convert("LAB").save(tmp_path / "lab.tif")
+    base.save(tmp_path / "rgb.png")
+    lab = load_target(tmp_path / "lab.tif")
+    assert np.array_equal(lab.mask, load_target(tmp_path / "rgb.png").mask)
+
+
+def test_float_image_with_nan_and_infinity(tmp_path):
+    values = np.where(image_to_mask(colored_disk()), 0.0, 1.0).astype(np.float32)
+    values[0, :5] = [np.nan, np.inf, -np.inf, np.nan, np.nan]
+    Image.fromarray(values, mode="F").save(tmp_path / "f.tif")
+    mask = load_target(tmp_path / "f.tif", size=None).mask[16:80]
+    assert iou(mask, image_to_mask(colored_disk())) > 0.98
+
+
+def tall_png(path: Path) -> Path:
+    """A 8 x 60000 px two-color PNG of a few hundred bytes."""
+    pixels = np.full((60000, 8), 255, np.uint8)
+    pixels[:30000, 2:6] = 0
+    Image.fromarray(pixels).convert("1").save(path)
+    return path
+
+
+def test_image_size_is_checked_from_the_header_before_decoding(tmp_path, monkeypatch):
+    """Finding 6: a 8 x 60000 PNG of 200 bytes was padded to a 60000 x 60000 square
+    (3.35 GiB). Each side (so the padded square) and the pixel count are limited, and
+    checked from the header: no pixel is decoded."""
+    path = tall_png(tmp_path / "tall.png")
+    assert path.stat().st_size < 2000
+
+    def no_decoding(self):
+        raise AssertionError("decoded")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(ImageFile.ImageFile, "load", no_decoding)
+        with pytest.raises(ImageSizeError) as info:
+            load_target(path)
+    text = str(info.value)
+    assert "tall.png" in text and "8 x 60000 px" in text and "limit is 8192 px a side" in text
+    wide = save_gray(tmp_path / "wide.png", disk_mask(100, 300, cx=150))
+    with pytest.raises(ImageSizeError, match="the limit is 200 px a side"):
+        read_image(wide, max_side=200)
+    with pytest.raises(ImageSizeError, match="29,999 px in all"):
+        read_image(wide, max_pixels=29_999)
+    assert read_image(wide, max_side=300, max_pixels=30_000).size == (300, 100)
+
+
+def test_only_the_listed_formats_are_read(tmp_path):
+    colored_disk().save(tmp_path / "disk.ppm")
+    with pytest.raises(ImageFormatError, match="PPM images are not accepted"):
+        load_target(tmp_path / "disk.ppm")
+    (tmp_path / "text.png").write_text("not an image")
+    with pytest.raises(ImageFormatError, match="not an image"):
+        load_target(tmp_path / "text.png")
+    colored_disk().save(tmp_path / "cut.png")
+    (tmp_path / "cut.png").write_bytes((tmp_path / "cut.png").read_bytes()[:300])
+    with pytest.raises(ImageDecodeError, match="cannot decode target image .*cut.png"):
+        load_target(tmp_path / "cut.png")
+
+
+def test_animation_frames_searched_and_checked_are_bounded(tmp_path):
+    blank = Image.new("RGB", (64, 64), "white")
+    flat = [Image.new("RGB", (64, 64), (240 + k % 2 * 10,) * 3) for k in range(MAX_FRAMES + 5)]
+    flat[0].save(tmp_path / "blank.gif", save_all=True, append_images=flat[1:], duration=50)
+    with pytest.raises(TargetError, match=f"none of the animation's first {MAX_FRAMES} "):
+        read_image(tmp_path / "blank.gif")
+    # a TIFF's pages each have their own size: a big second page is refused unread
+    blank.save(tmp_path / "pages.tif", save_all=True,
+               append_images=[Image.new("RGB", (300, 40), "white")])
+    with pytest.raises(ImageSizeError, match="300 x 40 px; the limit is 200"):
+        read_image(tmp_path / "pages.tif", max_side=200)
+    # a multi-page TIFF gives its first page that holds a shape, in any mode
+    blank.save(tmp_path / "lab.tif", save_all=True, append_images=[colored_disk().convert("LAB")])
+    img = read_image(tmp_path / "lab.tif")
+    assert img.info["ngpm_frame"] == 1 and img.size == (96, 64)
 
 
 # --- resizing ----------------------------------------------------------------------------
