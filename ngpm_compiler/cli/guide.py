@@ -14,6 +14,9 @@ from ngpm_runtime.program import Program
 from ngpm_compiler.cli import argtypes
 
 GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
+SIMILARITY_SCALE = ("1 = the target exactly, 0 = no better than a blank canvas, below 0 = "
+                    "worse than blank (more drawn outside the shape than inside)")
+LOW_SIMILARITY = 0.2  # below it, grow explains the scale
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -90,7 +93,8 @@ def _register_grow(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "grow", help="grow a vine (or any grammar) into a picture with SMC",
         description="Grow a grammar into a target image with SMC. With no --grammar it grows "
-                    "the bundled vines model, guided by the bundled pretrained guide.")
+                    "the bundled vines model, guided by the bundled pretrained guide. It "
+                    f"prints the similarity of the best particle: {SIMILARITY_SCALE}.")
     p.add_argument("image", nargs="?", metavar="IMAGE",
                    help="target image; a .txt sidecar beside it gives the start "
                         "(`x y` then `dx dy`), else it is found automatically")
@@ -418,6 +422,9 @@ def cmd_grow(args: argparse.Namespace) -> int:
             raise NgpmError(f"{grammar}: no such grammar file")
         program = load_grammar(grammar)
     target = load_target(image, size=args.size) if image is not None else None
+    fit = target.fit_note() if target is not None else None
+    if fit:
+        print(f"warning: {fit}")
     guide = _grow_guide(args.guide, program, args.likelihood)
     if guide is not None and guide.fallback_sites:
         ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
@@ -435,6 +442,8 @@ def cmd_grow(args: argparse.Namespace) -> int:
              f"circuit log-likelihood {res.smc.best.log_likelihood:.2f}")
     print(f"{name}: {score}, {res.particles} particles ({kind}), {res.seconds:.2f} s, "
           f"{len(res.primitives)} primitives")
+    if args.likelihood == "shape" and res.similarity < LOW_SIMILARITY:
+        print(f"similarity: {SIMILARITY_SCALE}")
     if guide is not None:
         print(f"guide: {guide.path}")
     note = argtypes.limit_note(res.smc.best, program, args.max_modules)

@@ -35,3 +35,21 @@ def suggest_size(square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndar
         if current < size <= side and shape_kept(square, resize(square, size)) >= KEEP_GOOD:
             return size
     return None
+
+
+def fit_note(kept: float, suggested: int | None, size: int) -> str:
+    """What to tell a user whose picture lost shape at `size` x `size`."""
+    fix = (f"grow at --size {suggested}, or draw thicker strokes" if suggested
+           else "draw thicker strokes (or a bigger shape)")
+    return (f"only {kept:.0%} of the picture's shape is kept at {size} x {size} pixels "
+            f"(thin strokes vanish when it is reduced): {fix}")
+
+
+def check_fit(square: np.ndarray, small: np.ndarray,
+              resize: Callable[[np.ndarray, int], np.ndarray]) -> tuple[float, int | None]:
+    """(share kept, a better size or None) of reducing `square` to `small`; the size is
+    looked for only when less than KEEP_WARNING is kept."""
+    kept = shape_kept(square, small)
+    if kept >= KEEP_WARNING:
+        return kept, None
+    return kept, suggest_size(square, resize, small.shape[0])

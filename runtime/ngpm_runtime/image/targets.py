@@ -16,7 +16,7 @@ import math
 import numbers
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import BinaryIO
 
@@ -32,6 +32,7 @@ from ngpm_runtime.image.morphology import (
     otsu_threshold,
     skeletonize,
 )
+from ngpm_runtime.image.resolution import KEEP_WARNING, check_fit, fit_note
 
 Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
 
@@ -68,6 +69,8 @@ class Target:
     mask: np.ndarray  # (H, W) bool, True = shape
     start: Start
     name: str = "target"
+    kept: float = 1.0  # share of the picture's shape kept at this working size
+    better_size: int | None = None  # a larger working size that keeps more, when kept is low
 
     def __post_init__(self) -> None:
         mask = np.asarray(self.mask)
@@ -97,7 +100,14 @@ class Target:
     def mirrored(self) -> Target:
         """Horizontally mirrored copy: x -> 1 - x, dx -> -dx; name gets suffix `_m`."""
         x, y, dx, dy = self.start
-        return Target(self.mask[:, ::-1].copy(), (1.0 - x, y, -dx, dy), self.name + "_m")
+        return Target(self.mask[:, ::-1].copy(), (1.0 - x, y, -dx, dy), self.name + "_m",
+                      self.kept, self.better_size)
+
+    def fit_note(self) -> str | None:
+        """A warning when the working size lost much of the picture's shape, else None."""
+        if self.kept >= KEEP_WARNING:
+            return None
+        return fit_note(self.kept, self.better_size, self.mask.shape[0])
 
 
 # --- sidecar -----------------------------------------------------------------------------
@@ -360,19 +370,40 @@ def mask_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
                     polarity: str = "auto", name: str = "image",
                     start: Start | None = None) -> tuple[np.ndarray, Start | None]:
     """Mask at the working resolution and the start mapped through the square padding."""
+    square, start, _kept, _better = _reduce(img, size, polarity, name, start)
+    return square, start
+
+
+def target_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
+                      polarity: str = "auto", name: str = "image",
+                      start: Start | None = None) -> Target:
+    """The Target of a picture at the working size: its start mapped through the square
+    padding (found by `auto_start` when None) and how much of its shape the size keeps."""
+    square, start, kept, better = _reduce(img, size, polarity, name, start)
+    return Target(square, auto_start(square) if start is None else start, name, kept, better)
+
+
+def _reduce(img: Image.Image, size: int | None, polarity: str, name: str,
+            start: Start | None) -> tuple[np.ndarray, Start | None, float, int | None]:
+    """(mask at the working size, mapped start, share of the shape kept, a better size)."""
     mask = image_to_mask(img, polarity, name)
     h, w = mask.shape
-    square, oy, ox = pad_to_square(mask)
-    side = square.shape[0]
+    full, oy, ox = pad_to_square(mask)
+    side = full.shape[0]
+    square, kept, better = full, 1.0, None
     if size is not None:
         if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < MIN_SIDE:
             raise TargetError(f"{name}: working size must be an integer >= {MIN_SIDE}")
-        square = resize_mask(square, int(size))
+        square = resize_mask(full, int(size))
+        kept, better = check_fit(full, square, resize_mask)
+        if not square.any() and full.any():
+            raise TargetError(f"{name}: no shape left at {size} x {size} px; "
+                              + fit_note(kept, better, int(size)).split(": ", 1)[1])
     check_mask(square, name)
     if start is not None:
         x, y, dx, dy = start
         start = ((x * w + ox) / side, (y * h + oy) / side, dx, dy)
-    return square, start
+    return square, start, kept, better
 
 
 def check_mask(mask: np.ndarray, name: str) -> None:
@@ -404,10 +435,8 @@ def load_target(path: str | os.PathLike, size: int | None = DEFAULT_SIZE,
     img = read_image(path)
     side = sidecar_path(path)
     start = read_sidecar(side) if side.is_file() else None
-    mask, start = mask_from_image(img, size, polarity, str(path), start)
-    if start is None:
-        start = auto_start(mask)
-    return Target(mask, start, path.stem)
+    target = target_from_image(img, size, polarity, str(path), start)
+    return replace(target, name=path.stem)
 
 
 def save_target(target: Target, path: str | os.PathLike) -> Path:

@@ -226,3 +226,38 @@ def test_errors_through_the_installed_command(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1 and "fake.png" in proc.stderr
+
+
+def house(path: Path, width: int) -> Path:
+    """An 800-px house outline drawn with `width`-pixel lines."""
+    from PIL import ImageDraw
+
+    img = Image.new("L", (800, 800), 255)
+    s = 800
+    ImageDraw.Draw(img).line([(0.2 * s, 0.9 * s), (0.8 * s, 0.9 * s), (0.8 * s, 0.5 * s),
+                              (0.5 * s, 0.2 * s), (0.2 * s, 0.5 * s), (0.2 * s, 0.9 * s)],
+                             fill=0, width=width)
+    img.save(path)
+    return path
+
+
+def test_thin_strokes_lost_at_the_working_size_are_warned_about(tmp_path: Path, capsys) -> None:
+    thin = house(tmp_path / "house.png", 8)
+    code, text, _ = run(capsys, "grow", str(thin), "-N", "2")
+    assert code == 0
+    assert re.search(r"^warning: only \d+% of the picture's shape is kept at 50 x 50 pixels "
+                     r".*grow at --size 128, or draw thicker strokes$", text, re.M), text
+    code, text, _ = run(capsys, "grow", str(thin), "-N", "2", "--size", "128")
+    assert code == 0 and "warning" not in text
+    thick = house(tmp_path / "thick.png", 40)
+    code, text, _ = run(capsys, "grow", str(thick), "-N", "2")
+    assert code == 0 and "warning" not in text
+    line = one_line_error(capsys, "grow", str(house(tmp_path / "hair.png", 1)))
+    assert "no shape left at 50 x 50 px; draw thicker strokes" in line
+
+
+def test_a_low_similarity_is_explained(horse: Path, capsys) -> None:
+    code, text, _ = run(capsys, "grow", str(horse), "-N", "1", "--guide", "none", "--seed", "1")
+    sim = float(LINE_RE.search(text).group(2))
+    explained = "similarity: 1 = the target exactly, 0 = no better than a blank canvas" in text
+    assert code == 0 and explained == (sim < 0.2), text
