@@ -51,6 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help=f"columns (default: about square; at most {argtypes.MAX_COLUMNS})")
     show.add_argument("--cell", type=argtypes.integer(8, argtypes.MAX_CELL), default=64,
                       help=f"cell size in pixels (default 64, 8 to {argtypes.MAX_CELL})")
+    show.add_argument("--size", type=argtypes.target_size, default=50,
+                      help="the working size to show them at, as grow reads them "
+                           f"(default 50, at most {argtypes.MAX_TARGET_SIZE})")
     show.add_argument("--spread", action="store_true",
                       help="show --max targets spread evenly over the set, mirrors left out "
                            "(the ones `ngpmc eval --stages heldout` picks)")
@@ -90,9 +93,13 @@ def _list(_args: argparse.Namespace) -> int:
 def _show(args: argparse.Namespace) -> int:
     check_output_file(args.out, "PNG file")
     if args.source.is_dir():
-        targets = load_dataset(args.source)
+        targets = load_dataset(args.source, size=args.size)
     else:
-        targets = [load_target(args.source)]
+        targets = [load_target(args.source, size=args.size)]
+    for t in targets:
+        note = t.fit_note()
+        if note:
+            print(f"warning: {t.name}: {note}")
     if args.spread:
         from ngpm_compiler.experiments.shape import pick
 

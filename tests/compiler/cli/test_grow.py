@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures.pictures import house
 from ngpm_runtime import bundled
 from PIL import Image
 from repo_paths import REPO
@@ -226,19 +227,6 @@ def test_errors_through_the_installed_command(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1 and "fake.png" in proc.stderr
-
-
-def house(path: Path, width: int) -> Path:
-    """An 800-px house outline drawn with `width`-pixel lines."""
-    from PIL import ImageDraw
-
-    img = Image.new("L", (800, 800), 255)
-    s = 800
-    ImageDraw.Draw(img).line([(0.2 * s, 0.9 * s), (0.8 * s, 0.9 * s), (0.8 * s, 0.5 * s),
-                              (0.5 * s, 0.2 * s), (0.2 * s, 0.5 * s), (0.2 * s, 0.9 * s)],
-                             fill=0, width=width)
-    img.save(path)
-    return path
 
 
 def test_thin_strokes_lost_at_the_working_size_are_warned_about(tmp_path: Path, capsys) -> None:

@@ -70,3 +70,15 @@ def test_unknown_dataset_is_usage_error():
     with pytest.raises(SystemExit) as info:
         main(["targets", "build", "doodles", "-o", "x"])
     assert info.value.code == 2
+
+
+def test_show_previews_at_the_working_size_and_warns(tmp_path, capsys):
+    from fixtures.pictures import house
+
+    picture = house(tmp_path / "house.png", 8)
+    sheet = tmp_path / "sheet.png"
+    assert main(["targets", "show", str(picture), "-o", str(sheet)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: house: only" in out and "--size 128" in out
+    assert main(["targets", "show", str(picture), "-o", str(sheet), "--size", "128"]) == 0
+    assert "warning" not in capsys.readouterr().out
