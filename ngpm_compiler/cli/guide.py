@@ -11,6 +11,7 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program
 
 from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli.grammar import GRAMMAR_HELP
 
 # = nets.FEATURE_SETS (no torch here)
 FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
@@ -19,7 +20,7 @@ FEATURE_SETS = ("const", "local", "local+target", "all", "all+context")
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("traces", help="record training traces with SMC (unguided, or "
                                              "guided by --guide)")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--targets", required=True, help="dataset directory of target images")
     p.add_argument("-n", type=int, default=1000, help="traces to keep (default 1000)")
     p.add_argument("--particles", type=int, default=600, help="SMC particles (default 600)")
@@ -71,8 +72,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("inputs", nargs="*", metavar="IMAGE",
                    help="target image; a .txt sidecar beside it gives the start "
                         "(`x y` then `dx dy`), else it is found automatically")
-    p.add_argument("--grammar", help="the .lsys file or a generated *_sampler.py "
-                                     "(default: the bundled vines model)")
+    p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
     p.add_argument("--target", help=argparse.SUPPRESS)  # older form: grow GRAMMAR --target IMG
     p.add_argument("--guide", help="guide .onnx, or 'none' for unguided SMC (default: the "
                                    "bundled vines guide when the grammar is vines.lsys)")
@@ -98,7 +98,7 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
         description="Rounds of: record traces with SMC guided by the best guide so far, train "
                     "a guide on all rounds' traces, score it on validation targets at N = 10; "
                     "the best round's guide is copied to OUT/best.onnx.")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--targets", required=True, help="training-target directories, comma-separated")
     p.add_argument("--validate", required=True,
                    help="validation sets NAME=DIR,... (targets never trained on)")
@@ -141,7 +141,7 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
                     "the settings below and write a copy of the guide that proposes with the "
                     "best one (its metadata; `grow`, `eval`, `traces` and the web page use it). "
                     "Weights stay exact with every setting.")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
     p.add_argument("--validate", required=True,
                    help="validation sets NAME=DIR,... (targets never trained on, not held out)")
