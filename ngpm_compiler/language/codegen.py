@@ -171,7 +171,7 @@ class ModuleWriter:
                  f"    grammar_hash={q(self.grammar_hash)},", "    sites=SITES,",
                  "    axiom=axiom,"]
         lines += mapping("productions", prods) + mapping("interpretation", interps)
-        lines += mapping("arity", {k: str(v) for k, v in c.arity.items()})
+        lines += mapping("arity", {k: q(v) for k, v in c.arity.items()})
         lines += [
             f"    derivation_length={q(c.derivation_length)},",
             f"    angle={q(float(c.angle))},",
