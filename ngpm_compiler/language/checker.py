@@ -44,7 +44,8 @@ HEADER_CEILINGS = {"derivation length": DEFAULT_DERIVATION_LENGTH,
 # keywords and builtins, and the forms of its generated names: a grammar name among them gets
 # a prefix (`safe_name`), so no grammar name can shadow a name the generated code uses.
 RESERVED = ({"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "l", "O",
-             "I"} | set(keyword.kwlist) | set(dir(builtins)))
+             "I"} | set(keyword.kwlist) | set(dir(builtins))
+            | {"copyright", "credits", "exit", "help", "license", "quit"})  # `site` adds these
 GENERATED_NAME = re.compile(r"_|c_|p_|produce_|interpret_|arg\d+$")
 
 
