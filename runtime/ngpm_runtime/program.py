@@ -67,23 +67,27 @@ def prior_problem(kind: str, args: tuple, constant: bool = False) -> str:
     try:
         vals = [float(a) for a in args]
     except (TypeError, ValueError):
-        return f"the arguments must be numbers, got {args!r}"
+        return f"the arguments must be numbers, got {_nums(args)}"
+    want = {"normal": 2, "uniform": 2, "bernoulli": 1}.get(kind)
+    if len(vals) != want and (want is not None or not vals):
+        return f"{kind} takes {want or 'at least 1'} arguments, got {len(vals)}"
     if not all(math.isfinite(v) for v in vals):
-        return "the arguments must be finite numbers, got " + ", ".join(map(_num, vals))
+        return f"the arguments must be finite numbers, got {_nums(vals)}"
     if kind == "normal" and (vals[1] < 0 or (constant and vals[1] == 0)):
-        return f"the standard deviation must be {'>' if constant else '>='} 0, got {_num(vals[1])}"
+        return f"the standard deviation must be {'>' if constant else '>='} 0, got {vals[1]:g}"
     if kind == "uniform" and (vals[0] > vals[1] or (constant and vals[0] == vals[1])):
-        return (f"needs a {'<' if constant else '<='} b, got a = {_num(vals[0])}, "
-                f"b = {_num(vals[1])}")
+        return f"needs a {'<' if constant else '<='} b, got a = {vals[0]:g}, b = {vals[1]:g}"
     if kind == "bernoulli" and not 0 <= vals[0] <= 1:
-        return f"the probability must be in [0, 1], got {_num(vals[0])}"
+        return f"the probability must be in [0, 1], got {vals[0]:g}"
     if kind == "categorical" and (min(vals) < 0 or sum(vals) <= 0):
-        return "weights must be >= 0 with a positive sum, got " + ", ".join(map(_num, vals))
+        return f"weights must be >= 0 with a positive sum, got {_nums(vals)}"
     return ""
 
 
-def _num(v: float) -> str:
-    return f"{v:g}"
+def _nums(values: list | tuple) -> str:
+    """The first few values for a message: `1, -1` or `1, 2, ... (300 values)`."""
+    shown = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in values[:6])
+    return shown if len(values) <= 6 else f"{shown}, ... ({len(values)} values)"
 
 
 @dataclass

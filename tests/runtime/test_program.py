@@ -57,6 +57,8 @@ def test_generated_samplers_still_load(tmp_path: Path) -> None:
     ("categorical", (1.0, -1.0), "weights must be >= 0 with a positive sum, got 1, -1"),
     ("categorical", (0.0, 0.0), "weights must be >= 0 with a positive sum"),
     ("normal", ("x", 1.0), "must be numbers"),
+    ("normal", (1.0,), "normal takes 2 arguments, got 1"),
+    ("categorical", tuple([-1.0] * 9), "got -1, -1, -1, -1, -1, -1, ... (9 values)"),
 ])
 def test_prior_problem_names_the_bad_value(kind: str, args: tuple, words: str) -> None:
     assert words in prior_problem(kind, args)
