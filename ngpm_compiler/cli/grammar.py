@@ -10,6 +10,11 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.language.compile import CompiledGrammar, compile_grammar, write_compiled
 
+# The help of every argument that takes a grammar, .lsys or generated (load_grammar).
+GRAMMAR_HELP = ("the .lsys file, or a *_sampler.py written by `ngpmc compile`: that file is "
+                "Python and runs when loaded, so give only samplers you trust (ngpm refuses "
+                "other .py files without running them)")
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("compile", help="compile a .lsys grammar into a Python sampler")

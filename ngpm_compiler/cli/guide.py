@@ -12,6 +12,7 @@ from ngpm_runtime.image.features import FEATURE_SETS
 from ngpm_runtime.program import Program
 
 from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli.grammar import GRAMMAR_HELP
 
 GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
 SIMILARITY_SCALE = ("1 = the target exactly, 0 = no better than a blank canvas, below 0 = "
@@ -35,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _register_traces(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("traces", help="record training traces with SMC (unguided, or "
                                              "guided by --guide)")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--targets", required=True, type=argtypes.path,
                    help="dataset directory of target images")
     p.add_argument("-n", type=argtypes.count, default=1000,
@@ -98,8 +99,7 @@ def _register_grow(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("image", nargs="?", metavar="IMAGE",
                    help="target image; a .txt sidecar beside it gives the start "
                         "(`x y` then `dx dy`), else it is found automatically")
-    p.add_argument("--grammar", help="the .lsys file or a generated *_sampler.py "
-                                     "(default: the bundled vines model)")
+    p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
     p.add_argument("--guide", type=argtypes.path,
                    help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
                         "for the grammar and likelihood, if any)")
@@ -128,7 +128,7 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
         description="Rounds of: record traces with SMC guided by the best guide so far, train "
                     "a guide on all rounds' traces, score it on validation targets at N = 10; "
                     "the best round's guide is copied to OUT/best.onnx.")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--targets", required=True, type=argtypes.paths,
                    help="training-target directories, comma-separated")
     p.add_argument("--validate", required=True, type=argtypes.pairs,
@@ -178,7 +178,7 @@ def _register_tune(subparsers: argparse._SubParsersAction) -> None:
                     "the settings below and write a copy of the guide that proposes with the "
                     "best one (its metadata; `grow`, `eval`, `traces` and the web page use it). "
                     "Weights stay exact with every setting.")
-    p.add_argument("grammar", help="the .lsys file (or a generated *_sampler.py)")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
     p.add_argument("--validate", required=True, type=argtypes.pairs,
                    help="validation sets NAME=DIR,... (targets never trained on, not held out)")

@@ -8,6 +8,7 @@ from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.extras import missing_extra
+from ngpm_compiler.cli.grammar import GRAMMAR_HELP
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -18,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "offers the bundled vines model and guide, plus --grammar/--guide.")
     p.add_argument("--port", type=argtypes.integer(0, 65535), default=8000,
                    help="port on 127.0.0.1 (default 8000; 0 picks a free one)")
-    p.add_argument("--grammar", help="also offer this .lsys file or generated *_sampler.py")
+    p.add_argument("--grammar", help=f"also offer this grammar: {GRAMMAR_HELP}")
     p.add_argument("--guide", help="guide .onnx for --grammar (alone: another guide for the "
                                    "bundled vines), or 'none'")
     p.add_argument("--max-particles", type=argtypes.particles, default=500,

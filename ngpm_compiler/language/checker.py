@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import builtins
 import keyword
 import math
 import re
 from dataclasses import dataclass, field
 
-from ngpm_runtime.program import Site
+from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
+from ngpm_runtime.program import Site, prior_problem
 
 from ngpm_compiler.language.errors import ErrorSink, GrammarError
 from ngpm_compiler.language.expr import ExprPrinter
@@ -35,9 +37,16 @@ from ngpm_compiler.language.tables import (
 PROB_TOLERANCE = 1e-6
 DEFAULT_DERIVATION_LENGTH = 1_000_000
 DEFAULT_MAX_PRIMITIVES = 5000
-# Python names a generated module uses itself.
-RESERVED = {"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "float",
-            "min", "max", "abs", "round", "l", "O", "I"}  # l, O, I: ruff's E741
+# The largest value of each whole-number header (derive.py's ceilings on one sample's work).
+HEADER_CEILINGS = {"derivation length": DEFAULT_DERIVATION_LENGTH,
+                   "max primitives": MAX_PRIMITIVES, "max modules": MAX_WORK}
+# Python names a generated module defines or uses itself (l, O, I: ruff's E741), Python's
+# keywords and builtins, and the forms of its generated names: a grammar name among them gets
+# a prefix (`safe_name`), so no grammar name can shadow a name the generated code uses.
+RESERVED = ({"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "l", "O",
+             "I"} | set(keyword.kwlist) | set(dir(builtins))
+            | {"copyright", "credits", "exit", "help", "license", "quit"})  # `site` adds these
+GENERATED_NAME = re.compile(r"_|c_|p_|produce_|interpret_|arg\d+$")
 
 
 @dataclass
@@ -100,10 +109,11 @@ class Checked:
 
 
 def safe_name(name: str, taken: set[str], prefix: str) -> str:
-    """A Python identifier for a grammar name that shadows nothing the module uses."""
-    out = name
-    while (keyword.iskeyword(out) or out in RESERVED or out in taken or out.startswith("_")
-           or out.startswith(("produce_", "interpret_"))):
+    """A Python identifier for a grammar name that shadows nothing the module uses: the name
+    itself, or `prefix_name` (prefix `c` or `p`) when it is reserved or has the form of a
+    generated name (then no other grammar name can give the same identifier)."""
+    out = name if name not in RESERVED and not GENERATED_NAME.match(name) else f"{prefix}_{name}"
+    while out in taken:
         out = f"{prefix}_{out}"
     return out
 
@@ -149,6 +159,8 @@ class Checker:
             raise self.err(f"division by zero in {what}", self.find_division(expr)) from None
         except (ValueError, OverflowError) as e:
             raise self.err(f"cannot evaluate {what}: {e}", expr) from None
+        except (SyntaxError, RecursionError, MemoryError):
+            raise self.err(f"{what} is nested too deeply for Python", expr) from None
         if not math.isfinite(value):
             raise self.err(f"{what} is not a finite number", expr)
         return value
@@ -213,20 +225,12 @@ class Checker:
                    and not (isinstance(n, Call) and n.name in RANDOM_CALLS) for n in walk(expr))
 
     def check_prior(self, call: Call) -> None:
-        """Reject constant prior arguments no distribution accepts."""
+        """Reject constant prior arguments no distribution accepts (the run-time rules of
+        `prior_problem`, and no degenerate sd == 0 or a == b)."""
         if not all(self.is_constant(a) for a in call.args):
             return
-        vals = [self.evaluate(a, f"argument of {call.name}()") for a in call.args]
-        kind = RANDOM_CALLS[call.name][0]
-        bad = ""
-        if kind == "normal" and vals[1] <= 0:
-            bad = "the standard deviation must be > 0"
-        elif kind == "uniform" and vals[0] >= vals[1]:
-            bad = "needs a < b"
-        elif kind == "bernoulli" and not 0 <= vals[0] <= 1:
-            bad = "the probability must be in [0, 1]"
-        elif kind == "categorical" and (min(vals) < 0 or sum(vals) <= 0):
-            bad = "weights must be >= 0 with a positive sum"
+        vals = tuple(self.evaluate(a, f"argument of {call.name}()") for a in call.args)
+        bad = prior_problem(RANDOM_CALLS[call.name][0], vals, constant=True)
         if bad:
             raise self.err(f"{call.name}(): {bad}", call)
 
@@ -263,8 +267,10 @@ class Checker:
 
     def check_brackets(self, modules: list[Resolved], what: str) -> None:
         """Each `]` closes a `[` of the same successor, and each `[` is closed in it (the
-        turtle would otherwise pop an empty stack at run time)."""
+        turtle would otherwise pop an empty stack at run time); each `}` closes a `{` of the
+        same successor (a `{` left open draws nothing, which is no error)."""
         opened: list[Resolved] = []
+        polygons = 0
         for m in modules:
             if m.name == "[":
                 opened.append(m)
@@ -272,6 +278,12 @@ class Checker:
                 if not opened:
                     raise self.err(f"unmatched ']' in {what}: no '[' before it", m.use)
                 opened.pop()
+            elif m.name == "{":
+                polygons += 1
+            elif m.name == "}":
+                if not polygons:
+                    raise self.err(f"unmatched '}}' in {what}: no '{{' before it", m.use)
+                polygons -= 1
         if opened:
             raise self.err(f"unmatched '[' in {what}: no ']' closes it", opened[-1].use)
 
@@ -324,12 +336,16 @@ class Checker:
 
     def integer(self, values: dict[str, list[float]], kind: str, least: int,
                 default: int) -> int:
+        """A whole-number header's value, at least `least` and at most its ceiling."""
         if kind not in values:
             return default
         v = values[kind][0]
+        where = self.g.headers[kind].values[0]
         if v != int(v) or v < least:
-            raise self.err(f"'{kind}:' must be an integer >= {least}, got {v:g}",
-                           self.g.headers[kind].values[0])
+            raise self.err(f"'{kind}:' must be an integer >= {least}, got {v:g}", where)
+        if v > HEADER_CEILINGS[kind]:
+            raise self.err(f"'{kind}:' must be at most {HEADER_CEILINGS[kind]}, got {v:g} "
+                           "(ngpm's ceiling on the work one sample may do)", where)
         return int(v)
 
     # ---- rules -----------------------------------------------------------------------------

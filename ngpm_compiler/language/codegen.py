@@ -2,21 +2,21 @@
 
 from __future__ import annotations
 
-import json
 import textwrap
 
+from ngpm_runtime.program import HEADER_END, HEADER_START
+
 from ngpm_compiler.language.checker import Alt, Checked, Group, Resolved, RuleSet
-from ngpm_compiler.language.expr import ExprPrinter, py_float
-from ngpm_compiler.language.nodes import Num
+from ngpm_compiler.language.errors import ErrorSink
+from ngpm_compiler.language.expr import ExprPrinter, escape, q
+from ngpm_compiler.language.nodes import Expr, Num
 
 # ---- the module ----------------------------------------------------------------------------
 
 LIMIT = 100  # line length of the generated code (ruff's setting)
-
-
-def q(text: str) -> str:
-    """A double-quoted Python string literal."""
-    return json.dumps(text)
+# Most nested brackets in one printed expression: Python refuses more than 200 in a line, and
+# a successor puts an expression inside two (`return [("F", ...)]`).
+MAX_BRACKETS = 198
 
 
 def pack(head: str, items: list[str], cont: str, tail: str) -> list[str]:
@@ -43,30 +43,48 @@ class ModuleWriter:
         self.source_path = source_path
         self.base = source_path.replace("\\", "/").rsplit("/", 1)[-1]
         self.grammar_hash = grammar_hash
+        self.sink = ErrorSink(checked.grammar.filename, checked.grammar.source)
+
+    def fits(self, text: str, expr: Expr) -> str:
+        """`text`, the printed `expr`, unless it nests more brackets than Python reads: then
+        a GrammarError at the expression."""
+        depth = most = 0
+        for c in text:
+            if c in "([":
+                depth += 1
+                most = max(most, depth)
+            elif c in ")]":
+                depth -= 1
+        if most > MAX_BRACKETS:
+            raise self.sink.error(f"expression nested too deeply for Python ({most} levels of "
+                                  f"parentheses in the generated code, at most {MAX_BRACKETS})",
+                                  expr.line, expr.col)
+        return text
 
     def docstring(self, texts: list[str], first: int, last: int, indent: str) -> list[str]:
+        """The .lsys lines, then `(file:first-last)` (derive.py reads it for its messages).
+        Rows are wrapped, then escaped: no text can end the docstring."""
         where = f"({self.base}:{first})" if first == last else f"({self.base}:{first}-{last})"
         rows = []
         for text in texts:
-            parts = [p.strip() for p in text.replace("\\", "\\\\").replace('"', '\\"')
-                     .splitlines() if p.strip()]
+            parts = [p.strip() for p in text.splitlines() if p.strip()]
             rows += parts[:1] + ["    " + p for p in parts[1:]]
-        one = f'{indent}"""{rows[0]}   {where}"""' if len(rows) == 1 else ""
+        one = f'{indent}"""{escape(rows[0])}   {escape(where)}"""' if len(rows) == 1 else ""
         if one and len(one) <= LIMIT:
             return [one]
         out: list[str] = []
-        for row in rows + [where]:
+        for row in rows:
             lead = row[: len(row) - len(row.lstrip())]
             out += textwrap.wrap(row, LIMIT - len(indent) - 3, subsequent_indent=lead + "    ",
                                  break_long_words=True, break_on_hyphens=False) or [""]
-        out = [indent + line for line in out]
+        out = [indent + escape(line) for line in out + [where]]
         out[0] = indent + '"""' + out[0][len(indent):]
         return out + [indent + '"""']
 
     def successor(self, mods: list[Resolved], printer: ExprPrinter, indent: str) -> list[str]:
         items = []
         for m in mods:
-            args = [printer.number(a) for a in m.args]
+            args = [self.fits(printer.number(a), a) for a in m.args]
             items.append("(" + ", ".join([q(m.name)] + args) + ("," if not args else "") + ")")
         one = f"{indent}return [{', '.join(items)}]"
         if len(one) <= LIMIT:
@@ -84,11 +102,11 @@ class ModuleWriter:
         alts = group.alts
         if len(alts) == 1:
             return self.successor(alts[0].modules, printer_for(alts[0]), indent)
-        probs = ", ".join(py_float(a.prob or 0.0) for a in alts)
-        lines = [noqa(f"{indent}alt = ctx.choose({group.site}, ({probs}))")]
+        probs = ", ".join(q(float(a.prob or 0.0)) for a in alts)
+        lines = [noqa(f"{indent}alt = ctx.choose({q(group.site)}, ({probs}))")]
         for i, alt in enumerate(alts):
             if i < len(alts) - 1:
-                lines.append(f"{indent}if alt == {i}:")
+                lines.append(f"{indent}if alt == {q(i)}:")
                 lines += self.successor(alt.modules, printer_for(alt), indent + "    ")
             else:
                 lines += self.successor(alt.modules, printer_for(alt), indent)
@@ -107,7 +125,7 @@ class ModuleWriter:
             if group.cond is None:
                 lines += self.group(group, names, rs.params, "    ")
             else:
-                cond = ExprPrinter(names, self.c.call_sites)(group.cond)
+                cond = self.fits(ExprPrinter(names, self.c.call_sites)(group.cond), group.cond)
                 lines.append(noqa(f"    if {cond}:"))
                 lines += self.group(group, names, rs.params, "        ")
         if rs.groups[-1].cond is not None:
@@ -115,13 +133,13 @@ class ModuleWriter:
         return lines
 
     def site(self, s) -> list[str]:
-        items = [f"index={s.index}", f"id={q(s.id)}", f"kind={q(s.kind)}", f"name={q(s.name)}",
-                 f"module={q(s.module)}", f"arity={s.arity}"]
+        items = [f"index={q(s.index)}", f"id={q(s.id)}", f"kind={q(s.kind)}",
+                 f"name={q(s.name)}", f"module={q(s.module)}", f"arity={q(s.arity)}"]
         if s.kind == "categorical":
-            items.append(f"k={s.k}")
+            items.append(f"k={q(s.k)}")
         if s.probs is not None:
-            items.append("probs=(" + ", ".join(py_float(p) for p in s.probs) + ")")
-        items += [f"line={s.line}", f"col={s.col}", f"source={q(s.source)}"]
+            items.append("probs=" + q(tuple(float(p) for p in s.probs)))
+        items += [f"line={q(s.line)}", f"col={q(s.col)}", f"source={q(s.source)}"]
         return [noqa(x) for x in pack("    Site(", items, "         ", "),")]
 
     def constants(self) -> list[str]:
@@ -130,11 +148,11 @@ class ModuleWriter:
         lines_ = [d.line for d in self.c.grammar.defines]
         first, last = min(lines_), max(lines_)
         where = f"{first}" if first == last else f"{first}-{last}"
-        out = [f"# constants ({self.base}:{where})"]
+        out = [f"# constants ({escape(self.base)}:{where})"]
         for (py, value, _, _), d in zip(self.c.constants, self.c.grammar.defines, strict=True):
-            line = f"{py} = {py_float(value)}"
+            line = f"{py} = {q(float(value))}"
             if not isinstance(d.expr, Num):
-                line += f"  # {d.text}"
+                line += f"  # {escape(d.text)}"
             out.append(noqa(line))
         return out
 
@@ -147,22 +165,22 @@ class ModuleWriter:
             return ([f"    {key}={{"] + [f"        {q(k)}: {v}," for k, v in d.items()]
                     + ["    },"])
 
-        vp = "None" if c.viewport is None else "(" + ", ".join(map(py_float, c.viewport)) + ")"
+        vp = q(None if c.viewport is None else tuple(float(v) for v in c.viewport))
         lines = ["PROGRAM = Program(", f"    name={q(c.name)},",
                  f"    source={q(self.source_path)},",
                  f"    grammar_hash={q(self.grammar_hash)},", "    sites=SITES,",
                  "    axiom=axiom,"]
         lines += mapping("productions", prods) + mapping("interpretation", interps)
-        lines += mapping("arity", {k: str(v) for k, v in c.arity.items()})
+        lines += mapping("arity", {k: q(v) for k, v in c.arity.items()})
         lines += [
-            f"    derivation_length={c.derivation_length},",
-            f"    angle={py_float(c.angle)},",
+            f"    derivation_length={q(c.derivation_length)},",
+            f"    angle={q(float(c.angle))},",
             f"    viewport={vp},",
-            "    start=(" + ", ".join(map(py_float, c.start)) + "),",
-            f"    max_primitives={c.max_primitives},",
+            f"    start={q(tuple(float(v) for v in c.start))},",
+            f"    max_primitives={q(c.max_primitives)},",
         ]
         if c.max_modules is not None:  # only when the grammar sets it: older output unchanged
-            lines.append(f"    max_modules={c.max_modules},")
+            lines.append(f"    max_modules={q(c.max_modules)},")
         lines += [
             ")",
         ]
@@ -188,8 +206,7 @@ class ModuleWriter:
             sites = ["SITES = []"]
         tail = ["", ""] + self.program(prods, interps)
         code = "\n".join(body + tail)
-        head = [f'"""Generated by ngpmc from {self.source_path} -- do not edit."""'.replace(
-            "\\", "/"), ""]
+        head = [HEADER_START + escape(self.source_path) + HEADER_END, ""]
         if "math." in code:
             head += ["import math", ""]
         head.append("from ngpm_runtime.program import Program" + (", Site" if c.sites else ""))

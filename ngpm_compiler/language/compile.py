@@ -83,14 +83,25 @@ def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
         raise GrammarError(_too_large(len(text.encode("utf-8"))), filename)
     name = grammar_name(filename)
     digest = "sha256:" + hashlib.sha256(text.encode("utf-8")).hexdigest()
-    try:
-        checked = check(parse(text, filename), name)
-        code = generate(checked, filename, digest)
-        compile(code, f"{name}_sampler.py", "exec")  # Python's own nesting limits
-    except (RecursionError, SyntaxError, MemoryError):
-        raise GrammarError("expressions or successors are nested too deeply", filename, 1, 1,
-                           text) from None
+    checked = check(parse(text, filename), name)
+    code = generate(checked, filename, digest)
+    _python_compiles(code, name, filename)
     return CompiledGrammar(name, filename, text, code, checked.sites, digest, checked)
+
+
+def _python_compiles(code: str, name: str, filename: str) -> None:
+    """GrammarError if Python cannot compile the generated module. The checker and code
+    generator refuse what Python cannot read (nesting, with its position), so this names a
+    compiler bug rather than the grammar's."""
+    try:
+        compile(code, f"{name}_sampler.py", "exec")
+    except SyntaxError as err:
+        raise GrammarError(f"the generated Python does not compile ({err.msg}, line "
+                           f"{err.lineno} of {name}_sampler.py): an ngpmc bug, please report "
+                           "it with this grammar", filename) from None
+    except (RecursionError, MemoryError) as err:
+        raise GrammarError(f"the generated Python is too large for Python to compile "
+                           f"({type(err).__name__})", filename) from None
 
 
 def _check_argument(path_or_text: object) -> None:

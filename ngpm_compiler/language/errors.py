@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.errors import NgpmError, printable
 
 
 class GrammarError(NgpmError):
@@ -20,7 +20,7 @@ class GrammarError(NgpmError):
         super().__init__(self.format())
 
     def format(self) -> str:
-        head = f"{self.filename}:{self.line}:{self.col}: {self.message}"
+        head = f"{printable(self.filename)}:{self.line}:{self.col}: {self.message}"
         lines = self.source.splitlines()
         if not 1 <= self.line <= len(lines):
             return head

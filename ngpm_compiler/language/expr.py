@@ -14,11 +14,41 @@ from ngpm_compiler.language.tables import (
     RANDOM_METHOD,
 )
 
+Literal = str | float | int | None | tuple
 
-def py_float(value: float) -> str:
-    """A float literal: `2.0`, `0.75`, `1e-05`."""
-    text = repr(float(value))
-    return text if math.isfinite(value) else f"float({text!r})"
+
+def escape(text: str) -> str:
+    """`text` for inside a double-quoted Python string or a comment: printable ASCII but
+    `\\` and `"` stays, every other character becomes an escape (`\\n`, `\\x00`, `\\u2028`),
+    so the result can end no string, comment or line."""
+    if text.isascii() and text.isprintable() and "\\" not in text and '"' not in text:
+        return text
+    return "".join(_escape_char(c) for c in text)
+
+
+def _escape_char(c: str) -> str:
+    if c in '\\"':
+        return "\\" + c
+    return c if " " <= c <= "~" else ascii(c)[1:-1]
+
+
+def q(value: Literal) -> str:
+    """The Python literal of a value: the one way generated code gets a string, a number,
+    None or a tuple of them. Text is escaped (`escape`); floats print as `2.0`, `1e-05`,
+    `float("inf")`."""
+    if value is None:
+        return "None"
+    if isinstance(value, str):
+        return '"' + escape(value) + '"'
+    if isinstance(value, tuple):
+        items = [q(v) for v in value]
+        return "(" + ", ".join(items) + ("," if len(items) == 1 else "") + ")"
+    if isinstance(value, int) and not isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, float):
+        text = repr(float(value))
+        return text if math.isfinite(value) else f"float({q(text)})"
+    raise TypeError(f"no Python literal for {type(value).__name__}")
 
 
 def is_bool(expr: Expr) -> bool:
@@ -59,7 +89,7 @@ class ExprPrinter:
 
     def expr(self, expr: Expr) -> tuple[str, int]:
         if isinstance(expr, Num):
-            return py_float(expr.value), PREC["atom"] if expr.value >= 0 else PREC["neg"]
+            return q(expr.value), PREC["atom"] if expr.value >= 0 else PREC["neg"]
         if isinstance(expr, Var):
             return self.names.get(expr.name) or BUILTIN_NAMES[expr.name], PREC["atom"]
         if isinstance(expr, Unary):
@@ -85,7 +115,7 @@ class ExprPrinter:
         args = [self.number(a) for a in expr.args]
         if expr.name in RANDOM_CALLS:
             kind = RANDOM_CALLS[expr.name][0]
-            site = self.sites[id(expr)]
+            site = q(self.sites[id(expr)])
             if kind == "categorical":
                 return f"ctx.categorical({site}, ({', '.join(args)}))"
             return f"ctx.{RANDOM_METHOD[kind]}({site}, {', '.join(args)})"

@@ -46,6 +46,9 @@ UNSUPPORTED = {
 }
 # Successor positions: where a turtle symbol could have been expected.
 _SUCCESSOR_HINT = {"LSQB", "NAME", "SPECIAL"}
+# Deepest expression (nodes from the top, each operator and call one level): deeper ones are
+# an error, so the recursive passes over expressions stay within Python's recursion limit.
+MAX_EXPR_DEPTH = 100
 # Section names the module-level statements use.
 HEADER_KINDS = {
     "derivation_length": "derivation length", "viewport": "viewport", "angle": "angle",
@@ -218,11 +221,20 @@ class Builder:
             ))
         return Successor(line, col, mods, self.text(t) if t.children else "")
 
-    def expr(self, t: Tree | Token) -> Expr:
+    def expr(self, t: Tree | Token, depth: int = 0) -> Expr:
+        """The expression node of `t`; `depth` counts the nodes above it (at most
+        MAX_EXPR_DEPTH, which keeps every recursive pass over expressions in bounds)."""
         line, col = pos(t)
+        if depth > MAX_EXPR_DEPTH:
+            raise self.sink.error(f"expression nested too deeply: more than {MAX_EXPR_DEPTH} "
+                                  "levels (each operator and call is a level)", line, col)
         if isinstance(t, Token):  # a lone token (only NUMBER / NAME reach here)
-            return self.expr(Tree("number" if t.type == "NUMBER" else "var", [t]))
+            return self.expr(Tree("number" if t.type == "NUMBER" else "var", [t]), depth)
         kind, kids = t.data, t.children
+
+        def sub(node: Tree | Token) -> Expr:
+            return self.expr(node, depth + 1)
+
         if kind == "number":
             try:
                 return Num(line, col, float(str(kids[0])))
@@ -231,20 +243,19 @@ class Builder:
         if kind == "var":
             return Var(line, col, str(kids[0]))
         if kind == "neg":
-            return Unary(line, col, "-", self.expr(kids[0]))
+            return Unary(line, col, "-", sub(kids[0]))
         if kind == "unary":
-            return Unary(line, col, str(kids[0]), self.expr(kids[1]))
+            return Unary(line, col, str(kids[0]), sub(kids[1]))
         if kind == "not_":
-            return Unary(line, col, "not", self.expr(kids[1]))
+            return Unary(line, col, "not", sub(kids[1]))
         if kind in ("binary", "compare"):
             op = str(kids[1])
             return Binary(kids[1].line, kids[1].column, "^" if op == "**" else op,
-                          self.expr(kids[0]), self.expr(kids[2]))
+                          sub(kids[0]), sub(kids[2]))
         if kind in ("or_", "and_"):
-            return Binary(kids[1].line, kids[1].column, kind[:-1], self.expr(kids[0]),
-                          self.expr(kids[2]))
+            return Binary(kids[1].line, kids[1].column, kind[:-1], sub(kids[0]), sub(kids[2]))
         if kind == "call":
-            return Call(line, col, str(kids[0]), [self.expr(a) for a in kids[1:]], self.text(t))
+            return Call(line, col, str(kids[0]), [sub(a) for a in kids[1:]], self.text(t))
         raise self.sink.error(f"unexpected expression ({kind})", line, col)  # pragma: no cover
 
 

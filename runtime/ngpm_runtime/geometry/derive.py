@@ -16,9 +16,9 @@ from __future__ import annotations
 import re
 from collections.abc import Callable
 
-from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.errors import ProgramError, printable
 from ngpm_runtime.geometry.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, interpret
-from ngpm_runtime.program import Program
+from ngpm_runtime.program import Program, prior_problem
 
 MAX_INTERP_DEPTH = 64
 # The "max modules" cap: modules one particle may pop (expand or interpret) in one step, that
@@ -27,6 +27,11 @@ MAX_INTERP_DEPTH = 64
 # option `--max-modules`, `smc(..., max_modules=)`.
 DEFAULT_MAX_MODULES = 20_000  # the bundled grammars pop fewer than 30 per step
 DEFAULT_MAX_OPS = DEFAULT_MAX_MODULES  # its older name
+# Hard ceilings on one particle's whole derivation, whatever the grammar's headers or the run's
+# options say: modules expanded or interpreted, and primitives drawn. Past one, the run stops
+# with a ProgramError. The bundled vines pops fewer than 30 modules per primitive.
+MAX_WORK = 10_000_000
+MAX_PRIMITIVES = 100_000
 
 # advance() outcomes
 DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
@@ -34,7 +39,8 @@ DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
 # dispatch codes per module name
 _IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
 
-_LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")
+_LINE = re.compile(r"\d+")
+_LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")  # a Program without `source`
 
 
 class NeedSite(BaseException):  # noqa: N818 - a request, not an error
@@ -89,7 +95,7 @@ class Particle:
 
     __slots__ = (
         "stack", "turtle", "tstack", "poly", "prims", "n_prims", "trace",
-        "values", "sites", "cont", "need", "in_interp", "last", "status", "limit",
+        "values", "sites", "cont", "need", "in_interp", "last", "status", "limit", "work",
     )
 
     def __init__(self, stack: tuple | None, turtle: tuple) -> None:
@@ -108,6 +114,7 @@ class Particle:
         self.last: tuple | None = None  # primitive drawn by the last step
         self.status = "live"
         self.limit: str | None = None  # the cap's name when status is "limit"
+        self.work = 0  # modules expanded or interpreted so far (see MAX_WORK)
 
     def copy(self) -> Particle:
         q = _new_particle(Particle)
@@ -126,6 +133,7 @@ class Particle:
         q.last = self.last
         q.status = self.status
         q.limit = self.limit
+        q.work = self.work
         return q
 
 
@@ -147,11 +155,17 @@ AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
 MAX_CACHE = 200_000
 
 
-def _where(fn: Callable, kind: str, mod: tuple) -> str:
-    """'vines.lsys:24: production B' from the generated function's docstring."""
-    doc = (fn.__doc__ or "").strip()
-    m = _LOC.search(doc.splitlines()[-1]) if doc else None
-    loc = f"{m.group(1)}:{m.group(2)}: " if m else ""
+def _where(fn: Callable, kind: str, mod: tuple, base: str) -> str:
+    """'vines.lsys:24: production B(0.75)': the rule's line from the generated function's
+    docstring, which ends with `(vines.lsys:24)` (`base` is the grammar's file name)."""
+    doc = fn.__doc__ or ""
+    if base:
+        at = doc.rfind(f"({base}:")
+        m = _LINE.match(doc, at + len(base) + 2) if at >= 0 else None
+        loc = f"{printable(base)}:{m.group()}: " if m else ""
+    else:
+        m = _LOC.search(doc.strip().splitlines()[-1]) if doc.strip() else None
+        loc = f"{printable(m.group(1))}:{m.group(2)}: " if m else ""
     if mod[0] == AXIOM:
         return f"{loc}axiom"
     args = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in mod[1:])
@@ -164,8 +178,12 @@ class Deriver:
     depends only on the module and the values replayed; outcomes are memoized while those
     values are all discrete."""
 
-    def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_OPS) -> None:
+    def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_OPS,
+                 max_work: int | None = None) -> None:
         self.program = program
+        self.base = str(program.source or "").replace("\\", "/").rsplit("/", 1)[-1]
+        self.max_work = MAX_WORK if max_work is None else max_work
+        self.max_prims = MAX_PRIMITIVES
         self.prods = dict(program.productions)
         self.prods[AXIOM] = program.axiom
         self.interp = dict(program.interpretation)
@@ -191,27 +209,44 @@ class Deriver:
         try:
             succ = fn(ctx, *mod[1:])
         except NeedSite as need:
+            self._check_prior(need, fn, kind, mod)
             return _Need(need.site, need.args)
         except ProgramError as err:
-            raise ProgramError(f"{_where(fn, kind, mod)}: {err}") from None
+            raise ProgramError(f"{self._where(fn, kind, mod)}: {err}") from None
         except RecursionError:
-            raise ProgramError(f"{_where(fn, kind, mod)}: runaway recursion") from None
+            raise ProgramError(f"{self._where(fn, kind, mod)}: runaway recursion") from None
         except Exception as err:
             raise ProgramError(
-                f"{_where(fn, kind, mod)}: {type(err).__name__}: {err}"
+                f"{self._where(fn, kind, mod)}: {type(err).__name__}: {err}"
             ) from None
         if succ is None:
             return None
         if type(succ) is not list:
             if not isinstance(succ, list | tuple):
-                raise ProgramError(f"{_where(fn, kind, mod)}: returned "
+                raise ProgramError(f"{self._where(fn, kind, mod)}: returned "
                                    f"{type(succ).__name__}, not a list of modules")
             succ = list(succ)
         for m in succ:
             if type(m) is not tuple or not m or type(m[0]) is not str:
-                raise ProgramError(f"{_where(fn, kind, mod)}: successor {m!r} is not a "
+                raise ProgramError(f"{self._where(fn, kind, mod)}: successor {m!r} is not a "
                                    "module tuple")
         return succ
+
+    def _where(self, fn: Callable, kind: str, mod: tuple) -> str:
+        return _where(fn, kind, mod, self.base)
+
+    def _check_prior(self, need: NeedSite, fn: Callable, kind: str, mod: tuple) -> None:
+        """ProgramError when a production asks for a value with prior arguments its site's
+        distribution does not accept (`prior_problem`): no argument is repaired silently."""
+        sites = self.program.sites
+        if not (isinstance(need.site, int) and 0 <= need.site < len(sites)):
+            raise ProgramError(f"{self._where(fn, kind, mod)}: asks for site {need.site!r}, "
+                               f"not one of the program's {len(sites)} sites")
+        site = sites[need.site]
+        bad = prior_problem(site.kind, need.args)
+        if bad:
+            raise ProgramError(f"{self._where(fn, kind, mod)}: {site.source or site.id} "
+                               f"(line {site.line}:{site.col}): {bad}")
 
     def _memo(self, p: Particle, fn: Callable, kind: str, mod: tuple, cache: dict,
               key: object) -> object:
@@ -239,7 +274,7 @@ class Deriver:
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
-        max_ops = self.max_ops
+        max_ops = min(self.max_ops, self.max_work - p.work)
         angle = self.angle
         mod: tuple = ()
         drew = False
@@ -247,6 +282,9 @@ class Deriver:
             while stack is not None:
                 ops += 1
                 if ops > max_ops:
+                    if p.work + ops > self.max_work:
+                        raise self._runaway(f"expanded or interpreted more than "
+                                            f"{self.max_work} modules")
                     p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                     return DRAWN if drew else LIMIT
                 mod, depth, ilevel, rest = stack
@@ -317,6 +355,8 @@ class Deriver:
                     p.last = prim
                     p.prims = (prim, p.prims)
                     p.n_prims += 1
+                    if p.n_prims > self.max_prims:
+                        raise self._runaway(f"drew more than {self.max_prims} primitives")
                     drew = peek = True
                     continue
                 stack = rest
@@ -326,8 +366,16 @@ class Deriver:
                     stack = None
         except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
             raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
+        finally:
+            p.work += ops
         p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
         return DRAWN if drew else DONE
+
+    def _runaway(self, what: str) -> ProgramError:
+        name = printable(self.base or self.program.name)
+        return ProgramError(f"{name}: one sample {what}, the most any sample may do: the "
+                            "grammar's work has no end in sight (lower its 'derivation "
+                            "length:' or 'max primitives:')")
 
     def _code(self, name: str) -> int:
         """How `advance` treats a module name first (memoized in `dispatch`)."""

@@ -170,3 +170,39 @@ def test_deep_nesting_is_a_grammar_error() -> None:
 def test_rules_before_any_section_are_productions() -> None:
     prog = compile_grammar("Axiom: A\nA --> F\n").program()
     assert set(prog.productions) == {"A"} and prog.interpretation == {}
+
+
+# ---- issue #27: what Python cannot compile, and runaway headers, are grammar errors --------
+
+@pytest.mark.parametrize("text, line, col, words", [
+    # Python reads at most 200 nested brackets: sin() prints two per level
+    ("Axiom: F(1)\nA --> F(2) F(" + "sin(" * 100 + "1" + ")" * 100 + ")\n", 2, 14,
+     "expression nested too deeply for Python (200 levels of parentheses"),
+    ("derivation length: 1\nAxiom: A(1)\nA(x) : " + "cos(x and " * 50 + "x" + ")" * 50
+     + " --> F\n", 3, 8, "expression nested too deeply for Python"),
+    ("Axiom: F(1)\n#define K " + "-" * 150 + "1\n", 2, 112, "expression nested too deeply: "
+     "more than 100 levels"),
+    ("Axiom: F(" + "1 + " * 400 + "1)\n", 1, 10, "more than 100 levels"),
+])
+def test_nesting_errors_name_the_place_and_cause(text: str, line: int, col: int,
+                                                 words: str) -> None:
+    """Finding 8: every nesting Python could not compile was "nested too deeply" at 1:1."""
+    e = err(text)
+    assert words in e.message and (e.line, e.col) == (line, col), e
+
+
+@pytest.mark.parametrize("header, value", [
+    ("derivation length", "1e9"), ("max primitives", "1e18"), ("max modules", "1e12")])
+def test_absurd_header_values_are_errors(header: str, value: str) -> None:
+    """Finding 3: `max primitives: 1e18` with `derivation length: 1e9` ran without end."""
+    e = err(f"{header}: {value}\nAxiom: F\n")
+    assert f"'{header}:' must be at most" in e.message and f"got {float(value):g}" in e.message
+    assert (e.line, e.col) == (1, len(header) + 3)
+    compile_grammar(f"{header}: 1000\nAxiom: F\n")  # ordinary values stay fine
+
+
+def test_polygon_closed_without_an_opening_is_an_error() -> None:
+    e = err("Axiom: A\nA --> F . } F\n")
+    assert "unmatched '}' in rule for A: no '{' before it" in e.message and (e.line, e.col) == (
+        2, 11)
+    compile_grammar("Axiom: A\nA --> { . F . } [ { . ]\n")

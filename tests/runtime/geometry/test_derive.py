@@ -282,3 +282,66 @@ def test_one_bbox_scalar_and_batched_agree() -> None:
     prims += [("poly", tuple(map(tuple, rng.normal(size=(5, 2))))) for _ in range(20)]
     for p in prims:
         assert prim_bboxes(p[0], [p])[0][0].tolist() == list(prim_bbox(p))
+
+
+# ---- issue #27: invalid run-time prior arguments, runaway work ----------------------------
+
+BAD_PRIORS = [
+    ("F(gauss(0, -x))", "gauss(0, -x) (line 4:12): the standard deviation must be >= 0, got -1"),
+    ("F(uniform(x, 0))", "uniform(x, 0) (line 4:12): needs a <= b, got a = 1, b = 0"),
+    ("F(flip(2 * x))", "flip(2 * x) (line 4:12): the probability must be in [0, 1], got 2"),
+    ("F(choice(x, -x))", "choice(x, -x) (line 4:12): weights must be >= 0 with a positive sum"),
+]
+
+
+@pytest.mark.parametrize("successor, words", BAD_PRIORS)
+def test_invalid_prior_arguments_at_run_time_are_errors(successor: str, words: str) -> None:
+    """Finding 5: gauss(0, -1) used |sd|, uniform(1, 0) swapped, flip(2) clipped, silently.
+    The deriver checks the arguments of every request before any proposal sees them, so
+    the prior, SMC, replay and guided paths all stop with the same error."""
+    from ngpm_runtime.inference.smc import replay
+
+    from ngpm_compiler.language.compile import compile_grammar
+
+    prog = compile_grammar("viewport: -5 5 -5 5\nderivation length: 1\nAxiom: A(1)\n"
+                           f"A(x) --> {successor}\n", filename="bad.lsys").program()
+    for run in (lambda: forward(prog), lambda: smc(prog, None, 4, seed=1),
+                lambda: replay(prog, [(0, 0.0)])):
+        with pytest.raises(ProgramError) as info:
+            run()
+        assert str(info.value).startswith(f"bad.lsys:4: production A(1): {words}")
+
+
+def test_degenerate_priors_at_run_time_are_point_masses() -> None:
+    from ngpm_compiler.language.compile import compile_grammar
+
+    prog = compile_grammar("derivation length: 1\nAxiom: A(0)\n"
+                           "A(x) --> F(gauss(1, x)) F(uniform(x + 2, 2))\n").program()
+    lengths = [math.hypot(p[3] - p[1], p[4] - p[2]) for p in forward(prog).primitives]
+    assert lengths == pytest.approx([1.0, 2.0], abs=1e-12)
+
+
+def test_a_request_for_an_unknown_site_is_an_error() -> None:
+    prog = make_program({"A": lambda ctx: [("F", ctx.normal(3, 0.0, 1.0))]})
+    with pytest.raises(ProgramError, match="asks for site 3, not one of the program's 0 sites"):
+        forward(prog)
+
+
+def test_one_samples_work_has_a_ceiling(monkeypatch) -> None:
+    """Finding 3: whatever the caps, one sample's whole derivation stops at MAX_WORK modules
+    (or MAX_PRIMITIVES primitives) with an error naming the cause."""
+    from ngpm_runtime.geometry import derive
+
+    def waste(ctx, n):  # 50 modules of work per primitive, for ever
+        return [("B", n - 1.0)] if n > 0 else [("F", 0.01), ("B", 50.0)]
+
+    prog = make_program({"B": waste}, axiom=[("B", 50.0)], max_primitives=10**18,
+                        source="grammars/waste.lsys")
+    monkeypatch.setattr(derive, "MAX_WORK", 5000)
+    with pytest.raises(ProgramError, match=r"^waste\.lsys: one sample expanded or interpreted "
+                                           r"more than 5000 modules"):
+        forward(prog)
+    monkeypatch.setattr(derive, "MAX_WORK", 10**9)
+    monkeypatch.setattr(derive, "MAX_PRIMITIVES", 30)
+    with pytest.raises(ProgramError, match="one sample drew more than 30 primitives"):
+        smc(prog, None, 3, seed=0)
