@@ -3,7 +3,7 @@
 The setup's arguments go to the object store once (`ray.put`); each worker process runs the
 setup the first time it gets a task of this run and keeps what it built (`pool.state()`), as
 a `LocalPool` worker does. A task whose worker dies (killed, out of memory, node lost) is
-run again by Ray, up to `MAX_RETRIES` times; its result still reaches the driver once, and
+run again by Ray, up to `pool.MAX_RETRIES` times; its result still reaches the driver once, and
 the driver alone writes results, so a retried job is never recorded twice.
 
 Without an address (and without $RAY_ADDRESS) a local Ray instance with `workers` CPUs starts
@@ -23,7 +23,6 @@ from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.learning import pool
 
-MAX_RETRIES = 3  # runs of a task after its worker died, before the run fails
 _RUN: list[str] = [""]  # the run whose setup this worker process holds
 
 
@@ -80,7 +79,7 @@ class RayBackend:
     separate_processes = True
 
     def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
-                 address: str | None = None, max_retries: int = MAX_RETRIES) -> None:
+                 address: str | None = None, max_retries: int = pool.MAX_RETRIES) -> None:
         self.ray = import_ray()
         self.workers = max(1, workers)
         self.address = address
@@ -145,4 +144,14 @@ class RayBackend:
         ready, _ = self.ray.wait(refs, num_returns=1, timeout=timeout)
         if ready:
             ready, _ = self.ray.wait(refs, num_returns=len(refs), timeout=0)
-        return [(self._running.pop(ref), self.ray.get(ref)) for ref in ready]
+        return [(self._running.pop(ref), self._get(ref)) for ref in ready]
+
+    def _get(self, ref: Any) -> Any:
+        """A task's result; a task's own error is raised as itself (Ray's wrapper prints the
+        worker's traceback in its message)."""
+        try:
+            return self.ray.get(ref)
+        except self.ray.exceptions.RayTaskError as err:
+            if isinstance(err.cause, Exception):
+                raise err.cause from None
+            raise

@@ -365,6 +365,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     if program.viewport is None:
         raise TraceError(f"{cfg.grammar}: the grammar has no 'viewport:' line; traces draw "
                          "into target images, so add one (e.g. 'viewport: -12 12 -22 2')")
+    if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
+        backends.load_guide(cfg.guide, program)
     store.dir.mkdir(parents=True, exist_ok=True)
     targets = load_targets(cfg.targets, cfg.size, cfg.mirror)
     key = _config_key(cfg, program, targets)

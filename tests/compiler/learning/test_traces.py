@@ -63,12 +63,14 @@ def test_pending_and_shards_deduplicate(tmp_path):
         store.finished()
 
 
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runtime")])}
+
+
 def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
            "-n", str(n), "--particles", "8", "-o", str(out), "--workers", str(workers),
            "--seed", "3", "--shard-size", "4"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV,
                             start_new_session=True, **kw)
 
 
@@ -160,3 +162,27 @@ def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
     failing = sum(job_spec(0, j, 2)[1] % 3 == 0 for j in range(m["jobs_done"]))
     assert failing >= 1 and m["kept"] == 6 and m["failed"] == m["dropped"] == failing
     assert len(load_traces(tmp_path / "t").kept_jobs) == 6
+
+
+def cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """ngpmc in a subprocess; the test fails (TimeoutExpired) if it hangs."""
+    return subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", *args], env=ENV,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_traces_refuses_a_guide_that_does_not_fit_before_starting_workers(tmp_path):
+    """A guide of another grammar, or a corrupt one, used to make every worker fail its
+    setup, and the pool start a new one each time, forever."""
+    from ngpm_runtime import bundled
+
+    data = make_dataset(tmp_path / "data", 2)
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(bundled.guide_path().read_bytes()[:1000])
+    for guide, words in ((bundled.guide_path(), "guide was trained for grammar 'vines'"),
+                         (corrupt, "not a readable ONNX guide (corrupt or truncated file)")):
+        out = tmp_path / "tr"
+        proc = cli("traces", CHAIN, "--targets", str(data), "-n", "2", "--particles", "4",
+                   "--workers", "2", "-o", str(out), "--guide", str(guide))
+        assert proc.returncode == 1 and proc.stderr.startswith(f"ngpmc: error: {guide}: ")
+        assert words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+        assert not out.exists()
