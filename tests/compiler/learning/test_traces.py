@@ -186,3 +186,48 @@ def test_traces_refuses_a_guide_that_does_not_fit_before_starting_workers(tmp_pa
         assert proc.returncode == 1 and proc.stderr.startswith(f"ngpmc: error: {guide}: ")
         assert words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
         assert not out.exists()
+
+
+class Hung(Exception):
+    pass
+
+
+def _hung(signum, frame):
+    raise Hung("still running after the test's deadline")
+
+
+def within(seconds: float, fn, *args, **kw):
+    """fn(*args, **kw), interrupted by Hung (the test fails) after `seconds`."""
+    old = signal.signal(signal.SIGALRM, _hung)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        return fn(*args, **kw)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_a_killed_pool_worker_costs_only_a_rerun(tmp_path):
+    """SIGKILL of a local-pool worker mid-run used to stall `traces` forever (its job never
+    came back); now its jobs run again, and the shards are the same bytes."""
+    import multiprocessing as mp
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=12, particles=30, seed=3,
+                      workers=2, shard_size=4)
+    killed: list[int] = []
+
+    def kill_one(job: int) -> None:
+        workers = [p for p in mp.active_children() if p.name.startswith("SpawnPoolWorker")]
+        if not killed and job >= 2 and workers:
+            os.kill(workers[0].pid, signal.SIGKILL)
+            killed.append(workers[0].pid)
+
+    m = within(90, generate_traces, cfg, tmp_path / "killed", progress=False, on_job=kill_one)
+    assert killed and m["kept"] == m["jobs_done"] == 12
+    cfg.workers = 1
+    generate_traces(cfg, tmp_path / "ref", progress=False)
+    shards = sorted(p.name for p in (tmp_path / "ref").glob("shard_*.npz"))
+    assert shards == sorted(p.name for p in (tmp_path / "killed").glob("shard_*.npz"))
+    for name in shards:
+        assert (tmp_path / "killed" / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
