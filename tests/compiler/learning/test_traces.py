@@ -231,3 +231,38 @@ def test_a_killed_pool_worker_costs_only_a_rerun(tmp_path):
     assert shards == sorted(p.name for p in (tmp_path / "killed").glob("shard_*.npz"))
     for name in shards:
         assert (tmp_path / "killed" / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
+
+
+def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeypatch):
+    """ENOSPC from the last shard's write on (the manifest's too) used to leave no
+    manifest.json, and `train` refused the folder; now the manifest of the shards written is
+    there, the other jobs stay pending, and a rerun writes the same last shard."""
+    import errno
+
+    import ngpm_compiler.learning.traces as traces_mod
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
+                      shard_size=4)
+    real, full = traces_mod.atomic_write, []
+
+    def write(path, data):
+        if full or Path(path).name == "shard_00000004.npz":
+            full.append(Path(path).name)
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(traces_mod, "atomic_write", write)
+    out = tmp_path / "full"
+    with pytest.raises(OSError, match="No space left on device"):
+        generate_traces(cfg, out, progress=False)
+    monkeypatch.undo()
+    assert full == ["shard_00000004.npz", "manifest.json"]
+    assert [p.name for p in TraceStore(out).shard_paths()] == ["shard_00000000.npz"]
+    assert json.loads((out / "manifest.json").read_text())["shards"] == ["shard_00000000.npz"]
+    assert sorted(load_traces(out).kept_jobs.tolist()) == list(range(6))  # 4, 5 pending
+    m = generate_traces(cfg, out, progress=False)
+    assert m["kept"] == 6 and m["shards"] == ["shard_00000000.npz", "shard_00000004.npz"]
+    generate_traces(cfg, tmp_path / "ref", progress=False)
+    for name in m["shards"]:
+        assert (out / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
