@@ -7,7 +7,8 @@ run again by Ray, up to `pool.MAX_RETRIES` times; its result still reaches the d
 the driver alone writes results, so a retried job is never recorded twice.
 
 Without an address (and without $RAY_ADDRESS) a local Ray instance with `workers` CPUs starts
-and is shut down on exit; with one, the driver connects to that cluster and leaves it running.
+and is shut down on exit, also when the driver is killed (`ray_reaper.py`); with one, the
+driver connects to that cluster and leaves it running.
 Every node needs the same Python environment (ngpm installed, same versions) as the driver;
 nothing else is read there: no grammar file, no target folder.
 """
@@ -16,12 +17,14 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 import uuid
 from typing import Any
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.learning import pool
+from ngpm_compiler.learning import pool, ray_reaper
 
 _RUN: list[str] = [""]  # the run whose setup this worker process holds
 
@@ -61,6 +64,28 @@ def check_reachable(address: str, timeout: float = 10.0) -> None:
                         "is `ray start --head` running there?") from None
 
 
+def start_reaper(pids: set[int]) -> subprocess.Popen | None:
+    """A `ray_reaper` process for the local instance's processes `pids`: it stops what they
+    leave behind once this process has exited, however it ended (None off Linux)."""
+    if not sys.platform.startswith("linux") or not pids:
+        return None
+    return subprocess.Popen([sys.executable, ray_reaper.__file__, *map(str, sorted(pids))],
+                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def stop_reaper(reaper: subprocess.Popen | None) -> None:
+    """Close the reaper's pipe (so it kills what the shut-down instance left, then exits)."""
+    if reaper is None:
+        return
+    if reaper.stdin is not None:
+        reaper.stdin.close()
+    try:
+        reaper.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        pass
+
+
 def connect(ray: Any, address: str) -> None:
     """ray.init on a running cluster, with errors that say what to check."""
     check_reachable(address)
@@ -87,6 +112,7 @@ class RayBackend:
         self._setup = (setup, setup_args)
         self._retries = max_retries
         self._started = False  # a local instance we started (and shut down on exit)
+        self._reaper: subprocess.Popen | None = None
         self._running: dict[Any, int] = {}  # ObjectRef -> key
         self._box: list[Any] = []
         self._remote: Any = None
@@ -99,9 +125,11 @@ class RayBackend:
                 connect(ray, self.address or os.environ["RAY_ADDRESS"])
             else:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+                before = ray_reaper.children(os.getpid())
                 ray.init(address="local", num_cpus=self.workers, include_dashboard=False,
                          logging_level="ERROR")  # "local": not a `ray start` cluster here
                 self._started = True
+                self._reaper = start_reaper(ray_reaper.children(os.getpid()) - before)
         try:
             cpus = int(ray.cluster_resources().get("CPU", self.workers))
             self.capacity = 2 * max(1, cpus)
@@ -130,6 +158,8 @@ class RayBackend:
         if self._started:
             self._started = False
             self.ray.shutdown()
+            stop_reaper(self._reaper)
+            self._reaper = None
 
     def submit(self, key: int, fn: Any, arg: Any) -> None:
         self._running[self._remote.remote(self._run, self._box, fn, arg)] = key

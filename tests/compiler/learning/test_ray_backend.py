@@ -121,25 +121,33 @@ def test_killed_worker_job_is_retried_once(local_ray, reference, tmp_path):
     assert shard_bytes(out) == want
 
 
-def test_sigterm_cancels_and_resumes(tmp_path):
-    """A driver with its own local Ray instance, stopped by SIGTERM mid-run; then resumed."""
-    data = make_dataset(tmp_path / "data")
-    out, n = tmp_path / "traces", 120
+def start_driver(data: Path, out: Path, n: int, jobs: int = 10) -> subprocess.Popen:
+    """`ngpmc traces --backend ray` (its own local Ray instance) in a session of its own,
+    once it has finished `jobs` jobs."""
     cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
            "-n", str(n), "--particles", "8", "--seed", "1", "--shard-size", str(SHARD),
            "-o", str(out), "--backend", "ray"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runtime")])}
     env.pop("RAY_ADDRESS", None)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             start_new_session=True)
     store = TraceStore(out)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
-        if len(store.pending_paths()) + 4 * len(store.shard_paths()) >= 10:
+        if len(store.pending_paths()) + SHARD * len(store.shard_paths()) >= jobs:
             break
         time.sleep(0.05)
     assert proc.poll() is None, proc.communicate()[1][-2000:]
     assert session_processes(proc.pid) - {proc.pid}  # Ray's processes, in its session
+    return proc
+
+
+def test_sigterm_cancels_and_resumes(tmp_path):
+    """A driver with its own local Ray instance, stopped by SIGTERM mid-run; then resumed."""
+    data = make_dataset(tmp_path / "data")
+    out, n = tmp_path / "traces", 120
+    proc = start_driver(data, out, n)
+    store = TraceStore(out)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
@@ -156,6 +164,18 @@ def test_sigterm_cancels_and_resumes(tmp_path):
     assert sorted(load_traces(out).kept_jobs.tolist()) == list(range(n))
     assert [p.name for p in store.shard_paths()] == [f"shard_{i:08d}.npz"
                                                      for i in range(0, n, SHARD)]
+
+
+def test_sigkill_of_the_driver_leaves_no_ray_process(tmp_path):
+    """kill -9 of a driver with its own local Ray instance: Ray's agents used to linger for
+    a minute or more; the reaper (ray_reaper.py) stops them."""
+    proc = start_driver(make_dataset(tmp_path / "data"), tmp_path / "traces", 5000, jobs=4)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate()
+    deadline = time.time() + 15
+    while session_processes(proc.pid) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not session_processes(proc.pid)
 
 
 def session_processes(sid: int) -> set[int]:
