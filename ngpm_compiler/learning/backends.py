@@ -90,7 +90,9 @@ class LocalPool:
     A worker process that dies (killed, out of memory) takes its job with it, and a Pool
     neither says which job that was nor runs it again: when one of the workers is gone, the
     pool starts afresh and every job in flight runs again (jobs are pure, and the driver
-    keeps one result per job), up to `max_retries` times per job; then `results` raises."""
+    keeps one result per job), up to `max_retries` times per job; then `results` raises.
+    The restart waits for the next `results` call, so a driver that was told to stop
+    (SIGTERM to the process group kills the workers too) stops without starting workers."""
 
     separate_processes = True
 
@@ -106,6 +108,7 @@ class LocalPool:
         self._running: dict[int, Any] = {}
         self._jobs: dict[int, tuple[Job, Any]] = {}  # the running jobs' (fn, arg)
         self._tries: dict[int, int] = {}  # key -> times its run was lost with a worker
+        self._lost = False  # a worker died: restart at the next `results`
 
     def __enter__(self) -> LocalPool:
         self._start()
@@ -130,6 +133,8 @@ class LocalPool:
     def results(self, timeout: float) -> list[tuple[int, Any]]:
         if not self._running:
             return []
+        if self._lost:
+            self._restart()
         ready = [k for k, r in self._running.items() if r.ready()]
         if not ready:
             next(iter(self._running.values())).wait(timeout)
@@ -138,8 +143,11 @@ class LocalPool:
         for key in ready:
             del self._jobs[key]
             out.append((key, self._running.pop(key).get()))
-        if self._running and pool.worker_pids(self._pool) != self._pids:
-            self._restart()
+        pids = pool.worker_pids(self._pool)
+        if pids != self._pids:  # a worker died (the Pool started another)
+            self._lost = bool(self._running)
+            if not self._running:  # no job was lost with it
+                self._pids = pids
         return out
 
     def _restart(self) -> None:
@@ -155,6 +163,7 @@ class LocalPool:
                             f"{jobs_text} ran (killed, or out of memory?)")
         self._stack.close()
         self._running.clear()
+        self._lost = False
         self._start()
         for key, (fn, arg) in jobs:
             self.submit(key, fn, arg)

@@ -335,17 +335,28 @@ def _file_hash(path: str | None) -> str | None:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+_STOP: list[int] = []  # the signal that asked this run to stop
+
+
 def _exit_on_sigterm() -> None:
     """Make SIGTERM unwind like Ctrl-C, so the pool's workers are stopped and the manifest of
     the finished jobs is written (the default SIGTERM handler skips all cleanup)."""
+    _STOP.clear()
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _sigterm_exit)
+        signal.signal(signal.SIGTERM, _note_sigterm)
 
 
-def _sigterm_exit(signum: int, frame: Any) -> None:
-    """Unwind once; a second SIGTERM during the cleanup (writing the manifest) is ignored."""
+def _note_sigterm(signum: int, frame: Any) -> None:
+    """Note the signal; the driver loop exits with 128 + signum at its next turn (within
+    0.05 s). Raised here, inside a backend's wait, Ray would replace the exit with its own
+    SystemExit(1). A second SIGTERM during the cleanup (writing the manifest) is ignored."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    sys.exit(128 + signum)
+    _STOP.append(signum)
+
+
+def _exit_if_stopped() -> None:
+    if _STOP:
+        sys.exit(128 + _STOP[0])
 
 
 def _check_module_cap(cfg: TraceConfig, program: Program, target: Any) -> None:
@@ -478,6 +489,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                 for job, result in jobs.results(0.05):
                     if job not in done_ids:  # else: written already (a retried job)
                         finish(*result)
+                _exit_if_stopped()
             complete = True
     finally:
         bar.close()
