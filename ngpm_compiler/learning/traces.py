@@ -21,9 +21,10 @@ is -1 when SMC failed: every particle died, so the job is dropped) and per
 visited site `i`: `f_<i>` (m, n_f) float32 features, `v_<i>` (m,) values, `j_<i>` (m,) job ids.
 `manifest.json` holds the configuration (checked on resume), site table, feature layouts and
 counts; it is written at the start and after every shard, so it matches the shards on disk
-even when a write fails. Every file is checked field by field when read (`shards.py`). Job ids are handed out in increasing order and only while `kept + running < n`, so the
-finished set is the shortest prefix of job ids holding `n` kept traces, however often the run
-is interrupted.
+even when a write fails. Every file is checked field by field when read (`shards.py`). Job
+ids are handed out in increasing order and only while `kept + running < n`, so the finished
+set is the shortest prefix of job ids holding `n` kept traces, however often the run is
+interrupted.
 """
 
 from __future__ import annotations

@@ -189,3 +189,23 @@ def session_processes(sid: int) -> set[int]:
         if int(fields[3]) == sid and fields[0] != "Z":
             out.add(int(pid))
     return out
+
+
+def test_a_task_whose_setup_fails_raises_its_own_one_line_error(local_ray, reference):
+    """Ray's RayTaskError carries the worker's traceback in its message; the driver raises
+    the task's own error instead (one line from ngpmc)."""
+    from ngpm_runtime.errors import GuideError
+
+    from ngpm_compiler.learning.ray_backend import RayBackend
+    from ngpm_compiler.learning.traces import _do_job, _worker_setup, load_targets
+
+    data, _ = reference
+    text = Path(CHAIN).read_text(encoding="utf-8")
+    setup_args = (CHAIN, text, load_targets(data, 50, False), b"not an onnx file")
+    with pytest.raises(GuideError) as info:
+        with RayBackend(2, _worker_setup, setup_args) as jobs:
+            jobs.submit(0, _do_job, (0, SEED, PARTICLES, 10))
+            while jobs.running():
+                jobs.results(0.05)
+    assert "not a readable ONNX guide" in str(info.value)
+    assert "\n" not in str(info.value) and type(info.value) is GuideError
