@@ -85,27 +85,46 @@ class InProcess:
 
 
 class LocalPool:
-    """`workers` spawned processes on this machine (`pool.spawn_pool`)."""
+    """`workers` spawned processes on this machine (`pool.spawn_pool`).
+
+    A worker process that dies (killed, out of memory) takes its job with it, and a Pool
+    neither says which job that was nor runs it again: when one of the workers is gone, the
+    pool starts afresh and every job in flight runs again (jobs are pure, and the driver
+    keeps one result per job), up to `max_retries` times per job; then `results` raises.
+    The restart waits for the next `results` call, so a driver that was told to stop
+    (SIGTERM to the process group kills the workers too) stops without starting workers."""
 
     separate_processes = True
 
-    def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...]) -> None:
+    def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
+                 max_retries: int = pool.MAX_RETRIES) -> None:
         self.workers = workers
         self.capacity = 2 * workers
         self._setup = (setup, setup_args)
+        self._retries = max_retries
         self._pool: Any = None
+        self._pids: set[int] = set()
         self._stack = ExitStack()
         self._running: dict[int, Any] = {}
+        self._jobs: dict[int, tuple[Job, Any]] = {}  # the running jobs' (fn, arg)
+        self._tries: dict[int, int] = {}  # key -> times its run was lost with a worker
+        self._lost = False  # a worker died: restart at the next `results`
 
     def __enter__(self) -> LocalPool:
-        self._pool = self._stack.enter_context(pool.spawn_pool(self.workers, *self._setup))
+        self._start()
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self._running.clear()
+        self._jobs.clear()
         self._stack.close()  # stops the workers, running jobs or not, without hanging
 
+    def _start(self) -> None:
+        self._pool = self._stack.enter_context(pool.spawn_pool(self.workers, *self._setup))
+        self._pids = pool.worker_pids(self._pool)
+
     def submit(self, key: int, fn: Job, arg: Any) -> None:
+        self._jobs[key] = (fn, arg)
         self._running[key] = self._pool.apply_async(fn, (arg,))
 
     def running(self) -> int:
@@ -114,11 +133,40 @@ class LocalPool:
     def results(self, timeout: float) -> list[tuple[int, Any]]:
         if not self._running:
             return []
+        if self._lost:
+            self._restart()
         ready = [k for k, r in self._running.items() if r.ready()]
         if not ready:
             next(iter(self._running.values())).wait(timeout)
             ready = [k for k, r in self._running.items() if r.ready()]
-        return [(k, self._running.pop(k).get()) for k in ready]
+        out = []
+        for key in ready:
+            del self._jobs[key]
+            out.append((key, self._running.pop(key).get()))
+        pids = pool.worker_pids(self._pool)
+        if pids != self._pids:  # a worker died (the Pool started another)
+            self._lost = bool(self._running)
+            if not self._running:  # no job was lost with it
+                self._pids = pids
+        return out
+
+    def _restart(self) -> None:
+        """A worker died: a fresh pool runs every job in flight again (or NgpmError when a
+        job's runs were lost more than `max_retries` times)."""
+        jobs = list(self._jobs.items())
+        for key, _ in jobs:
+            self._tries[key] = self._tries.get(key, 0) + 1
+        lost = [k for k, _ in jobs if self._tries[k] > self._retries]
+        if lost:
+            jobs_text = f"job{'s' if len(lost) > 1 else ''} {', '.join(map(str, lost))}"
+            raise NgpmError(f"worker processes died {self._tries[lost[0]]} times while "
+                            f"{jobs_text} ran (killed, or out of memory?)")
+        self._stack.close()
+        self._running.clear()
+        self._lost = False
+        self._start()
+        for key, (fn, arg) in jobs:
+            self.submit(key, fn, arg)
 
 
 def make_backend(kind: str, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],

@@ -3,11 +3,12 @@
 The setup's arguments go to the object store once (`ray.put`); each worker process runs the
 setup the first time it gets a task of this run and keeps what it built (`pool.state()`), as
 a `LocalPool` worker does. A task whose worker dies (killed, out of memory, node lost) is
-run again by Ray, up to `MAX_RETRIES` times; its result still reaches the driver once, and
+run again by Ray, up to `pool.MAX_RETRIES` times; its result still reaches the driver once, and
 the driver alone writes results, so a retried job is never recorded twice.
 
 Without an address (and without $RAY_ADDRESS) a local Ray instance with `workers` CPUs starts
-and is shut down on exit; with one, the driver connects to that cluster and leaves it running.
+and is shut down on exit, also when the driver is killed (`ray_reaper.py`); with one, the
+driver connects to that cluster and leaves it running.
 Every node needs the same Python environment (ngpm installed, same versions) as the driver;
 nothing else is read there: no grammar file, no target folder.
 """
@@ -16,14 +17,15 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 import uuid
 from typing import Any
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.learning import pool
+from ngpm_compiler.learning import pool, ray_reaper
 
-MAX_RETRIES = 3  # runs of a task after its worker died, before the run fails
 _RUN: list[str] = [""]  # the run whose setup this worker process holds
 
 
@@ -62,6 +64,28 @@ def check_reachable(address: str, timeout: float = 10.0) -> None:
                         "is `ray start --head` running there?") from None
 
 
+def start_reaper(pids: set[int]) -> subprocess.Popen | None:
+    """A `ray_reaper` process for the local instance's processes `pids`: it stops what they
+    leave behind once this process has exited, however it ended (None off Linux)."""
+    if not sys.platform.startswith("linux") or not pids:
+        return None
+    return subprocess.Popen([sys.executable, ray_reaper.__file__, *map(str, sorted(pids))],
+                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def stop_reaper(reaper: subprocess.Popen | None) -> None:
+    """Close the reaper's pipe (so it kills what the shut-down instance left, then exits)."""
+    if reaper is None:
+        return
+    if reaper.stdin is not None:
+        reaper.stdin.close()
+    try:
+        reaper.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        pass
+
+
 def connect(ray: Any, address: str) -> None:
     """ray.init on a running cluster, with errors that say what to check."""
     check_reachable(address)
@@ -80,7 +104,7 @@ class RayBackend:
     separate_processes = True
 
     def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
-                 address: str | None = None, max_retries: int = MAX_RETRIES) -> None:
+                 address: str | None = None, max_retries: int = pool.MAX_RETRIES) -> None:
         self.ray = import_ray()
         self.workers = max(1, workers)
         self.address = address
@@ -88,6 +112,7 @@ class RayBackend:
         self._setup = (setup, setup_args)
         self._retries = max_retries
         self._started = False  # a local instance we started (and shut down on exit)
+        self._reaper: subprocess.Popen | None = None
         self._running: dict[Any, int] = {}  # ObjectRef -> key
         self._box: list[Any] = []
         self._remote: Any = None
@@ -100,9 +125,11 @@ class RayBackend:
                 connect(ray, self.address or os.environ["RAY_ADDRESS"])
             else:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+                before = ray_reaper.children(os.getpid())
                 ray.init(address="local", num_cpus=self.workers, include_dashboard=False,
                          logging_level="ERROR")  # "local": not a `ray start` cluster here
                 self._started = True
+                self._reaper = start_reaper(ray_reaper.children(os.getpid()) - before)
         try:
             cpus = int(ray.cluster_resources().get("CPU", self.workers))
             self.capacity = 2 * max(1, cpus)
@@ -131,6 +158,8 @@ class RayBackend:
         if self._started:
             self._started = False
             self.ray.shutdown()
+            stop_reaper(self._reaper)
+            self._reaper = None
 
     def submit(self, key: int, fn: Any, arg: Any) -> None:
         self._running[self._remote.remote(self._run, self._box, fn, arg)] = key
@@ -145,4 +174,14 @@ class RayBackend:
         ready, _ = self.ray.wait(refs, num_returns=1, timeout=timeout)
         if ready:
             ready, _ = self.ray.wait(refs, num_returns=len(refs), timeout=0)
-        return [(self._running.pop(ref), self.ray.get(ref)) for ref in ready]
+        return [(self._running.pop(ref), self._get(ref)) for ref in ready]
+
+    def _get(self, ref: Any) -> Any:
+        """A task's result; a task's own error is raised as itself (Ray's wrapper prints the
+        worker's traceback in its message)."""
+        try:
+            return self.ray.get(ref)
+        except self.ray.exceptions.RayTaskError as err:
+            if isinstance(err.cause, Exception):
+                raise err.cause from None
+            raise

@@ -145,6 +145,11 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Any) -> float:
 def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]]:
     """Run the rounds (resuming finished ones); one row per round, best guide copied to
     out/best.onnx."""
+    if cfg.init_guide:  # a guide that does not load or fit: one error, before workers
+        from ngpm_compiler.language.compile import load_grammar
+        from ngpm_compiler.learning.backends import load_guide
+
+        load_guide(cfg.init_guide, load_grammar(cfg.grammar))
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write(out / "config.json", json.dumps(asdict(cfg), indent=1))

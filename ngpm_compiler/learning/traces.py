@@ -20,9 +20,11 @@ Shard / pending npz arrays: `jobs, kept, n_prims, target, seed` (one entry per j
 is -1 when SMC failed: every particle died, so the job is dropped) and per
 visited site `i`: `f_<i>` (m, n_f) float32 features, `v_<i>` (m,) values, `j_<i>` (m,) job ids.
 `manifest.json` holds the configuration (checked on resume), site table, feature layouts and
-counts. Job ids are handed out in increasing order and only while `kept + running < n`, so the
-finished set is the shortest prefix of job ids holding `n` kept traces, however often the run
-is interrupted.
+counts; it is written at the start and after every shard, so it matches the shards on disk
+even when a write fails. Every file is checked field by field when read (`shards.py`). Job
+ids are handed out in increasing order and only while `kept + running < n`, so the finished
+set is the shortest prefix of job ids holding `n` kept traces, however often the run is
+interrupted.
 """
 
 from __future__ import annotations
@@ -41,12 +43,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from ngpm_runtime.errors import NgpmError, SMCFailed
+from ngpm_runtime.errors import SMCFailed
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
 from tqdm import tqdm
 
 from ngpm_compiler.learning import backends, pool
+from ngpm_compiler.learning.shards import (
+    ShardError,
+    TraceError,
+    check_manifest,
+    check_shard,
+    layout_widths,
+    read_npz,
+)
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
@@ -63,10 +73,6 @@ class SiteData:
     values: np.ndarray  # (m,) float64
     prior_args: np.ndarray  # (m, n_args) float64
     jobs: np.ndarray  # (m,) int64: the trace each row belongs to
-
-
-class TraceError(NgpmError):
-    """A traces directory cannot be used (other configuration, corrupt shard)."""
 
 
 @dataclass
@@ -157,12 +163,11 @@ def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     atomic_write(path, buf.getvalue())
 
 
-def _load_npz(path: Path) -> dict[str, np.ndarray]:
-    try:
-        with np.load(path) as z:
-            return {k: z[k] for k in z.files}
-    except Exception as err:
-        raise TraceError(f"{path}: corrupt trace shard ({err.__class__.__name__})") from None
+def _load_npz(path: Path, widths: dict[int, int] | None = None) -> dict[str, np.ndarray]:
+    """A shard's or pending job's arrays, checked (`shards.check_shard`)."""
+    arrays = read_npz(path)
+    check_shard(path, arrays, widths)
+    return arrays
 
 
 def job_arrays(job: int, target: int, seed: int, trace: list[tuple[int, np.ndarray, float]],
@@ -188,11 +193,13 @@ def merge_arrays(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
 
 
 class TraceStore:
-    """The files of one traces directory."""
+    """The files of one traces directory; with `widths` (site index -> feature columns),
+    shards whose sites or feature widths differ are refused."""
 
-    def __init__(self, directory: str | Path) -> None:
+    def __init__(self, directory: str | Path, widths: dict[int, int] | None = None) -> None:
         self.dir = Path(directory)
         self.pending = self.dir / "pending"
+        self.widths = widths
 
     def shard_paths(self) -> list[Path]:
         return sorted(self.dir.glob("shard_*.npz"))
@@ -201,13 +208,16 @@ class TraceStore:
         return sorted(self.pending.glob("job_*.npz")) if self.pending.is_dir() else []
 
     def manifest(self) -> dict[str, Any] | None:
+        """manifest.json, checked (`shards.check_manifest`); None when there is none."""
         path = self.dir / "manifest.json"
         if not path.is_file():
             return None
         try:
-            return json.loads(path.read_text(encoding="utf-8"))
+            manifest = json.loads(path.read_text(encoding="utf-8"))
         except ValueError:
-            raise TraceError(f"{path}: corrupt manifest") from None
+            raise TraceError(f"{path}: corrupt manifest (not JSON)") from None
+        check_manifest(path, manifest)
+        return manifest
 
     def write_manifest(self, manifest: dict[str, Any]) -> None:
         atomic_write(self.dir / "manifest.json",
@@ -219,29 +229,34 @@ class TraceStore:
 
     def finished(self, unreadable: list[str] | None = None) -> dict[str, np.ndarray]:
         """Every finished job's arrays (shards, then pending), deduplicated by job id.
-        With a list `unreadable`, shards that cannot be read are skipped and named there."""
+        With a list `unreadable`, shards that cannot be read or are malformed are skipped
+        and named there (with the reason)."""
         parts = []
+        where: dict[int, str] = {}  # job id -> the shard holding it
         for path in self.shard_paths():
             try:
-                parts.append(_load_npz(path))
-            except TraceError:
+                part = _load_npz(path, self.widths)
+            except ShardError as err:
                 if unreadable is None:
                     raise
-                unreadable.append(path.name)
-        seen: set[int] = set()
-        for part in parts:
-            seen.update(int(j) for j in part["jobs"])
+                unreadable.append(f"{path.name} ({err.reason})")
+                continue
+            for j in part["jobs"].tolist():
+                if j in where:
+                    raise TraceError(f"{self.dir}: job {j} is in two shards, {where[j]} and "
+                                     f"{path.name}; remove one of them")
+                where[j] = path.name
+            parts.append(part)
         for path in self.pending_paths():
-            part = _load_npz(path)
-            if int(part["jobs"][0]) not in seen:  # else: already in a shard
-                seen.add(int(part["jobs"][0]))
+            part = _load_npz(path, self.widths)
+            if len(part["jobs"]) != 1 or f"job_{int(part['jobs'][0]):08d}.npz" != path.name:
+                raise ShardError(path, "'jobs' does not hold the one job the file is named for")
+            if int(part["jobs"][0]) not in where:  # else: already in a shard
+                where[int(part["jobs"][0])] = path.name
                 parts.append(part)
         if not parts:
             return {"jobs": np.zeros(0, np.int64), "kept": np.zeros(0, bool)}
-        merged = merge_arrays(parts)
-        if len(np.unique(merged["jobs"])) != len(merged["jobs"]):
-            raise TraceError(f"{self.dir}: a job id appears in two shards")
-        return merged
+        return merge_arrays(parts)
 
     def consolidate(self, done: set[int] | None = None, block: int = 1) -> None:
         """Gather pending jobs into new shards, then remove them: with `done` (every finished
@@ -322,17 +337,28 @@ def _file_hash(path: str | None) -> str | None:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+_STOP: list[int] = []  # the signal that asked this run to stop
+
+
 def _exit_on_sigterm() -> None:
     """Make SIGTERM unwind like Ctrl-C, so the pool's workers are stopped and the manifest of
     the finished jobs is written (the default SIGTERM handler skips all cleanup)."""
+    _STOP.clear()
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _sigterm_exit)
+        signal.signal(signal.SIGTERM, _note_sigterm)
 
 
-def _sigterm_exit(signum: int, frame: Any) -> None:
-    """Unwind once; a second SIGTERM during the cleanup (writing the manifest) is ignored."""
+def _note_sigterm(signum: int, frame: Any) -> None:
+    """Note the signal; the driver loop exits with 128 + signum at its next turn (within
+    0.05 s). Raised here, inside a backend's wait, Ray would replace the exit with its own
+    SystemExit(1). A second SIGTERM during the cleanup (writing the manifest) is ignored."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    sys.exit(128 + signum)
+    _STOP.append(signum)
+
+
+def _exit_if_stopped() -> None:
+    if _STOP:
+        sys.exit(128 + _STOP[0])
 
 
 def _check_module_cap(cfg: TraceConfig, program: Program, target: Any) -> None:
@@ -357,16 +383,21 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest.
 
     Long because one try/finally around the backend's driver loop writes the finished
-    jobs' shards and manifest on any exit (done, Ctrl-C, SIGTERM, a failed job)."""
+    jobs' shards and manifest on any exit (done, Ctrl-C, SIGTERM, a failed job). The manifest
+    is also written at the start and after every shard, so it always matches the shards on
+    disk, even when a later write fails (disk full)."""
     from ngpm_compiler.language.compile import load_grammar
 
-    store = TraceStore(out_dir)
     program = load_grammar(cfg.grammar)
     if program.viewport is None:
         raise TraceError(f"{cfg.grammar}: the grammar has no 'viewport:' line; traces draw "
                          "into target images, so add one (e.g. 'viewport: -12 12 -22 2')")
-    store.dir.mkdir(parents=True, exist_ok=True)
+    if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
+        backends.load_guide(cfg.guide, program)
     targets = load_targets(cfg.targets, cfg.size, cfg.mirror)
+    layouts = site_layouts(program, targets[0].mask)
+    store = TraceStore(out_dir, layout_widths(layouts))
+    store.dir.mkdir(parents=True, exist_ok=True)
     key = _config_key(cfg, program, targets)
     old = store.manifest()
     if old is not None and old.get("key") != key:
@@ -378,15 +409,15 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     store.consolidate(done_ids, cfg.shard_size)
     kept = int(done["kept"].sum())
     dropped = len(done_ids) - kept
-    layouts = site_layouts(program, targets[0].mask)
     manifest: dict[str, Any] = {
         "format": TRACE_FORMAT, "key": key, "config": asdict(cfg),
         "grammar_hash": program.grammar_hash,
         "sites": [s.to_json() for s in program.sites],
         "layouts": {str(i): {g: [sl.start, sl.stop] for g, sl in lay.items()}
                     for i, lay in layouts.items()},
-        "requested": cfg.n, "seconds": float(old.get("seconds", 0.0)) if old else 0.0,
+        "requested": cfg.n,
     }
+    seconds_before = float(old.get("seconds", 0.0)) if old else 0.0
     t0 = time.perf_counter()
     bar = tqdm(total=cfg.n, initial=min(kept, cfg.n), desc="traces", unit="trace",
                disable=not progress)
@@ -395,6 +426,14 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
 
     failed = int((done.get("n_prims", np.zeros(0)) < 0).sum())
     in_a_row = 0  # jobs dropped since the last kept one (this run)
+
+    def save() -> None:
+        manifest.update(seconds=seconds_before + time.perf_counter() - t0,
+                        job_seconds=job_seconds, kept=kept, dropped=dropped, failed=failed,
+                        jobs_done=len(done_ids), shards=[p.name for p in store.shard_paths()])
+        store.write_manifest(manifest)
+
+    save()
 
     def finish(arrays: dict[str, np.ndarray], seconds: float) -> None:
         nonlocal kept, dropped, failed, in_a_row
@@ -423,6 +462,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         first = job - job % cfg.shard_size
         if all(j in done_ids for j in range(first, first + cfg.shard_size)):
             store.consolidate(done_ids, cfg.shard_size)  # its block is complete
+            save()
         if on_job:
             on_job(job)
 
@@ -451,19 +491,29 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                 for job, result in jobs.results(0.05):
                     if job not in done_ids:  # else: written already (a retried job)
                         finish(*result)
+                _exit_if_stopped()
             complete = True
     finally:
         bar.close()
+        _close_run(store, done_ids, cfg.shard_size, complete, save)
+    return manifest
+
+
+def _close_run(store: TraceStore, done: set[int], block: int, complete: bool,
+               save: Callable[[], None]) -> None:
+    """Gather the finished blocks (all pending jobs when the run is `complete`) into shards,
+    then `save` the manifest; also when a shard cannot be written (disk full): the manifest
+    then lists the shards that are there, and the other jobs stay pending for a rerun."""
+    try:
         if complete:
             store.consolidate()  # the last, partial block
         else:
-            store.consolidate(done_ids, cfg.shard_size)
-        manifest["seconds"] += time.perf_counter() - t0
-        manifest["job_seconds"] = job_seconds
-        manifest.update(kept=kept, dropped=dropped, failed=failed, jobs_done=len(done_ids),
-                        shards=[p.name for p in store.shard_paths()])
-        store.write_manifest(manifest)
-    return manifest
+            store.consolidate(done, block)
+    except OSError:
+        with contextlib.suppress(OSError):  # the shard's error is the one to report
+            save()
+        raise
+    save()
 
 
 # --------------------------------------------------------------------------- loading
@@ -487,13 +537,14 @@ def load_traces(directory: str | Path, allow_missing: bool = False) -> TraceSet:
     if manifest is None or manifest.get("format") != TRACE_FORMAT:
         raise TraceError(f"{store.dir}: not a traces directory (no manifest.json from "
                          "`ngpmc traces`)")
+    sites = [Site.from_json(s) for s in manifest["sites"]]
+    layouts = {int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
+               for i, lay in manifest["layouts"].items()}
+    store.widths = layout_widths(layouts)
     unreadable: list[str] = []
     done = store.finished(unreadable)
     kept_jobs = np.sort(done["jobs"][done["kept"]])
     _check_complete(store, manifest, unreadable, len(kept_jobs), allow_missing)
-    sites = [Site.from_json(s) for s in manifest["sites"]]
-    layouts = {int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
-               for i, lay in manifest["layouts"].items()}
     data: dict[int, SiteData] = {}
     for site in sites:
         f = done.get(f"f_{site.index}")

@@ -3,7 +3,11 @@ backend's own tests are in test_ray_backend.py)."""
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
+import time
+from pathlib import Path
 
 import pytest
 from ngpm_runtime.errors import NgpmError
@@ -20,12 +24,16 @@ def _job(x: int) -> tuple[int, int]:
     return x + pool.state()["offset"], x
 
 
-def _drain(backend, keys: list[int]) -> dict[int, object]:
+def _drain(backend, keys: list[int], job=_job, arg=lambda k: k * 10,
+           seconds: float = 60) -> dict[int, object]:
+    """Every job's result; fails (rather than hangs) when they have not come back in time."""
     out: dict[int, object] = {}
+    deadline = time.monotonic() + seconds
     with backend as b:
         for k in keys:
-            b.submit(k, _job, k * 10)
+            b.submit(k, job, arg(k))
         while b.running():
+            assert time.monotonic() < deadline, f"only {sorted(out)} came back"
             for k, r in b.results(0.05):
                 assert k not in out
                 out[k] = r
@@ -96,3 +104,43 @@ def test_unreachable_ray_address_fails_at_once():
     with pytest.raises(NgpmError, match="cannot reach the Ray cluster at 127.0.0.1:1"):
         check_reachable("127.0.0.1:1", timeout=2)
     check_reachable("auto")  # left to Ray
+
+
+def _failing_setup(kind: str) -> dict[str, int]:
+    if kind == "ngpm":
+        raise NgpmError("guide.onnx: guide was trained for grammar 'vines', not 'chain'")
+    raise ValueError("no such thing")
+
+
+@pytest.mark.parametrize("kind, words", [
+    ("ngpm", "guide.onnx: guide was trained for grammar 'vines', not 'chain'"),
+    ("other", "a worker process could not start: ValueError: no such thing")])
+def test_a_worker_whose_setup_fails_fails_the_first_job(kind: str, words: str) -> None:
+    """It used to exit, and the Pool started another in its place, forever."""
+    t0 = time.monotonic()
+    with pytest.raises(NgpmError) as info:
+        _drain(LocalPool(2, _failing_setup, (kind,)), [0, 1, 2], seconds=30)
+    assert str(info.value) == words and time.monotonic() - t0 < 30
+
+
+def _dies_once(arg: tuple[int, str, int]) -> int:
+    """Job `key`: SIGKILLs its own worker process the first `times` times it runs."""
+    key, folder, times = arg
+    runs = sorted(Path(folder).glob(f"{key}_*"))
+    if len(runs) < times:
+        Path(folder, f"{key}_{len(runs)}").touch()
+        os.kill(os.getpid(), signal.SIGKILL)
+    time.sleep(0.2)
+    return key
+
+
+def test_local_pool_runs_the_job_of_a_killed_worker_again(tmp_path: Path) -> None:
+    """A worker killed mid-job used to leave its job unfinished forever."""
+    got = _drain(LocalPool(2, _setup, (0,)), list(range(5)), _dies_once,
+                 lambda k: (k, str(tmp_path), int(k == 2)))
+    assert got == {k: k for k in range(5)} and len(list(tmp_path.glob("2_*"))) == 1
+    (tmp_path / "always").mkdir()
+    with pytest.raises(NgpmError, match=r"worker processes died 2 times while job 1 ran "
+                                        r"\(killed, or out of memory\?\)"):
+        _drain(LocalPool(1, _setup, (0,), max_retries=1), [1], _dies_once,
+               lambda k: (k, str(tmp_path / "always"), 99))

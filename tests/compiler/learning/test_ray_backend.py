@@ -121,25 +121,33 @@ def test_killed_worker_job_is_retried_once(local_ray, reference, tmp_path):
     assert shard_bytes(out) == want
 
 
-def test_sigterm_cancels_and_resumes(tmp_path):
-    """A driver with its own local Ray instance, stopped by SIGTERM mid-run; then resumed."""
-    data = make_dataset(tmp_path / "data")
-    out, n = tmp_path / "traces", 120
+def start_driver(data: Path, out: Path, n: int, jobs: int = 10) -> subprocess.Popen:
+    """`ngpmc traces --backend ray` (its own local Ray instance) in a session of its own,
+    once it has finished `jobs` jobs."""
     cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
            "-n", str(n), "--particles", "8", "--seed", "1", "--shard-size", str(SHARD),
            "-o", str(out), "--backend", "ray"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runtime")])}
     env.pop("RAY_ADDRESS", None)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             start_new_session=True)
     store = TraceStore(out)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
-        if len(store.pending_paths()) + 4 * len(store.shard_paths()) >= 10:
+        if len(store.pending_paths()) + SHARD * len(store.shard_paths()) >= jobs:
             break
         time.sleep(0.05)
     assert proc.poll() is None, proc.communicate()[1][-2000:]
     assert session_processes(proc.pid) - {proc.pid}  # Ray's processes, in its session
+    return proc
+
+
+def test_sigterm_cancels_and_resumes(tmp_path):
+    """A driver with its own local Ray instance, stopped by SIGTERM mid-run; then resumed."""
+    data = make_dataset(tmp_path / "data")
+    out, n = tmp_path / "traces", 120
+    proc = start_driver(data, out, n)
+    store = TraceStore(out)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
@@ -158,6 +166,18 @@ def test_sigterm_cancels_and_resumes(tmp_path):
                                                      for i in range(0, n, SHARD)]
 
 
+def test_sigkill_of_the_driver_leaves_no_ray_process(tmp_path):
+    """kill -9 of a driver with its own local Ray instance: Ray's agents used to linger for
+    a minute or more; the reaper (ray_reaper.py) stops them."""
+    proc = start_driver(make_dataset(tmp_path / "data"), tmp_path / "traces", 5000, jobs=4)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.communicate()
+    deadline = time.time() + 15
+    while session_processes(proc.pid) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not session_processes(proc.pid)
+
+
 def session_processes(sid: int) -> set[int]:
     """Live processes of session `sid` (zombies excluded)."""
     out = set()
@@ -169,3 +189,23 @@ def session_processes(sid: int) -> set[int]:
         if int(fields[3]) == sid and fields[0] != "Z":
             out.add(int(pid))
     return out
+
+
+def test_a_task_whose_setup_fails_raises_its_own_one_line_error(local_ray, reference):
+    """Ray's RayTaskError carries the worker's traceback in its message; the driver raises
+    the task's own error instead (one line from ngpmc)."""
+    from ngpm_runtime.errors import GuideError
+
+    from ngpm_compiler.learning.ray_backend import RayBackend
+    from ngpm_compiler.learning.traces import _do_job, _worker_setup, load_targets
+
+    data, _ = reference
+    text = Path(CHAIN).read_text(encoding="utf-8")
+    setup_args = (CHAIN, text, load_targets(data, 50, False), b"not an onnx file")
+    with pytest.raises(GuideError) as info:
+        with RayBackend(2, _worker_setup, setup_args) as jobs:
+            jobs.submit(0, _do_job, (0, SEED, PARTICLES, 10))
+            while jobs.running():
+                jobs.results(0.05)
+    assert "not a readable ONNX guide" in str(info.value)
+    assert "\n" not in str(info.value) and type(info.value) is GuideError

@@ -173,3 +173,24 @@ def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path, vines):
     assert [r["validation"] for r in resumed] == [r["validation"] for r in fresh]
     assert ((tmp_path / "ei" / "best.onnx").read_bytes()
             == (tmp_path / "fresh" / "best.onnx").read_bytes())
+
+
+def test_cli_iterate_refuses_an_initial_guide_of_another_grammar(tmp_path):
+    """It used to hang: the validation pool's workers failed to load it, forever."""
+    import os
+    import subprocess
+    import sys
+
+    from fixtures.datasets import CHAIN, make_dataset
+
+    data = make_dataset(tmp_path / "data", 2)
+    guide = bundled.guide_path()
+    proc = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "iterate", CHAIN,
+                           "--targets", str(data), "--validate", f"v={data}", "-o",
+                           str(tmp_path / "ei"), "--init-guide", str(guide)],
+                          capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'runtime'}"})
+    assert proc.returncode == 1
+    assert proc.stderr.startswith(f"ngpmc: error: {guide}: guide was trained for grammar "
+                                  "'vines'") and len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "ei").exists()

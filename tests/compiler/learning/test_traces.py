@@ -63,12 +63,14 @@ def test_pending_and_shards_deduplicate(tmp_path):
         store.finished()
 
 
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runtime")])}
+
+
 def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
            "-n", str(n), "--particles", "8", "-o", str(out), "--workers", str(workers),
            "--seed", "3", "--shard-size", "4"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV,
                             start_new_session=True, **kw)
 
 
@@ -160,3 +162,107 @@ def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
     failing = sum(job_spec(0, j, 2)[1] % 3 == 0 for j in range(m["jobs_done"]))
     assert failing >= 1 and m["kept"] == 6 and m["failed"] == m["dropped"] == failing
     assert len(load_traces(tmp_path / "t").kept_jobs) == 6
+
+
+def cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    """ngpmc in a subprocess; the test fails (TimeoutExpired) if it hangs."""
+    return subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", *args], env=ENV,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_traces_refuses_a_guide_that_does_not_fit_before_starting_workers(tmp_path):
+    """A guide of another grammar, or a corrupt one, used to make every worker fail its
+    setup, and the pool start a new one each time, forever."""
+    from ngpm_runtime import bundled
+
+    data = make_dataset(tmp_path / "data", 2)
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(bundled.guide_path().read_bytes()[:1000])
+    for guide, words in ((bundled.guide_path(), "guide was trained for grammar 'vines'"),
+                         (corrupt, "not a readable ONNX guide (corrupt or truncated file)")):
+        out = tmp_path / "tr"
+        proc = cli("traces", CHAIN, "--targets", str(data), "-n", "2", "--particles", "4",
+                   "--workers", "2", "-o", str(out), "--guide", str(guide))
+        assert proc.returncode == 1 and proc.stderr.startswith(f"ngpmc: error: {guide}: ")
+        assert words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+        assert not out.exists()
+
+
+class Hung(Exception):
+    pass
+
+
+def _hung(signum, frame):
+    raise Hung("still running after the test's deadline")
+
+
+def within(seconds: float, fn, *args, **kw):
+    """fn(*args, **kw), interrupted by Hung (the test fails) after `seconds`."""
+    old = signal.signal(signal.SIGALRM, _hung)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        return fn(*args, **kw)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def test_a_killed_pool_worker_costs_only_a_rerun(tmp_path):
+    """SIGKILL of a local-pool worker mid-run used to stall `traces` forever (its job never
+    came back); now its jobs run again, and the shards are the same bytes."""
+    import multiprocessing as mp
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=12, particles=30, seed=3,
+                      workers=2, shard_size=4)
+    killed: list[int] = []
+
+    def kill_one(job: int) -> None:
+        workers = [p for p in mp.active_children() if p.name.startswith("SpawnPoolWorker")]
+        if not killed and job >= 2 and workers:
+            os.kill(workers[0].pid, signal.SIGKILL)
+            killed.append(workers[0].pid)
+
+    m = within(90, generate_traces, cfg, tmp_path / "killed", progress=False, on_job=kill_one)
+    assert killed and m["kept"] == m["jobs_done"] == 12
+    cfg.workers = 1
+    generate_traces(cfg, tmp_path / "ref", progress=False)
+    shards = sorted(p.name for p in (tmp_path / "ref").glob("shard_*.npz"))
+    assert shards == sorted(p.name for p in (tmp_path / "killed").glob("shard_*.npz"))
+    for name in shards:
+        assert (tmp_path / "killed" / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
+
+
+def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeypatch):
+    """ENOSPC from the last shard's write on (the manifest's too) used to leave no
+    manifest.json, and `train` refused the folder; now the manifest of the shards written is
+    there, the other jobs stay pending, and a rerun writes the same last shard."""
+    import errno
+
+    import ngpm_compiler.learning.traces as traces_mod
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
+                      shard_size=4)
+    real, full = traces_mod.atomic_write, []
+
+    def write(path, data):
+        if full or Path(path).name == "shard_00000004.npz":
+            full.append(Path(path).name)
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, data)
+
+    monkeypatch.setattr(traces_mod, "atomic_write", write)
+    out = tmp_path / "full"
+    with pytest.raises(OSError, match="No space left on device"):
+        generate_traces(cfg, out, progress=False)
+    monkeypatch.undo()
+    assert full == ["shard_00000004.npz", "manifest.json"]
+    assert [p.name for p in TraceStore(out).shard_paths()] == ["shard_00000000.npz"]
+    assert json.loads((out / "manifest.json").read_text())["shards"] == ["shard_00000000.npz"]
+    assert sorted(load_traces(out).kept_jobs.tolist()) == list(range(6))  # 4, 5 pending
+    m = generate_traces(cfg, out, progress=False)
+    assert m["kept"] == 6 and m["shards"] == ["shard_00000000.npz", "shard_00000004.npz"]
+    generate_traces(cfg, tmp_path / "ref", progress=False)
+    for name in m["shards"]:
+        assert (out / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
