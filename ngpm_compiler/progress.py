@@ -1,5 +1,6 @@
 """Progress of long commands: a tqdm bar on a terminal, a plain line every few seconds
-otherwise (log files get a handful of readable lines, not thousands of bar updates)."""
+otherwise, and a last one at the end if any was printed (log files get a handful of
+readable lines, not thousands of bar updates)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ class Progress:
         self.postfix: dict[str, Any] = {}
         self.start = self.last = time.monotonic()
         self.bar: Any = None
+        self.lines = 0  # plain lines printed
         if enabled and self.stream.isatty():
             from tqdm import tqdm
 
@@ -51,12 +53,13 @@ class Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
-        elif self.enabled and self.n:
+        elif self.enabled and self.lines:  # a long job ends with its last count
             self._line()
         self.enabled = False
 
     def _line(self) -> None:
         self.last = time.monotonic()
+        self.lines += 1
         done = f"{self.n}/{self.total}" if self.total else str(self.n)
         extra = "".join(f", {k} {v}" for k, v in self.postfix.items())
         print(f"{self.desc}: {done} {self.unit}s, {self.last - self.start:.0f} s{extra}",

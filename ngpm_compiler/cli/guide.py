@@ -431,9 +431,10 @@ def cmd_grow(args: argparse.Namespace) -> int:
         print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
               f"prior: {ids}")
     from ngpm_runtime.grow import grow
-    from tqdm import tqdm
 
-    with tqdm(desc="grow", unit="step", delay=1.0, leave=False, disable=None) as bar:
+    from ngpm_compiler.progress import Progress
+
+    with Progress("grow", unit="step", delay=1.0, leave=False) as bar:
         res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
                    on_step=lambda *_: bar.update(1), max_modules=args.max_modules)
     kind = "guided" if guide else "unguided"

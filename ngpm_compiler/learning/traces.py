@@ -46,7 +46,6 @@ import numpy as np
 from ngpm_runtime.errors import SMCFailed
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
-from tqdm import tqdm
 
 from ngpm_compiler.learning import backends, pool
 from ngpm_compiler.learning.shards import (
@@ -57,6 +56,7 @@ from ngpm_compiler.learning.shards import (
     layout_widths,
     read_npz,
 )
+from ngpm_compiler.progress import Progress
 
 TRACE_FORMAT = "ngpm-traces/1"
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
@@ -419,8 +419,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     }
     seconds_before = float(old.get("seconds", 0.0)) if old else 0.0
     t0 = time.perf_counter()
-    bar = tqdm(total=cfg.n, initial=min(kept, cfg.n), desc="traces", unit="trace",
-               disable=not progress)
+    bar = Progress("traces", cfg.n, "trace", initial=min(kept, cfg.n), enabled=progress)
     bar.set_postfix(dropped=dropped)
     job_seconds: list[float] = list(old.get("job_seconds", [])) if old else []
 
@@ -444,7 +443,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         if bool(arrays["kept"][0]):
             kept += 1
             in_a_row = 0
-            bar.update(1)
+            bar.update()
         else:
             dropped += 1
             in_a_row += 1

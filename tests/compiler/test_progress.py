@@ -12,10 +12,17 @@ def test_plain_lines_only_every_interval_and_at_close():
     with Progress("traces", 1000, "trace", stream=out, interval=3600) as bar:
         for _ in range(1000):
             bar.update()
-        bar.set_postfix(dropped=4)
+    assert out.getvalue() == ""  # a short job prints nothing
+    bar = Progress("traces", 1000, "trace", stream=out, interval=3600)
+    bar.last -= 3600  # as if an hour had passed
+    bar.update()
+    for _ in range(999):
+        bar.update()
+    bar.set_postfix(dropped=4)
+    bar.close()
     lines = out.getvalue().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("traces: 1000/1000 traces, ")
-    assert lines[0].endswith(", dropped 4")
+    assert len(lines) == 2 and lines[0].startswith("traces: 1/1000 traces, ")
+    assert lines[1].startswith("traces: 1000/1000 traces, ") and lines[1].endswith(", dropped 4")
     assert "\r" not in out.getvalue()
 
 

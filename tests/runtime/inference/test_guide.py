@@ -183,11 +183,14 @@ def test_cli_pipeline_and_errors(tmp_path, capsys):
     tr, model, onnx_path = tmp_path / "tr", tmp_path / "m.pt", tmp_path / "g.onnx"
     assert main(["traces", CHAIN, "--targets", str(data), "-n", "4", "--particles", "6",
                  "-o", str(tr), "--workers", "1", "--mirror"]) == 0
-    assert "4 traces kept" in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert "4 traces kept" in out
+    assert "\r" not in err and err.count("\n") <= 2, err  # no progress bar in a log file
     assert main(["train", str(tr), "-o", str(model), "--epochs", "3", "--K", "1",
                  "--features", "local"]) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     assert "1 site networks" in out and "validation NLL" in out
+    assert "\r" not in err and err.count("\n") <= 2, err
     assert not Path(str(model) + ".ckpt").exists()
     assert main(["export", str(model), "-o", str(onnx_path)]) == 0
     png = tmp_path / "grown.png"
