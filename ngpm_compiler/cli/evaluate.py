@@ -31,9 +31,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--quick", action="store_true",
                    help="CI-sized run: tiny N, 2 targets, models from a few fresh traces")
     p.add_argument("--traces", type=argtypes.path,
-                   help="shape-matching traces directory (`ngpmc traces`)")
+                   help="shape-matching traces directory (`ngpmc traces`; default: tiny ones "
+                        "made in --work)")
     p.add_argument("--guide-all", type=argtypes.path,
-                   help="use this .onnx as the all-features K=4 guide")
+                   help="use this .onnx as the all-features K=4 guide (default: train one)")
     p.add_argument("--glyphs", type=argtypes.path,
                    help="glyph dataset directory (default: built in --work)")
     p.add_argument("--silhouettes", type=argtypes.path,
@@ -42,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--n-silhouettes", type=argtypes.count, help="test silhouettes (default 6)")
     particle_counts = argtypes.integers(1, argtypes.MAX_PARTICLES)
     p.add_argument("--ns", type=particle_counts,
-                   help="particle counts, e.g. 1,2,5,10,20,50,100,200")
+                   help="particle counts (default 1,2,5,10,20,50,100,200)")
     p.add_argument("--unguided-ns", type=particle_counts,
                    help="extra particle counts for unguided SMC only (default 600)")
     p.add_argument("--repeats", type=argtypes.count, help="SMC runs per target and N (default 3)")
@@ -57,7 +58,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "but heldout)")
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.add_argument("--heldout", type=argtypes.pairs,
-                   help="stage heldout: NAME=DIR,... held-out target sets")
+                   help="stage heldout: NAME=DIR,... held-out target sets (default: none; "
+                        "the stage needs them)")
     p.add_argument("--heldout-guides", type=argtypes.pairs, default={},
                    help="stage heldout: NAME=GUIDE.onnx,... guides to compare (default: the "
                         "bundled guide)")

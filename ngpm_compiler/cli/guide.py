@@ -145,7 +145,8 @@ def _register_iterate(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--init-guide", type=argtypes.path,
                    help="guide .onnx of round 0 (default: none, round 1 is unguided)")
     p.add_argument("--init-traces", type=argtypes.paths, default=(),
-                   help="traces directories added to every round's training, comma-separated")
+                   help="traces directories added to every round's training, comma-separated "
+                        "(default: none)")
     p.add_argument("--val-targets", type=argtypes.count, default=12,
                    help="targets per validation set (default 12)")
     p.add_argument("--val-repeats", type=argtypes.count, default=2,

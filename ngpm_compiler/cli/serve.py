@@ -19,9 +19,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "offers the bundled vines model and guide, plus --grammar/--guide.")
     p.add_argument("--port", type=argtypes.integer(0, 65535), default=8000,
                    help="port on 127.0.0.1 (default 8000; 0 picks a free one)")
-    p.add_argument("--grammar", help=f"also offer this grammar: {GRAMMAR_HELP}")
+    p.add_argument("--grammar", help=f"also offer this grammar (default: only the bundled "
+                                     f"vines): {GRAMMAR_HELP}")
     p.add_argument("--guide", help="guide .onnx for --grammar (alone: another guide for the "
-                                   "bundled vines), or 'none'")
+                                   "bundled vines), or 'none' (default: the bundled guide "
+                                   "where one fits)")
     p.add_argument("--max-particles", type=argtypes.particles, default=500,
                    help="the most particles a run may ask for (default 500)")
     p.add_argument("--timeout", type=argtypes.positive_number(argtypes.MAX_TIMEOUT),

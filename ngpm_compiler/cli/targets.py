@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     build.add_argument("--font", type=_path, default=None,
                        help="TTF/OTF font for glyphs (default DejaVu Sans Bold)")
     build.add_argument("--from", dest="source_dir", type=_path, default=None,
-                       help="directory of silhouette images")
+                       help="directory of silhouette images (default: the built-in "
+                            "silhouettes)")
     build.add_argument("--polarity", choices=POLARITIES, default="auto",
                        help="how to read --from images (default auto)")
     build.add_argument("--mirror", action="store_true", help="also write mirrored copies")

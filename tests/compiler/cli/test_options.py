@@ -218,3 +218,16 @@ def test_valid_values_still_parse() -> None:
     assert parser.parse_args(["iterate", "g", "--targets", "t", "--validate", "d", "-o",
                               "o"]).init_traces == ()
     assert parser.parse_args(["serve", "--port", "0"]).port == 0
+
+
+def test_every_option_names_its_default() -> None:
+    """`--help` shows every default: an option that takes a value and is not required says
+    what it is when not given."""
+    missing = []
+    for path, parser in commands(build_parser()).items():
+        for action in value_options(parser):
+            if action.required or action.help == argparse.SUPPRESS:
+                continue
+            if "default" not in (action.help or ""):
+                missing.append(f"{' '.join(path)} {action.option_strings[0]}")
+    assert not missing, missing
