@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import pytest
+from fixtures.interrupt import interrupt_after
 from ngpm_runtime import bundled
 from ngpm_runtime.image.targets import Target, save_target
 from repo_paths import REPO
 
-from ngpm_compiler.experiments import evaluate
 from ngpm_compiler.experiments.evaluate import UNGUIDED
 from ngpm_compiler.experiments.heldout import heldout_tasks, parse_pairs, run_heldout
 
@@ -66,19 +66,10 @@ def test_an_interrupted_run_resumes_where_it_stopped(tmp_path, monkeypatch):
     kw = dict(k=2, repeats=1, guided_n=3, unguided_ns=(6,), workers=1)
     args = ({"demo": str(d)}, {"g": str(bundled.guide_path())})
     fresh = run_heldout(tmp_path / "fresh", grammar, *args, log=lambda _m: None, **kw)
-    real = evaluate.grow_once
-    calls = []
-
-    def grow_once(*a, **k):
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        calls.append(a)
-        return real(*a, **k)
-
-    monkeypatch.setattr(evaluate, "grow_once", grow_once)
+    interrupt_after(monkeypatch, 2)
     with pytest.raises(KeyboardInterrupt):
         run_heldout(tmp_path / "out", grammar, *args, log=lambda _m: None, **kw)
-    monkeypatch.setattr(evaluate, "grow_once", real)
+    monkeypatch.undo()  # runs go on as usual
     runs = tmp_path / "out" / "heldout_runs.csv"
     assert len(runs.read_text().splitlines()) == 1 + 2
     logs: list[str] = []

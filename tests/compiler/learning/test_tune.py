@@ -15,6 +15,7 @@ import numpy as np
 import onnx
 import pytest
 from fixtures.guides import perturbed_guide
+from fixtures.interrupt import interrupt_after
 from ngpm_runtime import bundled
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.grow import grow
@@ -23,7 +24,7 @@ from ngpm_runtime.inference.guide import PROPOSAL_KEY, Guide, ProposalSettings
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.experiments import evaluate, heldout
+from ngpm_compiler.experiments import heldout
 from ngpm_compiler.experiments.evaluate import RUN_FIELDS
 from ngpm_compiler.experiments.heldout import HELDOUT_FIELDS
 from ngpm_compiler.experiments.runcache import read_runs
@@ -131,19 +132,11 @@ def test_an_interrupted_tune_resumes_where_it_stopped(tmp_path: Path, monkeypatc
     kw = dict(k=2, repeats=1, workers=1)
     whole = tune(VINES, guide, val, tmp_path / "t.onnx", tmp_path / "w", settings,
                  log=lambda _m: None, **kw)
-    real, calls = evaluate.grow_once, []
-
-    def grow_once(*a, **k):
-        if len(calls) == 4:
-            raise KeyboardInterrupt
-        calls.append(a)
-        return real(*a, **k)
-
-    monkeypatch.setattr(evaluate, "grow_once", grow_once)
+    interrupt_after(monkeypatch, 4)
     with pytest.raises(KeyboardInterrupt):
         tune(VINES, guide, val, tmp_path / "t2.onnx", tmp_path / "w2", settings,
              log=lambda _m: None, **kw)
-    monkeypatch.setattr(evaluate, "grow_once", real)
+    monkeypatch.undo()  # runs go on as usual
     logs: list[str] = []
     again = tune(VINES, guide, val, tmp_path / "t2.onnx", tmp_path / "w2", settings,
                  log=logs.append, **kw)
