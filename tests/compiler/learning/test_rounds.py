@@ -104,12 +104,17 @@ def test_guided_traces_directory_records_the_guide(tmp_path, vines):
         merge_traces([load_traces(tmp_path / "traces"), old])
 
 
+def small_rounds(tmp_path, d, rounds: int, val_targets: int) -> RoundsConfig:
+    """Rounds of 2 traces of 5 particles from the bundled guide, validated on `d`."""
+    return RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
+                        out=str(tmp_path / "ei"), rounds=rounds, n=2, particles=5,
+                        init_guide=str(bundled.guide_path()), val_targets=val_targets,
+                        val_repeats=1, epochs=1, workers=1, mirror=False)
+
+
 def test_round_loop_keeps_the_best_round(tmp_path, vines):
     d = _targets(tmp_path, vines)
-    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
-                       out=str(tmp_path / "ei"), rounds=2, n=2, particles=5,
-                       init_guide=str(bundled.guide_path()), val_targets=1, val_repeats=1,
-                       epochs=1, workers=1, mirror=False)
+    cfg = small_rounds(tmp_path, d, rounds=2, val_targets=1)
     rows = expert_iteration(cfg, log=lambda _m: None)
     assert [r["round"] for r in rows] == [0, 1, 2]
     assert rows[2]["traces"] == 4  # round 2 trains on both rounds' traces
@@ -156,10 +161,7 @@ def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path, vines):
     traces, say) is scored again on resume, not served its old score from validation/;
     the rows and best.onnx are a fresh scoring's."""
     d = _targets(tmp_path, vines)
-    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
-                       out=str(tmp_path / "ei"), rounds=1, n=2, particles=5,
-                       init_guide=str(bundled.guide_path()), val_targets=2, val_repeats=1,
-                       epochs=1, workers=1, mirror=False)
+    cfg = small_rounds(tmp_path, d, rounds=1, val_targets=2)
     first = expert_iteration(cfg, log=lambda _m: None)
     guide = tmp_path / "ei" / "round_1" / "guide.onnx"
     perturbed_guide(bundled.guide_path(), guide)  # as if round 1 had been trained again
