@@ -8,7 +8,12 @@ from pathlib import Path
 from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.cli import argtypes
-from ngpm_compiler.language.compile import CompiledGrammar, compile_grammar, write_compiled
+from ngpm_compiler.language.compile import (
+    CompiledGrammar,
+    compile_grammar,
+    load_grammar,
+    write_compiled,
+)
 
 # The help of every argument that takes a grammar, .lsys or generated (load_grammar).
 GRAMMAR_HELP = ("the .lsys file, or a *_sampler.py written by `ngpmc compile`: that file is "
@@ -28,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_check)
 
     p = subparsers.add_parser("sample", help="draw one forward sample of a grammar's prior")
-    p.add_argument("grammar", help="the .lsys file")
+    p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--out", required=True, type=argtypes.path,
                    help="image to write (.png or .svg)")
@@ -38,12 +43,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=cmd_sample)
 
 
-def load(path: str) -> CompiledGrammar:
+def check_file(path: str) -> str:
+    """`path`, when it names a file; else a one-line error."""
     if Path(path).is_dir():
         raise NgpmError(f"{path}: is a folder, not a grammar file")
     if not Path(path).is_file():
         raise NgpmError(f"{path}: no such grammar file")
-    return compile_grammar(Path(path), filename=path)
+    return path
+
+
+def load(path: str) -> CompiledGrammar:
+    return compile_grammar(Path(check_file(path)), filename=path)
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
@@ -81,7 +91,8 @@ def cmd_sample(args: argparse.Namespace) -> int:
     suffix = Path(args.out).suffix.lower()
     if suffix not in (".png", ".svg"):
         raise NgpmError(f"{args.out}: the output must be a .png or .svg file")
-    program = load(args.grammar).program()
+    program = (load_grammar(check_file(args.grammar)) if args.grammar.endswith(".py")
+               else load(args.grammar).program())
     particle = forward(program, seed=args.seed, max_modules=args.max_modules)
     prims = list(particle.primitives)
     save_render(prims, args.out, viewport=program.viewport, size=args.size)

@@ -162,3 +162,13 @@ def test_work_without_end_stops_with_one_line(tmp_path: Path) -> None:
         "ngpmc: error: waste.lsys: one sample expanded or interpreted more than 200000 "
         "modules, the most any sample may do: the grammar's work has no end in sight (lower "
         "its 'derivation length:' or 'max primitives:')")
+
+
+def test_sample_takes_a_generated_sampler_too(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["compile", str(VINES), "-o", str(tmp_path)]) == 0
+    sampler = tmp_path / "vines_sampler.py"
+    assert main(["sample", str(sampler), "--seed", "3", "-o", str(tmp_path / "a.png")]) == 0
+    assert main(["sample", str(VINES), "--seed", "3", "-o", str(tmp_path / "b.png")]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes(), out
