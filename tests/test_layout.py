@@ -5,6 +5,7 @@ importing only downward, no long functions. `python tests/test_layout.py` (or
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 from repo_paths import REPO
@@ -114,6 +115,15 @@ def test_packages_import_only_downward() -> None:
                    or PACKAGE_ORDER.index(dst) > PACKAGE_ORDER.index(src))
               for edge in edges]
     assert not upward, "imports against PACKAGE_ORDER:\n" + "\n".join(upward)
+
+
+def test_pyproject_ships_every_package() -> None:
+    text = (REPO / "pyproject.toml").read_text(encoding="utf-8")  # no tomllib on 3.10
+    block = re.search(r"^packages = \[(.*?)\]", text, re.M | re.S)
+    assert block, "pyproject.toml: no 'packages = [...]' list"
+    listed = set(re.findall(r'"([\w.]+)"', block.group(1)))
+    found = {m for m, path in modules().items() if path.name == "__init__.py"}
+    assert found <= listed, f"not in pyproject's packages: {sorted(found - listed)}"
 
 
 def test_runtime_never_imports_the_compiler() -> None:
