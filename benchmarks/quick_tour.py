@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.experiments import tour
+from ngpm_compiler.cli import tour
 
 REPO = Path(__file__).resolve().parents[1]
 SEEDS = (0, 1, 2)

@@ -9,8 +9,8 @@ particle; then guided N=10's cost per step over unguided N=10's.
 --equal-sim: guided N=10 against unguided SMC at a ladder of N on the same targets
 (`--repeats` seeds each, seeds as `ngpmc eval`): mean over targets of the per-target median
 similarity and mean CPU seconds per N; the unguided N that matches guided N=10's similarity
-(log-interpolated, evaluate.n_to_match) and the time ratio at that similarity
-(evaluate.time_to_reach): the figure docs/results reports for Fig. 4b.
+(log-interpolated, evaluation.runs.n_to_match) and the time ratio at that similarity
+(evaluation.runs.time_to_reach): the figure docs/results reports for Fig. 4b.
 
 --nets: one site network's call, numpy engine (guide.NumpyNet) against onnxruntime, by rows.
 --profile: where a guided N=10 step's CPU time goes: per part of the SMC loop (wrapped
@@ -119,8 +119,8 @@ def step_table(program: Any, guide: Any, targets: list, seeds: int,
 
 def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
                      repeats: int) -> None:
-    """Guided N=10 vs the unguided ladder: crossing N and time ratio (evaluate.py)."""
-    from ngpm_compiler.experiments.evaluate import (
+    """Guided N=10 vs the unguided ladder: crossing N and time ratio (evaluation/runs.py)."""
+    from ngpm_compiler.evaluation.runs import (
         curve,
         n_to_match,
         run_seed,

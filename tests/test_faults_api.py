@@ -64,7 +64,7 @@ def test_stop_pool_returns_when_a_dead_worker_holds_the_queue_lock() -> None:
     import multiprocessing as mp
     import time
 
-    from ngpm_compiler.learning.pool import stop_pool
+    from ngpm_compiler.jobs.pool import stop_pool
 
     pool = mp.get_context("spawn").Pool(1)
     pool._inqueue._rlock.acquire()  # as a worker killed mid-read leaves it

@@ -13,9 +13,8 @@ import pytest
 from PIL import Image
 from repo_paths import REPO
 
-from ngpm_compiler.cli import build_parser
-from ngpm_compiler.experiments import tour
-from ngpm_compiler.experiments.tour import commands
+from ngpm_compiler.cli import build_parser, tour
+from ngpm_compiler.cli.tour import commands
 
 README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [

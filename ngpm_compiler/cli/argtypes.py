@@ -106,7 +106,7 @@ def paths(text: str) -> tuple[str, ...]:
 
 def pairs(text: str) -> dict[str, str]:
     """NAME=PATH,... (a bare PATH is named after its file stem); names are unique."""
-    from ngpm_compiler.experiments.heldout import parse_pairs
+    from ngpm_compiler.evaluation.heldout import parse_pairs
 
     out: dict[str, str] = {}
     for item in items(text):

@@ -120,7 +120,7 @@ def log_line(text: str) -> None:
 
 def run_heldout_stage(args: argparse.Namespace) -> None:
     """`--stages heldout`: guides at N = 10 vs unguided N on the --heldout sets."""
-    from ngpm_compiler.experiments.heldout import run_heldout
+    from ngpm_compiler.evaluation.heldout import run_heldout
 
     if not args.heldout:
         raise EvalError("stage heldout needs --heldout NAME=DIR,...")

@@ -102,7 +102,7 @@ def _show(args: argparse.Namespace) -> int:
         if note:
             print(f"warning: {t.name}: {note}")
     if args.spread:
-        from ngpm_compiler.experiments.shape import pick
+        from ngpm_compiler.evaluation.runs import pick
 
         shown = pick([t for t in targets if not t.name.endswith("_m")], args.max)
     else:

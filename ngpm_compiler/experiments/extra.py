@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from ngpm_compiler.evaluation.runs import grow_once, run_seed, t_interval, write_csv
 from ngpm_compiler.experiments import plots
 from ngpm_compiler.experiments.config import EvalConfig
-from ngpm_compiler.experiments.evaluate import grow_once, run_seed, t_interval, write_csv
 from ngpm_compiler.experiments.models import ModelSpec, train_models
-from ngpm_compiler.learning import pool
+from ngpm_compiler.jobs import pool
 
 # --------------------------------------------------------------------------- circuit
 
@@ -78,6 +78,7 @@ def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
         TRACE_FORMAT,
         TraceStore,
         merge_arrays,
+        save_npz,
         site_layouts,
     )
 
@@ -104,10 +105,8 @@ def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
             log(f"circuit traces: {kept}/{cfg.circuit_traces} kept after {job} jobs")
             if job > 20 * cfg.circuit_traces + 20:
                 break
-    from ngpm_compiler.learning.traces import _save_npz  # the store's own atomic npz writer
-
     if parts:
-        _save_npz(store.dir / "shard_00000000.npz", merge_arrays(parts))
+        save_npz(store.dir / "shard_00000000.npz", merge_arrays(parts))
     layouts = site_layouts(program, None)
     store.write_manifest({
         "format": TRACE_FORMAT,

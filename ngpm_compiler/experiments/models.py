@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.experiments.evaluate import atomic_write
-from ngpm_compiler.learning import pool
+from ngpm_compiler.jobs import pool
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Plots (matplotlib, Agg) of the evaluation: paper Figures 4a, 4b, 5a, 5b and result grids.
 
-Every function takes plain rows (the CSV dicts of evaluate.py) and writes one PNG atomically.
+Every function takes plain rows (the CSV dicts of evaluation/runs.py) and writes one PNG atomically.
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.experiments.evaluate import UNGUIDED, atomic_write, curve
+from ngpm_compiler.evaluation.runs import UNGUIDED, curve
 
 COLORS = {UNGUIDED: "#444444", "const": "#1f77b4", "local": "#ff7f0e",
           "local+target": "#2ca02c", "all": "#d62728", "all_k1": "#9467bd"}

@@ -1,7 +1,7 @@
 """Shape matching study (paper Figs. 2, 4, 5, 6): test targets, guides, runs, plots, grids.
 
 Files written to the results directory:
-- shape_runs.csv      one row per SMC run (evaluate.RUN_FIELDS)
+- shape_runs.csv      one row per SMC run (runs.RUN_FIELDS)
 - shape_summary.csv   per dataset ("all", "glyphs", "silhouettes"), model and N
 - speedup.csv         time to reach each similarity threshold, speedup over unguided
 - trainset.csv        similarity at N = trainset_n vs number of training traces
@@ -18,15 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from ngpm_compiler.experiments import plots
-from ngpm_compiler.experiments.config import SHAPE_MODELS, EvalConfig
-from ngpm_compiler.experiments.evaluate import (
+from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
     SUMMARY_FIELDS,
     UNGUIDED,
     RunTask,
     curve,
     grow_once,
+    pick,
     read_csv,
     run_seed,
     run_tasks,
@@ -35,17 +34,11 @@ from ngpm_compiler.experiments.evaluate import (
     summarize,
     write_csv,
 )
+from ngpm_compiler.experiments import plots
+from ngpm_compiler.experiments.config import SHAPE_MODELS, EvalConfig
 from ngpm_compiler.experiments.models import ModelSpec, model_info, train_models
 
 TEST_SETS = ("glyphs", "silhouettes")
-
-
-def pick(items: list[Any], k: int) -> list[Any]:
-    """k items spread evenly over the list (deterministic)."""
-    if k >= len(items):
-        return list(items)
-    idx = np.unique(np.round(np.linspace(0, len(items) - 1, k)).astype(int))
-    return [items[i] for i in idx]
 
 
 def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:

@@ -1,1 +1,1 @@
-"""Learning guides: trace recording, site networks, training, ONNX export, the worker pool."""
+"""Learning guides: trace recording, site networks, training, ONNX export, tuning, rounds."""

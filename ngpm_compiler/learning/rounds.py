@@ -8,7 +8,7 @@ guided by the best guide so far (the first round, with no guide to start from, r
 unguided SMC), trains a guide on every round's traces together (and on `init_traces`),
 exports it, and scores it on validation targets at N = `val_n`; the best round's guide is
 copied to `best.onnx`. Files under `out`: round_<r>/{traces_<i>, model.pt, guide.onnx},
-validation/ (the run cache of experiments/heldout.py: appended run by run and keyed by the
+validation/ (the run cache of evaluation/heldout.py: appended run by run and keyed by the
 content hashes of each round's guide and of the targets, so a resumed iteration scores a
 retrained round anew), rounds.csv, best.onnx.
 """
@@ -130,7 +130,7 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> t
 
 def validate(cfg: RoundsConfig, name: str, guide: str, log: Any) -> float:
     """Mean over validation targets of the median similarity at N = val_n."""
-    from ngpm_compiler.experiments.heldout import run_heldout
+    from ngpm_compiler.evaluation.heldout import run_heldout
 
     res = run_heldout(Path(cfg.out) / "validation", cfg.grammar, cfg.validation, {name: guide},
                       k=cfg.val_targets, repeats=cfg.val_repeats, guided_n=cfg.val_n,
@@ -146,8 +146,8 @@ def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]
     """Run the rounds (resuming finished ones); one row per round, best guide copied to
     out/best.onnx."""
     if cfg.init_guide:  # a guide that does not load or fit: one error, before workers
+        from ngpm_compiler.jobs.backends import load_guide
         from ngpm_compiler.language.compile import load_grammar
-        from ngpm_compiler.learning.backends import load_guide
 
         load_guide(cfg.init_guide, load_grammar(cfg.grammar))
     out = Path(cfg.out)
@@ -174,7 +174,7 @@ def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]
             best = (score, path)
     if best[1] is not None:
         atomic_write(out / "best.onnx", Path(best[1]).read_bytes())
-    from ngpm_compiler.experiments.evaluate import write_csv
+    from ngpm_compiler.evaluation.runs import write_csv
 
     write_csv(out / "rounds.csv", rows, ("round", "teacher", "traces", "val_nll", "validation",
                                          "guide"))

@@ -6,7 +6,7 @@ its particles are weighted samples of the same posterior and the kept best parti
 trace of the same kind, only found with far fewer particles.
 
 Job `i` is a pure function of (grammar, base seed, i): its target and SMC seed come from
-`job_spec(base_seed, i, n_targets)`. Jobs run on a backend (`backends.py`: worker processes
+`job_spec(base_seed, i, n_targets)`. Jobs run on a backend (`jobs/backends.py`: worker processes
 here, or Ray tasks on a cluster) that gets the grammar's text and the targets, never paths;
 the driver (this process) writes every finished job at once to `pending/job_<i>.npz`
 (atomic), and gathers the jobs of each finished block of `shard_size` consecutive ids into a
@@ -37,7 +37,7 @@ import sys
 import threading
 import time
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -47,7 +47,8 @@ from ngpm_runtime.errors import SMCFailed
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.program import Program, Site
 
-from ngpm_compiler.learning import backends, pool
+from ngpm_compiler.jobs import backends, pool
+from ngpm_compiler.jobs.driver import drive
 from ngpm_compiler.learning.shards import (
     ShardError,
     TraceError,
@@ -152,7 +153,7 @@ def prior_arg_columns(site: Site, layout: dict[str, slice]) -> slice:
 # --------------------------------------------------------------------------- files
 
 
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+def save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """np.savez, but the same arrays give the same bytes (no time stamps in the zip)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
@@ -225,7 +226,7 @@ class TraceStore:
 
     def write_pending(self, arrays: dict[str, np.ndarray]) -> None:
         self.pending.mkdir(parents=True, exist_ok=True)
-        _save_npz(self.pending / f"job_{int(arrays['jobs'][0]):08d}.npz", arrays)
+        save_npz(self.pending / f"job_{int(arrays['jobs'][0]):08d}.npz", arrays)
 
     def finished(self, unreadable: list[str] | None = None) -> dict[str, np.ndarray]:
         """Every finished job's arrays (shards, then pending), deduplicated by job id.
@@ -279,7 +280,7 @@ class TraceStore:
                      if int(a["jobs"][0]) not in in_shards]
             if parts:
                 merged = merge_arrays(parts)
-                _save_npz(self.dir / f"shard_{int(merged['jobs'].min()):08d}.npz", merged)
+                save_npz(self.dir / f"shard_{int(merged['jobs'].min()):08d}.npz", merged)
             for p in paths:
                 p.unlink(missing_ok=True)
 
@@ -465,14 +466,13 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         if on_job:
             on_job(job)
 
-    def next_ids() -> Any:
+    def todo() -> Iterator[tuple[int, tuple[int, ...]]]:
         j = 0
         while True:
             if j not in done_ids:
-                yield j
+                yield j, (j, cfg.seed, cfg.particles, cfg.min_primitives, cfg.max_modules)
             j += 1
 
-    ids = next_ids()
     text = Path(cfg.grammar).read_text(encoding="utf-8")
     guide = backends.ship_file(cfg.guide, cfg.backend)
     jobs = backends.make_backend(cfg.backend, cfg.workers, _worker_setup,
@@ -482,15 +482,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
         with jobs if kept < cfg.n else contextlib.nullcontext():
             if jobs.separate_processes:
                 _exit_on_sigterm()  # after the backend started (ray.init sets its own)
-            while kept < cfg.n or jobs.running():
-                while kept + jobs.running() < cfg.n and jobs.running() < jobs.capacity:
-                    job = next(ids)
-                    jobs.submit(job, _do_job, (job, cfg.seed, cfg.particles, cfg.min_primitives,
-                                                cfg.max_modules))
-                for job, result in jobs.results(0.05):
-                    if job not in done_ids:  # else: written already (a retried job)
-                        finish(*result)
-                _exit_if_stopped()
+            drive(jobs, _do_job, todo(), lambda _, result: finish(*result),
+                  room=lambda running: kept + running < cfg.n, between=_exit_if_stopped)
             complete = True
     finally:
         bar.close()

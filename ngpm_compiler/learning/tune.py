@@ -23,8 +23,8 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.inference.guide import PROPOSAL_KEY, ProposalSettings
 
-from ngpm_compiler.experiments.evaluate import UNGUIDED, write_csv
-from ngpm_compiler.experiments.heldout import run_heldout
+from ngpm_compiler.evaluation.heldout import run_heldout
+from ngpm_compiler.evaluation.runs import UNGUIDED, write_csv
 
 TUNE_FIELDS = ["setting", "temperature", "choice_temperature", "ess_threshold"]
 

@@ -13,7 +13,7 @@ from PIL import Image
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.experiments.evaluate import RUN_FIELDS, SUMMARY_FIELDS
+from ngpm_compiler.evaluation.runs import RUN_FIELDS, SUMMARY_FIELDS
 
 PNGS = ("fig4a_similarity.png", "fig4b_time.png", "fig5a_mixture.png", "fig5b_trainset.png",
         "grid_glyphs.png", "grid_silhouettes.png", "circuit.png", "chain.png")

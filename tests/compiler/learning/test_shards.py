@@ -21,9 +21,9 @@ from ngpm_compiler.learning.traces import (
     TraceConfig,
     TraceError,
     TraceStore,
-    _save_npz,
     generate_traces,
     load_traces,
+    save_npz,
 )
 
 SHARD = "shard_00000002.npz"  # the middle one of three shards of two jobs
@@ -57,7 +57,7 @@ def edited(edit: Callable[[dict], None]) -> Callable[[Path], None]:
         with np.load(path) as z:
             arrays = {k: z[k] for k in z.files}
         edit(arrays)
-        _save_npz(path, arrays)
+        save_npz(path, arrays)
     return apply
 
 

@@ -24,10 +24,10 @@ from ngpm_runtime.inference.guide import PROPOSAL_KEY, Guide, ProposalSettings
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.experiments import heldout
-from ngpm_compiler.experiments.evaluate import RUN_FIELDS
-from ngpm_compiler.experiments.heldout import HELDOUT_FIELDS
-from ngpm_compiler.experiments.runcache import read_runs
+from ngpm_compiler.evaluation import heldout
+from ngpm_compiler.evaluation.heldout import HELDOUT_FIELDS
+from ngpm_compiler.evaluation.runcache import read_runs
+from ngpm_compiler.evaluation.runs import RUN_FIELDS
 from ngpm_compiler.learning.tune import grid, name, tune, tune_table, with_settings
 
 VINES = str(REPO / "grammars" / "vines.lsys")

@@ -24,7 +24,7 @@ from typing import Any
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.learning import pool, ray_reaper
+from ngpm_compiler.jobs import pool, ray_reaper
 
 _RUN: list[str] = [""]  # the run whose setup this worker process holds
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.learning import pool
-from ngpm_compiler.learning.backends import InProcess, LocalPool, make_backend
+from ngpm_compiler.jobs import pool
+from ngpm_compiler.jobs.backends import InProcess, LocalPool, make_backend
 
 
 def _setup(offset: int) -> dict[str, int]:
@@ -84,7 +84,7 @@ class _Twice(InProcess):
 def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatch):
     from fixtures.datasets import CHAIN, make_dataset
 
-    from ngpm_compiler.learning import backends
+    from ngpm_compiler.jobs import backends
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces
 
     data = make_dataset(tmp_path / "data", 2)
@@ -99,7 +99,7 @@ def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatc
 
 
 def test_unreachable_ray_address_fails_at_once():
-    from ngpm_compiler.learning.ray_backend import check_reachable
+    from ngpm_compiler.jobs.ray_backend import check_reachable
 
     with pytest.raises(NgpmError, match="cannot reach the Ray cluster at 127.0.0.1:1"):
         check_reachable("127.0.0.1:1", timeout=2)

@@ -8,8 +8,8 @@ from ngpm_runtime import bundled
 from ngpm_runtime.image.targets import Target, save_target
 from repo_paths import REPO
 
-from ngpm_compiler.experiments.evaluate import UNGUIDED
-from ngpm_compiler.experiments.heldout import heldout_tasks, parse_pairs, run_heldout
+from ngpm_compiler.evaluation.heldout import heldout_tasks, parse_pairs, run_heldout
+from ngpm_compiler.evaluation.runs import UNGUIDED
 
 
 def test_parse_pairs():

@@ -11,8 +11,8 @@ import time
 
 import pytest
 
-from ngpm_compiler.learning import ray_reaper
-from ngpm_compiler.learning.ray_backend import start_reaper, stop_reaper
+from ngpm_compiler.jobs import ray_reaper
+from ngpm_compiler.jobs.ray_backend import start_reaper, stop_reaper
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs /proc")
 

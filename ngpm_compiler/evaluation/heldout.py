@@ -2,13 +2,13 @@
 that no training target comes from (script glyphs, clip-art silhouettes).
 
 Runs are cached in `heldout_runs.csv` of the results directory, one line appended as each
-run finishes (experiments/runcache.py), so an interrupted call resumes where it stopped. A
+run finishes (evaluation/runcache.py), so an interrupted call resumes where it stopped. A
 run is keyed by (model, set, target, N, repeat, seed) and by the content hashes of the
 guide file (which holds its proposal settings), of the loaded target (mask and start) and
 of the grammar file, so a later call with another guide only runs what is new (unguided
 runs, which do not depend on the guide, are measured once), and a guide, target or grammar
 changed under the same name is run again, never served from the cache. Files written:
-- heldout_runs.csv    one row per SMC run (evaluate.RUN_FIELDS, then guide_sha, target_sha,
+- heldout_runs.csv    one row per SMC run (runs.RUN_FIELDS, then guide_sha, target_sha,
                       grammar_sha: the first 16 hex digits of sha256; guide_sha is empty for
                       unguided runs; rows of an older ngpm have all three empty: kept in
                       the file, never reused)
@@ -24,20 +24,21 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.experiments.evaluate import (
+from ngpm_compiler.evaluation.runcache import append_run, read_runs
+from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
     SUMMARY_FIELDS,
     UNGUIDED,
     RunTask,
-    atomic_write,
     n_to_match,
+    pick,
     run_seed,
     run_tasks,
     summarize,
     write_csv,
 )
-from ngpm_compiler.experiments.runcache import append_run, read_runs
 
 RUNS_FILE = "heldout_runs.csv"
 HASH_FIELDS = ("guide_sha", "target_sha", "grammar_sha")
@@ -58,8 +59,6 @@ def parse_pairs(text: str) -> dict[str, str]:
 def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Any]]:
     """k targets of each set, spread evenly over the set's sorted files (no mirrors)."""
     from ngpm_runtime.image.targets import load_dataset
-
-    from ngpm_compiler.experiments.shape import pick
 
     return {name: pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
             for name, d in sets.items()}

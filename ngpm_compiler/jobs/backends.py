@@ -25,7 +25,7 @@ from typing import Any, Protocol
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.learning import pool
+from ngpm_compiler.jobs import pool
 
 BACKENDS = ("local", "ray")
 Job = Callable[[Any], Any]
@@ -180,7 +180,7 @@ def make_backend(kind: str, workers: int, setup: pool.Setup, setup_args: tuple[A
             return InProcess(setup, setup_args)
         return LocalPool(workers, setup, setup_args)
     if kind == "ray":
-        from ngpm_compiler.learning.ray_backend import RayBackend
+        from ngpm_compiler.jobs.ray_backend import RayBackend
 
         return RayBackend(workers, setup, setup_args, address=address)
     raise NgpmError(f"unknown backend {kind!r}; choose from {', '.join(BACKENDS)}")

@@ -17,7 +17,7 @@ from typing import Any, TextIO
 
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.experiments.evaluate import write_csv
+from ngpm_compiler.evaluation.runs import write_csv
 
 INTS = ("n", "repeat", "seed", "primitives")  # columns that must read as numbers
 FLOATS = ("similarity", "seconds")

@@ -7,7 +7,7 @@ import re
 import pytest
 from ngpm_runtime.errors import NgpmError
 
-from ngpm_compiler.experiments.runcache import append_run, read_runs
+from ngpm_compiler.evaluation.runcache import append_run, read_runs
 
 FIELDS = ("model", "target", "n", "seed", "similarity", "sha")
 REQUIRED = ("model", "target", "n")

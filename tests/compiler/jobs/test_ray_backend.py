@@ -73,7 +73,7 @@ def test_eval_runs_on_ray_equal_local_runs(local_ray):
     sent; every run's result equals the in-process run's."""
     from ngpm_runtime import bundled
 
-    from ngpm_compiler.experiments.evaluate import UNGUIDED, run_tasks, shape_tasks
+    from ngpm_compiler.evaluation.runs import UNGUIDED, run_tasks, shape_tasks
 
     targets = {"demo": bundled.demo_targets()[:2]}
     guides = {"all": str(bundled.guide_path())}
@@ -196,7 +196,7 @@ def test_a_task_whose_setup_fails_raises_its_own_one_line_error(local_ray, refer
     the task's own error instead (one line from ngpmc)."""
     from ngpm_runtime.errors import GuideError
 
-    from ngpm_compiler.learning.ray_backend import RayBackend
+    from ngpm_compiler.jobs.ray_backend import RayBackend
     from ngpm_compiler.learning.traces import _do_job, _worker_setup, load_targets
 
     data, _ = reference

@@ -2,13 +2,13 @@
 
 One *run* is SMC with N particles into one target; it records the best particle's normalized
 similarity (the argument of the Gaussian of equation 1, `likelihood.similarity`) and the wall
-time of the SMC call. Runs go to a backend (`learning/backends.py`: worker processes, or Ray
+time of the SMC call. Runs go to a backend (`jobs/backends.py`: worker processes, or Ray
 tasks with `backend="ray"`) in a shuffled order, so a load change on the machine touches every
 model alike. The statistics follow the paper: the median over repeats
 per target, then the mean over targets with a 95% t interval.
 
-The other modules of this package build models (models), plot (plots), run the circuit and
-chain studies (extra) and write the report (report); cli/evaluate.py drives them.
+Beside it in this package: held-out scoring (heldout) and its run cache (runcache), which
+`ngpmc eval`, `ngpmc iterate` and `ngpmc tune` share; the studies of experiments/ build on it.
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.learning import backends, pool
-
-__all__ = ["atomic_write"]  # re-exported for the other eval_* modules
+from ngpm_compiler.jobs import backends, pool
+from ngpm_compiler.jobs.driver import drive
 
 RUN_FIELDS = ("model", "dataset", "target", "n", "repeat", "seed", "similarity", "seconds",
               "primitives")
@@ -111,16 +110,15 @@ def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str
     jobs = backends.make_backend(backend, workers, _worker_setup,
                                  (grammar, text, targets, ship), address)
     out: dict[RunTask, RunResult] = {}
+
+    def keep(_: int, r: RunResult) -> None:
+        if r.task not in out:  # else: a duplicate task
+            out[r.task] = r
+            if on_result:
+                on_result(r)
+
     with jobs:
-        todo = iter(enumerate(shuffled))
-        while len(out) < len(set(shuffled)):
-            while jobs.running() < jobs.capacity and (nxt := next(todo, None)) is not None:
-                jobs.submit(nxt[0], _run, nxt[1])
-            for _, r in jobs.results(0.05):
-                if r.task not in out:  # else: a duplicate task, or a retried run
-                    out[r.task] = r
-                    if on_result:
-                        on_result(r)
+        drive(jobs, _run, enumerate(shuffled), keep)
     return [out[t] for t in tasks]
 
 
@@ -137,6 +135,14 @@ def shape_tasks(models: Iterable[str], datasets: dict[str, int], ns: Iterable[in
                     tasks.extend(RunTask(m, ds, ti, int(n), rep, seed) for m in models)
         offset += count
     return tasks
+
+
+def pick(items: list[Any], k: int) -> list[Any]:
+    """k items spread evenly over the list (deterministic)."""
+    if k >= len(items):
+        return list(items)
+    idx = np.unique(np.round(np.linspace(0, len(items) - 1, k)).astype(int))
+    return [items[i] for i in idx]
 
 
 # --------------------------------------------------------------------------- statistics

@@ -10,7 +10,7 @@ import pytest
 from ngpm_runtime.image.targets import Target
 from repo_paths import REPO
 
-from ngpm_compiler.experiments.evaluate import (
+from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
     UNGUIDED,
     grow_once,
