@@ -15,10 +15,14 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ngpm_runtime.errors import GuideError, ProgramError, TargetError
 from ngpm_runtime.program import Program, load_program
+
+if TYPE_CHECKING:  # imported on first use: onnxruntime and PIL load only then
+    from ngpm_runtime.image.targets import Target
+    from ngpm_runtime.inference.guide import Guide
 
 DATA_DIR = Path(__file__).resolve().parent / "data"
 SAMPLER_FILE = "vines_sampler.py"
@@ -64,7 +68,7 @@ def bundled_program() -> Program:
     return _cached_program(str(path), path.stat().st_mtime)
 
 
-def bundled_guide(program: Program | None = None) -> Any:
+def bundled_guide(program: Program | None = None) -> Guide:
     """The pretrained vines guide (a `ngpm_runtime.inference.guide.Guide`) for `program`.
 
     `program` defaults to `bundled_program()`; any Program compiled from the same
@@ -84,7 +88,7 @@ def bundled_guide(program: Program | None = None) -> Any:
 LIKELIHOOD_GUIDES = {"shape": GUIDE_FILE}
 
 
-def default_guide(program: Program, likelihood: str = "shape") -> Any:
+def default_guide(program: Program, likelihood: str = "shape") -> Guide | None:
     """The bundled guide for `program` under `likelihood`, or None when none is bundled
     (another grammar, or a likelihood with no trained guide: unguided SMC, never a guide
     trained for another likelihood)."""
@@ -95,7 +99,7 @@ def default_guide(program: Program, likelihood: str = "shape") -> Any:
     return bundled_guide(program)
 
 
-def demo_targets(size: int = 50) -> list[Any]:
+def demo_targets(size: int = 50) -> list[Target]:
     """The built-in demo targets (`ngpm_runtime.image.targets.Target`), in DEMO_TARGETS order."""
     from ngpm_runtime.image.targets import Target, load_target
 
@@ -109,7 +113,7 @@ def demo_targets(size: int = 50) -> list[Any]:
     return targets
 
 
-def guide_summary(guide: Any) -> str:
+def guide_summary(guide: Guide) -> str:
     """One line on how a guide was trained, from its ONNX metadata."""
     t = guide.training or {}
     parts = [f"{len(guide.nets)} site networks", f"features {guide.feature_set}",

@@ -22,7 +22,7 @@ def _landing(path: Path) -> Path:
     return target
 
 
-def atomic_write(path: str | os.PathLike, data: bytes | str) -> Path:
+def atomic_write(path: str | os.PathLike[str], data: bytes | str) -> Path:
     """Write `data` to `path` atomically, with the permissions the umask gives new files.
     Readers see the old file or the new one, never a part; a failed write leaves no temp.
     A symbolic link is written through: its target is replaced, the link stays."""

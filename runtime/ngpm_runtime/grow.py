@@ -9,15 +9,25 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ngpm_runtime.errors import NgpmError
-from ngpm_runtime.image.raster import rasterize
-from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood, similarity
+from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.image.raster import Viewport, rasterize
+from ngpm_runtime.inference.likelihood import (
+    CircuitLikelihood,
+    Likelihood,
+    ShapeLikelihood,
+    similarity,
+)
+from ngpm_runtime.inference.proposals import Proposal
 from ngpm_runtime.inference.smc import SMCResult, smc
 from ngpm_runtime.program import Program
+
+if TYPE_CHECKING:  # targets loads PIL: only when a target is made
+    from ngpm_runtime.image.targets import Target
 
 LIKELIHOODS = ("shape", "circuit")
 DEFAULT_CANVAS = (50, 50)  # raster size when there is no target
@@ -30,7 +40,7 @@ class GrowResult:
     similarity: float  # of the best particle's raster to the target; nan without a target
     seconds: float  # time in SMC (not counting the final raster)
     particles: int
-    primitives: list[tuple]
+    primitives: list[Prim]
     image: np.ndarray  # (H, W) uint8 raster of the best particle
     smc: SMCResult
 
@@ -38,7 +48,7 @@ class GrowResult:
 class _Ticking:
     """A likelihood that defers to `inner`, then calls `on_step(state, canvas, draw)`."""
 
-    def __init__(self, inner: Any, on_step: Callable[..., None]) -> None:
+    def __init__(self, inner: Likelihood, on_step: Callable[..., None]) -> None:
         self.inner = inner
         self.on_step = on_step
 
@@ -54,9 +64,15 @@ class _Ticking:
         return getattr(self.inner, name)
 
 
-def make_likelihood(kind: str, program: Program, target: Any = None) -> Any:
+def _viewport(program: Program) -> Viewport:
+    if program.viewport is None:
+        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
+    return program.viewport
+
+
+def make_likelihood(kind: str, program: Program, target: Target | None = None) -> Likelihood:
     """The likelihood named `kind` ("shape": match the target's mask; "circuit")."""
-    viewport = program.viewport
+    viewport = _viewport(program)
     if kind == "shape":
         if target is None:
             raise NgpmError("the shape likelihood needs a target image")
@@ -66,8 +82,8 @@ def make_likelihood(kind: str, program: Program, target: Any = None) -> Any:
     raise NgpmError(f"unknown likelihood {kind!r}; choose {' or '.join(LIKELIHOODS)}")
 
 
-def grow(program: Program, target: Any = None, guide: Any = None, n_particles: int = 10,
-         seed: int = 0, likelihood: str = "shape", *,
+def grow(program: Program, target: Target | None = None, guide: Proposal | None = None,
+         n_particles: int = 10, seed: int = 0, likelihood: str = "shape", *,
          on_step: Callable[..., None] | None = None, record_trace: bool | str = False,
          start: tuple[float, float, float] | None = None,
          canvas_size: tuple[int, int] | None = None,
@@ -84,10 +100,8 @@ def grow(program: Program, target: Any = None, guide: Any = None, n_particles: i
     grammar's "max modules" cap, overridden) go to `smc`, which resamples as the guide's
     settings say (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
     """
-    viewport = program.viewport
-    if viewport is None:
-        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
-    like = make_likelihood(likelihood, program, target)
+    viewport = _viewport(program)
+    like: Likelihood = make_likelihood(likelihood, program, target)
     if on_step is not None:
         like = _Ticking(like, on_step)
     mask = target.mask if target is not None else None

@@ -14,7 +14,7 @@ from typing import Any
 
 from ngpm_runtime.errors import ProgramError
 
-Module = tuple  # ("name", p1, p2, ...) with float parameters
+Module = tuple[Any, ...]  # ("name", p1, p2, ...) with float parameters
 Production = Callable[..., "list[Module] | None"]
 
 SITE_KINDS = ("normal", "uniform", "bernoulli", "categorical")
@@ -59,7 +59,7 @@ class Site:
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
-def prior_problem(kind: str, args: tuple, constant: bool = False) -> str:
+def prior_problem(kind: str, args: tuple[Any, ...], constant: bool = False) -> str:
     """What is wrong with a site's prior arguments ("" when nothing): finite numbers, a
     standard deviation >= 0, a <= b, a probability in [0, 1], weights >= 0 with a positive
     sum. The compiler checks constant arguments with `constant=True`, which also refuses
@@ -84,7 +84,7 @@ def prior_problem(kind: str, args: tuple, constant: bool = False) -> str:
     return ""
 
 
-def _nums(values: list | tuple) -> str:
+def _nums(values: list[Any] | tuple[Any, ...]) -> str:
     """The first few values for a message: `1, -1` or `1, 2, ... (300 values)`."""
     shown = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in values[:6])
     return shown if len(values) <= 6 else f"{shown}, ... ({len(values)} values)"

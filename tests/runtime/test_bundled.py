@@ -32,7 +32,10 @@ def test_data_folder_is_flat_so_pyproject_ships_it() -> None:
     # pyproject's package-data is `data/*`: files in subfolders would not be installed
     assert bundled.DATA_DIR == REPO / "runtime" / "ngpm_runtime" / "data"
     assert not [p for p in bundled.DATA_DIR.iterdir() if p.is_dir() and p.name != "__pycache__"]
-    assert 'ngpm_runtime = ["data/*"]' in (REPO / "pyproject.toml").read_text()
+    # both pyproject files ship the data and py.typed (the runtime's types, PEP 561)
+    for path in (REPO / "pyproject.toml", REPO / "runtime" / "pyproject.toml"):
+        assert 'ngpm_runtime = ["data/*", "py.typed"]' in path.read_text(), path
+    assert (REPO / "runtime" / "ngpm_runtime" / "py.typed").is_file()
 
 
 def test_bundled_sampler_is_up_to_date_with_vines_lsys() -> None:

@@ -15,10 +15,20 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from typing import Any
 
 from ngpm_runtime.errors import ProgramError, printable
-from ngpm_runtime.geometry.turtle import CUT, DRAWING, HALT, TURTLE_SYMBOLS, interpret
-from ngpm_runtime.program import Program, prior_problem
+from ngpm_runtime.geometry.turtle import (
+    CUT,
+    DRAWING,
+    HALT,
+    TURTLE_SYMBOLS,
+    Cons,
+    Prim,
+    Turtle,
+    interpret,
+)
+from ngpm_runtime.program import Module, Program, prior_problem
 
 MAX_INTERP_DEPTH = 64
 # The "max modules" cap: modules one particle may pop (expand or interpret) in one step, that
@@ -42,12 +52,18 @@ _IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
 _LINE = re.compile(r"\d+")
 _LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")  # a Program without `source`
 
+Node = tuple[Module, int, int, Any]  # a stack node (module, depth, ilevel, rest: Node | None)
+Args = tuple[float, ...]  # a site's prior arguments
+# A production's outcome: a successor list, a _Need or None. Any: the hot loop tells them
+# apart by `__class__` (faster than isinstance), which mypy does not narrow.
+Outcome = Any
+
 
 class NeedSite(BaseException):  # noqa: N818 - a request, not an error
     """Raised by the replay context when a production asks for a value not chosen yet.
     A BaseException so that no `except Exception` in generated code can swallow it."""
 
-    def __init__(self, site: int, args: tuple) -> None:
+    def __init__(self, site: int, args: Args) -> None:
         self.site = site
         self.args = args
 
@@ -58,11 +74,11 @@ class ReplayCtx:
     __slots__ = ("values", "sites", "pos")
 
     def __init__(self) -> None:
-        self.values: tuple = ()
-        self.sites: tuple = ()
+        self.values: tuple[float, ...] = ()
+        self.sites: tuple[int, ...] = ()
         self.pos = 0
 
-    def _next(self, site: int, args: tuple) -> float:
+    def _next(self, site: int, args: Args) -> float:
         pos = self.pos
         if pos < len(self.values):
             if self.sites[pos] != site:
@@ -83,10 +99,10 @@ class ReplayCtx:
     def bernoulli(self, site: int, p: float) -> float:
         return self._next(site, (p,))
 
-    def categorical(self, site: int, weights: tuple) -> float:
+    def categorical(self, site: int, weights: Args) -> float:
         return self._next(site, tuple(weights))
 
-    def choose(self, site: int, probs: tuple) -> int:
+    def choose(self, site: int, probs: Args) -> int:
         return int(self._next(site, tuple(probs)))
 
 
@@ -98,20 +114,20 @@ class Particle:
         "values", "sites", "cont", "need", "in_interp", "last", "status", "limit", "work",
     )
 
-    def __init__(self, stack: tuple | None, turtle: tuple) -> None:
+    def __init__(self, stack: Node | None, turtle: Turtle) -> None:
         self.stack = stack
         self.turtle = turtle
-        self.tstack: tuple | None = None
-        self.poly: tuple | None = None
-        self.prims: tuple | None = None  # cons list, newest first
+        self.tstack: Cons | None = None
+        self.poly: Cons | None = None
+        self.prims: Cons | None = None  # cons list, newest first
         self.n_prims = 0
-        self.trace: tuple | None = None  # cons list of (site, features, value)
-        self.values: tuple = ()  # replay values for the module on top of the stack
-        self.sites: tuple = ()  # their site indices
+        self.trace: Cons | None = None  # cons list of (site, features, value)
+        self.values: tuple[float, ...] = ()  # replay values for the module on top of the stack
+        self.sites: tuple[int, ...] = ()  # their site indices
         self.cont = False  # some replay value is continuous (then replays are not memoized)
-        self.need: tuple[int, tuple] | None = None
+        self.need: tuple[int, Args] | None = None
         self.in_interp = False  # the top module's production returned None
-        self.last: tuple | None = None  # primitive drawn by the last step
+        self.last: Prim | None = None  # primitive drawn by the last step
         self.status = "live"
         self.limit: str | None = None  # the cap's name when status is "limit"
         self.work = 0  # modules expanded or interpreted so far (see MAX_WORK)
@@ -145,7 +161,7 @@ class _Need:
 
     __slots__ = ("site", "args")
 
-    def __init__(self, site: int, args: tuple) -> None:
+    def __init__(self, site: int, args: Args) -> None:
         self.site = site
         self.args = args
 
@@ -155,7 +171,7 @@ AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
 MAX_CACHE = 200_000
 
 
-def _where(fn: Callable, kind: str, mod: tuple, base: str) -> str:
+def _where(fn: Callable[..., Any], kind: str, mod: Module, base: str) -> str:
     """'vines.lsys:24: production B(0.75)': the rule's line from the generated function's
     docstring, which ends with `(vines.lsys:24)` (`base` is the grammar's file name)."""
     doc = fn.__doc__ or ""
@@ -192,15 +208,15 @@ class Deriver:
         self.max_ops = max_ops
         self.ctx = ReplayCtx()
         self.dispatch: dict[str, int] = {}
-        self.pcache: dict[tuple, object] = {}
-        self.icache: dict[tuple, object] = {}
+        self.pcache: dict[object, Outcome] = {}
+        self.icache: dict[object, Outcome] = {}
 
-    def start(self, turtle: tuple) -> Particle:
+    def start(self, turtle: Turtle) -> Particle:
         """A new particle at `turtle` = (x, y, heading, width); the axiom's modules get
         depth 0 (the axiom runs as a pseudo-module, so it may draw random values too)."""
         return Particle(((AXIOM,), -1, 0, None), turtle)
 
-    def _call(self, p: Particle, fn: Callable, kind: str, mod: tuple) -> object:
+    def _call(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module) -> Outcome:
         """Run `fn` with the particle's replay values: successor list, None or a _Need."""
         ctx = self.ctx
         ctx.values = p.values
@@ -232,10 +248,11 @@ class Deriver:
                                    "module tuple")
         return succ
 
-    def _where(self, fn: Callable, kind: str, mod: tuple) -> str:
+    def _where(self, fn: Callable[..., Any], kind: str, mod: Module) -> str:
         return _where(fn, kind, mod, self.base)
 
-    def _check_prior(self, need: NeedSite, fn: Callable, kind: str, mod: tuple) -> None:
+    def _check_prior(self, need: NeedSite, fn: Callable[..., Any], kind: str,
+                     mod: Module) -> None:
         """ProgramError when a production asks for a value with prior arguments its site's
         distribution does not accept (`prior_problem`): no argument is repaired silently."""
         sites = self.program.sites
@@ -248,8 +265,8 @@ class Deriver:
             raise ProgramError(f"{self._where(fn, kind, mod)}: {site.source or site.id} "
                                f"(line {site.line}:{site.col}): {bad}")
 
-    def _memo(self, p: Particle, fn: Callable, kind: str, mod: tuple, cache: dict,
-              key: object) -> object:
+    def _memo(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module,
+              cache: dict[object, Outcome], key: object) -> Outcome:
         res = self._call(p, fn, kind, mod)
         if key is not None:
             if len(cache) >= MAX_CACHE:
@@ -276,7 +293,8 @@ class Deriver:
         ops = 0
         max_ops = min(self.max_ops, self.max_work - p.work)
         angle = self.angle
-        mod: tuple = ()
+        mod: Module = ()
+        res: Outcome
         drew = False
         try:
             while stack is not None:
@@ -395,7 +413,7 @@ class Deriver:
         return {CUT: _CUT, HALT: _HALT}.get(name, _IGNORE)
 
 
-def _cut(stack: tuple | None) -> tuple | None:
+def _cut(stack: Node | None) -> Node | None:
     """Discard pending modules up to (not including) the `]` closing the current branch."""
     level = 0
     node = stack

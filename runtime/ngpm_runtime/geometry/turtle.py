@@ -8,13 +8,16 @@ shared, never copied. Primitives are the plain tuples of section 8.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.program import Module
 
-Turtle = tuple  # (x, y, heading, width)
-Prim = tuple
+Turtle = tuple[float, float, float, float]  # (x, y, heading, width)
+Prim = tuple[Any, ...]  # ("seg", x0, y0, x1, y1, width), ("disk", x, y, r), ...
+Cons = tuple[Any, Any]  # a cons list node (head, rest); rest is a Cons or None
 
 # Symbols the turtle acts on; every other module is ignored by it.
 TURTLE_SYMBOLS = frozenset(["F", "f", "+", "-", "|", "[", "]", "!", "~l", "@O", "{", ".", "}"])
@@ -28,8 +31,8 @@ _RAD = math.pi / 180.0
 
 
 def interpret(
-    mod: tuple, turtle: Turtle, tstack: tuple | None, poly: tuple | None, angle: float
-) -> tuple[Turtle, tuple | None, tuple | None, Prim | None]:
+    mod: Module, turtle: Turtle, tstack: Cons | None, poly: Cons | None, angle: float
+) -> tuple[Turtle, Cons | None, Cons | None, Prim | None]:
     """Apply one turtle symbol; returns (turtle, tstack, poly, primitive drawn or None).
 
     `poly` is a cons list of open polygons, each a cons list of vertices (newest first).
@@ -114,12 +117,12 @@ def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
     raise ValueError(f"unknown primitive {kind!r}")
 
 
-def prim_params(prims: list[tuple]) -> np.ndarray:
+def prim_params(prims: list[Prim]) -> np.ndarray:
     """The parameters of primitives of one kind (all but the kind), one row each."""
     return np.array([p[1:] for p in prims], dtype=np.float64)
 
 
-def prim_bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray | None]:
+def prim_bboxes(kind: str, prims: list[Prim]) -> tuple[np.ndarray, np.ndarray | None]:
     """World boxes (g, 4) as (xmin, ymin, xmax, ymax) of primitives of one kind, plus the
     kind's parameter array: `prim_bbox` for many primitives at once (the same formulas)."""
     if kind == "poly":
@@ -151,7 +154,7 @@ def prim_bboxes(kind: str, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray |
     return np.stack(box, axis=1), P
 
 
-def cons_to_list(node: tuple | None) -> list:
+def cons_to_list(node: Cons | None) -> list[Any]:
     """A cons list `(head, rest)` (newest first) as a Python list, oldest first."""
     out = []
     while node is not None:

@@ -20,16 +20,22 @@ from __future__ import annotations
 import numpy as np
 
 from ngpm_runtime.errors import TargetError
+from ngpm_runtime.geometry.turtle import Turtle
 from ngpm_runtime.image.raster import (
     N_LEVELS,
     PAD,
     Canvas,
     Viewport,
+    as_viewport,
     padded_layout,
     padded_pyramid,
     pyramid,
 )
 from ngpm_runtime.program import Program, Site
+
+# _context_geometry's answer (its docstring names the parts)
+ContextGeometry = tuple[np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray,
+                        np.ndarray, float]
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
@@ -84,14 +90,15 @@ class FeatureMaker:
         self.program = program
         self.context = bool(context)
         self.n_common = N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if context else 0)
-        self.viewport = tuple(float(x) for x in viewport)
+        self.viewport = as_viewport(viewport)
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (None if target_mask is None
                               else pyramid(np.asarray(target_mask, dtype=bool)))
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._context_geom: dict[tuple[int, int], ContextGeometry] = {}
         # features_cached: particle -> turtle state of its site-independent row in _block
-        self._rows: dict[int, tuple] = {}
+        self._rows: dict[int, Turtle] = {}
         self._block = np.empty((0, self.n_common), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
         self._origin = np.array([xmin, ymax])
@@ -174,7 +181,7 @@ class FeatureMaker:
         self._rows.clear()
 
     def features_cached(self, sites: list[Site], canvas: Canvas | None, idx: list[int],
-                        turtles: list[tuple], depths: list[float], params: list[np.ndarray],
+                        turtles: list[Turtle], depths: list[float], params: list[np.ndarray],
                         prior_args: list[np.ndarray]) -> list[np.ndarray]:
         """`features_round` with the site-independent columns remembered per particle: a
         particle asked again at the same turtle state (and, until `forget`, the same canvas
@@ -278,12 +285,12 @@ class FeatureMaker:
             self._context(out[:, nl + 2 * N_WINDOW:], canvas, idx, uv, heading, h, w)
         return out
 
-    def _context_geometry(self, h: int, w: int) -> tuple:
+    def _context_geometry(self, h: int, w: int) -> ContextGeometry:
         """Per canvas size: the fill level's cells in the padded row, the target there and
         its sum; the look-ahead level's first cell (start + padding), padded width, height
         and width; the 15 look-ahead (angle, distance) pairs and the viewport's aspect."""
-        key = ("context", h, w)
-        if key not in self._geom:
+        key = (h, w)
+        if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
             lv = _FILL_LEVEL
             cells = (starts[lv] + (np.arange(h >> lv)[:, None] + PAD) * wp[lv]
@@ -294,9 +301,9 @@ class FeatureMaker:
             angles = np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST))
             dist = np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES))
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            self._geom[key] = (cells, t, max(float(t.sum()), 1e-6), base, int(wp[lv]),
-                               h >> lv, w >> lv, angles, dist, aspect)
-        return self._geom[key]
+            self._context_geom[key] = (cells, t, max(float(t.sum()), 1e-6), base, int(wp[lv]),
+                                       h >> lv, w >> lv, angles, dist, aspect)
+        return self._context_geom[key]
 
     def _context(self, out: np.ndarray, canvas: Canvas, idx: np.ndarray, uv: np.ndarray,
                  heading: np.ndarray, h: int, w: int) -> None:

@@ -22,7 +22,7 @@ def otsu_threshold(image: np.ndarray) -> int:
     """Otsu's threshold of an integer image: pixels <= it are the dark class."""
     flat = np.asarray(image).reshape(-1)
     if np.all(flat == flat[0]):
-        return flat[0]
+        return int(flat[0])
     lo, hi = int(flat.min()), int(flat.max())
     counts = np.bincount((flat.astype(np.int64) - lo), minlength=hi - lo + 1)
     counts = counts.astype(np.float32)
@@ -32,7 +32,7 @@ def otsu_threshold(image: np.ndarray) -> int:
     mean1 = np.cumsum(counts * centers) / weight1
     mean2 = (np.cumsum((counts * centers)[::-1]) / weight2[::-1])[::-1]
     variance12 = weight1[:-1] * weight2[1:] * (mean1[:-1] - mean2[1:]) ** 2
-    return centers[int(np.argmax(variance12))]
+    return int(centers[int(np.argmax(variance12))])
 
 
 def neighbor_count(mask: np.ndarray) -> np.ndarray:

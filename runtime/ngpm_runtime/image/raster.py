@@ -12,11 +12,12 @@ another, each with PAD cells of -1 around it (`padded_layout`), so that the guid
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ngpm_runtime.geometry.turtle import prim_bboxes
+from ngpm_runtime.geometry.turtle import Prim, prim_bboxes
 
 Viewport = tuple[float, float, float, float]  # (xmin, xmax, ymin, ymax)
 N_LEVELS = 4
@@ -42,6 +43,7 @@ class DrawBatch:
     # the newly covered pixels as a list (optional; filled by Canvas.draw):
     hit_k: np.ndarray | None = None  # (m,) batch row k of each new pixel
     hit_pix: np.ndarray | None = None  # (m,) its pixel index row * W + col in the image
+    prims: list[Prim] | None = None  # the drawn primitives (smc sets them for the likelihood)
 
     def hits(self, width: int) -> tuple[np.ndarray, np.ndarray]:
         """(batch rows, pixel indices row * width + col) of every newly covered pixel."""
@@ -49,6 +51,12 @@ class DrawBatch:
             return self.hit_k, self.hit_pix
         k, i, j = np.nonzero(self.new)
         return k, (self.y0[k] + i) * width + self.x0[k] + j
+
+
+def as_viewport(viewport: Sequence[float]) -> Viewport:
+    """`viewport` as four floats (xmin, xmax, ymin, ymax)."""
+    xmin, xmax, ymin, ymax = (float(v) for v in viewport)
+    return xmin, xmax, ymin, ymax
 
 
 def level_shapes(height: int, width: int) -> list[tuple[int, int]]:
@@ -96,7 +104,7 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 # ---------------------------------------------------------------- geometry per kind
 
 
-def _cover(kind: str, P: np.ndarray | None, prims: list[tuple],
+def _cover(kind: str, P: np.ndarray | None, prims: list[Prim],
            px: np.ndarray, py: np.ndarray) -> np.ndarray:
     """Coverage (g, ky, kx) of pixel centers px (g, kx), py (g, ky) by g primitives."""
     if kind == "poly":
@@ -105,6 +113,7 @@ def _cover(kind: str, P: np.ndarray | None, prims: list[tuple],
             out[k] = _poly_inside(np.asarray(p[1], dtype=np.float64).reshape(-1, 2),
                                   px[k][None, :], py[k][:, None])
         return out
+    assert P is not None  # every kind but "poly" has a parameter array
     # Work in (ky, kx, g) layout: the primitive axis is last, so numpy's inner loops run
     # over all g primitives instead of over a few window pixels.
     X = np.ascontiguousarray(px.T)[None, :, :]  # (1, kx, g)
@@ -204,7 +213,7 @@ class _Grid:
         finite = np.isfinite(bbox).all(axis=1)[:, None]
         lo = np.where(finite, np.maximum(lo, 0.0), 0.0).astype(np.intp)
         hi = np.where(finite, np.minimum(hi, self._last), -1.0).astype(np.intp)
-        empty = (hi < lo).any(axis=1)
+        empty = np.any(hi < lo, axis=1)
         size = hi - lo + 1
         if empty.any():
             size = size[~empty]
@@ -214,7 +223,7 @@ class _Grid:
         org[empty] = 0
         return org[:, 1], org[:, 0], ky, kx, empty
 
-    def cover(self, prims: list[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def cover(self, prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Rasterize prims: y0, x0 (n,), coverage (n, ky, kx) bool, world bbox (n, 4)."""
         n = len(prims)
         kinds = [p[0] for p in prims]
@@ -257,14 +266,14 @@ class _Grid:
         return y0, x0, cov, bbox
 
 
-def prim_mask(prim: tuple, viewport: Viewport, height: int, width: int
+def prim_mask(prim: Prim, viewport: Viewport, height: int, width: int
               ) -> tuple[int, int, np.ndarray]:
     """One primitive's full coverage: (y0, x0, mask (ky, kx) bool) on an H x W image."""
     y0, x0, cov, _ = _Grid(viewport, height, width).cover([prim])
     return int(y0[0]), int(x0[0]), cov[0]
 
 
-def rasterize(prims: list[tuple], viewport: Viewport, height: int, width: int) -> np.ndarray:
+def rasterize(prims: list[Prim], viewport: Viewport, height: int, width: int) -> np.ndarray:
     """The (H, W) uint8 image of all prims, one primitive at a time (scratch rendering)."""
     img = np.zeros((height, width), dtype=np.uint8)
     grid = _Grid(viewport, height, width)
@@ -291,7 +300,7 @@ class Canvas:
     def __init__(self, n: int, height: int, width: int, viewport: Viewport,
                  pyramid: bool = True) -> None:
         self.n, self.height, self.width = int(n), int(height), int(width)
-        self.viewport = tuple(float(v) for v in viewport)
+        self.viewport = as_viewport(viewport)
         self._grid = _Grid(self.viewport, self.height, self.width)
         self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
         self._hp, self._wp, self._starts = padded_layout(self.height, self.width)
@@ -319,7 +328,7 @@ class Canvas:
                 out.append(block[:, PAD:PAD + h, PAD:PAD + w])
         return out
 
-    def draw(self, idx: np.ndarray, prims: list[tuple]) -> DrawBatch:
+    def draw(self, idx: np.ndarray, prims: list[Prim]) -> DrawBatch:
         """Rasterize `prims[k]` into canvas `idx[k]` (indices distinct); returns the changes."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         if len(prims) != len(idx):
@@ -380,10 +389,10 @@ class Canvas:
         return (np.asarray(x) - xmin) / (xmax - xmin), (ymax - np.asarray(y)) / (ymax - ymin)
 
 
-def bbox_of(prims: list[tuple]) -> np.ndarray:
+def bbox_of(prims: list[Prim]) -> np.ndarray:
     """World box (4,) = (xmin, ymin, xmax, ymax) of all prims; +-inf when there are none."""
     out = np.array([np.inf, np.inf, -np.inf, -np.inf])
-    groups: dict[str, list[tuple]] = {}
+    groups: dict[str, list[Prim]] = {}
     for p in prims:
         groups.setdefault(p[0], []).append(p)
     for kind, group in groups.items():
@@ -393,7 +402,7 @@ def bbox_of(prims: list[tuple]) -> np.ndarray:
     return out
 
 
-def viewport_of(prims: list[tuple], margin: float = 0.05) -> Viewport:
+def viewport_of(prims: list[Prim], margin: float = 0.05) -> Viewport:
     """A square viewport fitting every primitive, with a relative margin."""
     if not prims:
         return (-1.0, 1.0, -1.0, 1.0)

@@ -12,12 +12,14 @@ import io
 import math
 from collections.abc import Iterator
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.image.raster import Viewport, prim_mask, viewport_of
+from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.image.raster import Viewport, as_viewport, prim_mask, viewport_of
 
 BACKGROUND = (255, 255, 255)
 TARGET = (222, 226, 236)
@@ -32,18 +34,19 @@ class RenderError(NgpmError):
     """A render cannot be written (unknown format, bad size)."""
 
 
-def _widths(prims: list[tuple]) -> float:
+def _widths(prims: list[Prim]) -> float:
     ws = [abs(p[5]) for p in prims if p[0] == "seg"]
     return max(ws) if ws else 1.0
 
 
-def prim_color(prim: tuple, max_width: float) -> tuple[int, int, int]:
+def prim_color(prim: Prim, max_width: float) -> tuple[int, int, int]:
     """RGB color of a primitive (branches shade by width)."""
     kind = prim[0]
     if kind == "seg":
         t = min(1.0, abs(prim[5]) / max_width) if max_width > 0 else 1.0
-        return tuple(int(round(a + (b - a) * t)) for a, b in zip(BRANCH_THIN, BRANCH_THICK,
-                                                                  strict=True))
+        red, green, blue = (int(round(a + (b - a) * t))
+                            for a, b in zip(BRANCH_THIN, BRANCH_THICK, strict=True))
+        return red, green, blue
     return {"leaf": LEAF, "disk": FLOWER, "poly": POLY}.get(kind, POLY)
 
 
@@ -61,21 +64,22 @@ def _resize_nearest(mask: np.ndarray, h: int, w: int) -> np.ndarray:
     mask = np.asarray(mask, dtype=bool)
     rows = (np.arange(h) * mask.shape[0]) // h
     cols = (np.arange(w) * mask.shape[1]) // w
-    return mask[rows[:, None], cols[None, :]]
+    out: np.ndarray = mask[rows[:, None], cols[None, :]]
+    return out
 
 
-def render_array(prims: list[tuple], viewport: Viewport | None = None, size: int = 256,
+def render_array(prims: list[Prim], viewport: Viewport | None = None, size: int = 256,
                  target_mask: np.ndarray | None = None, supersample: int = 3) -> np.ndarray:
     """RGB uint8 image (h, w, 3) of the primitives; the longer side is `size` pixels."""
     return next(render_frames(prims, [len(prims)], viewport, size, target_mask, supersample))
 
 
-def render_frames(prims: list[tuple], counts: list[int], viewport: Viewport | None = None,
+def render_frames(prims: list[Prim], counts: list[int], viewport: Viewport | None = None,
                   size: int = 256, target_mask: np.ndarray | None = None,
                   supersample: int = 3) -> Iterator[np.ndarray]:
     """render_array(prims[:k]) for each k of the increasing `counts`, drawing each primitive
     once (later primitives paint over earlier ones, so the frames are the same)."""
-    vp = viewport_of(prims) if viewport is None else tuple(float(v) for v in viewport)
+    vp = viewport_of(prims) if viewport is None else as_viewport(viewport)
     h, w = _image_size(vp, int(size))
     s = max(1, int(supersample))
     big_h, big_w = h * s, w * s
@@ -99,9 +103,10 @@ def _downsample(img: np.ndarray, h: int, w: int, s: int) -> np.ndarray:
     """The mean of each s x s block as uint8 (sums of small integers: exact in float32, so
     the same as .mean(axis=(1, 3)), but several times faster)."""
     blocks = img.reshape(h, s, w, s, 3)
-    rows = sum(blocks[:, i] for i in range(s))
-    small = sum(rows[:, :, j] for j in range(s)) / np.float32(s * s)
-    return np.clip(np.round(small), 0, 255).astype(np.uint8)
+    rows = cast(np.ndarray, sum(blocks[:, i] for i in range(s)))  # s >= 1 blocks: an array
+    small = cast(np.ndarray, sum(rows[:, :, j] for j in range(s))) / np.float32(s * s)
+    out: np.ndarray = np.clip(np.round(small), 0, 255).astype(np.uint8)
+    return out
 
 
 def _png_bytes(rgb: np.ndarray) -> bytes:
@@ -112,7 +117,7 @@ def _png_bytes(rgb: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _svg_text(prims: list[tuple], vp: Viewport, size: int,
+def _svg_text(prims: list[Prim], vp: Viewport, size: int,
               target_mask: np.ndarray | None) -> str:
     xmin, xmax, ymin, ymax = vp
     h, w = _image_size(vp, size)
@@ -157,12 +162,12 @@ def _svg_text(prims: list[tuple], vp: Viewport, size: int,
     return "\n".join(out) + "\n"
 
 
-def save_render(prims: list[tuple], path: str | Path, viewport: Viewport | None = None,
+def save_render(prims: list[Prim], path: str | Path, viewport: Viewport | None = None,
                 size: int = 512, target_mask: np.ndarray | None = None) -> Path:
     """Write a render as PNG or SVG (chosen by the suffix); returns the path."""
     path = Path(path)
     suffix = path.suffix.lower()
-    vp = viewport_of(prims) if viewport is None else tuple(float(v) for v in viewport)
+    vp = viewport_of(prims) if viewport is None else as_viewport(viewport)
     if suffix == ".png":
         data = _png_bytes(render_array(prims, vp, size, target_mask))
     elif suffix == ".svg":
@@ -177,7 +182,7 @@ def save_render(prims: list[tuple], path: str | Path, viewport: Viewport | None 
     return path
 
 
-def save_steps_gif(prims: list[tuple], path: str | Path, viewport: Viewport,
+def save_steps_gif(prims: list[Prim], path: str | Path, viewport: Viewport,
                    target_mask: np.ndarray | None = None, size: int = 256,
                    max_frames: int = 60) -> Path:
     """An animated GIF of the growth: the primitives in drawing order, a few per frame."""

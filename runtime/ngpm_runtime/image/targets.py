@@ -113,12 +113,12 @@ class Target:
 # --- sidecar -----------------------------------------------------------------------------
 
 
-def sidecar_path(image_path: str | os.PathLike) -> Path:
+def sidecar_path(image_path: str | os.PathLike[str]) -> Path:
     """The sidecar file of an image: `<image stem>.txt` beside it."""
     return Path(image_path).with_suffix(".txt")
 
 
-def read_sidecar(path: str | os.PathLike) -> Start:
+def read_sidecar(path: str | os.PathLike[str]) -> Start:
     """Read a 2-line sidecar (`x y`, `dx dy`); the direction is normalized to unit length."""
     path = Path(path)
     try:
@@ -135,7 +135,7 @@ def read_sidecar(path: str | os.PathLike) -> Start:
     return _check_start(tuple(values), f"bad sidecar {path}:")
 
 
-def write_sidecar(path: str | os.PathLike, start: Start) -> None:
+def write_sidecar(path: str | os.PathLike[str], start: Start) -> None:
     """Write a sidecar atomically."""
     x, y, dx, dy = _check_start(start, f"sidecar {path}:")
     atomic_write(path, f"{x:.6f} {y:.6f}\n{dx:.6f} {dy:.6f}\n".encode())
@@ -160,7 +160,7 @@ def _check_start(start: Sequence[float], where: str) -> Start:
 # --- images -> masks ---------------------------------------------------------------------
 
 
-def read_image(source: str | os.PathLike | BinaryIO, name: str | None = None, *,
+def read_image(source: str | os.PathLike[str] | BinaryIO, name: str | None = None, *,
                max_side: int = MAX_SIDE, max_pixels: int = MAX_PIXELS) -> Image.Image:
     """Open and decode an image: a path, or a binary file object that `name` describes
     (default: "target image PATH"). The one loader of the command line, the server and
@@ -193,7 +193,7 @@ def read_image(source: str | os.PathLike | BinaryIO, name: str | None = None, *,
             raise ImageDecodeError(f"cannot decode {name}: {_reason(err)}") from None
 
 
-def _open_image(source: str | os.PathLike | BinaryIO, name: str) -> Image.Image:
+def _open_image(source: str | os.PathLike[str] | BinaryIO, name: str) -> Image.Image:
     """PIL's lazy open: the header only, no pixels."""
     try:
         return Image.open(source)
@@ -424,7 +424,7 @@ def check_mask(mask: np.ndarray, name: str) -> None:
 # --- loading and saving ------------------------------------------------------------------
 
 
-def load_target(path: str | os.PathLike, size: int | None = DEFAULT_SIZE,
+def load_target(path: str | os.PathLike[str], size: int | None = DEFAULT_SIZE,
                 polarity: str = "auto") -> Target:
     """Load an image as a Target at size x size (None: keep the padded square's size).
 
@@ -439,7 +439,7 @@ def load_target(path: str | os.PathLike, size: int | None = DEFAULT_SIZE,
     return replace(target, name=path.stem)
 
 
-def save_target(target: Target, path: str | os.PathLike) -> Path:
+def save_target(target: Target, path: str | os.PathLike[str]) -> Path:
     """Write the mask as a black-on-white PNG plus its sidecar, each atomically."""
     path = Path(path)
     if path.suffix.lower() != ".png":
@@ -454,7 +454,7 @@ def save_target(target: Target, path: str | os.PathLike) -> Path:
     return path
 
 
-def load_dataset(directory: str | os.PathLike, size: int | None = None,
+def load_dataset(directory: str | os.PathLike[str], size: int | None = None,
                  polarity: str = "auto") -> list[Target]:
     """Load every target of a dataset directory, in the order of its index.json.
 

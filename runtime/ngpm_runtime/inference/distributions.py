@@ -29,7 +29,8 @@ _TINY = 1e-300
 def _log(x: np.ndarray) -> np.ndarray:
     """log that maps 0 to -inf without a warning."""
     with np.errstate(divide="ignore"):
-        return np.log(x)
+        out: np.ndarray = np.log(x)
+    return out
 
 
 def _normal_logpdf(x: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -52,7 +53,8 @@ def _categorical_probs(site: Site, w: np.ndarray) -> np.ndarray:
             f"site {site.id} (line {site.line}): categorical weights must be finite, "
             "non-negative and not all zero"
         )
-    return w / total
+    out: np.ndarray = w / total
+    return out
 
 
 def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -62,7 +64,8 @@ def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     idx = (cum <= u[:, None]).sum(axis=1)
     # never land on a zero-probability category through rounding at the top end
     idx = np.minimum(idx, p.shape[1] - 1)
-    return idx.astype(np.float64)
+    out: np.ndarray = idx.astype(np.float64)
+    return out
 
 
 def _categorical_logpmf(p: np.ndarray, values: np.ndarray,
@@ -184,7 +187,8 @@ def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
     m = np.max(a, axis=1)
     m = np.where(np.isfinite(m), m, 0.0)
     with np.errstate(divide="ignore"):
-        return m + np.log(np.sum(np.exp(a - m[:, None]), axis=1))
+        out: np.ndarray = m + np.log(np.sum(np.exp(a - m[:, None]), axis=1))
+    return out
 
 
 def _mixture_sample(
@@ -202,7 +206,8 @@ def _mixture_logpdf(
     return _logsumexp_rows(comp)
 
 
-def _normal_mixture(args: np.ndarray, params: np.ndarray):
+def _normal_mixture(args: np.ndarray, params: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     logw, m, s = _mixture(params)
     mu = args[:, 0:1]
     sigma = np.abs(args[:, 1:2])
@@ -214,7 +219,8 @@ def _probs(params: np.ndarray) -> np.ndarray:
     total = p.sum(axis=1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         p = p / total
-    return np.where(total > 0, p, 1.0 / p.shape[1])
+    out: np.ndarray = np.where(total > 0, p, 1.0 / p.shape[1])
+    return out
 
 
 def temper(kind: str, params: np.ndarray, temperature: float = 1.0,
@@ -261,7 +267,8 @@ def proposal_sample(
         logw, m, s = _mixture(params)
         z = _mixture_sample(logw, m, np.exp(s), rng)
         a, b = _uniform_bounds(args)
-        return a + (b - a) / (1.0 + np.exp(-z))
+        out: np.ndarray = a + (b - a) / (1.0 + np.exp(-z))
+        return out
     if kind == "bernoulli":
         p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
         return (rng.random(n) < p).astype(np.float64)

@@ -247,22 +247,23 @@ class Guide:
                 out[j] = self.propose(site, prior_args[j], None, rng)
         if not net:
             return out
-        params = self.params_round([sites[j].index for j in net],
-                                   [None if features is None else features[j] for j in net],
-                                   [len(prior_args[j]) for j in net])
-        groups: dict[tuple, list[int]] = {}
-        for j, p in zip(net, params, strict=True):
+        site_params = self.params_round([sites[j].index for j in net],
+                                        [None if features is None else features[j]
+                                         for j in net],
+                                        [len(prior_args[j]) for j in net])
+        groups: dict[tuple[str, int, int], list[int]] = {}
+        for j, p in zip(net, site_params, strict=True):
             key = (sites[j].kind, p.shape[1], prior_args[j].shape[1])
             groups.setdefault(key, []).append(j)
-        by_site = dict(zip(net, params, strict=True))
+        by_site = dict(zip(net, site_params, strict=True))
         for js in groups.values():
-            args = [prior_args[j] for j in js]
+            group_args = [prior_args[j] for j in js]
             if len(js) > 1:
-                a = np.concatenate(args)
+                a = np.concatenate(group_args)
                 if np.isfinite(a).all():  # else per site, for the error naming its site
                     values, log_q = dist.proposal_draw(
                         sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng)
-                    cut = np.cumsum([len(x) for x in args])[:-1]
+                    cut = np.cumsum([len(x) for x in group_args])[:-1]
                     for j, v, q in zip(js, np.split(values, cut), np.split(log_q, cut),
                                        strict=True):
                         out[j] = (v, q)
@@ -452,7 +453,7 @@ def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:
                          f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)")
 
 
-def format_message(path: str, fmt: Any) -> str:
+def format_message(path: str, fmt: object) -> str:
     """Why a file whose `ngpm_format` is not ONNX_FORMAT cannot be used."""
     name, _, version = str(fmt or "").rpartition("/")
     ours_name, _, ours = ONNX_FORMAT.rpartition("/")
@@ -464,7 +465,7 @@ def format_message(path: str, fmt: Any) -> str:
     return f"{path}: not an ngpm guide (written by `ngpmc export`?)"
 
 
-def validate_guide_graph(path: str, session: Any, meta: dict[str, Any],
+def validate_guide_graph(path: str, session: ort.InferenceSession, meta: dict[str, Any],
                          program: Program) -> None:
     """GuideError unless the ONNX graph has, for every site net the metadata lists, the
     input `f_<i>` of shape (n, n_f) and the output `p_<i>` of shape (n, n_out) that the

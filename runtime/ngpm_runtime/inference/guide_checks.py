@@ -140,10 +140,8 @@ def _check_features(path: str, features: Any, nets: dict[str, Any]) -> None:
     fs = features.get("feature_set")
     if not isinstance(fs, str) or fs not in FEATURE_GROUPS:
         raise _bad(path, "'features'['feature_set']", f"one of {', '.join(FEATURE_GROUPS)}", fs)
-    layouts, columns = features.get("layouts"), features.get("columns")
-    for name, value in (("layouts", layouts), ("columns", columns)):
-        if not isinstance(value, dict):
-            raise _bad(path, f"'features'[{name!r}]", "an object per site", value)
+    layouts = _site_table(path, features, "layouts")
+    columns = _site_table(path, features, "columns")
     for key, net in nets.items():
         layout = _check_layout(path, key, layouts.get(key))
         # rows end at the context group only for networks that read it (learning/train.py)
@@ -159,6 +157,14 @@ def _check_features(path: str, features: Any, nets: dict[str, Any]) -> None:
         if columns.get(key) != want:
             raise _bad(path, f"'features'['columns'][{key!r}]",
                        f"the columns of feature set {fs!r} in its layout", columns.get(key))
+
+
+def _site_table(path: str, features: dict[str, Any], name: str) -> dict[str, Any]:
+    """`features[name]`, which must be an object (one entry per site)."""
+    value = features.get(name)
+    if not isinstance(value, dict):
+        raise _bad(path, f"'features'[{name!r}]", "an object per site", value)
+    return value
 
 
 def _check_layout(path: str, key: str, layout: Any) -> dict[str, list[int]]:

@@ -13,12 +13,15 @@ edge of a 0/1 image reads 1 (the reference's "edge pixels count 1.5 x filled one
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.image.raster import Canvas, DrawBatch, Viewport
+from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.image.raster import Canvas, DrawBatch, Viewport, as_viewport
 
 SHAPE_SIGMA = 0.02
 FLAT = 1.0 / 1.5
@@ -36,7 +39,8 @@ def _sobel_valid(p: np.ndarray) -> np.ndarray:
     gx = dx[..., :-2, :] + 2.0 * dx[..., 1:-1, :] + dx[..., 2:, :]
     sm = left + 2.0 * mid + right
     gy = sm[..., 2:, :] - sm[..., :-2, :]
-    return np.sqrt(gx * gx + gy * gy) / 4.0
+    out: np.ndarray = np.sqrt(gx * gx + gy * gy) / 4.0
+    return out
 
 
 def sobel(image: np.ndarray) -> np.ndarray:
@@ -106,7 +110,7 @@ def circuit_loglik(image: np.ndarray, bbox: np.ndarray, viewport: Viewport) -> f
                  + bounds_penalty(bbox, viewport))
 
 
-def _circuit_value(edge: np.ndarray, fill: np.ndarray) -> np.ndarray:
+def _circuit_value(edge: np.ndarray | np.float64, fill: np.ndarray | np.float64) -> np.ndarray:
     x = edge * (1.0 - np.abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
     z = (x - 1.0) / CIRCUIT_SIGMA
     return -0.5 * z * z - math.log(CIRCUIT_SIGMA * math.sqrt(2.0 * math.pi))
@@ -126,11 +130,20 @@ def empty_bbox(n: int) -> np.ndarray:
     return out
 
 
+@dataclass
+class PrimBatch:
+    """What a likelihood sees when the run has no canvas: who drew what."""
+
+    idx: np.ndarray
+    bbox: np.ndarray
+    prims: list[Prim]
+
+
 class Likelihood(Protocol):
     """What `smc()` asks of a likelihood (subclass it to inherit the defaults).
 
     - `needs_canvas`: True (default): `increment` gets raster's DrawBatch (with `.prims`) and
-      the run's Canvas; False: a `smc.PrimBatch` (idx, bbox, prims), and no canvas is drawn
+      the run's Canvas; False: a `PrimBatch` (idx, bbox, prims), and no canvas is drawn
       for it.
     - `start(n)`: per-particle state arrays; SMC reindexes every array at resampling.
     - `increment(state, canvas, batch)`: per listed particle, new log-lik minus previous.
@@ -143,6 +156,7 @@ class Likelihood(Protocol):
 
     def start(self, n: int) -> dict[str, np.ndarray]: ...
 
+    # Any: a Canvas and a DrawBatch with `needs_canvas`, else None and a PrimBatch
     def increment(self, state: dict[str, np.ndarray], canvas: Any, batch: Any) -> np.ndarray:
         ...
 
@@ -150,7 +164,8 @@ class Likelihood(Protocol):
         return None
 
 
-def _blank_value(full: Any, height: int, width: int) -> float:
+def _blank_value(full: Callable[[np.ndarray, np.ndarray], float], height: int,
+                 width: int) -> float:
     """`full` of an empty image with an empty box; NaN reads as zero likelihood."""
     blank = np.zeros((height, width), dtype=np.uint8)
     value = float(full(blank, np.array([np.inf, np.inf, -np.inf, -np.inf])))
@@ -167,7 +182,7 @@ class ShapeLikelihood(Likelihood):
         if t.ndim != 2:
             raise TargetError(f"target mask must be 2D, got shape {t.shape}")
         self.target = t
-        self.viewport = tuple(float(v) for v in viewport)
+        self.viewport = as_viewport(viewport)
         w = shape_weights(t)
         self.sim_blank, total = _blank_sim(w, t)
         # gain of covering pixel p, in normalized-similarity units
@@ -188,7 +203,7 @@ class ShapeLikelihood(Likelihood):
         sim = state["sim"][idx] + dsim
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
         ll = -(((sim - 1.0) / SHAPE_SIGMA) ** 2) + bounds_penalty(bbox, self.viewport)
-        delta = ll - state["ll"][idx]
+        delta: np.ndarray = ll - state["ll"][idx]
         state["sim"][idx] = sim
         state["bbox"][idx] = bbox
         state["ll"][idx] = ll
@@ -214,7 +229,8 @@ def _edge_sum_codes(p: np.ndarray) -> np.ndarray:
     gx = dx[:, :-2] + 2 * dx[:, 1:-1] + dx[:, 2:]
     sm = left + 2 * mid + right
     gy = sm[:, 2:] - sm[:, :-2]
-    return (gx + 4) * 9 + (gy + 4)
+    out: np.ndarray = (gx + 4) * 9 + (gy + 4)
+    return out
 
 
 def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray,
@@ -237,7 +253,8 @@ def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndar
     before[:, 2:2 + ky, 2:2 + kx] -= new
     inner = rin[:, 1:-1, None] & cin[:, None, 1:-1]
     diff = _MAG_LUT[_edge_sum_codes(after)] - _MAG_LUT[_edge_sum_codes(before)]
-    return (diff * inner).sum(axis=(1, 2))
+    out: np.ndarray = (diff * inner).sum(axis=(1, 2))
+    return out
 
 
 class CircuitLikelihood(Likelihood):
@@ -246,7 +263,7 @@ class CircuitLikelihood(Likelihood):
     needs_canvas = True
 
     def __init__(self, viewport: Viewport) -> None:
-        self.viewport = tuple(float(v) for v in viewport)
+        self.viewport = as_viewport(viewport)
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {"edge_sum": np.zeros(n), "filled": np.zeros(n), "bbox": empty_bbox(n),
@@ -266,7 +283,7 @@ class CircuitLikelihood(Likelihood):
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
         npx = float(h * w)
         ll = _circuit_value(edge_sum / npx, filled / npx) + bounds_penalty(bbox, self.viewport)
-        delta = ll - state["ll"][idx]
+        delta: np.ndarray = ll - state["ll"][idx]
         state["edge_sum"][idx] = edge_sum
         state["filled"][idx] = filled
         state["bbox"][idx] = bbox

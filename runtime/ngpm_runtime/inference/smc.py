@@ -21,15 +21,24 @@ import math
 import time
 from dataclasses import dataclass, field
 from itertools import chain
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
-from ngpm_runtime.geometry.derive import DEFAULT_MAX_MODULES, DONE, DRAWN, NEED, Deriver, Particle
-from ngpm_runtime.geometry.turtle import cons_to_list, prim_bbox
+from ngpm_runtime.geometry.derive import (
+    DEFAULT_MAX_MODULES,
+    DONE,
+    DRAWN,
+    NEED,
+    Args,
+    Deriver,
+    Particle,
+)
+from ngpm_runtime.geometry.turtle import Prim, cons_to_list, prim_bbox
+from ngpm_runtime.image.raster import DrawBatch
 from ngpm_runtime.inference.distributions import prior_logpdf
-from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood
+from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBatch
 from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
 from ngpm_runtime.inference.resample import SCHEMES
 from ngpm_runtime.inference.resample import resample as draw_ancestors
@@ -42,7 +51,7 @@ class SMCOptionError(NgpmError):
 
 @dataclass
 class FinalParticle:
-    primitives: list[tuple]
+    primitives: list[Prim]
     log_prior: float
     log_likelihood: float
     log_weight: float
@@ -61,15 +70,6 @@ class SMCResult:
     steps: int
     seconds: float
     info: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class PrimBatch:
-    """What a likelihood sees when the run has no canvas: who drew what."""
-
-    idx: np.ndarray
-    bbox: np.ndarray
-    prims: list[tuple]
 
 
 def _logsumexp(a: np.ndarray) -> float:
@@ -128,7 +128,8 @@ def smc(
     n = int(n_particles)
     if ess_threshold == "proposal":
         ess_threshold = getattr(getattr(proposal, "settings", None), "ess_threshold", None)
-    _check_options(n, resample, record_trace, ess_threshold, target_mask, canvas_size)
+    threshold = _check_options(n, resample, record_trace, ess_threshold, target_mask,
+                               canvas_size)
     run = _Run(program, likelihood, n, proposal, seed, resample, record_trace, start,
                canvas_size, target_mask, max_primitives, module_cap(program, max_modules))
     while run.pop.live:
@@ -137,13 +138,14 @@ def smc(
                 run.pop.parts[i].status = "limit"
                 run.pop.parts[i].limit = "max steps"
             break
-        run.step(ess_threshold)
+        run.step(threshold)
     return run.result(time.perf_counter() - t0)
 
 
 def _check_options(n: int, resample: str, record_trace: bool | str,
-                   ess_threshold: Any, target_mask: np.ndarray | None,
-                   canvas_size: tuple[int, int]) -> None:
+                   ess_threshold: float | str | None, target_mask: np.ndarray | None,
+                   canvas_size: tuple[int, int]) -> float | None:
+    """SMCOptionError for an option that cannot be used; returns the ESS threshold."""
     if n < 1:
         raise SMCOptionError(f"need at least one particle, got {n}")
     if resample not in SCHEMES:
@@ -159,6 +161,7 @@ def _check_options(n: int, resample: str, record_trace: bool | str,
     if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
         raise SMCOptionError(f"target mask {tuple(np.shape(target_mask))} and canvas size "
                              f"{tuple(canvas_size)} differ")
+    return ess_threshold
 
 
 class Population:
@@ -174,7 +177,7 @@ class Population:
         self.log_lik = np.zeros(n)
         self.live = list(range(n))
 
-    def add_loglik(self, idx: np.ndarray, inc: np.ndarray) -> None:
+    def add_loglik(self, idx: np.ndarray, inc: np.ndarray | float) -> None:
         self.log_w[idx] += inc
         self.log_lik[idx] += inc
 
@@ -235,6 +238,7 @@ class _Run:
             # (an optional attribute: proposals written before it existed read no context)
             reads = bool(getattr(self.proposal, "feature_context", False))
             context = record_trace is True or reads
+            assert program.viewport is not None  # checked for the canvas above
             self.fmaker = FeatureMaker(program, program.viewport, target_mask, context)
             if context and not reads:
                 from ngpm_runtime.image.features import N_CONTEXT
@@ -248,7 +252,8 @@ class _Run:
         turtle = (float(x0), float(y0), float(h0), 1.0)
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
         self.order = SiteOrder()
-        self.tables: dict[tuple, list[float]] = {}  # categorical log prior per (site, weights)
+        # categorical log prior per (site, weights)
+        self.tables: dict[tuple[int, Args], list[float]] = {}
         # (particles, log q or None for the prior proposal, log p) of the sites served
         self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
         self.log_z = 0.0
@@ -307,7 +312,7 @@ class _Run:
                 if code == DRAWN:
                     drawn.append(i)
                 elif code == NEED:
-                    s = p.need[0]  # type: ignore[index]
+                    s = p.need[0]  # type: ignore[index]  # advance set it with NEED
                     if a >= 0:
                         seen.add((a, s))
                     if s in waiting:
@@ -337,13 +342,13 @@ class _Run:
         proposal call (propose_round, or propose for a single site)."""
         program, parts = self.program, self.pop.parts
         objs: list[Site] = []
-        rows_list: list[list[tuple]] = []
+        rows_list: list[list[Args]] = []
         args_list: list[np.ndarray] = []
         for s, idx in zip(sites, groups, strict=True):
             if not 0 <= s < len(program.sites):
                 raise ProgramError(f"program {program.name} asked for unknown site {s}")
             site = program.sites[s]
-            rows = [parts[i].need[1] for i in idx]  # type: ignore[index]
+            rows = [parts[i].need[1] for i in idx]  # type: ignore[index]  # waiting: set
             args = _prior_args(site, rows)
             if site.kind != "categorical" and args.shape[1] != site.n_args():
                 raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
@@ -356,6 +361,7 @@ class _Run:
         if given is not None and self.trim:  # recorded with context, the guide reads less
             given = [f[:, :f.shape[1] - self.trim] for f in given]
         if self.batched:
+            # self.batched: a RoundProposal (checked once, not per round)
             answers = self.proposal.propose_round(  # type: ignore[attr-defined]
                 objs, args_list, given, self.rng)
         else:
@@ -365,7 +371,7 @@ class _Run:
             self._weigh_site(objs[j], groups[j], rows_list[j], args_list[j], values, log_q,
                              None if feats is None else feats[j])
 
-    def _weigh_site(self, site: Site, idx: list[int], rows: list[tuple], args: np.ndarray,
+    def _weigh_site(self, site: Site, idx: list[int], rows: list[Args], args: np.ndarray,
                     values: np.ndarray, log_q: np.ndarray, feats: np.ndarray | None) -> None:
         """Weights (log prior - log q), trace and replay values of one served site. The
         weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
@@ -412,11 +418,11 @@ class _Run:
         turtles = [p.turtle for p in ps]
         tops = [p.stack for p in ps]
         # the axiom pseudo-module has depth -1
-        depths = [float(max(t[1], 0)) for t in tops]  # type: ignore[index]
+        depths = [float(max(t[1], 0)) for t in tops]  # type: ignore[index]  # waiting: a stack
         params_list = []
         pos = 0
         for site, g in zip(sites, groups, strict=True):
-            params = _rows([t[0][1:] for t in tops[pos:pos + len(g)]])  # type: ignore[index]
+            params = _rows([t[0][1:] for t in tops[pos:pos + len(g)]])  # type: ignore[index]  # same
             if params is None:
                 raise ProgramError(f"site {site.id}: modules of different arity share it")
             params_list.append(params)
@@ -433,9 +439,11 @@ class _Run:
         if drawn:
             drawn.sort()
             idx = np.asarray(drawn, dtype=np.intp)
-            prims = [parts[i].last for i in drawn]
+            # a particle that drew has its primitive in `last`
+            prims = cast("list[Prim]", [parts[i].last for i in drawn])
+            batch: DrawBatch | PrimBatch
             if self.canvas is not None:
-                batch: Any = self.canvas.draw(idx, prims)  # type: ignore[arg-type]
+                batch = self.canvas.draw(idx, prims)
                 batch.prims = prims
             else:
                 batch = PrimBatch(idx, np.array([prim_bbox(q) for q in prims]), prims)
@@ -592,8 +600,8 @@ def replay(
     return res.particles[0]
 
 
-def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list[float],
-                      tables: dict[tuple, list[float]]) -> np.ndarray | None:
+def _categorical_logp(site: Site, rows: list[Args], args: np.ndarray, vals: list[float],
+                      tables: dict[tuple[int, Args], list[float]]) -> np.ndarray | None:
     """prior_logpdf of categorical values whose rows share one weight tuple, from a table
     made by prior_logpdf itself (the same numbers); None when it does not apply."""
     first = rows[0]
@@ -620,10 +628,10 @@ def _categorical_logp(site: Any, rows: list[tuple], args: np.ndarray, vals: list
 
 
 # _rows of one shared tuple, by (tuple, n): read-only arrays, reused across rounds and runs
-_SHARED: dict[tuple, np.ndarray] = {}
+_SHARED: dict[tuple[Args, int], np.ndarray] = {}
 
 
-def _rows(rows: list[tuple]) -> np.ndarray | None:
+def _rows(rows: list[Args]) -> np.ndarray | None:
     """(n, k) float64 from n tuples of k numbers (often one shared tuple: then a read-only
     array remembered in _SHARED, unless the tuple holds a zero, whose sign a look-up by
     equality could change); None if ragged."""
@@ -653,7 +661,7 @@ def _rows(rows: list[tuple]) -> np.ndarray | None:
     return None
 
 
-def _prior_args(site: Any, rows: list[tuple]) -> np.ndarray:
+def _prior_args(site: Site, rows: list[Args]) -> np.ndarray:
     args = _rows(rows)
     if args is None:
         raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
@@ -673,7 +681,7 @@ def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
     return out
 
 
-def check_run_options(n_particles: Any, seed: Any, max_modules: Any) -> None:
+def check_run_options(n_particles: object, seed: object, max_modules: object) -> None:
     """SMCOptionError for a particle count, seed or module cap that is not a fitting integer."""
     if isinstance(n_particles, bool) or not isinstance(n_particles, int | np.integer):
         raise SMCOptionError(f"the particle count must be an integer, got {n_particles!r}")
