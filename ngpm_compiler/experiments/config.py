@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
 SHAPE_MODELS = ("const", "local", "local+target", "all")
@@ -55,7 +55,6 @@ class EvalConfig:
     ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
     seed: int = 0
     stages: tuple[str, ...] = ("shape", "grids", "circuit", "chain", "report")
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
