@@ -5,7 +5,7 @@ circuits, chain) and write CSV files, PNG plots, README.md and report.md.
     ngpmc eval -o docs/results --work work/eval --traces work/vines/traces \\
         --guide-all work/vines/vines_guide.onnx    # the full run (docs/results/README.md)
     ngpmc eval -o OUT --stages heldout --heldout script=DIR,silhouettes=DIR \\
-        --heldout-guides bundled=GUIDE.onnx        # held-out sets (scripts/heldout_eval.sh)
+        --heldout-guides bundled=GUIDE.onnx        # held-out sets (scripts/expert_iteration.sh)
 """
 
 from __future__ import annotations
@@ -30,6 +30,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--work", type=argtypes.path, help="scratch directory (default: OUT/work)")
     p.add_argument("--quick", action="store_true",
                    help="CI-sized run: tiny N, 2 targets, models from a few fresh traces")
+    p.add_argument("--grammar", type=argtypes.path,
+                   help="the vines grammar (.lsys or *_sampler.py; default: the sampler bundled "
+                        "with ngpm_runtime)")
+    p.add_argument("--chain-grammar", type=argtypes.path,
+                   help="stage chain: the chain grammar (default: grammars/chain.lsys in the "
+                        "current folder, as in a checkout of the repository)")
     p.add_argument("--traces", type=argtypes.path,
                    help="shape-matching traces directory (`ngpmc traces`; default: tiny ones "
                         "made in --work)")
@@ -76,7 +82,8 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     else:
         cfg = EvalConfig(out=out, work=work)
     cfg.stages = tuple(args.stages)
-    for key in ("traces", "guide_all", "glyphs", "silhouettes", "n_glyphs", "n_silhouettes",
+    for key in ("grammar", "chain_grammar", "traces", "guide_all", "glyphs", "silhouettes",
+                "n_glyphs", "n_silhouettes",
                 "ns", "repeats", "workers", "circuit_traces", "circuit_repeats",
                 "unguided_ns", "backend", "ray_address"):
         v = getattr(args, key, None)
@@ -90,13 +97,11 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         v = getattr(cfg, key)
         if v is not None and not Path(v).exists():
             raise EvalError(f"--{key.replace('_', '-')} {v}: no such file or directory")
-    root = Path(__file__).resolve().parents[2]  # the repository, for the bundled grammars
-    for key in ("grammar", "chain_grammar"):
-        path = Path(getattr(cfg, key))
-        if not path.is_file() and (root / path).is_file():
-            setattr(cfg, key, str(root / path))
-        if not Path(getattr(cfg, key)).is_file():
-            raise EvalError(f"{path}: no such grammar (run from the repository root)")
+    needs = {"grammar": ("shape", "grids", "circuit"), "chain_grammar": ("chain",)}
+    for key, stages in needs.items():
+        path = getattr(cfg, key)
+        if set(stages) & set(cfg.stages) and not Path(path).is_file():
+            raise EvalError(f"{path}: no such grammar; give --{key.replace('_', '-')} PATH")
     return cfg
 
 
@@ -120,20 +125,19 @@ def log_line(text: str) -> None:
 
 def run_heldout_stage(args: argparse.Namespace) -> None:
     """`--stages heldout`: guides at N = 10 vs unguided N on the --heldout sets."""
+    from ngpm_runtime import bundled
+
     from ngpm_compiler.evaluation.heldout import run_heldout
 
     if not args.heldout:
         raise EvalError("stage heldout needs --heldout NAME=DIR,...")
     sets, guides = args.heldout, dict(args.heldout_guides)
     if not guides:
-        from ngpm_runtime import bundled
-
         guides = {"bundled": str(bundled.guide_path())}
     for path in [*sets.values(), *guides.values()]:
         if not Path(path).exists():
             raise EvalError(f"{path}: no such file or directory")
-    root = Path(__file__).resolve().parents[2]
-    grammar = str(root / "grammars" / "vines.lsys")
+    grammar = str(args.grammar or bundled.sampler_path())
     table = run_heldout(args.out, grammar, sets, guides, k=args.heldout_targets,
                         repeats=args.repeats or 3, workers=args.workers or 2,
                         unguided_ns=args.unguided_ns or (200, 600, 2000), seed=args.seed,

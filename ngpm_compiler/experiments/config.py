@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from ngpm_runtime.bundled import sampler_path
+
 SHAPE_MODELS = ("const", "local", "local+target", "all")
 
 
@@ -13,8 +15,8 @@ class EvalConfig:
     out: str  # results directory (CSV, PNG, report.md, README.md)
     work: str  # scratch directory (datasets, traces, models)
     quick: bool = False
-    grammar: str = "grammars/vines.lsys"
-    chain_grammar: str = "grammars/chain.lsys"
+    grammar: str = field(default_factory=lambda: str(sampler_path()))  # the bundled vines
+    chain_grammar: str = "grammars/chain.lsys"  # relative to the current folder
     traces: str | None = None  # canonical shape traces (None: make tiny ones in work/)
     guide_all: str | None = None  # reuse this .onnx as the all-features K=4 model
     glyphs: str | None = None  # glyph dataset dir (None: build into work/)
@@ -55,7 +57,6 @@ class EvalConfig:
     ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
     seed: int = 0
     stages: tuple[str, ...] = ("shape", "grids", "circuit", "chain", "report")
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)

@@ -100,7 +100,6 @@ class Checked:
     sites: list[Site]
     call_sites: dict[int, int]  # id(Call) -> site index
     derivation_length: int
-    derivation_length_given: bool
     angle: float
     viewport: tuple[float, float, float, float] | None
     start: tuple[float, float, float]
@@ -139,7 +138,6 @@ class Checker:
         self.constants: list[tuple[str, float, str, int]] = []
         self.arity: dict[str, int] = {}
         self.arity_origin: dict[str, str] = {}
-        self.pending_sites: list[tuple[tuple[int, int, int], dict, object]] = []
 
     def err(self, message: str, node: Node | tuple[int, int]) -> GrammarError:
         if isinstance(node, tuple):
@@ -531,7 +529,7 @@ class Checker:
         return Checked(
             self.g, self.name, self.constants, self.const_names, axiom, productions,
             interpretation, dict(self.arity), self.sites, self.call_sites,
-            self.derivation_length, "derivation length" in self.g.headers, self.angle,
+            self.derivation_length, self.angle,
             self.viewport, self.start, self.max_primitives, max_modules=self.max_modules,
         )
 

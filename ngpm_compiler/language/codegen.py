@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import textwrap
 
-from ngpm_runtime.program import HEADER_END, HEADER_START
+from ngpm_runtime.program import HEADER_END, HEADER_START, PROTOCOL
 
 from ngpm_compiler.language.checker import Alt, Checked, Group, Resolved, RuleSet
 from ngpm_compiler.language.errors import ErrorSink
@@ -62,8 +62,8 @@ class ModuleWriter:
         return text
 
     def docstring(self, texts: list[str], first: int, last: int, indent: str) -> list[str]:
-        """The .lsys lines, then `(file:first-last)` (derive.py reads it for its messages).
-        Rows are wrapped, then escaped: no text can end the docstring."""
+        """The .lsys lines, then `(file:first-last)`, for the reader (the runtime's messages
+        read LOCATIONS). Rows are wrapped, then escaped: no text can end the docstring."""
         where = f"({self.base}:{first})" if first == last else f"({self.base}:{first}-{last})"
         rows = []
         for text in texts:
@@ -156,6 +156,19 @@ class ModuleWriter:
             out.append(noqa(line))
         return out
 
+    def locations(self) -> list[str]:
+        """LOCATIONS: (line, col) of the axiom and of each production's and interpretation
+        rule's first alternative; the runtime names them in its error messages."""
+        c = self.c
+        axiom = c.grammar.axiom
+        items = [f"{q('axiom')}: {q((axiom.line, axiom.col))}"]
+        for kind, section in (("production", c.productions),
+                              ("interpretation", c.interpretation)):
+            for pred, rs in section.items():
+                first = min((a.rule.line, a.rule.col) for g in rs.groups for a in g.alts)
+                items.append(f"{q(f'{kind} {pred}')}: {q(first)}")
+        return ["LOCATIONS = {"] + [noqa(f"    {x},") for x in items] + ["}"]
+
     def program(self, prods: dict[str, str], interps: dict[str, str]) -> list[str]:
         c = self.c
 
@@ -179,11 +192,9 @@ class ModuleWriter:
             f"    start={q(tuple(float(v) for v in c.start))},",
             f"    max_primitives={q(c.max_primitives)},",
         ]
-        if c.max_modules is not None:  # only when the grammar sets it: older output unchanged
+        if c.max_modules is not None:
             lines.append(f"    max_modules={q(c.max_modules)},")
-        lines += [
-            ")",
-        ]
+        lines += ["    locations=LOCATIONS,", ")"]
         return [noqa(x) for x in lines]
 
     def write(self) -> str:
@@ -210,8 +221,10 @@ class ModuleWriter:
         if "math." in code:
             head += ["import math", ""]
         head.append("from ngpm_runtime.program import Program" + (", Site" if c.sites else ""))
+        protocol = f"PROTOCOL = {q(PROTOCOL)}  # the runtime refuses a module of another protocol"
+        head += ["", protocol]
         const = self.constants()
-        head += [""] + (const + [""] if const else []) + sites
+        head += [""] + (const + [""] if const else []) + sites + [""] + self.locations()
         return "\n".join(head) + "\n" + code + "\n"
 
 

@@ -5,14 +5,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import sys
-import types
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.program import Program, Site, load_program
+from ngpm_runtime.program import Program, Site, load_program, run_generated
 
 from ngpm_compiler.language.checker import Checked, check
 from ngpm_compiler.language.codegen import generate
@@ -40,12 +38,7 @@ class CompiledGrammar:
 
     def program(self) -> Program:
         """Execute the generated module and return its PROGRAM."""
-        modname = f"_ngpm_compiled_{self.name}_{self.grammar_hash[7:19]}"
-        module = types.ModuleType(modname)
-        module.__file__ = f"<{self.name}_sampler.py>"
-        sys.modules[modname] = module  # so worker processes can pickle its functions
-        exec(compile(self.source_code, module.__file__, "exec"), module.__dict__)
-        return module.PROGRAM
+        return run_generated(self.source_code, f"{self.name}_sampler.py")
 
 
 def grammar_name(filename: str) -> str:

@@ -11,7 +11,6 @@ from ngpm_compiler.language.tables import (
     FUNC_TEMPLATES,
     PREC,
     RANDOM_CALLS,
-    RANDOM_METHOD,
 )
 
 Literal = str | float | int | None | tuple
@@ -118,5 +117,5 @@ class ExprPrinter:
             site = q(self.sites[id(expr)])
             if kind == "categorical":
                 return f"ctx.categorical({site}, ({', '.join(args)}))"
-            return f"ctx.{RANDOM_METHOD[kind]}({site}, {', '.join(args)})"
+            return f"ctx.{kind}({site}, {', '.join(args)})"
         return FUNC_TEMPLATES[expr.name](args)

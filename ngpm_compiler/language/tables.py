@@ -12,8 +12,6 @@ from collections.abc import Callable
 PREC = {"or": 1, "and": 2, "not": 3, "<": 4, "<=": 4, ">": 4, ">=": 4, "==": 4, "!=": 4,
         "+": 5, "-": 5, "*": 6, "/": 6, "%": 6, "neg": 7, "atom": 9}
 BOOL_OPS = {"or", "and", "not", "<", "<=", ">", ">=", "==", "!="}
-RANDOM_METHOD = {"normal": "normal", "uniform": "uniform", "bernoulli": "bernoulli",
-                 "categorical": "categorical"}
 
 # Math functions: templates over the printed arguments. Angles are degrees.
 FUNC_TEMPLATES: dict[str, Callable[[list[str]], str]] = {

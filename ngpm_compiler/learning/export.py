@@ -3,8 +3,9 @@
 The graph holds every site network side by side: per site an input `f_<index>` (raw feature
 rows, float32, batch dimension `n_<index>`) and an output `p_<index>` (section-5 proposal
 parameters). The graph computes `SiteNet.forward` with few nodes (folded affine ops); torch
-and onnxruntime agree to float rounding (tests/test_export.py). onnxruntime needs every graph
-input fed, so the runtime feeds empty batches for the other sites and fetches only `p_<index>`.
+and onnxruntime agree to float rounding (tests/compiler/learning/test_export.py). onnxruntime
+needs every graph input fed, so the runtime feeds empty batches for the other sites and
+fetches only `p_<index>`.
 
 metadata_props: ngpm_format, grammar, grammar_hash, sites (site table JSON), features (feature
 set, per-site layout, widths and selected columns), nets (per-site kind / sizes), K, training.

@@ -39,6 +39,24 @@ def test_a_binary_file_is_refused_unrun(tmp_path: Path) -> None:
         load_program(path)
 
 
+@pytest.mark.parametrize("edit, words", [
+    (lambda code: code.replace("PROTOCOL = 1", "PROTOCOL = 99"), "sampler protocol 99"),
+    (lambda code: code.replace("PROTOCOL = 1", "PROTOCOL = 99").replace(
+        "locations=LOCATIONS", "nope=1"), "sampler protocol 99"),
+    (lambda code: code.replace("PROTOCOL = 1", ""), "sampler protocol None"),
+])
+def test_a_sampler_of_another_protocol_is_refused(tmp_path: Path, edit, words: str) -> None:
+    """Issue #21: generated modules carry a PROTOCOL constant; load_program refuses another
+    version in one line, even when that module's Program no longer fits this runtime's."""
+    path = tmp_path / "old_sampler.py"
+    path.write_text(edit(VINES_SAMPLER.read_text(encoding="utf-8")), encoding="utf-8")
+    with pytest.raises(ProgramError) as info:
+        load_program(path)
+    message = str(info.value)
+    assert words in message and "recompile the grammar" in message and "\n" not in message
+    assert message.startswith(str(path))
+
+
 def test_generated_samplers_still_load(tmp_path: Path) -> None:
     code = VINES_SAMPLER.read_text()
     assert code.startswith(HEADER_START)

@@ -2,6 +2,8 @@
 
 from ngpm_runtime.program import Program, Site
 
+PROTOCOL = 1  # the runtime refuses a module of another protocol
+
 # constants (vines.lsys:15-21)
 W0 = 0.75
 DECAY = 0.975
@@ -30,6 +32,19 @@ SITES = [
     Site(index=7, id="C2/choice", kind="categorical", name="choice of C2", module="C2", arity=1,
          k=2, probs=(0.5, 0.5), line=43, col=1, source="C2(w) --> [ B(w * DECAY) ] : 0.5 ..."),
 ]
+
+LOCATIONS = {
+    "axiom": (26, 8),
+    "production S": (30, 1),
+    "production B": (31, 1),
+    "production L": (32, 1),
+    "production Lf": (35, 1),
+    "production P": (36, 1),
+    "production T": (38, 1),
+    "production K": (40, 1),
+    "production C1": (41, 1),
+    "production C2": (43, 1),
+}
 
 
 def axiom(ctx):
@@ -157,4 +172,5 @@ PROGRAM = Program(
     viewport=(-12.0, 12.0, -22.0, 2.0),
     start=(0.0, 0.0, 90.0),
     max_primitives=5000,
+    locations=LOCATIONS,
 )

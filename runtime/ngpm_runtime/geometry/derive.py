@@ -13,7 +13,6 @@ derivation; `ilevel` > 0 a module produced by interpretation rules at that nesti
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from typing import Any
 
@@ -36,7 +35,6 @@ MAX_INTERP_DEPTH = 64
 # of grammars that expand without drawing (`A --> A A`). Grammar header `max modules:`, run
 # option `--max-modules`, `smc(..., max_modules=)`.
 DEFAULT_MAX_MODULES = 20_000  # the bundled grammars pop fewer than 30 per step
-DEFAULT_MAX_OPS = DEFAULT_MAX_MODULES  # its older name
 # Hard ceilings on one particle's whole derivation, whatever the grammar's headers or the run's
 # options say: modules expanded or interpreted, and primitives drawn. Past one, the run stops
 # with a ProgramError. The bundled vines pops fewer than 30 modules per primitive.
@@ -44,13 +42,10 @@ MAX_WORK = 10_000_000
 MAX_PRIMITIVES = 100_000
 
 # advance() outcomes
-DRAWN, NEED, DONE, LIMIT, PAUSED = 1, 2, 3, 4, 5
+DRAWN, NEED, DONE, LIMIT = 1, 2, 3, 4
 
 # dispatch codes per module name
 _IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
-
-_LINE = re.compile(r"\d+")
-_LOC = re.compile(r"\(([^()\s]+\.lsys):(\d+)(?:-\d+)?\)\s*$")  # a Program without `source`
 
 Node = tuple[Module, int, int, Any]  # a stack node (module, depth, ilevel, rest: Node | None)
 Args = tuple[float, ...]  # a site's prior arguments
@@ -171,17 +166,12 @@ AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
 MAX_CACHE = 200_000
 
 
-def _where(fn: Callable[..., Any], kind: str, mod: Module, base: str) -> str:
-    """'vines.lsys:24: production B(0.75)': the rule's line from the generated function's
-    docstring, which ends with `(vines.lsys:24)` (`base` is the grammar's file name)."""
-    doc = fn.__doc__ or ""
-    if base:
-        at = doc.rfind(f"({base}:")
-        m = _LINE.match(doc, at + len(base) + 2) if at >= 0 else None
-        loc = f"{printable(base)}:{m.group()}: " if m else ""
-    else:
-        m = _LOC.search(doc.strip().splitlines()[-1]) if doc.strip() else None
-        loc = f"{printable(m.group(1))}:{m.group(2)}: " if m else ""
+def _where(program: Program, base: str, kind: str, mod: Module) -> str:
+    """'vines.lsys:24: production B(0.75)': the rule's line from the program's `locations`
+    table (`base` is the grammar's file name)."""
+    key = "axiom" if mod[0] == AXIOM else f"{kind} {mod[0]}"
+    at = program.locations.get(key)
+    loc = f"{printable(base or program.name)}:{at[0]}: " if at else ""
     if mod[0] == AXIOM:
         return f"{loc}axiom"
     args = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in mod[1:])
@@ -194,7 +184,7 @@ class Deriver:
     depends only on the module and the values replayed; outcomes are memoized while those
     values are all discrete."""
 
-    def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_OPS,
+    def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_MODULES,
                  max_work: int | None = None) -> None:
         self.program = program
         self.base = str(program.source or "").replace("\\", "/").rsplit("/", 1)[-1]
@@ -205,7 +195,7 @@ class Deriver:
         self.interp = dict(program.interpretation)
         self.dlen = program.derivation_length
         self.angle = float(program.angle)
-        self.max_ops = max_ops
+        self.max_modules = max_ops
         self.ctx = ReplayCtx()
         self.dispatch: dict[str, int] = {}
         self.pcache: dict[object, Outcome] = {}
@@ -249,7 +239,7 @@ class Deriver:
         return succ
 
     def _where(self, fn: Callable[..., Any], kind: str, mod: Module) -> str:
-        return _where(fn, kind, mod, self.base)
+        return _where(self.program, self.base, kind, mod)
 
     def _check_prior(self, need: NeedSite, fn: Callable[..., Any], kind: str,
                      mod: Module) -> None:
@@ -274,13 +264,13 @@ class Deriver:
             cache[key] = res
         return res
 
-    def advance(self, p: Particle, peek: bool = False) -> int:
+    def advance(self, p: Particle) -> int:
         """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT.
 
         After drawing, the particle looks ahead: it goes on with its deterministic work up
         to its next request (then `p.need` is set), its next drawing symbol or its end (then
         `p.stack` is None), and still returns DRAWN; done before resampling, this work is
-        shared by the copies. With `peek`, it stops before drawing anything (PAUSED).
+        shared by the copies.
 
         Long because it is the derivation's hot loop: productions, interpretation rules and
         memoization are inlined; every turtle symbol goes through `turtle.interpret`, the one
@@ -291,7 +281,7 @@ class Deriver:
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
-        max_ops = min(self.max_ops, self.max_work - p.work)
+        max_ops = min(self.max_modules, self.max_work - p.work)
         angle = self.angle
         mod: Module = ()
         res: Outcome
@@ -363,9 +353,9 @@ class Deriver:
                         continue
                     code = self._turtle_code(name)
                 if code == _TURTLE:
-                    if peek and name in DRAWING:
+                    if drew and name in DRAWING:
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                        return DRAWN if drew else PAUSED
+                        return DRAWN
                     stack = rest
                     turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly, angle)
                     if prim is None:
@@ -375,7 +365,7 @@ class Deriver:
                     p.n_prims += 1
                     if p.n_prims > self.max_prims:
                         raise self._runaway(f"drew more than {self.max_prims} primitives")
-                    drew = peek = True
+                    drew = True
                     continue
                 stack = rest
                 if code == _CUT:

@@ -383,11 +383,6 @@ class Canvas:
         self._spare = [self.image, self.padded]
         self.image, self.padded = img, pad
 
-    def world_to_unit(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """World points as normalized image coords (u right, v down, [0, 1] inside)."""
-        xmin, xmax, ymin, ymax = self.viewport
-        return (np.asarray(x) - xmin) / (xmax - xmin), (ymax - np.asarray(y)) / (ymax - ymin)
-
 
 def bbox_of(prims: list[Prim]) -> np.ndarray:
     """World box (4,) = (xmin, ymin, xmax, ymax) of all prims; +-inf when there are none."""

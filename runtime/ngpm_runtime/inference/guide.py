@@ -348,13 +348,14 @@ class NumpyNet:
     """One site network evaluated in numpy, float32 like onnxruntime, from the weights in
     the ONNX file: `tanh(x[:, cols] @ W1' + b1)`, then `bounds * tanh(h @ W2' + b2)`, then
     the head (log-softmax over the first K mixture columns, softmax, or sigmoid): the graph
-    ngpm_compiler/export.py writes. Other graphs get no NumpyNet (onnxruntime runs them).
+    ngpm_compiler/learning/export.py writes. Other graphs get no NumpyNet (onnxruntime runs
+    them).
 
     Why: SMC's batches are small, and there a call costs a few numpy operations where
     onnxruntime's per-call overhead dominates (benchmarks/smc.py --nets prints both, from 1
     to 1000 rows); one engine for every batch size keeps a particle's proposal independent
-    of how many particles share its round. tests/test_guide.py checks it against
-    onnxruntime to 1e-5."""
+    of how many particles share its round. tests/runtime/inference/test_guide.py checks it
+    against onnxruntime to 1e-5."""
 
     def __init__(self, n_f: int, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                  w2: np.ndarray, b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:

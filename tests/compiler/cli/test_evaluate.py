@@ -148,3 +148,27 @@ def test_bad_options_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureF
     assert main(["eval", "--quick", "-o", str(tmp_path), "--ray-address", "auto"]) != 0
     err = capsys.readouterr().err
     assert "--ray-address needs --backend ray" in err and err.count("\n") == 1
+
+
+def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                           capsys: pytest.CaptureFixture) -> None:
+    """Issue #21: `ngpmc eval` found its grammars via the repository root, so an installed
+    package could not run it. The vines model now comes with ngpm_runtime; the chain grammar
+    is given on the command line (or found in the current folder)."""
+    from ngpm_runtime import bundled
+
+    from ngpm_compiler.cli import build_parser
+    from ngpm_compiler.cli.evaluate import config_from_args
+
+    monkeypatch.chdir(tmp_path)  # no grammars/ here
+    parse = build_parser().parse_args
+    cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "shape,report"]))
+    assert Path(cfg.grammar) == bundled.sampler_path()
+    assert main(["eval", "--quick", "-o", "r", "--stages", "chain"]) != 0
+    err = capsys.readouterr().err
+    assert "grammars/chain.lsys: no such grammar; give --chain-grammar" in err
+    assert err.count("\n") == 1
+    chain = str(REPO / "grammars" / "chain.lsys")
+    cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "chain",
+                                  "--chain-grammar", chain, "--grammar", "missing.lsys"]))
+    assert cfg.chain_grammar == chain and cfg.grammar == "missing.lsys"

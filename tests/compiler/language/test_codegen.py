@@ -313,3 +313,20 @@ def test_builtin_and_generated_names_as_constants_and_parameters(n: str) -> None
     assert prog.productions["A"](FixedCtx(), 3.0) == [("F", 6.0), ("B", 2.0, 10.0)]
     assert prog.productions["B"](FixedCtx(), 5.0, 4.0) == [("F", 12.0), ("A", 5.0)]
     assert prog.productions["A"](FixedCtx(), 1.0) is None
+
+
+def test_architecture_doc_shows_the_real_generated_module(monkeypatch) -> None:
+    """Issue #21: docs/architecture.md section 2 showed a hand-written module (with a
+    `Site(dist=...)` field that does not exist). Its example is an excerpt of a fresh compile
+    of the grammar it names: every run of lines between `...` lines appears, in order."""
+    doc = (REPO / "docs" / "architecture.md").read_text(encoding="utf-8")
+    section = doc[doc.index("## 2. The generated module"):]
+    block = section[section.index("```python\n") + 10:section.index("\n```\n")]
+    assert "grammars/vines.lsys" in block.splitlines()[0]
+    monkeypatch.chdir(REPO)
+    code = compile_grammar("grammars/vines.lsys").source_code
+    at = 0
+    for chunk in block.split("\n...\n"):
+        found = code.find(chunk.strip("\n"), at)
+        assert found >= 0, f"docs/architecture.md's example is stale here:\n{chunk}"
+        at = found + len(chunk.strip("\n"))

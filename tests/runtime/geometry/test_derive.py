@@ -137,29 +137,43 @@ def test_runaway_interpretation_recursion_raises() -> None:
 
 def test_errors_in_generated_code_name_module_and_line() -> None:
     def produce_a(ctx, w):
-        """A(w) --> F(1 / w)   (tiny.lsys:7)"""
         return [("F", 1.0 / w)]
 
-    prog = make_program({"A": produce_a}, axiom=[("A", 0.0)])
+    prog = make_program({"A": produce_a}, axiom=[("A", 0.0)], source="g/tiny.lsys",
+                        locations={"production A": (7, 1)})
     with pytest.raises(ProgramError, match=r"tiny\.lsys:7: production A.*ZeroDivisionError"):
         forward(prog)
 
     def produce_b(ctx):
-        """B --> F(sqrt(-1))   (tiny.lsys:9-10)"""
         return [("F", math.sqrt(-1.0))]
 
-    prog = make_program({"B": produce_b}, axiom=[("B",)])
+    prog = make_program({"B": produce_b}, axiom=[("B",)], source="tiny.lsys",
+                        locations={"production B": (9, 1)})
     with pytest.raises(ProgramError, match=r"tiny\.lsys:9: production B.*math domain"):
         forward(prog)
 
 
 def test_error_in_axiom_names_the_axiom() -> None:
     def axiom(ctx):
-        """Axiom: F(1 / 0)   (tiny.lsys:3)"""
         return [("F", 1 / 0)]
 
     with pytest.raises(ProgramError, match=r"^tiny\.lsys:3: axiom: ZeroDivisionError"):
-        forward(make_program({}, axiom=axiom))
+        forward(make_program({}, axiom=axiom, source="tiny.lsys", locations={"axiom": (3, 8)}))
+
+
+def test_error_locations_come_from_the_locations_table_not_docstrings() -> None:
+    """Issue #21: the deriver read rule lines back out of docstrings by regex; the generated
+    module now hands them over as its LOCATIONS table."""
+    def produce_a(ctx):
+        """A --> F(1 / 0)   (other.lsys:99)"""
+        return [("F", 1 / 0)]
+
+    prog = make_program({"A": produce_a}, source="grammars/tiny.lsys",
+                        locations={"production A": (7, 3)})
+    with pytest.raises(ProgramError, match=r"^tiny\.lsys:7: production A: ZeroDivision"):
+        forward(prog)
+    with pytest.raises(ProgramError, match=r"^production A: ZeroDivision"):
+        forward(make_program({"A": produce_a}, source="grammars/tiny.lsys"))
 
 
 def test_bad_successor_and_turtle_arguments_raise() -> None:

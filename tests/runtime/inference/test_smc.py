@@ -266,13 +266,13 @@ def test_options_are_checked() -> None:
 
 def test_errors_in_generated_code_surface_from_smc() -> None:
     def produce_a(ctx):
-        """A --> F(log(0))   (bad.lsys:3)"""
         import math
 
         return [("F", math.log(0.0))]
 
     with pytest.raises(ProgramError, match=r"bad\.lsys:3"):
-        smc(make_program({"A": produce_a}), SumXLikelihood(), 10)
+        smc(make_program({"A": produce_a}, source="bad.lsys",
+                         locations={"production A": (3, 1)}), SumXLikelihood(), 10)
 
 
 def test_finished_particles_wait() -> None:

@@ -2,6 +2,8 @@
 
 from ngpm_runtime.program import Program, Site
 
+PROTOCOL = 1  # the runtime refuses a module of another protocol
+
 # constants (bush.lsys:8-13)
 LEN = 3.0
 W0 = 0.6
@@ -23,6 +25,12 @@ SITES = [
     Site(index=4, id="interp:L/0/uniform0", kind="uniform", name="uniform(-40, 40) in L",
          module="L", arity=0, line=29, col=11, source="uniform(-40, 40)"),
 ]
+
+LOCATIONS = {
+    "axiom": (19, 8),
+    "production A": (23, 1),
+    "interpretation L": (29, 1),
+}
 
 
 def axiom(ctx):
@@ -87,4 +95,5 @@ PROGRAM = Program(
     viewport=(-7.0, 7.0, -1.0, 13.0),
     start=(0.0, 0.0, 90.0),
     max_primitives=3000,
+    locations=LOCATIONS,
 )

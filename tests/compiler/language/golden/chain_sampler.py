@@ -2,6 +2,8 @@
 
 from ngpm_runtime.program import Program, Site
 
+PROTOCOL = 1  # the runtime refuses a module of another protocol
+
 # constants (chain.lsys:6-8)
 N = 12.0
 LEN = 1.0
@@ -11,6 +13,11 @@ SITES = [
     Site(index=0, id="C(n>0)/0/normal0", kind="normal", name="gauss(0, TURN) in C", module="C",
          arity=1, line=18, col=20, source="gauss(0, TURN)"),
 ]
+
+LOCATIONS = {
+    "axiom": (14, 8),
+    "production C": (18, 1),
+}
 
 
 def axiom(ctx):
@@ -43,4 +50,5 @@ PROGRAM = Program(
     viewport=(-9.0, 9.0, -2.0, 16.0),
     start=(0.0, 0.0, 90.0),
     max_primitives=5000,
+    locations=LOCATIONS,
 )

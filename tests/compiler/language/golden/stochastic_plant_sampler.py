@@ -2,11 +2,18 @@
 
 from ngpm_runtime.program import Program, Site
 
+PROTOCOL = 1  # the runtime refuses a module of another protocol
+
 SITES = [
     Site(index=0, id="F/choice", kind="categorical", name="choice of F", module="F", arity=1, k=3,
          probs=(0.3333333333333333, 0.3333333333333333, 0.3333333333333333), line=15, col=1,
          source="F --> F[+F]F[-F]F : 1/3 | F[+F]F : 1/3 | F[-F]F : 1/3"),
 ]
+
+LOCATIONS = {
+    "axiom": (11, 8),
+    "production F": (15, 1),
+}
 
 
 def axiom(ctx):
@@ -56,4 +63,5 @@ PROGRAM = Program(
     viewport=(-25.0, 25.0, -2.0, 48.0),
     start=(0.0, 0.0, 90.0),
     max_primitives=5000,
+    locations=LOCATIONS,
 )
