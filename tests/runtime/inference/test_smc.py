@@ -12,8 +12,10 @@ from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
 from ngpm_runtime.inference.smc import (  # noqa: E402
     SiteOrder,
+    SMCObserver,
     SMCOptionError,
     SMCOptions,
+    SMCState,
     TraceRecording,
     forward,
     replay,
@@ -271,6 +273,10 @@ def test_options_are_checked() -> None:
         smc(prog, None, 5, options=SMCOptions(ess_threshold=1.5))
     with pytest.raises(SMCOptionError, match="'often'"):
         smc(prog, None, 5, options=SMCOptions(ess_threshold="often"))
+    with pytest.raises(SMCOptionError, match="not both"):
+        smc(prog, None, 5, options=SMCOptions(ess_threshold=0.5, ess_from_proposal=True))
+    with pytest.raises(SMCOptionError, match="TraceRecording"):
+        smc(prog, None, 5, options=SMCOptions(trace=True))
     with pytest.raises(SMCOptionError, match="differ"):
         smc(prog, None, 5, options=SMCOptions(target_mask=np.zeros((40, 40), bool)))
 
@@ -426,3 +432,51 @@ def test_site_order_closure_matches_brute_force() -> None:
         free = [k for k in waiting if not any(k in reach[a] for a in waiting if a != k)]
         want = max(free or waiting, key=lambda k: (len(waiting[k]), -k))
         assert order.pick(waiting) == want
+
+
+class Lineage(SMCObserver):
+    """Counts, in a registered per-particle array, the steps each particle drew in."""
+
+    def __init__(self) -> None:
+        self.steps = self.resamples = self.values = 0
+        self.state: SMCState | None = None
+
+    def site_drawn(self, site, idx, values) -> None:
+        self.values += len(values)
+
+    def step_done(self, state: SMCState) -> None:
+        self.steps += 1
+        self.state = state
+        counts = state.arrays.get("draws")
+        if counts is None:
+            counts = state.register("draws", np.zeros(state.n, dtype=np.int64))
+        counts[state.drawn] += 1
+
+    def resampled(self, ancestors) -> None:
+        self.resamples += 1
+
+
+def test_observers_watch_without_changing_the_run(vines) -> None:
+    """Same seed, same run with or without observers; registered arrays follow resampling
+    (each final particle drew in as many steps as it has primitives)."""
+    plain = run_vines(vines, n=20, seed=5)
+    obs = Lineage()
+    seen = run_vines(vines, n=20, seed=5, observers=[obs])
+    assert np.array_equal(seen.log_weights, plain.log_weights)
+    assert [p.primitives for p in seen.particles] == [p.primitives for p in plain.particles]
+    assert obs.steps == seen.steps and obs.resamples == seen.info["resamples"] > 0
+    assert obs.values > 0 and obs.state is not None
+    draws = obs.state.arrays["draws"]
+    assert draws.tolist() == [len(p.primitives) for p in seen.particles]
+
+
+def test_an_observer_that_raises_stops_the_run(vines) -> None:
+    class Stop(SMCObserver):
+        def step_done(self, state: SMCState) -> None:
+            if state.steps == 3:
+                raise RuntimeError("stop here")
+
+    with pytest.raises(RuntimeError, match="stop here"):
+        run_vines(vines, n=5, observers=[Stop()])
+    with pytest.raises(SMCOptionError, match="one per particle"):
+        SMCState(3, np.zeros(3)).register("x", np.zeros(2))
