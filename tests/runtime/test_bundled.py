@@ -156,14 +156,15 @@ SCRIPT = textwrap.dedent(
     """
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
+    from ngpm_runtime.inference.smc import SMCOptions, smc
 
     program = bundled_program()
     guide = bundled_guide(program)
     target = demo_targets()[1]
     vp = program.viewport
-    result = smc(program, ShapeLikelihood(target.mask, vp), 4, proposal=guide, seed=0,
-                 start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
+    options = SMCOptions(ess_from_proposal=True, start=target.start_pose(vp),
+                         canvas_size=target.size, target_mask=target.mask)
+    result = smc(program, ShapeLikelihood(target.mask, vp), 4, guide, options)
     assert result.best.primitives
     """
 )
