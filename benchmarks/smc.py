@@ -75,12 +75,13 @@ def held_out_targets(n_glyphs: int, n_silhouettes: int) -> list[tuple[str, Any]]
 def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict[str, float]:
     from ngpm_runtime.image.raster import rasterize
     from ngpm_runtime.inference.likelihood import ShapeLikelihood, similarity
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, smc
 
     vp = program.viewport
     t0, c0 = time.perf_counter(), time.process_time()
-    res = smc(program, ShapeLikelihood(target.mask, vp), n, proposal=proposal, seed=seed,
-              start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
+    res = smc(program, ShapeLikelihood(target.mask, vp), n, proposal,
+              options=SMCOptions(ess_from_proposal=True, seed=seed, start=target.start_pose(vp),
+                                 canvas_size=target.size, target_mask=target.mask))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     sim = similarity(rasterize(res.best.primitives, vp, *target.size), target.mask)
     return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
@@ -180,7 +181,7 @@ def breakdown(program: Any, guide: Any, targets: list) -> None:
     """CPU time per part of guided N=10 steps (wrapped timers), per step and per call."""
     import importlib
 
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, smc
 
     acc: dict[str, list[float]] = {}
     saved = []
@@ -203,9 +204,10 @@ def breakdown(program: Any, guide: Any, targets: list) -> None:
     try:
         for seed in range(2):
             for _, t in targets:
-                steps += smc(program, _like(program, t), 10, proposal=guide, seed=seed,
-                             start=t.start_pose(program.viewport), canvas_size=t.size,
-                             target_mask=t.mask).steps
+                steps += smc(program, _like(program, t), 10, guide,
+                             options=SMCOptions(ess_from_proposal=True, seed=seed,
+                                                start=t.start_pose(program.viewport),
+                                                canvas_size=t.size, target_mask=t.mask)).steps
     finally:
         for obj, attr, fn in saved:
             setattr(obj, attr, fn)
@@ -247,9 +249,9 @@ def nets(guide: Any) -> None:
 
 def trace_jobs(program: Any, targets: list) -> None:
     """The 600-particle trace job (traces.run_job) and the same run with features for
-    every particle (record_trace=True), CPU seconds per job."""
+    every particle (trace=TraceRecording.FULL), CPU seconds per job."""
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
     from ngpm_compiler.learning.traces import run_job
 
@@ -259,8 +261,9 @@ def trace_jobs(program: Any, targets: list) -> None:
         c0 = time.process_time()
         run_job(program, t, 5, 600)
         c1 = time.process_time()
-        smc(program, ShapeLikelihood(t.mask, vp), 600, seed=5, record_trace=True,
-            start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask)
+        smc(program, ShapeLikelihood(t.mask, vp), 600,
+            options=SMCOptions(seed=5, trace=TraceRecording.FULL,
+                               start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask))
         c2 = time.process_time()
         job.append(c1 - c0)
         full.append(c2 - c1)

@@ -117,15 +117,15 @@ def test_compile_grammar_refuses_huge_grammars_at_once(tmp_path: Path) -> None:
 
 
 def test_smc_rejects_a_fractional_particle_count_and_bad_seeds() -> None:
-    from ngpm_runtime.inference.smc import SMCOptionError, smc
+    from ngpm_runtime.inference.smc import SMCOptionError, SMCOptions, smc
 
     program = bundled.bundled_program()
     with pytest.raises(SMCOptionError, match="particle count must be an integer, got 2.5"):
         smc(program, None, 2.5)
     with pytest.raises(SMCOptionError, match="seed must be a non-negative integer, got -1"):
-        smc(program, None, 2, seed=-1)
+        smc(program, None, 2, options=SMCOptions(seed=-1))
     with pytest.raises(SMCOptionError, match="max_modules must be an integer >= 1"):
-        smc(program, None, 2, max_modules=0)
+        smc(program, None, 2, options=SMCOptions(max_modules=0))
 
 
 def test_generate_traces_without_viewport(tmp_path: Path) -> None:

@@ -406,6 +406,19 @@ def _grow_guide(choice: str | None, program: Program, likelihood: str) -> Any:
     return guide
 
 
+def _step_ticks(bar: Any) -> Any:
+    """An SMC observer that ticks `bar` once per step that drew (imported late: the CLI
+    starts without the SMC modules)."""
+    from ngpm_runtime.inference.smc import SMCObserver, SMCState
+
+    class StepTicks(SMCObserver):
+        def step_done(self, state: SMCState) -> None:
+            if state.drawn:
+                bar.update(1)
+
+    return StepTicks()
+
+
 def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_runtime import bundled
     from ngpm_runtime.image.targets import load_target
@@ -437,7 +450,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
 
     with Progress("grow", unit="step", delay=1.0, leave=False) as bar:
         res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-                   on_step=lambda *_: bar.update(1), max_modules=args.max_modules)
+                   observers=(_step_ticks(bar),), max_modules=args.max_modules)
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
     score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else

@@ -49,8 +49,10 @@ def circuit_once(program: Any, proposal: Any, n: int, seed: int, record: bool = 
                  ) -> tuple[float, float, Any]:
     """SMC under the circuit likelihood; (score of the best particle, seconds, best)."""
     from ngpm_runtime.grow import grow
+    from ngpm_runtime.inference.smc import TraceRecording
 
-    res = grow(program, None, proposal, n, seed, "circuit", record_trace=record,
+    trace = TraceRecording.FULL if record else TraceRecording.NONE
+    res = grow(program, None, proposal, n, seed, "circuit", trace=trace,
                start=circuit_start(program.viewport), canvas_size=CIRCUIT_SIZE)
     return circuit_score(res.image), res.seconds, res.smc.best
 

@@ -122,10 +122,10 @@ def run_job(program: Program, target: Any, seed: int, particles: int, guide: Any
     to compute its features (the same rows a run with features for every particle gives)."""
     from ngpm_runtime.errors import ProgramError
     from ngpm_runtime.grow import grow
-    from ngpm_runtime.inference.smc import replay
+    from ngpm_runtime.inference.smc import TraceRecording, replay
 
     start = target.start_pose(program.viewport)
-    best = grow(program, target, guide, particles, seed, record_trace="values",
+    best = grow(program, target, guide, particles, seed, trace=TraceRecording.VALUES,
                 max_modules=max_modules).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     again = replay(program, values, start=start, canvas_size=target.size,

@@ -18,7 +18,7 @@ as `ngpmc grow` does: size checked from the header first, an animation's first f
 holds a shape), at most `Limits.max_runs` at once. SMC runs in a worker thread, one run per
 client address (not per anything the client declares) and at most `Limits.max_runs` at
 once; a run stops at its time limit or when its client goes away (checked at every SMC
-step through `grow(..., on_step=...)`). A request's JSON is bounded in size, depth and
+step through `grow(..., observers=...)`). A request's JSON is bounded in size, depth and
 count of values; its line, headers and body must arrive within `Limits.request_timeout_s`
 (`DeadlineProtocol`), and uvicorn answers 503 beyond `Limits.max_connections`.
 """
@@ -37,13 +37,14 @@ import socket
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from ngpm_runtime.errors import GuideError, NgpmError, TargetError
+from ngpm_runtime.inference.smc import SMCObserver, SMCState
 from ngpm_runtime.program import Program
 from PIL import Image
 from starlette.applications import Starlette
@@ -386,7 +387,7 @@ def _target_message(err: TargetError) -> str:
 
 
 class RunStopped(Exception):
-    """Raised inside SMC (from on_step) to end a run early."""
+    """Raised inside SMC (by the RunCheck observer) to end a run early."""
 
 
 @dataclass
@@ -467,36 +468,42 @@ def prim_json(p: tuple) -> list[Any]:
     return [p[0], *(round(float(v), 4) for v in p[1:])]
 
 
-class FrameStream:
-    """`on_step` for grow(): after every SMC step, the primitives of the best partial vine
-    (highest likelihood so far) as a `frame` event, only what is new since the last one.
+class RunCheck(SMCObserver):
+    """Stops the run (RunStopped) after a step once it is cancelled or out of time."""
 
-    Each particle's primitives are kept as a cons list in an object array inside the
-    likelihood state, so SMC's resampling (which indexes every state array with the
-    ancestors) carries them along."""
-
-    KEY = "_web_prims"
-
-    def __init__(self, emit: Callable[[str, dict[str, Any]], None], run: Run) -> None:
-        self.emit = emit
+    def __init__(self, run: Run) -> None:
         self.run = run
+
+    def step_done(self, state: SMCState) -> None:
+        if state.drawn:
+            self.run.check()
+
+
+class FrameStream(SMCObserver):
+    """After every SMC step that drew, the primitives of the best partial vine (highest
+    log-likelihood so far) as a `frame` event, only what is new since the last one.
+
+    Each particle's primitives are kept as a cons list in an object array registered in the
+    run's per-particle state, so SMC's resampling carries them along."""
+
+    KEY = "web_prims"
+
+    def __init__(self, emit: Callable[[str, dict[str, Any]], None]) -> None:
+        self.emit = emit
         self.sent: tuple | None = None  # the cons cell of the last frame
         self.steps = 0
         self.t0 = time.perf_counter()
 
-    def __call__(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> None:
-        self.run.check()
+    def step_done(self, state: SMCState) -> None:
+        if not state.drawn:
+            return
         self.steps += 1
-        idx = np.asarray(draw.idx).tolist()
-        cells = state.get(self.KEY)
+        cells = state.arrays.get(self.KEY)
         if cells is None:
-            n = canvas.n if canvas is not None else len(state["ll"])
-            cells = np.empty(n, dtype=object)
-            state[self.KEY] = cells
-        for i, p in zip(idx, draw.prims, strict=True):
+            cells = state.register(self.KEY, np.empty(state.n, dtype=object))
+        for i, p in zip(state.drawn, state.prims, strict=True):
             cells[i] = (p, cells[i])
-        ll = state.get("ll")
-        best = int(np.argmax(np.nan_to_num(ll, nan=-np.inf))) if ll is not None else idx[0]
+        best = int(np.argmax(np.nan_to_num(state.log_likelihood, nan=-np.inf)))
         node = cells[best]
         new: list[tuple] = []
         cur = node
@@ -512,12 +519,12 @@ class FrameStream:
                             "prims": [prim_json(p) for p in reversed(new)]})
 
 
-def _grow(job: Job, on_step: Callable[..., None]) -> Any:
+def _grow(job: Job, observers: Sequence[SMCObserver] = ()) -> Any:
     """The one call of grow() (it moves to the runtime as ngpm_runtime.grow)."""
     from ngpm_runtime import grow
 
     return grow(job.grammar.program, job.target, job.guide.guide if job.guide else None,
-                job.particles, job.seed, "shape", on_step=on_step)
+                job.particles, job.seed, "shape", observers=observers)
 
 
 def png_data_url(rgb: np.ndarray) -> str:
@@ -566,8 +573,8 @@ def run_job(job: Job, run: Run, slots: RunSlots,
     final: tuple[str, dict[str, Any]]
     try:
         emit("target", target_event(job))
-        frames = FrameStream(emit, run)
-        res = _grow(job, frames)
+        frames = FrameStream(emit)
+        res = _grow(job, (RunCheck(run), frames))
         final = ("done", done_event(job, res, frames.steps))
     except RunStopped as err:
         final = ("error", {"error": str(err)})
@@ -770,7 +777,7 @@ def warm_up(config: WebConfig) -> None:
         target = load_target(bundled.demo_target_path("heart"), config.limits.target_size)
         for g in config.grammars:
             job = Job(g, g.guides[0] if g.guides else None, target, 2, 0)
-            done_event(job, _grow(job, lambda *_: None), 0)
+            done_event(job, _grow(job), 0)
     except Exception as err:  # a warm-up problem is not worth refusing to start over
         log.warning("warm-up run failed: %s", err)
 

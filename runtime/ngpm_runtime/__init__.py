@@ -40,6 +40,10 @@ _EXPORTS = {
     "SMCResult": "ngpm_runtime.inference.smc",
     "FinalParticle": "ngpm_runtime.inference.smc",
     "SMCOptionError": "ngpm_runtime.inference.smc",
+    "SMCOptions": "ngpm_runtime.inference.smc",
+    "SMCObserver": "ngpm_runtime.inference.smc",
+    "SMCState": "ngpm_runtime.inference.smc",
+    "TraceRecording": "ngpm_runtime.inference.smc",
 }
 
 __all__ = sorted([*_EXPORTS, "grow", "GrowResult"])

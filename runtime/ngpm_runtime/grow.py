@@ -7,9 +7,9 @@ the same program, target, guide, particle count and seed gives the same vine eve
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,7 +23,13 @@ from ngpm_runtime.inference.likelihood import (
     similarity,
 )
 from ngpm_runtime.inference.proposals import Proposal
-from ngpm_runtime.inference.smc import SMCResult, smc
+from ngpm_runtime.inference.smc import (
+    SMCObserver,
+    SMCOptions,
+    SMCResult,
+    TraceRecording,
+    smc,
+)
 from ngpm_runtime.program import Program
 
 if TYPE_CHECKING:  # targets loads PIL: only when a target is made
@@ -43,25 +49,6 @@ class GrowResult:
     primitives: list[Prim]
     image: np.ndarray  # (H, W) uint8 raster of the best particle
     smc: SMCResult
-
-
-class _Ticking:
-    """A likelihood that defers to `inner`, then calls `on_step(state, canvas, draw)`."""
-
-    def __init__(self, inner: Likelihood, on_step: Callable[..., None]) -> None:
-        self.inner = inner
-        self.on_step = on_step
-
-    def start(self, n: int) -> dict[str, np.ndarray]:
-        return self.inner.start(n)
-
-    def increment(self, state: dict[str, np.ndarray], canvas: Any, draw: Any) -> np.ndarray:
-        inc = self.inner.increment(state, canvas, draw)
-        self.on_step(state, canvas, draw)
-        return inc
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
 
 
 def _viewport(program: Program) -> Viewport:
@@ -84,7 +71,7 @@ def make_likelihood(kind: str, program: Program, target: Target | None = None) -
 
 def grow(program: Program, target: Target | None = None, guide: Proposal | None = None,
          n_particles: int = 10, seed: int = 0, likelihood: str = "shape", *,
-         on_step: Callable[..., None] | None = None, record_trace: bool | str = False,
+         observers: Sequence[SMCObserver] = (), trace: TraceRecording = TraceRecording.NONE,
          start: tuple[float, float, float] | None = None,
          canvas_size: tuple[int, int] | None = None,
          max_modules: int | None = None) -> GrowResult:
@@ -92,27 +79,24 @@ def grow(program: Program, target: Target | None = None, guide: Proposal | None 
 
     target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
     circuit likelihood. likelihood: "shape" (match the target) or "circuit" (the target,
-    optional, only gives the start pose and the target features). on_step: called after
-    every SMC step's likelihood increment as `on_step(state, canvas, draw)` (the likelihood's
-    per-particle state, the canvas, the step's draw batch with `.idx` and `.prims`); it may
-    raise to stop the run (a progress bar, live frames). record_trace, start (world pose
-    overriding the target's), canvas_size (default: the target's size) and max_modules (the
-    grammar's "max modules" cap, overridden) go to `smc`, which resamples as the guide's
-    settings say (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
+    optional, only gives the start pose and the target features). observers: SMC
+    observers (a progress bar, live frames, a time limit; one may raise to stop the run).
+    trace (what each particle's trace records), start (world pose overriding the target's),
+    canvas_size (default: the target's size) and max_modules (the grammar's "max modules"
+    cap, overridden) go to `smc`, which resamples as the guide's settings say
+    (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
     """
     viewport = _viewport(program)
     like: Likelihood = make_likelihood(likelihood, program, target)
-    if on_step is not None:
-        like = _Ticking(like, on_step)
     mask = target.mask if target is not None else None
     if canvas_size is None:
         canvas_size = target.size if target is not None else DEFAULT_CANVAS
     if start is None and target is not None:
         start = target.start_pose(viewport)
     t0 = time.perf_counter()
-    result = smc(program, like, n_particles, proposal=guide, seed=seed,
-                 record_trace=record_trace, start=start, canvas_size=canvas_size,
-                 target_mask=mask, max_modules=max_modules)
+    options = SMCOptions(seed=seed, ess_from_proposal=True, trace=trace, start=start,
+                         canvas_size=canvas_size, target_mask=mask, max_modules=max_modules)
+    result = smc(program, like, n_particles, guide, options, observers)
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
     image = rasterize(prims, viewport, *canvas_size)

@@ -156,14 +156,15 @@ SCRIPT = textwrap.dedent(
     """
     from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, smc
 
     program = bundled_program()
     guide = bundled_guide(program)
     target = demo_targets()[1]
     vp = program.viewport
-    result = smc(program, ShapeLikelihood(target.mask, vp), 4, proposal=guide, seed=0,
-                 start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask)
+    options = SMCOptions(ess_from_proposal=True, start=target.start_pose(vp),
+                         canvas_size=target.size, target_mask=target.mask)
+    result = smc(program, ShapeLikelihood(target.mask, vp), 4, guide, options)
     assert result.best.primitives
     """
 )
@@ -181,7 +182,7 @@ def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> 
     log likelihood - log q, with log q recomputed site by site from its trace."""
     from ngpm_runtime.inference.distributions import proposal_logpdf
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
     program = bundled.bundled_program()
     guide = bundled.bundled_guide(program)
@@ -189,17 +190,19 @@ def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> 
     vp = program.viewport
 
     def run():
-        return smc(program, ShapeLikelihood(target.mask, vp), 10, proposal=guide, seed=3,
-                   start=target.start_pose(vp), canvas_size=target.size,
-                   target_mask=target.mask, record_trace=True, max_steps=12)
+        return smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
+                   options=SMCOptions(ess_from_proposal=True, seed=3, start=target.start_pose(vp),
+                                      canvas_size=target.size, target_mask=target.mask,
+                                      trace=TraceRecording.FULL, max_steps=12))
 
     a, b = run(), run()
     np.testing.assert_array_equal(a.log_weights, b.log_weights)
     assert [p.primitives for p in a.particles] == [p.primitives for p in b.particles]
     # no resampling (ESS never below 1e-9 N): check every weight site by site
-    one = smc(program, ShapeLikelihood(target.mask, vp), 10, proposal=guide, seed=3,
-              start=target.start_pose(vp), canvas_size=target.size, target_mask=target.mask,
-              record_trace=True, max_steps=4, ess_threshold=1e-9)
+    one = smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
+              options=SMCOptions(seed=3, start=target.start_pose(vp), canvas_size=target.size,
+                                 target_mask=target.mask, trace=TraceRecording.FULL,
+                                 max_steps=4, ess_threshold=1e-9))
     assert one.info["resamples"] == 0
     for p in one.particles:
         log_q = 0.0
@@ -221,7 +224,7 @@ def test_guided_run_with_remembered_feature_rows_equals_fresh_rows(monkeypatch) 
     same weights, primitives and trace feature rows, bit for bit."""
     from ngpm_runtime.image.features import FeatureMaker
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import smc
+    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
     program = bundled.bundled_program()
     guide = bundled.bundled_guide(program)
@@ -229,9 +232,10 @@ def test_guided_run_with_remembered_feature_rows_equals_fresh_rows(monkeypatch) 
     vp = program.viewport
 
     def run():
-        return smc(program, ShapeLikelihood(target.mask, vp), 10, proposal=guide, seed=5,
-                   start=target.start_pose(vp), canvas_size=target.size,
-                   target_mask=target.mask, record_trace=True, max_steps=15)
+        return smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
+                   options=SMCOptions(ess_from_proposal=True, seed=5, start=target.start_pose(vp),
+                                      canvas_size=target.size, target_mask=target.mask,
+                                      trace=TraceRecording.FULL, max_steps=15))
 
     cached = run()
 

@@ -16,11 +16,11 @@ SCRIPT = textwrap.dedent(
     import ngpm_runtime
     for info in pkgutil.walk_packages(ngpm_runtime.__path__, "ngpm_runtime."):
         importlib.import_module(info.name)
-    from ngpm_runtime import forward, load_program, smc, PriorProposal, SMCResult
+    from ngpm_runtime import forward, load_program, smc, PriorProposal, SMCOptions, SMCResult
     program = load_program(sys.argv[1])
     particle = forward(program, seed=1)
     assert particle.primitives, particle
-    result = smc(program, None, 8, proposal=PriorProposal(), seed=2)
+    result = smc(program, None, 8, PriorProposal(), SMCOptions(seed=2))
     assert isinstance(result, SMCResult)
     from ngpm_runtime import bundled, grow
     target = bundled.demo_targets()[2]

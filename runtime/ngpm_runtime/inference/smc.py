@@ -10,18 +10,23 @@ increments applied and, every step or when the ESS drops below `ess_threshold * 
 particles are resampled. Weights carry `log prior - log q` of every site, so any proposal
 gives a correct answer.
 
-The parts: `smc()` checks options and builds a `_Run`; `_Run.step` derives (`_derive`),
-serves the waiting sites (`_serve`, `_weigh_sites`), rasterizes and applies the likelihood
-(`_observe`) and resamples (`_resample`); `Population` holds the particles and weights.
+The parts: `smc()` checks its `SMCOptions` and builds a `_Run`; `_Run.step` derives
+(`_derive`), serves the waiting sites (`_serve`, `_weigh_sites`), rasterizes and applies the
+likelihood (`_observe`) and resamples (`_resample`); `Population` holds the particles and
+weights. Observers (`SMCObserver`: progress, live frames, time limits) watch from outside:
+they hear of every served site, every finished step and every resampling, and keep their
+own per-particle arrays in the run's `SMCState`, which resampling carries along.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import Enum
 from itertools import chain
-from typing import Any, cast
+from typing import Any, Protocol, cast, runtime_checkable
 
 import numpy as np
 
@@ -47,6 +52,95 @@ from ngpm_runtime.program import Program, Site
 
 class SMCOptionError(NgpmError):
     """An SMC option has a value that cannot be used."""
+
+
+class TraceRecording(Enum):
+    """What each particle's trace records: nothing, (site, None, value) at no feature cost
+    (`replay` adds the features afterwards), or (site, features, value)."""
+
+    NONE = "none"
+    VALUES = "values"
+    FULL = "full"
+
+
+@dataclass(frozen=True, eq=False)
+class SMCOptions:
+    """How `smc()` runs. ess_threshold: a fraction of N, resample only when ESS <
+    ess_threshold * N (None: every step); ess_from_proposal: use the proposal's own
+    `settings.ess_threshold` instead (a tuned Guide carries one; a proposal without settings
+    resamples every step). max_primitives overrides `program.max_primitives`, max_modules
+    `program.max_modules` (modules one particle may expand or interpret in one step)."""
+
+    seed: int = 0
+    resample: str = "residual"
+    ess_threshold: float | None = None
+    ess_from_proposal: bool = False
+    trace: TraceRecording = TraceRecording.NONE
+    start: tuple[float, float, float] | None = None
+    canvas_size: tuple[int, int] = (50, 50)
+    target_mask: np.ndarray | None = None
+    max_steps: int | None = None
+    max_primitives: int | None = None
+    max_modules: int | None = None
+
+
+class SMCState:
+    """What observers see of a run: the particle count, the steps so far, each particle's
+    log-likelihood, the particles that drew in this step with their new primitives, and the
+    per-particle arrays observers registered (resampling indexes every one of them)."""
+
+    def __init__(self, n: int, log_likelihood: np.ndarray) -> None:
+        self.n = n
+        self.steps = 0
+        self.log_likelihood = log_likelihood
+        self.drawn: list[int] = []
+        self.prims: list[Prim] = []
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def register(self, name: str, array: np.ndarray) -> np.ndarray:
+        """Keep `array` (one entry per particle) as `arrays[name]`, resampled with the
+        particles; returns it."""
+        if len(array) != self.n:
+            raise SMCOptionError(f"per-particle array {name!r} has {len(array)} entries, "
+                                 f"not one per particle ({self.n})")
+        self.arrays[name] = array
+        return array
+
+
+class SMCObserver:
+    """Watches a run from outside (no-op defaults; subclass and override). An exception
+    raised here ends the run (a time limit, a cancelled request)."""
+
+    def site_drawn(self, site: Site, idx: list[int], values: list[float]) -> None:
+        """Particles `idx` drew `values` at `site`."""
+
+    def step_done(self, state: SMCState) -> None:
+        """A step's primitives are drawn and weighed (before any resampling)."""
+
+    def resampled(self, ancestors: np.ndarray) -> None:
+        """Particle k became old particle ancestors[k] (`state.arrays` already follow)."""
+
+
+class _HasEss(Protocol):
+    ess_threshold: float | None
+
+
+@runtime_checkable
+class Tuned(Protocol):
+    """A proposal that carries settings (a Guide's `ProposalSettings`)."""
+
+    settings: _HasEss
+
+
+def proposal_ess(proposal: Proposal | None) -> float | None:
+    """The ESS threshold a proposal's settings ask for (None: resample every step)."""
+    return proposal.settings.ess_threshold if isinstance(proposal, Tuned) else None
+
+
+def take_arrays(arrays: dict[str, np.ndarray], anc: np.ndarray) -> None:
+    """Resampling of per-particle arrays: entry k becomes old entry anc[k]."""
+    for key in arrays:
+        arrays[key] = arrays[key][anc]
 
 
 @dataclass
@@ -91,7 +185,8 @@ def forward(
     max_modules: int | None = None,
 ) -> FinalParticle:
     """One prior sample of the program: SMC with one particle and no likelihood."""
-    return smc(program, None, 1, seed=seed, start=start, max_modules=max_modules).particles[0]
+    options = SMCOptions(seed=seed, start=start, max_modules=max_modules)
+    return smc(program, None, 1, options=options).particles[0]
 
 
 def smc(
@@ -99,39 +194,22 @@ def smc(
     likelihood: Likelihood | None,
     n_particles: int,
     proposal: Proposal | None = None,
-    seed: int = 0,
-    resample: str = "residual",
-    ess_threshold: float | str | None = "proposal",
-    record_trace: bool | str = False,
-    start: tuple[float, float, float] | None = None,
-    canvas_size: tuple[int, int] = (50, 50),
-    target_mask: np.ndarray | None = None,
-    max_steps: int | None = None,
-    max_primitives: int | None = None,
-    max_modules: int | None = None,
+    options: SMCOptions = SMCOptions(),
+    observers: Sequence[SMCObserver] = (),
 ) -> SMCResult:
     """Run SMC; `likelihood=None` (or a NullLikelihood) means no likelihood, no canvas.
 
     A likelihood with `needs_canvas = False` gets, instead of raster's DrawBatch, a
     `PrimBatch` (idx, bbox, prims); with a canvas, the DrawBatch also carries `.prims`.
-
-    `ess_threshold` is a fraction of N: resample only when ESS < ess_threshold * N
-    (None: every step; "proposal", the default: the proposal's `settings.ess_threshold`, which
-    a tuned Guide carries, else every step). `max_primitives` overrides
-    `program.max_primitives`, `max_modules` `program.max_modules` (modules one particle may
-    expand or interpret in one step).
-    `record_trace=True` records every particle's trace with features; `"values"` records
-    (site, None, value) only, at no feature cost (`replay` adds the features afterwards).
+    `options` (SMCOptions) holds the seed, resampling, trace recording, canvas and caps;
+    `observers` watch the run (SMCObserver).
     """
     t0 = time.perf_counter()
-    check_run_options(n_particles, seed, max_modules)
+    check_run_options(n_particles, options.seed, options.max_modules)
     n = int(n_particles)
-    if ess_threshold == "proposal":
-        ess_threshold = getattr(getattr(proposal, "settings", None), "ess_threshold", None)
-    threshold = _check_options(n, resample, record_trace, ess_threshold, target_mask,
-                               canvas_size)
-    run = _Run(program, likelihood, n, proposal, seed, resample, record_trace, start,
-               canvas_size, target_mask, max_primitives, module_cap(program, max_modules))
+    threshold = _check_options(n, proposal, options)
+    run = _Run(program, likelihood, n, proposal, options, tuple(observers))
+    max_steps = options.max_steps
     while run.pop.live:
         if max_steps is not None and run.steps >= max_steps:
             for i in run.pop.live:
@@ -142,26 +220,28 @@ def smc(
     return run.result(time.perf_counter() - t0)
 
 
-def _check_options(n: int, resample: str, record_trace: bool | str,
-                   ess_threshold: float | str | None, target_mask: np.ndarray | None,
-                   canvas_size: tuple[int, int]) -> float | None:
+def _check_options(n: int, proposal: Proposal | None, options: SMCOptions) -> float | None:
     """SMCOptionError for an option that cannot be used; returns the ESS threshold."""
     if n < 1:
         raise SMCOptionError(f"need at least one particle, got {n}")
-    if resample not in SCHEMES:
-        raise SMCOptionError(f"unknown resampling scheme {resample!r} "
+    if options.resample not in SCHEMES:
+        raise SMCOptionError(f"unknown resampling scheme {options.resample!r} "
                              f"(choose from {', '.join(SCHEMES)})")
-    if record_trace not in (False, True, "values"):
-        raise SMCOptionError(f"record_trace must be True, False or 'values', "
-                             f"got {record_trace!r}")
-    if ess_threshold is not None and not (isinstance(ess_threshold, (int, float))
-                                          and 0.0 < ess_threshold <= 1.0):
-        raise SMCOptionError(f"ess_threshold must be in (0, 1], None or 'proposal', "
-                             f"got {ess_threshold!r}")
-    if target_mask is not None and tuple(np.shape(target_mask)) != tuple(canvas_size):
-        raise SMCOptionError(f"target mask {tuple(np.shape(target_mask))} and canvas size "
-                             f"{tuple(canvas_size)} differ")
-    return ess_threshold
+    if not isinstance(options.trace, TraceRecording):
+        raise SMCOptionError(f"trace must be a TraceRecording, got {options.trace!r}")
+    ess = options.ess_threshold
+    if options.ess_from_proposal:
+        if ess is not None:
+            raise SMCOptionError("give ess_threshold or ess_from_proposal, not both")
+        ess = proposal_ess(proposal)
+    if ess is not None and (isinstance(ess, bool) or not isinstance(ess, int | float)
+                            or not 0.0 < ess <= 1.0):
+        raise SMCOptionError(f"ess_threshold must be in (0, 1] or None, got {ess!r}")
+    mask, size = options.target_mask, options.canvas_size
+    if mask is not None and tuple(np.shape(mask)) != tuple(size):
+        raise SMCOptionError(f"target mask {tuple(np.shape(mask))} and canvas size "
+                             f"{tuple(size)} differ")
+    return ess
 
 
 class Population:
@@ -199,58 +279,35 @@ class Population:
 
 
 class _Run:
-    """One SMC run's state: population, canvas, features, proposal and counters."""
+    """One SMC run's state: population, canvas, features, proposal, observers, counters."""
 
     def __init__(self, program: Program, likelihood: Likelihood | None, n: int,
-                 proposal: Proposal | None, seed: int, resample: str,
-                 record_trace: bool | str, start: tuple[float, float, float] | None,
-                 canvas_size: tuple[int, int], target_mask: np.ndarray | None,
-                 max_primitives: int | None, max_modules: int) -> None:
+                 proposal: Proposal | None, options: SMCOptions,
+                 observers: tuple[SMCObserver, ...]) -> None:
         self.program = program
         self.n = n
-        self.resample = resample
-        self.record_trace = record_trace
-        self.rng = np.random.Generator(np.random.PCG64(seed))
+        self.resample = options.resample
+        self.trace = options.trace
+        self.observers = observers
+        self.rng = np.random.Generator(np.random.PCG64(options.seed))
         self.proposal: Proposal = PriorProposal() if proposal is None else proposal
         self.is_prior = type(self.proposal) is PriorProposal
         self.batched = isinstance(self.proposal, RoundProposal)
-        self.cap = program.max_primitives if max_primitives is None else int(max_primitives)
+        cap = options.max_primitives
+        self.cap = program.max_primitives if cap is None else int(cap)
         if isinstance(likelihood, NullLikelihood):
             likelihood = None  # nothing to compute, no canvas needed
         self.likelihood = likelihood
         self.use_features = bool(self.proposal.uses_features)
-        need_features = self.use_features or record_trace is True
-        self.canvas = None
-        if need_features or (likelihood is not None and likelihood.needs_canvas):
-            if program.viewport is None:
-                raise ProgramError(f"program {program.name} has no viewport: "
-                                   "cannot rasterize for the likelihood or features")
-            from ngpm_runtime.image.raster import Canvas
-
-            self.canvas = Canvas(n, int(canvas_size[0]), int(canvas_size[1]),
-                                 program.viewport, pyramid=need_features)
-        self.fmaker = None
-        self.trim = 0  # context columns to cut from the rows the proposal is given
-        if need_features:
-            from ngpm_runtime.image.features import FeatureMaker
-
-            # recorded traces carry the context columns; a guide reads them if trained on them
-            # (an optional attribute: proposals written before it existed read no context)
-            reads = bool(getattr(self.proposal, "feature_context", False))
-            context = record_trace is True or reads
-            assert program.viewport is not None  # checked for the canvas above
-            self.fmaker = FeatureMaker(program, program.viewport, target_mask, context)
-            if context and not reads:
-                from ngpm_runtime.image.features import N_CONTEXT
-
-                self.trim = N_CONTEXT
+        self._make_canvas(options)
         self.like_state = likelihood.start(n) if likelihood is not None else {}
         self.blank_ll = (likelihood.blank_loglik(self.canvas.height, self.canvas.width)
                          if likelihood is not None and self.canvas is not None else None)
-        x0, y0, h0 = program.start if start is None else start
-        self.deriver = Deriver(program, max_ops=max_modules)
+        x0, y0, h0 = program.start if options.start is None else options.start
+        self.deriver = Deriver(program, max_ops=module_cap(program, options.max_modules))
         turtle = (float(x0), float(y0), float(h0), 1.0)
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
+        self.state = SMCState(n, self.pop.log_lik)
         self.order = SiteOrder()
         # categorical log prior per (site, weights)
         self.tables: dict[tuple[int, Args], list[float]] = {}
@@ -262,6 +319,37 @@ class _Run:
         self.particle_steps = 0
         self.n_resample = 0
 
+    def _make_canvas(self, options: SMCOptions) -> None:
+        """The canvas (for a likelihood that needs one, or for features) and the feature
+        maker (for a proposal that reads features, or full traces)."""
+        program, likelihood = self.program, self.likelihood
+        need_features = self.use_features or self.trace is TraceRecording.FULL
+        self.canvas = None
+        if need_features or (likelihood is not None and likelihood.needs_canvas):
+            if program.viewport is None:
+                raise ProgramError(f"program {program.name} has no viewport: "
+                                   "cannot rasterize for the likelihood or features")
+            from ngpm_runtime.image.raster import Canvas
+
+            height, width = options.canvas_size
+            self.canvas = Canvas(self.n, int(height), int(width), program.viewport,
+                                 pyramid=need_features)
+        self.fmaker = None
+        self.trim = 0  # context columns to cut from the rows the proposal is given
+        if need_features:
+            from ngpm_runtime.image.features import FeatureMaker
+
+            # recorded traces carry the context columns; a guide reads them if trained on them
+            # (an optional attribute: proposals written before it existed read no context)
+            reads = bool(getattr(self.proposal, "feature_context", False))
+            context = self.trace is TraceRecording.FULL or reads
+            assert program.viewport is not None  # checked for the canvas above
+            self.fmaker = FeatureMaker(program, program.viewport, options.target_mask, context)
+            if context and not reads:
+                from ngpm_runtime.image.features import N_CONTEXT
+
+                self.trim = N_CONTEXT
+
     def step(self, ess_threshold: float | None) -> None:
         """Every live particle to its next drawn primitive; weights; maybe resampling."""
         pop = self.pop
@@ -269,6 +357,8 @@ class _Run:
         self.particle_steps += len(pop.live)
         drawn, empty = self._derive()
         self._observe(drawn, empty)
+        if self.observers:
+            self._step_done(drawn)
         if (pop.log_w == np.inf).any():
             raise SMCFailed(f"a weight became +inf at step {self.steps} (program "
                             f"{self.program.name}): a proposal gave zero density to its own "
@@ -281,6 +371,15 @@ class _Run:
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
             self._resample()
+
+    def _step_done(self, drawn: list[int]) -> None:
+        state, parts = self.state, self.pop.parts
+        state.steps = self.steps
+        state.log_likelihood = self.pop.log_lik
+        state.drawn = drawn
+        state.prims = cast("list[Prim]", [parts[i].last for i in drawn])
+        for obs in self.observers:
+            obs.step_done(state)
 
     def _derive(self) -> tuple[list[int], list[int]]:
         """Run the live particles to their next primitive, serving their random choices in
@@ -388,7 +487,9 @@ class _Run:
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
             self.pending.append((ia, log_q, log_p))
-        _record(self.pop.parts, site, idx, vals, feats, self.record_trace)
+        _record(self.pop.parts, site, idx, vals, feats, self.trace)
+        for obs in self.observers:
+            obs.site_drawn(site, idx, vals)
 
     def _flush(self) -> None:
         """Apply the pending site weights: log w += log p - log q (NaN: zero weight),
@@ -467,11 +568,14 @@ class _Run:
         self.log_z += _logsumexp(pop.log_w) - math.log(self.n)
         anc = draw_ancestors(self.resample, pop.log_w, self.rng)
         pop.take(anc)
-        for key in self.like_state:
-            self.like_state[key] = self.like_state[key][anc]
+        take_arrays(self.like_state, anc)
         if self.canvas is not None:
             self.canvas.take(anc)
         self.n_resample += 1
+        if self.observers:
+            take_arrays(self.state.arrays, anc)
+            for obs in self.observers:
+                obs.resampled(anc)
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.pop
@@ -483,7 +587,7 @@ class _Run:
                 log_prior=float(pop.log_prior[i]),
                 log_likelihood=float(pop.log_lik[i]),
                 log_weight=float(log_w[i]),
-                trace=cons_to_list(p.trace) if self.record_trace is not False else None,
+                trace=cons_to_list(p.trace) if self.trace is not TraceRecording.NONE else None,
                 status=p.status,
                 limit=p.limit if p.status == "limit" else None,
             )
@@ -505,16 +609,16 @@ class _Run:
 
 
 def _record(parts: list[Particle], site: Site, idx: list[int], vals: list[float],
-            feats: np.ndarray | None, record_trace: bool | str) -> None:
+            feats: np.ndarray | None, trace: TraceRecording) -> None:
     """Append the drawn values to the particles' replay values (and traces)."""
     s = site.index
     st = (s,)
-    if record_trace is True:
+    if trace is TraceRecording.FULL:
         assert feats is not None
         for j, i in enumerate(idx):
             p = parts[i]
             p.trace = ((s, feats[j], vals[j]), p.trace)
-    elif record_trace:
+    elif trace is TraceRecording.VALUES:
         for i, v in zip(idx, vals, strict=True):
             p = parts[i]
             p.trace = ((s, None, v), p.trace)
@@ -589,13 +693,14 @@ def replay(
     max_modules: int | None = None,
 ) -> FinalParticle:
     """The one derivation that makes the given (site, value) choices, with its full trace
-    (features as `smc(..., record_trace=True)` computes them); no likelihood."""
+    (features as a run with `TraceRecording.FULL` computes them); no likelihood."""
     from ngpm_runtime.inference.proposals import ReplayProposal
 
     proposal = ReplayProposal(values)
-    res = smc(program, None, 1, proposal=proposal, record_trace=True, start=start,
-              canvas_size=canvas_size, target_mask=target_mask,
-              max_primitives=max_primitives, max_modules=max_modules)
+    options = SMCOptions(trace=TraceRecording.FULL, start=start, canvas_size=canvas_size,
+                         target_mask=target_mask, max_primitives=max_primitives,
+                         max_modules=max_modules)
+    res = smc(program, None, 1, proposal, options)
     proposal.check_used()
     return res.particles[0]
 

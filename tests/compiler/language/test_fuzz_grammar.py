@@ -11,7 +11,7 @@ import time
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from ngpm_runtime.errors import NgpmError, printable
-from ngpm_runtime.inference.smc import smc
+from ngpm_runtime.inference.smc import SMCOptions, smc
 from ngpm_runtime.program import Program
 from repo_paths import REPO
 
@@ -47,7 +47,7 @@ def runs_a_few_steps(program) -> None:
     errors (say, a division by zero in a production), never a crash, and never a turtle
     error that `check` should have found (an unmatched bracket)."""
     try:
-        smc(program, None, 2, seed=0, max_steps=4, max_modules=2000)
+        smc(program, None, 2, options=SMCOptions(seed=0, max_steps=4, max_modules=2000))
     except NgpmError as err:
         assert "without a matching" not in str(err), err
 

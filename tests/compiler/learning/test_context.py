@@ -10,6 +10,7 @@ from ngpm_runtime.grow import grow
 from ngpm_runtime.image.features import N_CONTEXT
 from ngpm_runtime.image.targets import load_target
 from ngpm_runtime.inference.guide import Guide
+from ngpm_runtime.inference.smc import TraceRecording
 
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.export import write_onnx
@@ -53,7 +54,7 @@ def test_guides_with_and_without_context(traces, feature_set) -> None:
     assert guide.feature_context is wants_context
     assert guide.nets[0]["n_f"] == lay["context" if wants_context else "partial"].stop
     target = load_target(data / "bar0.png")
-    res = grow(program, target, guide, 6, seed=2, record_trace=True)
+    res = grow(program, target, guide, 6, seed=2, trace=TraceRecording.FULL)
     assert np.isfinite(res.smc.log_evidence)
     # every recorded row (context included) is scored by the guide as SMC proposed with it
     for s, row, _ in res.smc.best.trace:

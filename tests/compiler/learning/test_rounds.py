@@ -12,7 +12,7 @@ from ngpm_runtime import bundled
 from ngpm_runtime.grow import grow
 from ngpm_runtime.image.targets import save_target
 from ngpm_runtime.inference.guide import Guide
-from ngpm_runtime.inference.smc import replay, smc
+from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, replay, smc
 from repo_paths import REPO
 
 from ngpm_compiler.cli import main
@@ -56,7 +56,7 @@ def test_guided_smc_weights_are_exact(vines):
     particle's log prior is the prior density of its values, as a replay computes it."""
     program, guide, targets = vines
     target = targets[1]
-    res = grow(program, target, guide, 6, seed=1, record_trace="values")
+    res = grow(program, target, guide, 6, seed=1, trace=TraceRecording.VALUES)
     best = res.smc.best
     values = [(s, v) for s, _, v in best.trace]
     again = replay(program, values, start=target.start_pose(program.viewport),
@@ -64,11 +64,13 @@ def test_guided_smc_weights_are_exact(vines):
     assert again.primitives == best.primitives
     assert best.log_prior == pytest.approx(again.log_prior, rel=1e-9, abs=1e-9)
     # without likelihood or resampling, a particle's weight is log prior - log proposal
-    one = smc(program, None, 1, proposal=guide, seed=2,
-              start=target.start_pose(program.viewport), canvas_size=target.size,
-              target_mask=target.mask)
+    one = smc(program, None, 1, guide,
+              options=SMCOptions(ess_from_proposal=True, seed=2,
+                                 start=target.start_pose(program.viewport),
+                                 canvas_size=target.size, target_mask=target.mask))
     assert np.isfinite(one.log_weights[0]) and one.log_weights[0] != 0.0
-    prior_only = smc(program, None, 1, seed=2, start=target.start_pose(program.viewport))
+    prior_only = smc(program, None, 1, options=SMCOptions(seed=2,
+                                                          start=target.start_pose(program.viewport)))
     assert prior_only.log_weights[0] == 0.0
 
 

@@ -39,6 +39,7 @@ with warnings.catch_warnings():  # Starlette 1.x prefers httpx2 and warns about 
 
 from ngpm_runtime import bundled  # noqa: E402
 from ngpm_runtime.image.targets import load_target  # noqa: E402
+from ngpm_runtime.inference.smc import SMCState, take_arrays  # noqa: E402
 from PIL import Image, ImageDraw  # noqa: E402
 from repo_paths import REPO  # noqa: E402
 
@@ -47,6 +48,7 @@ from ngpm_compiler.web.app import (  # noqa: E402
     FrameStream,
     Limits,
     Run,
+    RunCheck,
     RunStopped,
     bind,
     create_app,
@@ -215,30 +217,40 @@ def test_a_picture_with_a_light_shape_on_dark_and_other_formats_grow(client: Tes
 
 def test_frame_stream_follows_the_best_particle_through_resampling() -> None:
     sent: list[dict[str, Any]] = []
-    stream = FrameStream(lambda e, d: sent.append(d), Run("me", 60.0))
+    stream = FrameStream(lambda e, d: sent.append(d))
+    state = SMCState(3, np.zeros(3))
 
-    class Draw:
-        def __init__(self, idx: list[int], prims: list[tuple]) -> None:
-            self.idx, self.prims = np.array(idx), prims
+    def step(drawn: list[int], prims: list[tuple], ll: list[float]) -> None:
+        state.drawn, state.prims = drawn, prims
+        state.log_likelihood[:] = ll
+        stream.step_done(state)
 
     seg = [("seg", float(i), 0.0, float(i), 1.0, 0.5) for i in range(6)]
-    state = {"ll": np.array([0.0, 1.0, 0.0])}
-    stream(state, None, Draw([0, 1, 2], seg[:3]))  # best: particle 1
-    state["ll"][:] = [2.0, 1.0, 0.0]
-    stream(state, None, Draw([0, 1], seg[3:5]))  # best: particle 0, another lineage
-    anc = np.array([0, 0, 2])  # resampling, as smc() does it to every state array
-    for key in state:
-        state[key] = state[key][anc]
-    state["ll"][:] = [2.0, 3.0, 0.0]
-    stream(state, None, Draw([1], seg[5:]))  # best: particle 1, a copy of 0 that grew
-    state["ll"][:] = [2.0, 3.0, 0.0]
-    stream(state, None, Draw([2], [seg[0]]))  # the best did not change: no frame
+    step([0, 1, 2], seg[:3], [0.0, 1.0, 0.0])  # best: particle 1
+    step([0, 1], seg[3:5], [2.0, 1.0, 0.0])  # best: particle 0, another lineage
+    anc = np.array([0, 0, 2])  # resampling, as smc() does it to every registered array
+    take_arrays(state.arrays, anc)
+    step([1], seg[5:], [2.0, 3.0, 0.0])  # best: particle 1, a copy of 0 that grew
+    step([2], [seg[0]], [2.0, 3.0, 0.0])  # the best did not change: no frame
+    step([], [], [2.0, 3.0, 0.0])  # nothing drew: no frame, no step counted
     assert [(f["mode"], f["prims"]) for f in sent] == [
         ("append", [list(seg[1])]),
         ("reset", [list(seg[0]), list(seg[3])]),
         ("append", [list(seg[5])]),
     ]
     assert rebuild(sent) == [list(seg[0]), list(seg[3]), list(seg[5])]
+    assert stream.steps == 4 and [f["step"] for f in sent] == [1, 2, 3]
+
+
+def test_run_check_stops_a_cancelled_run_after_a_step_that_drew() -> None:
+    run = Run("me", 60.0)
+    check = RunCheck(run)
+    state = SMCState(2, np.zeros(2))
+    run.cancel.set()
+    check.step_done(state)  # nothing drew: the run goes on
+    state.drawn = [0]
+    with pytest.raises(RunStopped, match="stopped"):
+        check.step_done(state)
 
 
 def test_a_run_stops_when_cancelled_or_out_of_time() -> None:

@@ -9,7 +9,7 @@ from fixtures.tiny_programs import make_program  # noqa: E402
 from ngpm_runtime.errors import ProgramError  # noqa: E402
 from ngpm_runtime.geometry.derive import DONE, DRAWN, LIMIT, NEED, Deriver  # noqa: E402
 from ngpm_runtime.geometry.turtle import prim_bbox  # noqa: E402
-from ngpm_runtime.inference.smc import forward, smc  # noqa: E402
+from ngpm_runtime.inference.smc import SMCOptions, forward, smc  # noqa: E402
 from ngpm_runtime.program import Site, load_program  # noqa: E402
 from repo_paths import REPO, VINES_SAMPLER
 
@@ -231,9 +231,9 @@ def test_primitive_cap_gives_limit_status() -> None:
     prog = make_program({"A": lambda ctx: [("F", 1.0), ("A",)]}, max_primitives=5)
     f = forward(prog)
     assert f.status == "limit" and len(f.primitives) == 5
-    r = smc(prog, None, 3, max_primitives=2)
+    r = smc(prog, None, 3, options=SMCOptions(max_primitives=2))
     assert all(p.status == "limit" and len(p.primitives) == 2 for p in r.particles)
-    r = smc(prog, None, 3, max_steps=4)
+    r = smc(prog, None, 3, options=SMCOptions(max_steps=4))
     assert all(p.status == "limit" and len(p.primitives) == 4 for p in r.particles)
     assert r.info["status"] == {"done": 0, "limit": 3, "dead": 0}
     assert r.info["limits"] == {"max steps": 3} and f.limit == "max primitives"
@@ -244,7 +244,7 @@ def test_work_cap_without_drawing_gives_limit() -> None:
     d = Deriver(prog, max_ops=10_000)
     p = d.start((0.0, 0.0, 0.0, 1.0))
     assert d.advance(p) == LIMIT
-    r = smc(prog, None, 2, max_modules=500)
+    r = smc(prog, None, 2, options=SMCOptions(max_modules=500))
     assert [(q.status, q.limit) for q in r.particles] == [("limit", "max modules")] * 2
     assert r.info["limits"] == {"max modules": 2}
 
@@ -313,13 +313,13 @@ def test_invalid_prior_arguments_at_run_time_are_errors(successor: str, words: s
     """Finding 5: gauss(0, -1) used |sd|, uniform(1, 0) swapped, flip(2) clipped, silently.
     The deriver checks the arguments of every request before any proposal sees them, so
     the prior, SMC, replay and guided paths all stop with the same error."""
-    from ngpm_runtime.inference.smc import replay
+    from ngpm_runtime.inference.smc import SMCOptions, replay
 
     from ngpm_compiler.language.compile import compile_grammar
 
     prog = compile_grammar("viewport: -5 5 -5 5\nderivation length: 1\nAxiom: A(1)\n"
                            f"A(x) --> {successor}\n", filename="bad.lsys").program()
-    for run in (lambda: forward(prog), lambda: smc(prog, None, 4, seed=1),
+    for run in (lambda: forward(prog), lambda: smc(prog, None, 4, options=SMCOptions(seed=1)),
                 lambda: replay(prog, [(0, 0.0)])):
         with pytest.raises(ProgramError) as info:
             run()
@@ -358,4 +358,4 @@ def test_one_samples_work_has_a_ceiling(monkeypatch) -> None:
     monkeypatch.setattr(derive, "MAX_WORK", 10**9)
     monkeypatch.setattr(derive, "MAX_PRIMITIVES", 30)
     with pytest.raises(ProgramError, match="one sample drew more than 30 primitives"):
-        smc(prog, None, 3, seed=0)
+        smc(prog, None, 3, options=SMCOptions(seed=0))

@@ -16,7 +16,7 @@ from fixtures.tiny_programs import (  # noqa: E402
 )
 from ngpm_runtime.inference.distributions import prior_logpdf  # noqa: E402
 from ngpm_runtime.inference.proposals import FixedProposal  # noqa: E402
-from ngpm_runtime.inference.smc import smc  # noqa: E402
+from ngpm_runtime.inference.smc import SMCOptions, smc  # noqa: E402
 
 # A proposal far from the prior at every discrete site of each grammar.
 DISCRETE_Q = FixedProposal({0: [0.2, 0.8], 1: [0.6, 0.1, 0.3], 2: [0.8]})
@@ -80,10 +80,10 @@ def test_exact_check_detects_ignored_proposal_weights() -> None:
 
 def test_smc_weights_are_all_equal_to_evidence_without_likelihood() -> None:
     # no likelihood, prior proposal: every weight is 0 and log Z is exactly 0
-    r = smc(discrete_program(), None, 200, seed=1)
+    r = smc(discrete_program(), None, 200, options=SMCOptions(seed=1))
     assert r.log_evidence == 0.0 and np.all(r.log_weights == 0.0)
     # a different proposal without likelihood: Z estimates 1 (log Z near 0)
-    r = smc(discrete_program(), None, 4000, proposal=DISCRETE_Q, seed=1)
+    r = smc(discrete_program(), None, 4000, DISCRETE_Q, options=SMCOptions(seed=1))
     assert abs(r.log_evidence) < 0.05
 
 
@@ -97,8 +97,8 @@ def test_gaussian_lengths_posterior_and_evidence(prop) -> None:
     # q: a two-component mixture in prior units, wider and shifted
     q = FixedProposal({0: [0.0, 0.0, -0.5, 1.0, 0.3, 0.3],
                        1: [0.0, 0.5, -0.5, 0.3, 0.4, 0.0]})
-    r = smc(gauss_program(), like, 8000, proposal=q if prop else None, seed=3,
-            resample="systematic")
+    r = smc(gauss_program(), like, 8000, q if prop else None,
+            options=SMCOptions(ess_from_proposal=True, seed=3, resample="systematic"))
     w = np.exp(r.log_weights - r.log_weights.max())
     w /= w.sum()
     first = np.array([p.primitives[0][3] for p in r.particles])

@@ -11,7 +11,7 @@ from fixtures.datasets import CHAIN, make_dataset  # noqa: E402
 from fixtures.guides import N_F, SITES, fake_program, random_model  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide
-from ngpm_runtime.inference.smc import smc
+from ngpm_runtime.inference.smc import SMCOptions, smc
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.learning.export import write_onnx
@@ -173,7 +173,7 @@ def test_one_call_per_site_per_round_in_smc(tmp_path):
     assert main(["export", str(out / "m.pt"), "-o", str(out / "g.onnx")]) == 0
     g = Guide.load(out / "g.onnx", program)
     count_calls(g)
-    r = smc(program, None, 7, proposal=g, seed=0)
+    r = smc(program, None, 7, g, options=SMCOptions(ess_from_proposal=True, seed=0))
     assert all(len(p.primitives) == 12 for p in r.particles)
     assert len(g.session.calls) == 12  # one site, one round per chain link, all 7 particles
 

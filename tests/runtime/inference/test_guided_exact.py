@@ -19,7 +19,7 @@ from fixtures.tiny_programs import (  # noqa: E402
 from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker  # noqa: E402
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
 from ngpm_runtime.inference.guide import Guide, ProposalSettings  # noqa: E402
-from ngpm_runtime.inference.smc import smc  # noqa: E402
+from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc  # noqa: E402
 
 from ngpm_compiler.learning.export import write_onnx  # noqa: E402
 from ngpm_compiler.learning.traces import SiteData, prior_arg_columns  # noqa: E402
@@ -61,7 +61,7 @@ def derivations(program):
 
     def rec(prefix):
         try:
-            r = smc(program, None, 1, proposal=Replay(prefix), record_trace=True)
+            r = smc(program, None, 1, Replay(prefix), options=SMCOptions(trace=TraceRecording.FULL))
         except _Ask as ask:
             support = range(len(ask.prior)) if ask.site.kind == "categorical" else (0, 1)
             for v in support:
@@ -78,7 +78,7 @@ def derivations(program):
 
 def feature_trace(program, values):
     """[(site, features row, value)] of the derivation that makes the given choices."""
-    r = smc(program, None, 1, proposal=Replay(values), record_trace=True)
+    r = smc(program, None, 1, Replay(values), options=SMCOptions(trace=TraceRecording.FULL))
     return r.particles[0].trace
 
 
@@ -231,7 +231,8 @@ def test_guided_smc_stays_exact_gaussian(tmp_path, K):
         assert nll[1] - entropy < 0.25 * (nll[0] - entropy) and nll[1] - entropy < 0.02, nll
     sharp = Guide.load(guide.path, program, settings=ProposalSettings(temperature=0.5))
     for g in (guide, sharp):  # a sharper mixture (ngpmc tune) stays exact too
-        r = smc(program, like, 8000, proposal=g, seed=3, resample="systematic")
+        r = smc(program, like, 8000, g, options=SMCOptions(ess_from_proposal=True, seed=3,
+                                                           resample="systematic"))
         w = np.exp(r.log_weights - r.log_weights.max())
         w /= w.sum()
         first = np.array([p.primitives[0][3] for p in r.particles])

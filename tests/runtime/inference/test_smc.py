@@ -10,7 +10,17 @@ from ngpm_runtime.image.raster import rasterize  # noqa: E402
 from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, ShapeLikelihood  # noqa: E402
 from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
 from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
-from ngpm_runtime.inference.smc import SiteOrder, SMCOptionError, forward, replay, smc  # noqa: E402
+from ngpm_runtime.inference.smc import (  # noqa: E402
+    SiteOrder,
+    SMCObserver,
+    SMCOptionError,
+    SMCOptions,
+    SMCState,
+    TraceRecording,
+    forward,
+    replay,
+    smc,
+)
 from ngpm_runtime.program import load_program  # noqa: E402
 from repo_paths import VINES_SAMPLER
 
@@ -30,9 +40,10 @@ def disk_mask(size: int = 50) -> np.ndarray:
 START = (0.0, -16.0, 90.0)  # bottom of the disk in vines' viewport, heading up
 
 
-def run_vines(vines, n=60, seed=0, **kw):
+def run_vines(vines, n=60, seed=0, proposal=None, observers=(), **kw):
     like = ShapeLikelihood(disk_mask(), vines.viewport)
-    return smc(vines, like, n, seed=seed, start=START, target_mask=disk_mask(), **kw)
+    options = SMCOptions(seed=seed, start=START, target_mask=disk_mask(), **kw)
+    return smc(vines, like, n, proposal, options, observers)
 
 
 def test_seeded_runs_are_bit_identical(vines) -> None:
@@ -106,7 +117,7 @@ class Counting(PriorProposal):
 
 def test_one_batched_proposal_call_per_site_per_round(vines) -> None:
     q = Counting()
-    r = smc(vines, None, 200, proposal=q, seed=1, start=START)
+    r = smc(vines, None, 200, q, options=SMCOptions(seed=1, start=START))
     visits = sum(n for _, n in q.calls)
     assert r.steps > 1 and q.calls[0] == (0, 200)  # every particle's start angle at once
     # one call per particle visit would make `visits` calls
@@ -124,7 +135,7 @@ def test_all_zero_weight_raises_smcfailed(vines) -> None:
             return np.full(len(draw.idx), -np.inf)
 
     with pytest.raises(SMCFailed) as err:
-        smc(vines, Impossible(), 20, start=START)
+        smc(vines, Impossible(), 20, options=SMCOptions(start=START))
     assert "\n" not in str(err.value) and isinstance(err.value, NgpmError)
 
 
@@ -140,13 +151,13 @@ def test_nan_increments_are_zero_weight_not_nan(vines) -> None:
             out[draw.idx % 2 == 1] = np.nan
             return out
 
-    r = smc(vines, HalfNaN(), 20, start=START, ess_threshold=0.1)
+    r = smc(vines, HalfNaN(), 20, options=SMCOptions(start=START, ess_threshold=0.1))
     assert not np.isnan(r.log_weights).any() and np.isfinite(r.log_evidence)
     assert not any(np.isnan(p.log_likelihood) for p in r.particles)
 
 
 def test_record_trace_replays_best_particle(vines) -> None:
-    r = run_vines(vines, n=40, seed=3, record_trace=True)
+    r = run_vines(vines, n=40, seed=3, trace=TraceRecording.FULL)
     trace = r.best.trace
     assert trace and all(isinstance(f, np.ndarray) and f.dtype == np.float32 for _, f, _ in trace)
     fm = features_module.FeatureMaker(vines, vines.viewport, disk_mask(), context=True)
@@ -164,7 +175,7 @@ def test_record_trace_replays_best_particle(vines) -> None:
             assert s == site.index and len(args) == 1
             return np.array([v]), np.zeros(1)
 
-    again = smc(vines, None, 1, proposal=Replay(), start=START).particles[0]
+    again = smc(vines, None, 1, Replay(), options=SMCOptions(start=START)).particles[0]
     assert again.primitives == r.best.primitives and not values
     assert abs(again.log_prior - r.best.log_prior) < 1e-9
 
@@ -177,7 +188,7 @@ def test_features_are_computed_only_when_needed(vines, monkeypatch) -> None:
     monkeypatch.setattr(features_module, "FeatureMaker", Boom)
     run_vines(vines, n=10)
     with pytest.raises(AssertionError):
-        run_vines(vines, n=10, record_trace=True)
+        run_vines(vines, n=10, trace=TraceRecording.FULL)
 
 
 def test_proposal_with_features_gets_them(vines) -> None:
@@ -208,7 +219,7 @@ def test_forward_without_viewport_and_null_likelihood(vines) -> None:
     f = forward(prog)
     assert f.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0), ("disk", 1.0, 0.0, 0.5)]
     assert f.status == "done" and f.log_weight == 0.0 and f.trace is None
-    r = smc(vines, NullLikelihood(), 5, start=START)
+    r = smc(vines, NullLikelihood(), 5, options=SMCOptions(start=START))
     assert r.log_evidence == 0.0
     r = smc(make_program({"A": lambda ctx: [("F", 1.0)]}), NullLikelihood(), 3)
     assert all(p.primitives == [("seg", 0.0, 0.0, 1.0, 0.0, 1.0)] for p in r.particles)
@@ -226,8 +237,8 @@ def test_forward_without_viewport_and_null_likelihood(vines) -> None:
 
 def test_ess_threshold_resamples_less() -> None:
     like = SumXLikelihood(2.0, 3.0)
-    every = smc(discrete_program(), like, 100, seed=1)
-    some = smc(discrete_program(), like, 100, seed=1, ess_threshold=0.5)
+    every = smc(discrete_program(), like, 100, options=SMCOptions(seed=1))
+    some = smc(discrete_program(), like, 100, options=SMCOptions(seed=1, ess_threshold=0.5))
     assert every.info["resamples"] == every.steps - 1  # not after the last step
     assert some.info["resamples"] < some.steps - 1
 
@@ -241,10 +252,12 @@ def test_ess_threshold_defaults_to_the_proposals_settings() -> None:
             ess_threshold = 0.5
 
     like = SumXLikelihood(2.0, 3.0)
-    tuned = smc(discrete_program(), like, 100, proposal=Tuned(), seed=1)
-    want = smc(discrete_program(), like, 100, proposal=PriorProposal(), seed=1,
-               ess_threshold=0.5)
-    every = smc(discrete_program(), like, 100, proposal=Tuned(), seed=1, ess_threshold=None)
+    tuned = smc(discrete_program(), like, 100, Tuned(), options=SMCOptions(ess_from_proposal=True,
+                                                                           seed=1))
+    want = smc(discrete_program(), like, 100, PriorProposal(), options=SMCOptions(seed=1,
+                                                                                  ess_threshold=0.5))
+    every = smc(discrete_program(), like, 100, Tuned(), options=SMCOptions(seed=1,
+                                                                           ess_threshold=None))
     assert tuned.info["resamples"] == want.info["resamples"] < tuned.steps - 1
     assert np.array_equal(tuned.log_weights, want.log_weights)
     assert every.info["resamples"] == every.steps - 1
@@ -255,13 +268,17 @@ def test_options_are_checked() -> None:
     with pytest.raises(SMCOptionError):
         smc(prog, None, 0)
     with pytest.raises(SMCOptionError):
-        smc(prog, None, 5, resample="bogus")
+        smc(prog, None, 5, options=SMCOptions(resample="bogus"))
     with pytest.raises(SMCOptionError):
-        smc(prog, None, 5, ess_threshold=1.5)
+        smc(prog, None, 5, options=SMCOptions(ess_threshold=1.5))
     with pytest.raises(SMCOptionError, match="'often'"):
-        smc(prog, None, 5, ess_threshold="often")
+        smc(prog, None, 5, options=SMCOptions(ess_threshold="often"))
+    with pytest.raises(SMCOptionError, match="not both"):
+        smc(prog, None, 5, options=SMCOptions(ess_threshold=0.5, ess_from_proposal=True))
+    with pytest.raises(SMCOptionError, match="TraceRecording"):
+        smc(prog, None, 5, options=SMCOptions(trace=True))
     with pytest.raises(SMCOptionError, match="differ"):
-        smc(prog, None, 5, target_mask=np.zeros((40, 40), bool))
+        smc(prog, None, 5, options=SMCOptions(target_mask=np.zeros((40, 40), bool)))
 
 
 def test_errors_in_generated_code_surface_from_smc() -> None:
@@ -277,7 +294,8 @@ def test_errors_in_generated_code_surface_from_smc() -> None:
 
 def test_finished_particles_wait() -> None:
     # particles finish after 1..3 primitives; all of them end "done" with their weights
-    r = smc(discrete_program(), SumXLikelihood(2.0, 1.0), 300, seed=2, ess_threshold=0.2)
+    r = smc(discrete_program(), SumXLikelihood(2.0, 1.0), 300, options=SMCOptions(seed=2,
+                                                                                  ess_threshold=0.2))
     lengths = {len(p.primitives) for p in r.particles}
     assert len(lengths) > 1 and all(p.status == "done" for p in r.particles)
 
@@ -293,7 +311,7 @@ def test_particles_that_draw_nothing_get_the_blank_loglik(vines) -> None:
     prog = make_program({"A": produce_a}, sites=sites, viewport=vines.viewport,
                         start=START)
     like = ShapeLikelihood(disk_mask(), vines.viewport)
-    r = smc(prog, like, 40, seed=0, ess_threshold=0.01)
+    r = smc(prog, like, 40, options=SMCOptions(seed=0, ess_threshold=0.01))
     blank = like.full(np.zeros((50, 50), dtype=np.uint8),
                       np.array([np.inf, np.inf, -np.inf, -np.inf]))
     empties = [p for p in r.particles if not p.primitives]
@@ -331,14 +349,14 @@ def test_infinite_weight_raises_smcfailed() -> None:
             return v, np.full(len(v), -np.inf)
 
     with pytest.raises(SMCFailed, match=r"\+inf"):
-        smc(discrete_program(), None, 10, proposal=Liar())
+        smc(discrete_program(), None, 10, Liar())
 
 
 def test_value_traces_replay_to_the_full_trace(vines) -> None:
-    """record_trace="values" draws what record_trace=True draws; replaying the best
+    """trace=TraceRecording.VALUES draws what trace=TraceRecording.FULL draws; replaying the best
     particle's values gives its full trace, features and all, bit for bit."""
-    full = run_vines(vines, n=30, seed=4, record_trace=True)
-    vals = run_vines(vines, n=30, seed=4, record_trace="values")
+    full = run_vines(vines, n=30, seed=4, trace=TraceRecording.FULL)
+    vals = run_vines(vines, n=30, seed=4, trace=TraceRecording.VALUES)
     assert vals.best.primitives == full.best.primitives
     assert [(s, v) for s, _, v in vals.best.trace] == [(s, v) for s, _, v in full.best.trace]
     assert all(f is None for _, f, _ in vals.best.trace)
@@ -352,7 +370,7 @@ def test_value_traces_replay_to_the_full_trace(vines) -> None:
 
 
 def test_replay_rejects_wrong_values(vines) -> None:
-    trace = run_vines(vines, n=5, record_trace="values")
+    trace = run_vines(vines, n=5, trace=TraceRecording.VALUES)
     values = [(s, v) for s, _, v in trace.best.trace]
     with pytest.raises(ProgramError, match="recorded site"):
         replay(vines, [(values[0][0] + 1, values[0][1])] + values[1:], start=START)
@@ -361,7 +379,7 @@ def test_replay_rejects_wrong_values(vines) -> None:
     with pytest.raises(ProgramError, match="used"):
         replay(vines, values + [(0, 0.0)], start=START)
     with pytest.raises(SMCOptionError):
-        run_vines(vines, n=5, record_trace="features")
+        run_vines(vines, n=5, trace="features")
 
 
 def test_site_order_serves_sites_no_other_waiting_site_leads_to() -> None:
@@ -414,3 +432,51 @@ def test_site_order_closure_matches_brute_force() -> None:
         free = [k for k in waiting if not any(k in reach[a] for a in waiting if a != k)]
         want = max(free or waiting, key=lambda k: (len(waiting[k]), -k))
         assert order.pick(waiting) == want
+
+
+class Lineage(SMCObserver):
+    """Counts, in a registered per-particle array, the steps each particle drew in."""
+
+    def __init__(self) -> None:
+        self.steps = self.resamples = self.values = 0
+        self.state: SMCState | None = None
+
+    def site_drawn(self, site, idx, values) -> None:
+        self.values += len(values)
+
+    def step_done(self, state: SMCState) -> None:
+        self.steps += 1
+        self.state = state
+        counts = state.arrays.get("draws")
+        if counts is None:
+            counts = state.register("draws", np.zeros(state.n, dtype=np.int64))
+        counts[state.drawn] += 1
+
+    def resampled(self, ancestors) -> None:
+        self.resamples += 1
+
+
+def test_observers_watch_without_changing_the_run(vines) -> None:
+    """Same seed, same run with or without observers; registered arrays follow resampling
+    (each final particle drew in as many steps as it has primitives)."""
+    plain = run_vines(vines, n=20, seed=5)
+    obs = Lineage()
+    seen = run_vines(vines, n=20, seed=5, observers=[obs])
+    assert np.array_equal(seen.log_weights, plain.log_weights)
+    assert [p.primitives for p in seen.particles] == [p.primitives for p in plain.particles]
+    assert obs.steps == seen.steps and obs.resamples == seen.info["resamples"] > 0
+    assert obs.values > 0 and obs.state is not None
+    draws = obs.state.arrays["draws"]
+    assert draws.tolist() == [len(p.primitives) for p in seen.particles]
+
+
+def test_an_observer_that_raises_stops_the_run(vines) -> None:
+    class Stop(SMCObserver):
+        def step_done(self, state: SMCState) -> None:
+            if state.steps == 3:
+                raise RuntimeError("stop here")
+
+    with pytest.raises(RuntimeError, match="stop here"):
+        run_vines(vines, n=5, observers=[Stop()])
+    with pytest.raises(SMCOptionError, match="one per particle"):
+        SMCState(3, np.zeros(3)).register("x", np.zeros(2))
