@@ -184,7 +184,7 @@ class Deriver:
     depends only on the module and the values replayed; outcomes are memoized while those
     values are all discrete."""
 
-    def __init__(self, program: Program, max_ops: int = DEFAULT_MAX_MODULES,
+    def __init__(self, program: Program, max_modules: int = DEFAULT_MAX_MODULES,
                  max_work: int | None = None) -> None:
         self.program = program
         self.base = str(program.source or "").replace("\\", "/").rsplit("/", 1)[-1]
@@ -195,7 +195,7 @@ class Deriver:
         self.interp = dict(program.interpretation)
         self.dlen = program.derivation_length
         self.angle = float(program.angle)
-        self.max_modules = max_ops
+        self.max_modules = max_modules
         self.ctx = ReplayCtx()
         self.dispatch: dict[str, int] = {}
         self.pcache: dict[object, Outcome] = {}

@@ -304,7 +304,7 @@ class _Run:
         self.blank_ll = (likelihood.blank_loglik(self.canvas.height, self.canvas.width)
                          if likelihood is not None and self.canvas is not None else None)
         x0, y0, h0 = program.start if options.start is None else options.start
-        self.deriver = Deriver(program, max_ops=module_cap(program, options.max_modules))
+        self.deriver = Deriver(program, max_modules=module_cap(program, options.max_modules))
         turtle = (float(x0), float(y0), float(h0), 1.0)
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
         self.state = SMCState(n, self.pop.log_lik)

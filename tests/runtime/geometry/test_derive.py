@@ -241,7 +241,7 @@ def test_primitive_cap_gives_limit_status() -> None:
 
 def test_work_cap_without_drawing_gives_limit() -> None:
     prog = make_program({"A": lambda ctx: [("A",), ("A",)]}, derivation_length=40)
-    d = Deriver(prog, max_ops=10_000)
+    d = Deriver(prog, max_modules=10_000)
     p = d.start((0.0, 0.0, 0.0, 1.0))
     assert d.advance(p) == LIMIT
     r = smc(prog, None, 2, options=SMCOptions(max_modules=500))
