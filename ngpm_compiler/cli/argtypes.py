@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ngpm_runtime.image.targets import MIN_SIDE
+from ngpm_runtime.image.resolution import MIN_SIDE  # not targets: no PIL at start-up
 
 MAX_RENDER_SIZE = 8192  # pixels per side of a rendered image (`sample --size`)
 MAX_TARGET_SIZE = 1024  # pixels per side of a target's working resolution (`--size`)

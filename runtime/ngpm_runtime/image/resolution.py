@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+MIN_SIDE = 8  # smallest accepted picture side and working size, in pixels
 KEEP_WARNING = 0.6  # below this share of the shape kept, grow warns and suggests a size
 KEEP_GOOD = 0.8  # a suggested size keeps at least this share
 SIZES = (64, 100, 128, 160, 200)  # sizes to suggest, smallest first

@@ -32,13 +32,12 @@ from ngpm_runtime.image.morphology import (
     otsu_threshold,
     skeletonize,
 )
-from ngpm_runtime.image.resolution import KEEP_WARNING, check_fit, fit_note
+from ngpm_runtime.image.resolution import KEEP_WARNING, MIN_SIDE, check_fit, fit_note
 
 Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
 
 POLARITIES = ("auto", "dark", "light", "alpha")
 DEFAULT_SIZE = 50
-MIN_SIDE = 8  # smallest accepted input image side, in pixels
 MIN_FOREGROUND = 0.004  # smallest foreground fraction after resizing (10 px at 50 x 50)
 MAX_FOREGROUND = 0.95  # largest foreground fraction: above it there is no shape to match
 POLARITY_KEY = "ngpm-polarity"  # PNG text chunk save_target writes (always "dark")
