@@ -43,13 +43,6 @@ class Progress:
         if self.bar is not None:
             self.bar.set_postfix(**values)
 
-    def write(self, text: str) -> None:
-        """A message that does not break the bar (stdout)."""
-        if self.bar is not None:
-            self.bar.write(text, file=sys.stdout)
-        else:
-            print(text, flush=True)
-
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
