@@ -40,10 +40,16 @@ def suggest_size(square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndar
 
 def fit_note(kept: float, suggested: int | None, size: int) -> str:
     """What to tell a user whose picture lost shape at `size` x `size`."""
-    fix = (f"draw thicker strokes, or grow at --size {suggested} (guides trained at 50 x 50 "
-           "guide less well there)" if suggested else "draw thicker strokes (or a bigger shape)")
     return (f"only {kept:.0%} of the picture's shape is kept at {size} x {size} pixels "
-            f"(thin strokes vanish when it is reduced): {fix}")
+            f"(thin strokes vanish when it is reduced): {fit_fix(suggested)}")
+
+
+def fit_fix(suggested: int | None) -> str:
+    """What to do about a picture that loses its shape at the working size."""
+    if suggested:
+        return (f"draw thicker strokes, or grow at --size {suggested} (guides trained at "
+                "50 x 50 guide less well there)")
+    return "draw thicker strokes (or a bigger shape)"
 
 
 def check_fit(square: np.ndarray, small: np.ndarray,

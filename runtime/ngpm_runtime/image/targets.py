@@ -32,7 +32,7 @@ from ngpm_runtime.image.morphology import (
     otsu_threshold,
     skeletonize,
 )
-from ngpm_runtime.image.resolution import KEEP_WARNING, MIN_SIDE, check_fit, fit_note
+from ngpm_runtime.image.resolution import KEEP_WARNING, MIN_SIDE, check_fit, fit_fix, fit_note
 
 Start = tuple[float, float, float, float]  # (x, y, dx, dy), image axes, top-left origin
 
@@ -397,7 +397,7 @@ def _reduce(img: Image.Image, size: int | None, polarity: str, name: str,
         kept, better = check_fit(full, square, resize_mask)
         if not square.any() and full.any():
             raise TargetError(f"{name}: no shape left at {size} x {size} px; "
-                              + fit_note(kept, better, int(size)).split(": ", 1)[1])
+                              + fit_fix(better))
     check_mask(square, name)
     if start is not None:
         x, y, dx, dy = start
