@@ -20,7 +20,7 @@ README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [
     'pip install -e . && ngpmc demo -o demo_out',
     "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu && "
-    'pip install -e ".[train,dev,web]" && python3 -m pytest',
+    'pip install -e ".[train,eval,dev,web]" && python3 -m pytest',
 ]
 # the tour, scaled down so that it runs in seconds
 SMALLER = {"--count": "3", "-n": "3", "--particles": "8"}

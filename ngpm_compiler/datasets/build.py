@@ -784,5 +784,5 @@ def contact_sheet(targets: list[Target], path: str | os.PathLike, cols: int | No
 def _label_font() -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     try:
         return ImageFont.truetype(str(default_font().with_name("DejaVuSans.ttf")), 9)
-    except OSError:
+    except (OSError, ImportError):  # labels only: any font will do
         return ImageFont.load_default()

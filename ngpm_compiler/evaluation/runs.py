@@ -148,15 +148,43 @@ def pick(items: list[Any], k: int) -> list[Any]:
 # --------------------------------------------------------------------------- statistics
 
 
+def t_central(t: float, df: int) -> float:
+    """P(|T| < t) for Student's t with an integer `df` >= 1: the finite series of Abramowitz
+    and Stegun 26.7.3-4 (exact up to rounding)."""
+    theta = math.atan(t / math.sqrt(df))
+    c2, s = math.cos(theta) ** 2, math.sin(theta)
+    term = 1.0 if df % 2 == 0 else math.cos(theta)
+    total = term if df % 2 == 0 or df > 1 else 0.0
+    for k in range(2 if df % 2 == 0 else 3, df - 1, 2):
+        term *= c2 * (k - 1) / k
+        total += term
+    if df % 2 == 0:
+        return s * total
+    return 2 / math.pi * (theta + s * total)
+
+
+def t_quantile(p: float, df: int) -> float:
+    """The `p` quantile (p > 0.5) of Student's t with integer `df`, by bisection on
+    `t_central` (scipy.stats.t.ppf without scipy)."""
+    level = 2 * p - 1
+    lo, hi = 0.0, 1.0
+    while t_central(hi, df) < level:
+        lo, hi = hi, 2 * hi
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        if mid in (lo, hi):
+            break
+        lo, hi = (mid, hi) if t_central(mid, df) < level else (lo, mid)
+    return (lo + hi) / 2
+
+
 def t_interval(values: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
     """(mean, low, high): the mean with a Student-t confidence interval."""
-    from scipy import stats
-
     v = np.asarray(values, dtype=np.float64)
     m = float(v.mean())
     if len(v) < 2:
         return m, m, m
-    half = float(stats.t.ppf(0.5 + level / 2, len(v) - 1) * v.std(ddof=1) / math.sqrt(len(v)))
+    half = t_quantile(0.5 + level / 2, len(v) - 1) * float(v.std(ddof=1)) / math.sqrt(len(v))
     return m, m - half, m + half
 
 

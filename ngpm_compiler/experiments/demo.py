@@ -158,13 +158,27 @@ def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int,
 # --------------------------------------------------------------------------- pictures
 
 
+# Debian's fonts-dejavu-core, for a plain `pip install .` (matplotlib comes with the extras)
+DEBIAN_DEJAVU = Path("/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf")
+
+
 def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    """DejaVu Sans from matplotlib or Debian, else Pillow's own font."""
+    paths = [DEBIAN_DEJAVU]
     try:
         import matplotlib
 
-        path = Path(matplotlib.get_data_path()) / "fonts" / "ttf" / "DejaVuSans.ttf"
-        return ImageFont.truetype(str(path), size)
-    except (OSError, ImportError):
+        paths.insert(0, Path(matplotlib.get_data_path()) / "fonts" / "ttf" / "DejaVuSans.ttf")
+    except ImportError:
+        pass
+    for path in paths:
+        try:
+            return ImageFont.truetype(str(path), size)
+        except OSError:
+            continue
+    try:
+        return ImageFont.load_default(size)  # Pillow >= 10.1: scalable
+    except TypeError:
         return ImageFont.load_default()
 
 

@@ -20,7 +20,9 @@ from ngpm_compiler.evaluation.runs import (
     shape_tasks,
     speedups,
     summarize,
+    t_central,
     t_interval,
+    t_quantile,
     time_to_reach,
     write_csv,
 )
@@ -38,6 +40,16 @@ def test_t_interval_matches_formula() -> None:
     assert lo == pytest.approx(0.5 - half)
     assert hi == pytest.approx(0.5 + half)
     assert t_interval(np.array([0.3])) == (0.3, 0.3, 0.3)
+
+
+def test_t_quantile_matches_scipy() -> None:
+    """The numpy-only t quantile (no scipy in ngpm's dependencies) equals scipy's."""
+    stats = pytest.importorskip("scipy.stats")
+    for df in (*range(1, 60), 99, 100, 399):
+        for p in (0.55, 0.9, 0.95, 0.975, 0.995, 0.9995):
+            assert t_quantile(p, df) == pytest.approx(stats.t.ppf(p, df), rel=1e-11), (p, df)
+        for t in (0.0, 0.3, 1.0, 2.5, 40.0):
+            assert t_central(t, df) == pytest.approx(2 * stats.t.cdf(t, df) - 1, abs=1e-13)
 
 
 def _row(model: str, target: str, n: int, sim: float, secs: float = 1.0) -> dict:
