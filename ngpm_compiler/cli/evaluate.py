@@ -101,7 +101,10 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     for key, stages in needs.items():
         path = getattr(cfg, key)
         if set(stages) & set(cfg.stages) and not Path(path).is_file():
-            raise EvalError(f"{path}: no such grammar; give --{key.replace('_', '-')} PATH")
+            where = (" (grammars/chain.lsys of a clone of the ngpm repository; it is not "
+                     "installed with the package)" if key == "chain_grammar" else "")
+            raise EvalError(f"{path}: no such grammar; give --{key.replace('_', '-')} PATH"
+                            + where)
     return cfg
 
 

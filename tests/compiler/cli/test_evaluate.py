@@ -167,8 +167,21 @@ def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.M
     assert main(["eval", "--quick", "-o", "r", "--stages", "chain"]) != 0
     err = capsys.readouterr().err
     assert "grammars/chain.lsys: no such grammar; give --chain-grammar" in err
+    assert "a clone of the ngpm repository; it is not installed" in err
     assert err.count("\n") == 1
     chain = str(REPO / "grammars" / "chain.lsys")
     cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "chain",
                                   "--chain-grammar", chain, "--grammar", "missing.lsys"]))
     assert cfg.chain_grammar == chain and cfg.grammar == "missing.lsys"
+
+
+def test_no_grammar_is_package_data() -> None:
+    """grammars/*.lsys (chain.lsys: the chain study's) stay in the repository: no package
+    holds a grammar and pyproject's package data names none."""
+    tomllib = pytest.importorskip("tomllib")  # Python 3.11+
+
+    data = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    patterns = [p for globs in data["package-data"].values() for p in globs]
+    assert not [p for p in patterns if "lsys" in p or p in ("*", "**/*")], patterns
+    for package in ("ngpm_compiler", "runtime/ngpm_runtime"):
+        assert not list((REPO / package).rglob("*.lsys")), package
