@@ -45,14 +45,6 @@ def cli(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
                           **kw)
 
 
-@pytest.fixture()
-def horse(tmp_path: Path) -> Path:
-    src = bundled.demo_target_path("horse")
-    shutil.copy(src, tmp_path / "horse.png")
-    shutil.copy(src.with_suffix(".txt"), tmp_path / "horse.txt")
-    return tmp_path / "horse.png"
-
-
 def write(path: Path, text: str) -> str:
     path.write_text(text, encoding="utf-8")
     return str(path)

@@ -31,15 +31,6 @@ def in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
 
 
-@pytest.fixture()
-def horse(tmp_path: Path) -> Path:
-    """A copy of the demo horse (PNG + sidecar) in a temp folder."""
-    src = bundled.demo_target_path("horse")
-    shutil.copy(src, tmp_path / "horse.png")
-    shutil.copy(src.with_suffix(".txt"), tmp_path / "horse.txt")
-    return tmp_path / "horse.png"
-
-
 def run(capsys, *args: str) -> tuple[int, str, str]:
     code = main(list(args))
     out, err = capsys.readouterr()

@@ -125,13 +125,6 @@ def _disk_target() -> Target:
     return Target(mask, (0.5, 0.75, 0.0, -1.0), "disk")
 
 
-@pytest.fixture(scope="module")
-def vines():
-    from ngpm_compiler.language.compile import load_grammar
-
-    return load_grammar(REPO / "grammars" / "vines.lsys")
-
-
 def test_grow_once_scores_the_best_particle(vines) -> None:
     from ngpm_runtime.image.raster import rasterize
     from ngpm_runtime.inference.likelihood import similarity

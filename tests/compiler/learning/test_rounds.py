@@ -34,14 +34,8 @@ from ngpm_compiler.learning.train import load_model
 GRAMMAR = str(REPO / "grammars" / "vines.lsys")
 
 
-@pytest.fixture(scope="module")
-def vines():
-    program = bundled.bundled_program()
-    return program, bundled.bundled_guide(program), bundled.demo_targets()
-
-
-def test_guided_trace_replays_to_the_same_primitives(vines):
-    program, guide, targets = vines
+def test_guided_trace_replays_to_the_same_primitives(vines, vines_guide):
+    program, guide, targets = vines, vines_guide, bundled.demo_targets()
     target = targets[0]
     trace, n_prims = run_job(program, target, seed=3, particles=8, guide=guide)
     values = [(s, v) for s, _, v in trace]
@@ -51,10 +45,10 @@ def test_guided_trace_replays_to_the_same_primitives(vines):
     assert all(f is not None and np.isfinite(f).all() for _, f, _ in trace)
 
 
-def test_guided_smc_weights_are_exact(vines):
+def test_guided_smc_weights_are_exact(vines, vines_guide):
     """Guided SMC charges each particle its prior density (not the guide's): the best
     particle's log prior is the prior density of its values, as a replay computes it."""
-    program, guide, targets = vines
+    program, guide, targets = vines, vines_guide, bundled.demo_targets()
     target = targets[1]
     res = grow(program, target, guide, 6, seed=1, trace=TraceRecording.VALUES)
     best = res.smc.best
@@ -74,16 +68,16 @@ def test_guided_smc_weights_are_exact(vines):
     assert prior_only.log_weights[0] == 0.0
 
 
-def _targets(tmp_path, vines, n=2):
+def _targets(tmp_path, n=2):
     d = tmp_path / "targets"
     d.mkdir()
-    for t in vines[2][:n]:
+    for t in bundled.demo_targets()[:n]:
         save_target(t, d / f"{t.name}.png")
     return d
 
 
-def test_guided_traces_directory_records_the_guide(tmp_path, vines):
-    d = _targets(tmp_path, vines)
+def test_guided_traces_directory_records_the_guide(tmp_path):
+    d = _targets(tmp_path)
     guide = str(bundled.guide_path())
     cfg = TraceConfig(grammar=GRAMMAR, targets=str(d), n=2, particles=5, workers=1,
                       guide=guide)
@@ -115,7 +109,7 @@ def small_rounds(tmp_path, d, rounds: int, val_targets: int) -> RoundsConfig:
 
 
 def test_round_loop_keeps_the_best_round(tmp_path, vines):
-    d = _targets(tmp_path, vines)
+    d = _targets(tmp_path)
     cfg = small_rounds(tmp_path, d, rounds=2, val_targets=1)
     rows = expert_iteration(cfg, log=lambda _m: None)
     assert [r["round"] for r in rows] == [0, 1, 2]
@@ -132,13 +126,13 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     logs.clear()
     ctx = expert_iteration(replace(cfg, feature_set="all+context"), log=logs.append)
     assert not any("reusing" in m for m in logs)
-    assert all(Guide.load(r["guide"], vines[0]).feature_context for r in ctx[1:])
+    assert all(Guide.load(r["guide"], vines).feature_context for r in ctx[1:])
 
 
-def test_cli_traces_with_a_guide(tmp_path, vines, capsys):
+def test_cli_traces_with_a_guide(tmp_path, capsys):
     from ngpm_compiler.cli import main
 
-    d = _targets(tmp_path, vines, n=1)
+    d = _targets(tmp_path, n=1)
     out = tmp_path / "t"
     code = main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "--particles", "4",
                  "--workers", "1", "-o", str(out), "--guide", str(bundled.guide_path())])
@@ -158,11 +152,11 @@ def test_cli_iterate_checks_its_inputs(tmp_path, capsys):
               "-o", str(tmp_path / "ei"), "--rounds", "0"])
 
 
-def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path, vines):
+def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path):
     """Finding 4: a round whose guide changed since it was scored (retrained with more
     traces, say) is scored again on resume, not served its old score from validation/;
     the rows and best.onnx are a fresh scoring's."""
-    d = _targets(tmp_path, vines)
+    d = _targets(tmp_path)
     cfg = small_rounds(tmp_path, d, rounds=1, val_targets=2)
     first = expert_iteration(cfg, log=lambda _m: None)
     guide = tmp_path / "ei" / "round_1" / "guide.onnx"

@@ -281,17 +281,12 @@ def _engines_agree(guide: Guide) -> None:
         np.testing.assert_allclose(numpy_params[s], guide.params(s, x), rtol=1e-5, atol=1e-5)
 
 
-@pytest.fixture(scope="module")
-def reference() -> Guide:
-    return bundled.bundled_guide()
-
-
 def test_the_corpus_is_large() -> None:
     assert len(VARIANTS) >= 40
 
 
 @pytest.mark.parametrize("name", list(VARIANTS))
-def test_hostile_guide(name: str, tmp_path: Path, reference: Guide) -> None:
+def test_hostile_guide(name: str, tmp_path: Path, vines_guide: Guide) -> None:
     edit, expect = VARIANTS[name]
     path = _write(tmp_path, name, edit)
     t0 = time.perf_counter()
@@ -299,8 +294,8 @@ def test_hostile_guide(name: str, tmp_path: Path, reference: Guide) -> None:
         guide = Guide.load(path, bundled.bundled_program())
         if expect == "defaults":
             assert guide.settings == ProposalSettings()
-            guide.settings = reference.settings
-        _same_proposals(guide, reference)
+            guide.settings = vines_guide.settings
+        _same_proposals(guide, vines_guide)
     elif expect == "engines agree":  # another network, that loads: onnxruntime serves it
         guide = Guide.load(path, bundled.bundled_program())
         assert 0 not in guide.numpy_nets and 1 in guide.numpy_nets
@@ -315,7 +310,7 @@ def test_hostile_guide(name: str, tmp_path: Path, reference: Guide) -> None:
 
 
 def test_a_numpy_engine_that_disagrees_is_not_used(tmp_path: Path, monkeypatch,
-                                                   reference: Guide) -> None:
+                                                   vines_guide: Guide) -> None:
     """Should the numpy engine of a file that passed the checks give other numbers than
     onnxruntime, that site falls back to onnxruntime (the same numbers on both paths)."""
     from ngpm_runtime.inference.guide import NumpyNet
@@ -330,9 +325,9 @@ def test_a_numpy_engine_that_disagrees_is_not_used(tmp_path: Path, monkeypatch,
 
     monkeypatch.setattr(NumpyNet, "from_graph", off)
     guide = Guide.load(bundled.guide_path(), bundled.bundled_program())
-    assert sorted(guide.numpy_nets) == [s for s in sorted(reference.numpy_nets) if s != 1]
-    for s, x in _probe_rows(reference).items():
-        np.testing.assert_allclose(guide.params(s, x), reference.params(s, x), rtol=1e-5,
+    assert sorted(guide.numpy_nets) == [s for s in sorted(vines_guide.numpy_nets) if s != 1]
+    for s, x in _probe_rows(vines_guide).items():
+        np.testing.assert_allclose(guide.params(s, x), vines_guide.params(s, x), rtol=1e-5,
                                    atol=1e-5)
 
 
@@ -343,18 +338,14 @@ CLI_VARIANTS = ["NaN weight", "nets list", "features huge", "proposal temperatur
 
 
 @pytest.mark.parametrize("name", CLI_VARIANTS)
-def test_grow_with_a_hostile_guide(name: str, tmp_path: Path, capsys) -> None:
+def test_grow_with_a_hostile_guide(name: str, tmp_path: Path, horse: Path, capsys) -> None:
     """`ngpmc grow pic.png --guide bad.onnx -o out.png`: exit code != 0, one line on stderr,
     no traceback, no output file."""
     from ngpm_compiler.cli import main
 
     bad = _write(tmp_path, name, VARIANTS[name][0])
-    src = bundled.demo_target_path("horse")
-    pic = tmp_path / "pic.png"
-    pic.write_bytes(src.read_bytes())
-    (tmp_path / "pic.txt").write_bytes(src.with_suffix(".txt").read_bytes())
     out = tmp_path / "out.png"
-    code = main(["grow", str(pic), "--guide", str(bad), "-N", "2", "-o", str(out)])
+    code = main(["grow", str(horse), "--guide", str(bad), "-N", "2", "-o", str(out)])
     err = capsys.readouterr().err
     assert code != 0 and err.count("\n") == 1 and "Traceback" not in err, err
     assert err.startswith(f"ngpmc: error: {bad}: ") and not out.exists()

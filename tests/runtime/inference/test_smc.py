@@ -21,15 +21,6 @@ from ngpm_runtime.inference.smc import (  # noqa: E402
     replay,
     smc,
 )
-from ngpm_runtime.program import load_program  # noqa: E402
-from repo_paths import VINES_SAMPLER
-
-VINES = VINES_SAMPLER
-
-
-@pytest.fixture(scope="module")
-def vines():
-    return load_program(VINES)
 
 
 def disk_mask(size: int = 50) -> np.ndarray:
