@@ -1,4 +1,4 @@
-"""Step cost of two runtime versions, run in turn: before/after tables for docs/results.
+"""Step cost of two runtime versions, run in turn: before/after tables for the notebook.
 
     python benchmarks/compare_steps.py OLD_RUNTIME_DIR [--rounds 3] [--seeds 1]
 

@@ -3,7 +3,7 @@
 # Usage: bash scripts/expert_iteration.sh [INIT_GUIDE] [WORKDIR]
 #   INIT_GUIDE: the round-0 guide (default: the bundled one; scripts/train_vines_guide.sh
 #   makes one from unguided traces). About 10 minutes per round on 2 busy cores.
-# Settings of the documented run (docs/results/README.md): 4 rounds, 300 traces per round
+# Settings of the documented run (experiments/notes/README.md): 4 rounds, 300 traces per round
 # and training set (varied + scribbles, mirrored), guided SMC with 200 particles,
 # validation: 12 varied targets + 12 DejaVu glyphs x 2 runs at N = 10.
 set -euo pipefail

@@ -2,7 +2,7 @@
 circuits, chain) and write CSV files, PNG plots, README.md and report.md.
 
     ngpmc eval --quick -o OUT                      # CI-sized, everything made on the fly
-    ngpmc eval -o docs/results --work work/eval --traces work/vines/traces \\
+    ngpmc eval -o work/results_big --work work/eval --traces work/vines/traces \\
         --guide-all work/vines/vines_guide.onnx    # the full run (docs/results/README.md)
     ngpmc eval -o OUT --stages heldout --heldout script=DIR,silhouettes=DIR \\
         --heldout-guides bundled=GUIDE.onnx        # held-out sets (scripts/expert_iteration.sh)

@@ -161,7 +161,7 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
     commands = [c for c in commands if c]
     if commands:
         rd += ["Produced by (from the repository root):", "", "```bash", *commands, "```", ""]
-    rd += _settings_lines(settings) + [""]
+    rd += settings_lines(settings) + [""]
     if summary:
         rd += ["## Headline figures", ""] + headline(summary, speed, guided_n) + [""]
         rd += ["## Shape matching: similarity by N (mean of per-target medians, all test "
@@ -171,14 +171,11 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
                 rd += [f"Held-out {ds} only:", "", similarity_table(summary, ds, main)]
     if trainset:
         rd += ["## Training-set size (similarity at N = "
-               f"{trainset[0]['n']})", "",
-               _table(["traces", "model", "similarity", "95% CI"],
-                      [[r["traces"], r["model"], _f(r["mean_similarity"]),
-                        f"[{_f(r['ci_low'])}, {_f(r['ci_high'])}]"] for r in trainset])]
+               f"{trainset[0]['n']})", "", trainset_md(trainset)]
     if circuit:
-        rd += ["## Circuits", "", _circuit_md(circuit)]
+        rd += ["## Circuits", "", circuit_md(circuit)]
     if chain:
-        rd += ["## Chain", "", _chain_md(chain)]
+        rd += ["## Chain", "", chain_md(chain)]
     rd += ["## Figures", ""]
     for fname, title in FIGURES:
         if (out / fname).is_file():
@@ -191,7 +188,7 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
            "`circuit_runs.csv`, `chain_runs.csv`.", ""]
     readme = atomic_write(out / "README.md", "\n".join(rd).encode("utf-8"))
 
-    rp = ["# Evaluation report", ""] + _settings_lines(settings) + [""]
+    rp = ["# Evaluation report", ""] + settings_lines(settings) + [""]
     if models:
         rp += ["## Guides", "", _table(
             ["model", "features", "K", "traces", "held out", "best epoch", "val NLL/trace",
@@ -219,9 +216,9 @@ def write_reports(out_dir: str | Path, command: str = "") -> tuple[Path, Path]:
             [[r["dataset"], r["target"], r["kind"], r["n"], r["seconds"], r["similarity"]]
              for r in grids])]
     if circuit:
-        rp += ["## Circuits", "", _circuit_md(circuit)]
+        rp += ["## Circuits", "", circuit_md(circuit)]
     if chain:
-        rp += ["## Chain", "", _chain_md(chain)]
+        rp += ["## Chain", "", chain_md(chain)]
     rp += ["## Settings", "", "```json", json.dumps(settings, indent=1), "```", ""]
     report = atomic_write(out / "report.md", "\n".join(rp).encode("utf-8"))
     return readme, report
@@ -241,7 +238,7 @@ def heldout_section(out: Path) -> list[str]:
     return lines
 
 
-def _settings_lines(s: dict[str, Any]) -> list[str]:
+def settings_lines(s: dict[str, Any]) -> list[str]:
     if not s:
         return []
     tests = ", ".join(f"{k}: {v}" for k, v in s.get("test_targets", {}).items())
@@ -253,7 +250,13 @@ def _settings_lines(s: dict[str, Any]) -> list[str]:
             f"machine: {s.get('machine', '?')}."]
 
 
-def _circuit_md(rows: list[dict[str, Any]]) -> str:
+def trainset_md(rows: list[dict[str, Any]]) -> str:
+    return _table(["traces", "model", "similarity", "95% CI"],
+                  [[r["traces"], r["model"], _f(r["mean_similarity"]),
+                    f"[{_f(r['ci_low'])}, {_f(r['ci_high'])}]"] for r in rows])
+
+
+def circuit_md(rows: list[dict[str, Any]]) -> str:
     t = circuit_table(rows)
     return _table(["run", "N (mean)", "score (eq. 2 argument)", "95% CI", "seconds"],
                   [[r["kind"], f"{r['n']:.0f}", _f(r["score"]),
@@ -261,7 +264,7 @@ def _circuit_md(rows: list[dict[str, Any]]) -> str:
                    for r in t])
 
 
-def _chain_md(rows: list[dict[str, Any]]) -> str:
+def chain_md(rows: list[dict[str, Any]]) -> str:
     t = chain_table(rows)
     return _table(["model", "N", "similarity", "95% CI", "seconds"],
                   [[r["model"], r["n"], _f(r["similarity"]),
