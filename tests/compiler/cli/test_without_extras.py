@@ -1,6 +1,6 @@
 """A plain `pip install .` has no scipy, scikit-image or matplotlib: every ngpm_compiler
 module imports without them, `ngpmc --help` works, and a command that needs one names the
-extra that installs it."""
+extra that installs it (training targets need none of them)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,7 @@ for name, package, extra in (("silhouettes", "skimage", "eval"),
     assert code == 1, (name, code, text)
     assert text.count("\\n") == 1 and "Traceback" not in text, text
     assert f"ngpmc targets needs the {extra} extra ({package} is missing)" in text, text
+assert main(["targets", "build", "scribbles", "-o", sys.argv[1] + "/s", "--count", "2"]) == 0
 """
 
 
