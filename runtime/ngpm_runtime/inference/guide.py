@@ -132,7 +132,7 @@ class Guide:
                        for i, n in self.nets.items()}
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
-        # the same nets evaluated in numpy (sites whose graph has the export's usual form);
+        # the same nets evaluated in numpy (every net that reads features, with `onnx`);
         # they answer instead of onnxruntime (empty this dict to use onnxruntime only)
         self.numpy_nets: dict[int, NumpyNet] = {}
 
