@@ -1,11 +1,12 @@
 """Export a trained guide (model.pt) to ONE .onnx file that ngpm_runtime.inference.guide loads.
 
 The graph holds every site network side by side: per site an input `f_<index>` (raw feature
-rows, float32, batch dimension `n_<index>`) and an output `p_<index>` (section-5 proposal
-parameters). The graph computes `SiteNet.forward` with few nodes (folded affine ops); torch
-and onnxruntime agree to float rounding (tests/compiler/learning/test_export.py). onnxruntime
-needs every graph input fed, so the runtime feeds empty batches for the other sites and
-fetches only `p_<index>`.
+rows, float32, batch dimension `n_<index>`), an output `p_<index>` (section-5 proposal
+parameters) and parameters and nodes named `s<index>_<role>`: the names the runtime reads
+(ngpm_runtime.inference.guide_format), in the same order in every export. The graph
+computes `SiteNet.forward` with few nodes (folded affine ops); torch and onnxruntime agree to
+float rounding (tests/compiler/learning/test_export.py). onnxruntime needs every graph input
+fed, so the runtime feeds empty batches for the other sites and fetches only `p_<index>`.
 
 metadata_props: ngpm_format, grammar, grammar_hash, sites (site table JSON), features (feature
 set, per-site layout, widths and selected columns), nets (per-site kind / sizes), K, training.
@@ -15,23 +16,23 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import onnx
 import torch
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.inference.guide_format import (
+    ONNX_FORMAT,
+    input_name,
+    output_name,
+    param_name,
+)
+from ngpm_runtime.inference.sitekinds import MIXTURE, SIGMOID
 from onnx import TensorProto, helper, numpy_helper
 
-from ngpm_compiler.learning.nets import (
-    LOGIT_BOUND,
-    LOGSD_BOUND,
-    MEAN_BOUND,
-    GuideModel,
-    NetSpec,
-    SiteNet,
-)
+from ngpm_compiler.learning.nets import GuideModel, SiteNet, output_bounds
 
-ONNX_FORMAT = "ngpm-guide-onnx/1"
 OPSET = 17
 IR_VERSION = 8  # onnxruntime >= 1.16 reads it
 
@@ -47,20 +48,17 @@ class _Graph:
         self.inits.append(numpy_helper.from_array(np.asarray(value), name))
         return name
 
-    def op(self, op_type: str, inputs: list[str], output: str, **attrs: object) -> str:
+    def op(self, op_type: str, inputs: list[str], output: str, **attrs: Any) -> str:
         self.nodes.append(helper.make_node(op_type, inputs, [output], name=output, **attrs))
         return output
 
 
-def _f32(t: object) -> np.ndarray:
-    return np.asarray(t.detach().cpu().numpy(), dtype=np.float32)  # type: ignore[attr-defined]
+def _f32(t: torch.Tensor) -> np.ndarray:
+    return np.asarray(t.detach().cpu().numpy(), dtype=np.float32)
 
 
-def _bounds(spec: NetSpec) -> np.ndarray:
-    """Per output column, the bound b of b * tanh(raw / b) (nets.SiteNet.heads)."""
-    if spec.kind in ("normal", "uniform"):
-        return np.repeat([LOGIT_BOUND, MEAN_BOUND, LOGSD_BOUND], spec.K)
-    return np.full(spec.n_out, LOGIT_BOUND)
+def _f64(t: torch.Tensor) -> np.ndarray:
+    return np.asarray(t.detach().double().numpy())
 
 
 def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
@@ -69,9 +67,9 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
     Lean form of SiteNet.forward (few nodes: onnxruntime's cost is per node): the input
     standardization is folded into the first Gemm, the 1/b of the bounding transforms into
     the second; a feature-free net's output is a constant row expanded to the batch."""
-    s, p = net.spec, f"s{index}_"
-    x, out = f"f_{index}", f"p_{index}"
-    if net.const is not None:
+    s, p = net.spec, param_name(index, "")
+    x, out = input_name(index), output_name(index)
+    if net.l1 is None or net.l2 is None:
         with torch.no_grad():
             row = _f32(net(torch.zeros(1, s.n_f)))
         shape = g.op("Shape", [x], p + "shape")
@@ -80,11 +78,12 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
         target = g.op("Concat", [n, g.const(p + "nout", np.array([s.n_out]))], p + "target",
                       axis=0)
         return g.op("Expand", [g.const(p + "row", row), target], out)
-    w1 = net.l1.weight.detach().double().numpy() * net.scale.double().numpy()[None, :]
-    b1 = net.l1.bias.detach().double().numpy() - w1 @ net.shift.double().numpy()
-    inv_b = 1.0 / _bounds(s)
-    w2 = net.l2.weight.detach().double().numpy() * inv_b[:, None]
-    b2 = net.l2.bias.detach().double().numpy() * inv_b
+    w1 = _f64(net.l1.weight) * _f64(net.scale)[None, :]
+    b1 = _f64(net.l1.bias) - w1 @ _f64(net.shift)
+    bounds = output_bounds(s)
+    inv_b = 1.0 / bounds
+    w2 = _f64(net.l2.weight) * inv_b[:, None]
+    b2 = _f64(net.l2.bias) * inv_b
     sel = g.op("Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))],
                p + "sel", axis=1)
     h = g.op("Gemm", [sel, g.const(p + "w1", w1.astype(np.float32)),
@@ -93,8 +92,9 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
     raw = g.op("Gemm", [h, g.const(p + "w2", w2.astype(np.float32)),
                         g.const(p + "b2", b2.astype(np.float32))], p + "raw", transB=1)
     bounded = g.op("Mul", [g.op("Tanh", [raw], p + "tanh"),
-                           g.const(p + "bounds", _bounds(s).astype(np.float32))], p + "bounded")
-    if s.kind in ("normal", "uniform"):
+                           g.const(p + "bounds", bounds.astype(np.float32))], p + "bounded")
+    head = s.site_kind.head
+    if head == MIXTURE:
         K = s.K
         axes = g.const(p + "axes", np.array([1]))
         cut = [g.const(p + f"c{i}", np.array([v])) for i, v in enumerate((0, K, 3 * K))]
@@ -102,7 +102,7 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
         rest = g.op("Slice", [bounded, cut[1], cut[2], axes], p + "rest")
         logw = g.op("LogSoftmax", [logits], p + "logw", axis=1)
         return g.op("Concat", [logw, rest], out, axis=1)
-    if s.kind == "bernoulli":
+    if head == SIGMOID:
         return g.op("Sigmoid", [bounded], out)
     return g.op("Softmax", [bounded], out, axis=1)
 
@@ -114,10 +114,10 @@ def build_onnx(model: GuideModel) -> onnx.ModelProto:
     for index in sorted(model.nets):
         net = model.nets[index]
         inputs.append(helper.make_tensor_value_info(
-            f"f_{index}", TensorProto.FLOAT, [f"n_{index}", net.spec.n_f]))
+            input_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_f]))
         _site_graph(g, index, net)
         outputs.append(helper.make_tensor_value_info(
-            f"p_{index}", TensorProto.FLOAT, [f"n_{index}", net.spec.n_out]))
+            output_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_out]))
     graph = helper.make_graph(g.nodes, f"ngpm_guide_{model.grammar}", inputs, outputs, g.inits)
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
                               producer_name="ngpmc export")

@@ -3,12 +3,10 @@
 A network takes the site's full raw feature row `(n, n_f)`, selects its columns, standardizes
 them with the training set's mean/std (a first affine op, so the runtime feeds raw features),
 applies one tanh hidden layer and maps the outputs through bounding transforms into the
-proposal parameters of docs/architecture.md section 5:
-
-- normal:      (n, 3K) log mixture weights, means, log sds in prior units
-- uniform:     (n, 3K) the same for z of a logit-normal mixture, x = a + (b - a) sigmoid(z)
-- bernoulli:   (n, 1) probability
-- categorical: (n, k) probabilities
+proposal parameters of docs/architecture.md section 5. What they are for each site kind
+comes from the runtime's table (ngpm_runtime.inference.sitekinds): the output columns and
+the head, a mixture (log weights, means, log sds: normal and uniform sites), a sigmoid
+(bernoulli: the probability of 1) or a softmax (categorical: k probabilities).
 
 `SiteNet.log_prob` scores training targets (continuous values already mapped to z, see
 `continuous_z`); export.py rebuilds `SiteNet.forward` op by op in ONNX.
@@ -23,13 +21,13 @@ from typing import Any
 import numpy as np
 import torch
 from ngpm_runtime.image.features import FEATURE_GROUPS, FEATURE_SETS
+from ngpm_runtime.inference.sitekinds import KINDS, MIXTURE, SIGMOID, SiteKind
 from torch import nn
 
 MIN_HIDDEN = 8
 MEAN_BOUND = 10.0  # |mixture mean| in prior units (normal) or in logit space (uniform)
 LOGSD_BOUND = 5.0  # |log sd|
 LOGIT_BOUND = 12.0  # |logit| of mixture weights and discrete probabilities
-UNIFORM_LOGSD0 = math.log(1.7)  # logit-normal(0, 1.7) is close to uniform(0, 1)
 Z_EPS = 1e-7  # uniform values are clipped into [a + eps, b - eps] before the logit
 
 
@@ -60,7 +58,7 @@ class NetSpec:
     hidden: int = 0
 
     def __post_init__(self) -> None:
-        if self.kind not in ("normal", "uniform", "bernoulli", "categorical"):
+        if self.kind not in KINDS:
             raise ValueError(f"unknown site kind {self.kind!r}")
         if self.cols and not self.hidden:
             self.hidden = max(MIN_HIDDEN, len(self.cols) // 2)
@@ -68,10 +66,12 @@ class NetSpec:
             self.hidden = 0
 
     @property
+    def site_kind(self) -> SiteKind:
+        return KINDS[self.kind]
+
+    @property
     def n_out(self) -> int:
-        if self.kind in ("normal", "uniform"):
-            return 3 * self.K
-        return 1 if self.kind == "bernoulli" else self.k
+        return self.site_kind.n_out(self.K, self.k)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -79,6 +79,16 @@ class NetSpec:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> NetSpec:
         return cls(**d)
+
+
+# the bound b of b * tanh(raw / b) of each role of output column (sitekinds.SiteKind.columns)
+BOUNDS = {"logw": LOGIT_BOUND, "mean": MEAN_BOUND, "logsd": LOGSD_BOUND, "prob": LOGIT_BOUND}
+
+
+def output_bounds(spec: NetSpec) -> np.ndarray:
+    """Per output column, the bound b of its bounding transform (`SiteNet.heads`)."""
+    return np.concatenate([np.full(width, BOUNDS[role])
+                           for role, width in spec.site_kind.columns(spec.K, spec.k)])
 
 
 def _bound(x: torch.Tensor, b: float) -> torch.Tensor:
@@ -91,6 +101,13 @@ def _unbound(y: float, b: float) -> float:
 
 class SiteNet(nn.Module):
     """One site's guide network; `forward` returns section-5 proposal parameters."""
+
+    cols: torch.Tensor  # buffers (register_buffer)
+    shift: torch.Tensor
+    scale: torch.Tensor
+    l1: nn.Linear | None
+    l2: nn.Linear | None
+    const: nn.Parameter | None
 
     def __init__(self, spec: NetSpec, mean: np.ndarray | None = None,
                  std: np.ndarray | None = None, prior_probs: tuple[float, ...] | None = None,
@@ -124,12 +141,13 @@ class SiteNet(nn.Module):
     def _prior_bias(self, prior_probs: tuple[float, ...] | None) -> list[float]:
         """Raw outputs for which the network's proposal is close to the prior."""
         s = self.spec
-        if s.kind in ("normal", "uniform"):
+        head = s.site_kind.head
+        if head == MIXTURE:
             spread = np.linspace(-0.3, 0.3, s.K) if s.K > 1 else np.zeros(1)
-            logsd0 = 0.0 if s.kind == "normal" else UNIFORM_LOGSD0
+            logsd0 = math.log(s.site_kind.z_sd0)
             means = [_unbound(float(m), MEAN_BOUND) for m in spread]
             return [0.0] * s.K + means + [_unbound(logsd0, LOGSD_BOUND)] * s.K
-        if s.kind == "bernoulli":  # prior_probs = (p,): probability of 1
+        if head == SIGMOID:  # prior_probs = (p,): probability of 1
             p1 = 0.5 if not prior_probs else float(np.clip(prior_probs[-1], 1e-4, 1 - 1e-4))
             return [_unbound(math.log(p1 / (1 - p1)), LOGIT_BOUND)]
         probs = np.full(s.k, 1.0 / s.k) if prior_probs is None else np.asarray(prior_probs, float)
@@ -141,15 +159,17 @@ class SiteNet(nn.Module):
 
     def raw(self, x: torch.Tensor) -> torch.Tensor:
         """Unbounded outputs `(n, n_out)` for raw feature rows `(n, n_f)`."""
-        if self.const is not None:
+        if self.l1 is None or self.l2 is None:
+            assert self.const is not None
             return self.const.unsqueeze(0).expand(x.shape[0], -1)
         h = (x[:, self.cols] - self.shift) * self.scale
-        return self.l2(torch.tanh(self.l1(h)))
+        out: torch.Tensor = self.l2(torch.tanh(self.l1(h)))
+        return out
 
     def heads(self, raw: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Bounded outputs: (log weights, means, log sds) or (logits,)."""
         s = self.spec
-        if s.kind in ("normal", "uniform"):
+        if s.site_kind.head == MIXTURE:
             K = s.K
             logw = torch.log_softmax(_bound(raw[:, :K], LOGIT_BOUND), dim=1)
             return logw, _bound(raw[:, K:2 * K], MEAN_BOUND), _bound(raw[:, 2 * K:], LOGSD_BOUND)
@@ -157,9 +177,10 @@ class SiteNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         out = self.heads(self.raw(x))
-        if self.spec.kind in ("normal", "uniform"):
+        head = self.spec.site_kind.head
+        if head == MIXTURE:
             return torch.cat(out, dim=1)
-        if self.spec.kind == "bernoulli":
+        if head == SIGMOID:
             return torch.sigmoid(out[0])
         return torch.softmax(out[0], dim=1)
 
@@ -167,14 +188,15 @@ class SiteNet(nn.Module):
         """log q of training targets `(n,)`: z for continuous sites (see `continuous_z`,
         without its Jacobian), 0/1 for bernoulli, the index for categorical."""
         out = self.heads(self.raw(x))
-        if self.spec.kind in ("normal", "uniform"):
+        head = self.spec.site_kind.head
+        if head == MIXTURE:
             logw, mean, logsd = out
             z = target.unsqueeze(1)
             comp = -0.5 * ((z - mean) * torch.exp(-logsd)) ** 2 - logsd \
                 - 0.5 * math.log(2 * math.pi)
             return torch.logsumexp(logw + comp, dim=1)
         logits = out[0]
-        if self.spec.kind == "bernoulli":
+        if head == SIGMOID:
             t = target.to(logits.dtype)
             return -nn.functional.binary_cross_entropy_with_logits(
                 logits[:, 0], t, reduction="none")
@@ -188,16 +210,9 @@ def continuous_z(kind: str, values: np.ndarray,
     normal (mu, sigma): z = (x - mu) / sigma, log q(x) = log q(z) - log sigma.
     uniform (a, b): z = logit((x - a) / (b - a)), log q(x) = log q(z) - log((b - a) u (1 - u)).
     bernoulli / categorical: the value itself (as an index), Jacobian 0.
+    (The runtime's site-kind table, `SiteKind.to_z`, holds these maps.)
     """
-    values = np.asarray(values, dtype=np.float64)
-    if kind == "normal":
-        mu, sigma = prior_args[:, 0], prior_args[:, 1]
-        return (values - mu) / sigma, -np.log(sigma)
-    if kind == "uniform":
-        a, b = prior_args[:, 0], prior_args[:, 1]
-        u = np.clip((values - a) / (b - a), Z_EPS, 1 - Z_EPS)
-        return np.log(u) - np.log1p(-u), -np.log((b - a) * u * (1 - u))
-    return np.rint(values), np.zeros(len(values))
+    return KINDS[kind].to_z(np.asarray(values, dtype=np.float64), prior_args, Z_EPS)
 
 
 GUIDE_FORMAT = "ngpm-guide-torch/1"

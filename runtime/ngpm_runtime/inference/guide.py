@@ -14,9 +14,15 @@ split the file), then sampling with distributions.proposal_draw. Sites without a
 one network call per waiting site, then one proposal_draw per group of sites with the same
 kind and parameter layout (the rows of all of them at once).
 
-Engines: a site net whose graph has the export's usual form runs in numpy (`NumpyNet`, the
-file's own weights, float32 like onnxruntime) if it gives onnxruntime's outputs on the probe
-rows; any other graph, or every net when `Guide.numpy_nets` is emptied, runs in onnxruntime.
+Engines (`Guide.engine` says which serves a site): with the `onnx` package (the compiler's
+installs), every site net that reads features runs in numpy (`NumpyNet`: the file's own
+weights, read by the names in guide_format, float32 like onnxruntime); a feature-free net
+(feature set `const`), or every net when `Guide.numpy_nets` is emptied, runs in its own
+onnxruntime session cut from the file. Without `onnx` (the runtime installed alone) the
+whole file runs in one onnxruntime session. The load checks that both engines give the same
+outputs on the probe rows; a parameter missing under its name, of the wrong shape, or a
+graph that computes something else than the numpy engine is a GuideError naming the file,
+the site and the cause, never a silent switch to the other engine.
 
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
@@ -38,9 +44,16 @@ from ngpm_runtime.errors import GuideError
 from ngpm_runtime.image.features import N_CONTEXT
 from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.inference import guide_checks as checks
+from ngpm_runtime.inference.guide_format import (
+    NET_PARAMS,
+    ONNX_FORMAT,
+    input_name,
+    output_name,
+    param_name,
+)
+from ngpm_runtime.inference.sitekinds import MIXTURE, SIGMOID
 from ngpm_runtime.program import Program, Site
 
-ONNX_FORMAT = "ngpm-guide-onnx/1"
 PROPOSAL_KEY = "proposal"  # optional metadata: ProposalSettings as JSON
 SITE_KEYS = ("id", "kind", "k")  # what must agree between the guide's and program's sites
 
@@ -115,11 +128,11 @@ class Guide:
         self.training: dict[str, Any] = meta["training"]
         self.fallback_sites: list[int] = [s.index for s in program.sites
                                           if s.index not in self.nets]
-        self._empty = {f"f_{i}": np.zeros((0, n["n_f"]), dtype=np.float32)
+        self._empty = {input_name(i): np.zeros((0, n["n_f"]), dtype=np.float32)
                        for i, n in self.nets.items()}
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
-        # the same nets evaluated in numpy (sites whose graph has the export's usual form);
+        # the same nets evaluated in numpy (every net that reads features, with `onnx`);
         # they answer instead of onnxruntime (empty this dict to use onnxruntime only)
         self.numpy_nets: dict[int, NumpyNet] = {}
 
@@ -154,12 +167,23 @@ class Guide:
         if names != set(guide._empty):
             raise GuideError(f"{path}: guide inputs do not match its metadata")
         model = _onnx_model(path, data)
-        if model is not None:
-            checks.check_model(path, model, meta)
+        consts = None if model is None else checks.check_model(path, model, meta)
         rows = checks.probe_rows(guide.nets)
-        checks.check_outputs(path, guide._probe(rows), program, guide.K)
-        guide.site_sessions, guide.numpy_nets = _site_engines(model, rows, opts)
+        probe = guide._probe(rows)
+        checks.check_outputs(path, probe, program, guide.K)
+        if model is not None and consts is not None:
+            guide.site_sessions = _site_sessions(path, model, list(rows), opts)
+            guide.numpy_nets = _numpy_nets(guide, consts, rows, probe)
         return guide
+
+    def engine(self, site: int) -> str:
+        """What computes the site's proposal parameters: "numpy", "onnxruntime" (the
+        site's own session), "onnxruntime (whole file)" or "prior" (no network)."""
+        if site not in self.nets:
+            return "prior"
+        if site in self.numpy_nets:
+            return "numpy"
+        return "onnxruntime" if site in self.site_sessions else "onnxruntime (whole file)"
 
     def _probe(self, rows: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
         """Every site network's outputs on `rows`, from the whole file (GuideError naming
@@ -169,8 +193,8 @@ class Guide:
         quiet = ort.RunOptions()
         quiet.log_severity_level = 4  # the error is reported once, below
         try:
-            outs = self.session.run([f"p_{i}" for i in rows],
-                                    {f"f_{i}": x for i, x in rows.items()}, quiet)
+            outs = self.session.run([output_name(i) for i in rows],
+                                    {input_name(i): x for i, x in rows.items()}, quiet)
         except Exception as err:  # onnxruntime's errors for a graph that cannot run
             why = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
             raise GuideError(f"{self.path}: the guide's networks fail on test rows "
@@ -185,11 +209,11 @@ class Guide:
             return self._temper(site, numpy_net(x))
         sess = self.site_sessions.get(site)
         if sess is not None:
-            (out,) = sess.run(None, {f"f_{site}": x})
+            (out,) = sess.run(None, {input_name(site): x})
         else:  # the whole file: every input must be fed (empty batches run too)
             feeds = dict(self._empty)
-            feeds[f"f_{site}"] = x
-            (out,) = self.session.run([f"p_{site}"], feeds)
+            feeds[input_name(site)] = x
+            (out,) = self.session.run([output_name(site)], feeds)
         return self._temper(site, out.astype(np.float64))
 
     def _temper(self, site: int, params: np.ndarray) -> np.ndarray:
@@ -224,8 +248,8 @@ class Guide:
             return [self.params(s, f, n) for s, f, n in zip(sites, features, ns, strict=True)]
         feeds = dict(self._empty)
         for s, f, n in zip(sites, features, ns, strict=True):
-            feeds[f"f_{s}"] = self._input(s, f, n)
-        outs = self.session.run([f"p_{s}" for s in sites], feeds)
+            feeds[input_name(s)] = self._input(s, f, n)
+        outs = self.session.run([output_name(s) for s in sites], feeds)
         return [self._temper(s, o.astype(np.float64)) for s, o in zip(sites, outs, strict=True)]
 
     def propose_round(self, sites: list[Site], prior_args: list[np.ndarray],
@@ -294,68 +318,60 @@ def _onnx_model(path: str, data: bytes) -> Any:
             from None
 
 
-def _site_engines(model: Any, rows: dict[int, np.ndarray], opts: ort.SessionOptions
-                  ) -> tuple[dict[int, ort.InferenceSession], dict[int, NumpyNet]]:
+def _site_sessions(path: str, model: Any, sites: list[int], opts: ort.SessionOptions
+                   ) -> dict[int, ort.InferenceSession]:
     """One onnxruntime session per site net, cut from the file's graph `model` (a call then
-    runs only that net), and a NumpyNet for each cut graph of the usual form that gives the
-    session's outputs on `rows`; both empty when the `onnx` package is missing (`model`
-    None) or cannot split the file."""
-    if model is None:
-        return {}, {}
+    runs only that net); GuideError naming the cause if the graph cannot be cut."""
     import onnx.utils
 
     try:
         extractor = onnx.utils.Extractor(model)
-        models = {s: extractor.extract_model([f"f_{s}"], [f"p_{s}"]) for s in rows}
-        sessions = {s: ort.InferenceSession(m.SerializeToString(), opts,
-                                            providers=["CPUExecutionProvider"])
-                    for s, m in models.items()}
-    except Exception:  # any failure: the whole-file session still works
-        return {}, {}
-    nets = {}
-    for s, m in models.items():
-        net = NumpyNet.from_graph(m.graph)
-        if net is not None and net.agrees(sessions[s], f"f_{s}", rows[s]):
-            nets[s] = net
-    return sessions, nets
+        return {s: ort.InferenceSession(
+                    extractor.extract_model([input_name(s)], [output_name(s)])
+                    .SerializeToString(), opts, providers=["CPUExecutionProvider"])
+                for s in sites}
+    except Exception as err:  # onnx's and onnxruntime's errors, several types
+        why = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
+        raise GuideError(f"{path}: cannot cut the guide into its site networks: {why}") \
+            from None
 
 
-_HEADS = {("Slice", "Slice", "LogSoftmax", "Concat"): "mixture", ("Softmax",): "softmax",
-          ("Sigmoid",): "sigmoid"}
-
-
-def _wired(graph: Any, nodes: list[Any], head: str) -> bool:
-    """Whether the nodes of a graph of the export's usual form feed each other as NumpyNet
-    computes: a chain from the input to the Mul, then the head (along axis 1) to the
-    output."""
-    from onnx import helper
-
-    first = [n.input[0] for n in nodes]
-    out = [n.output[0] if len(n.output) == 1 else "" for n in nodes]
-    axes = [{a.name: helper.get_attribute_value(a) for a in n.attribute}.get("axis", 1)
-            for n in nodes[6:] if n.op_type != "Slice"]
-    if head == "mixture":
-        feeds = (first[6:9] == [out[5], out[5], out[6]]
-                 and list(nodes[9].input) == [out[8], out[7]])
-    else:
-        feeds = first[6] == out[5]
-    return (first[:6] == [graph.input[0].name, *out[:5]] and feeds
-            and len(graph.output) == 1 and graph.output[0].name == out[-1]
-            and all(a in (1, -1) for a in axes))
+def _numpy_nets(guide: Guide, consts: dict[str, np.ndarray], rows: dict[int, np.ndarray],
+                probe: dict[int, np.ndarray]) -> dict[int, NumpyNet]:
+    """A NumpyNet for every site net that reads features, from the parameters `consts` by
+    name; GuideError if one is missing or misshapen, or if a net does not give
+    onnxruntime's outputs `probe` on the probe `rows`."""
+    columns = guide.meta["features"]["columns"]
+    out = {}
+    for s, meta in sorted(guide.nets.items()):
+        if not columns[str(s)]:  # feature-free: a constant row (onnxruntime runs it)
+            continue
+        site = guide.program.sites[s]
+        where = f"{guide.path}: site {s} ({site.id}) network"
+        net = NumpyNet.from_params(where, s, consts, dist.kind_of(site).head, guide.K,
+                                   meta["n_f"], meta["n_out"])
+        got, want = net(rows[s]), probe[s].astype(np.float64)
+        if not np.allclose(got, want, rtol=1e-4, atol=1e-5):
+            worst = float(np.max(np.abs(got - want)))
+            raise GuideError(f"{where}: its graph does not compute what `ngpmc export` "
+                             f"writes (the numpy engine and onnxruntime differ by "
+                             f"{worst:.3g} on test rows; edited file?)")
+        out[s] = net
+    return out
 
 
 class NumpyNet:
-    """One site network evaluated in numpy, float32 like onnxruntime, from the weights in
-    the ONNX file: `tanh(x[:, cols] @ W1' + b1)`, then `bounds * tanh(h @ W2' + b2)`, then
-    the head (log-softmax over the first K mixture columns, softmax, or sigmoid): the graph
-    ngpm_compiler/learning/export.py writes. Other graphs get no NumpyNet (onnxruntime runs
-    them).
+    """One site network evaluated in numpy, float32 like onnxruntime, from the parameters of
+    the ONNX file, read by name (guide_format): `tanh(x[:, cols] @ w1' + b1)`, then
+    `bounds * tanh(h @ w2' + b2)`, then the site kind's head (sitekinds: log-softmax over
+    the first K mixture columns, sigmoid or softmax): the graph
+    ngpm_compiler/learning/export.py writes.
 
     Why: SMC's batches are small, and there a call costs a few numpy operations where
     onnxruntime's per-call overhead dominates (benchmarks/smc.py --nets prints both, from 1
     to 1000 rows); one engine for every batch size keeps a particle's proposal independent
-    of how many particles share its round. tests/runtime/inference/test_guide.py checks it
-    against onnxruntime to 1e-5."""
+    of how many particles share its round. Guide.load checks it against onnxruntime on the
+    probe rows; tests/runtime/inference/test_guide.py on many more, to 1e-5."""
 
     def __init__(self, n_f: int, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                  w2: np.ndarray, b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
@@ -371,54 +387,29 @@ class NumpyNet:
         self.k = k
 
     @classmethod
-    def from_graph(cls, graph: Any) -> NumpyNet | None:
-        """The NumpyNet of an export's per-site graph; None for any other graph."""
-        from onnx import helper, numpy_helper
-
-        nodes = list(graph.node)
-        ops = tuple(n.op_type for n in nodes)
-        head = _HEADS.get(ops[6:])
-        if (ops[:6] != ("Gather", "Gemm", "Tanh", "Gemm", "Tanh", "Mul") or head is None
-                or not _wired(graph, nodes, head)):
-            return None
-        consts = {t.name: numpy_helper.to_array(t) for t in graph.initializer}
-        for gemm in (nodes[1], nodes[3]):
-            attrs = {a.name: helper.get_attribute_value(a) for a in gemm.attribute}
-            if attrs != {"transB": 1} or len(gemm.input) != 3:
-                return None
-        gather = {a.name: helper.get_attribute_value(a) for a in nodes[0].attribute}
-        try:
-            cols = consts[nodes[0].input[1]]
-            w1, b1 = consts[nodes[1].input[1]], consts[nodes[1].input[2]]
-            w2, b2 = consts[nodes[3].input[1]], consts[nodes[3].input[2]]
-            bounds = consts[nodes[5].input[1]]
-            k = 0
-            if head == "mixture":
-                sl = nodes[6]
-                starts, ends = consts[sl.input[1]].tolist(), consts[sl.input[2]].tolist()
-                axes = consts[sl.input[3]].tolist() if len(sl.input) > 3 else [0]
-                if starts != [0] or axes != [1] or len(sl.input) > 4:
-                    return None
-                k = int(ends[0])
-                rest = nodes[7]
-                if (consts[rest.input[1]].tolist() != [k] or len(rest.input) > 4
-                        or consts[rest.input[2]].tolist()[0] < w2.shape[0]):
-                    return None
-        except (KeyError, IndexError):
-            return None
-        if gather.get("axis") != 1 or b1.shape != (w1.shape[0],) or w2.shape[1] != w1.shape[0]:
-            return None
-        n_f = graph.input[0].type.tensor_type.shape.dim[1].dim_value
-        return cls(int(n_f), cols, w1, b1, w2, b2, bounds, head, k)
-
-    def agrees(self, session: ort.InferenceSession, name: str, x: np.ndarray) -> bool:
-        """Whether this net gives `session`'s outputs (float rounding aside) on rows `x`
-        fed to its input `name`."""
-        try:
-            (want,) = session.run(None, {name: x})
-        except Exception:  # onnxruntime's errors: that engine cannot run these rows either
-            return False
-        return np.allclose(self(x), want, rtol=1e-4, atol=1e-5)
+    def from_params(cls, where: str, site: int, consts: dict[str, np.ndarray], head: str,
+                    K: int, n_f: int, n_out: int) -> NumpyNet:
+        """Site `site`'s network from the file's parameters `consts` (name -> array), for a
+        kind with `head`; GuideError (starting with `where`) for a parameter missing under
+        its name or of another shape than the export writes."""
+        names = [param_name(site, role) for role in NET_PARAMS]
+        missing = [name for name in names if name not in consts]
+        if missing:
+            raise GuideError(f"{where} has no parameter {missing[0]} (renamed or damaged "
+                             "file?)")
+        cols, w1, b1, w2, b2, bounds = (consts[name] for name in names)
+        hidden = w1.shape[0] if w1.ndim == 2 else -1
+        want = {names[0]: (len(cols),), names[1]: (hidden, len(cols)), names[2]: (hidden,),
+                names[3]: (n_out, hidden), names[4]: (n_out,), names[5]: (n_out,)}
+        for name, a in zip(names, (cols, w1, b1, w2, b2, bounds), strict=True):
+            dtype = np.int64 if name == names[0] else np.float32
+            if a.shape != want[name] or a.dtype != dtype or hidden < 1:
+                raise GuideError(f"{where}: parameter {name} is {a.dtype} of shape "
+                                 f"{list(a.shape)}, not the export's (damaged file?)")
+        if cols.min(initial=0) < 0 or cols.max(initial=0) >= n_f:
+            raise GuideError(f"{where}: parameter {names[0]} reads columns outside the "
+                             f"{n_f} features (damaged file?)")
+        return cls(n_f, cols, w1, b1, w2, b2, bounds, head, K if head == MIXTURE else 0)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
@@ -429,15 +420,15 @@ class NumpyNet:
         o += self.b2
         np.tanh(o, out=o)
         o *= self.bounds
-        if self.head == "mixture":
+        if self.head == MIXTURE:
             lw = o[:, :self.k]
             d = lw - lw.max(axis=1, keepdims=True)
             lw[:] = d - np.log(np.exp(d).sum(axis=1, keepdims=True))
-        elif self.head == "softmax":
+        elif self.head == SIGMOID:
+            o = 1 / (1 + np.exp(-o))
+        else:
             o = np.exp(o - o.max(axis=1, keepdims=True))
             o /= o.sum(axis=1, keepdims=True)
-        else:
-            o = 1 / (1 + np.exp(-o))
         return o.astype(np.float64)
 
 
@@ -489,8 +480,8 @@ def validate_guide_graph(path: str, session: ort.InferenceSession, meta: dict[st
         if n_out != want:
             raise GuideError(f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
                              f"a {site.kind} site needs {want}")
-        for kind, name, have, width in (("input", f"f_{i}", inputs, n_f),
-                                        ("output", f"p_{i}", outputs, n_out)):
+        for kind, name, have, width in (("input", input_name(i), inputs, n_f),
+                                        ("output", output_name(i), outputs, n_out)):
             shape = have.get(name)
             if shape is None:
                 raise GuideError(f"{path}: the ONNX graph has no {kind} {name} for site {i} "

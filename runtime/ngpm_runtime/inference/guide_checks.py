@@ -20,6 +20,8 @@ import numpy as np
 
 from ngpm_runtime.errors import GuideError
 from ngpm_runtime.image.features import FEATURE_GROUPS
+from ngpm_runtime.inference.distributions import kind_of
+from ngpm_runtime.inference.guide_format import input_name
 from ngpm_runtime.program import Program, Site
 
 MAX_GUIDE_BYTES = 256 * 2**20  # the bundled guide is 0.2 MB
@@ -192,10 +194,10 @@ def _check_training(path: str, training: Any) -> None:
             raise _bad(path, f"'training'[{key!r}]", "a number", v)
 
 
-def check_model(path: str, model: Any, meta: dict[str, Any]) -> None:
+def check_model(path: str, model: Any, meta: dict[str, Any]) -> dict[str, np.ndarray]:
     """GuideError unless the ONNX graph uses only the operators export writes and every
     parameter is a float32 or int64 tensor stored in the file, finite and in range, and each
-    network reads the feature columns its metadata lists."""
+    network reads the feature columns its metadata lists. Returns the parameters by name."""
     from onnx import numpy_helper
 
     graph = model.graph
@@ -214,6 +216,7 @@ def check_model(path: str, model: Any, meta: dict[str, Any]) -> None:
         a = consts[t.name] = numpy_helper.to_array(t)
         _check_values(path, t.name, a)
     _check_columns(path, graph, consts, meta)
+    return consts
 
 
 def _check_values(path: str, name: str, a: np.ndarray) -> None:
@@ -239,11 +242,12 @@ def _check_columns(path: str, graph: Any, consts: dict[str, np.ndarray],
     const network only through Shape)."""
     columns = meta["features"]["columns"]
     for key in meta["nets"]:
-        readers = [n for n in graph.node if f"f_{key}" in n.input]
+        name = input_name(int(key))
+        readers = [n for n in graph.node if name in n.input]
         cols = columns[key]
         ok = (all(n.op_type == "Shape" for n in readers) if not cols else
               len(readers) == 1 and readers[0].op_type == "Gather" and readers[0].input[0]
-              == f"f_{key}" and consts.get(readers[0].input[1], np.empty(0)).tolist() == cols)
+              == name and consts.get(readers[0].input[1], np.empty(0)).tolist() == cols)
         if not ok:
             raise GuideError(f"{path}: site {key} network does not read the feature columns "
                              "its metadata lists (damaged file?)")
@@ -262,9 +266,7 @@ def probe_rows(nets: dict[int, dict[str, Any]]) -> dict[int, np.ndarray]:
 
 def expected_outputs(site: Site, K: int) -> int:
     """Columns of a site network's output (docs/architecture.md section 5)."""
-    if site.kind in ("normal", "uniform"):
-        return 3 * K
-    return 1 if site.kind == "bernoulli" else int(site.k or 0)
+    return kind_of(site).n_out(K, int(site.k or 0))
 
 
 def check_outputs(path: str, outputs: dict[int, np.ndarray], program: Program, K: int) -> None:
@@ -284,11 +286,4 @@ def _invalid(site: Site, out: np.ndarray, K: int) -> str:
         return f"outputs of shape {list(out.shape)}"
     if not np.isfinite(out).all():
         return "values that are not finite"
-    if site.kind in ("normal", "uniform"):
-        total = np.logaddexp.reduce(out[:, :K], axis=1)
-        return "" if np.abs(total).max() < TOL else "mixture weights that do not sum to 1"
-    if out.min() < 0 or out.max() > 1:
-        return "probabilities outside [0, 1]"
-    if site.kind == "categorical" and np.abs(out.sum(axis=1) - 1).max() > TOL:
-        return "probabilities that do not sum to 1"
-    return ""
+    return kind_of(site).output_problem(out, K, TOL)

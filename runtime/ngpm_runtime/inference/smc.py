@@ -42,7 +42,7 @@ from ngpm_runtime.geometry.derive import (
 )
 from ngpm_runtime.geometry.turtle import Prim, cons_to_list, prim_bbox
 from ngpm_runtime.image.raster import DrawBatch
-from ngpm_runtime.inference.distributions import prior_logpdf
+from ngpm_runtime.inference.distributions import kind_of, prior_logpdf
 from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBatch
 from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
 from ngpm_runtime.inference.resample import SCHEMES
@@ -309,7 +309,7 @@ class _Run:
         self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
         self.state = SMCState(n, self.pop.log_lik)
         self.order = SiteOrder()
-        # categorical log prior per (site, weights)
+        # log prior of weighted (categorical) sites per (site, weights)
         self.tables: dict[tuple[int, Args], list[float]] = {}
         # (particles, log q or None for the prior proposal, log p) of the sites served
         self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
@@ -449,7 +449,7 @@ class _Run:
             site = program.sites[s]
             rows = [parts[i].need[1] for i in idx]  # type: ignore[index]  # waiting: set
             args = _prior_args(site, rows)
-            if site.kind != "categorical" and args.shape[1] != site.n_args():
+            if not kind_of(site).weighted and args.shape[1] != site.n_args():
                 raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
                                    f"{site.n_args()} arguments, got {args.shape[1]}")
             objs.append(site)
@@ -482,8 +482,8 @@ class _Run:
         else:
             log_q = np.asarray(log_q, dtype=np.float64)
             log_p = None
-            if site.kind == "categorical":
-                log_p = _categorical_logp(site, rows, args, vals, self.tables)
+            if kind_of(site).weighted:  # often one weight tuple for all rows: a table
+                log_p = _weights_logp(site, rows, args, vals, self.tables)
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
             self.pending.append((ia, log_q, log_p))
@@ -622,7 +622,7 @@ def _record(parts: list[Particle], site: Site, idx: list[int], vals: list[float]
         for i, v in zip(idx, vals, strict=True):
             p = parts[i]
             p.trace = ((s, None, v), p.trace)
-    cont = site.kind == "normal" or site.kind == "uniform"
+    cont = kind_of(site).continuous
     for i, v in zip(idx, vals, strict=True):
         p = parts[i]
         p.values += (v,)
@@ -705,9 +705,10 @@ def replay(
     return res.particles[0]
 
 
-def _categorical_logp(site: Site, rows: list[Args], args: np.ndarray, vals: list[float],
-                      tables: dict[tuple[int, Args], list[float]]) -> np.ndarray | None:
-    """prior_logpdf of categorical values whose rows share one weight tuple, from a table
+def _weights_logp(site: Site, rows: list[Args], args: np.ndarray, vals: list[float],
+                  tables: dict[tuple[int, Args], list[float]]) -> np.ndarray | None:
+    """prior_logpdf of the values of a weighted site (categorical) whose rows share one
+    weight tuple, from a table
     made by prior_logpdf itself (the same numbers); None when it does not apply."""
     first = rows[0]
     for r in rows:

@@ -239,7 +239,7 @@ def test_small_normal_draw_matches_the_array_path() -> None:
 def test_lean_normal_draw_matches_the_general_path() -> None:
     """More than a few rows take `_lean_normal_draw`: the general path's values and log q
     (the same formulas in the same order), and None for what it does not handle."""
-    from ngpm_runtime.inference.distributions import (
+    from ngpm_runtime.inference.sitekinds import (
         _lean_normal_draw,
         _mixture_logpdf,
         _mixture_sample,

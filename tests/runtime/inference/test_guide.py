@@ -97,6 +97,35 @@ def test_numpy_nets_match_onnxruntime(tmp_path, K, feature_set):
             np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
 
 
+def test_bundled_guide_engines_agree():
+    """The bundled guide: every network runs in numpy (its weights read by name) and gives
+    onnxruntime's outputs (the site's own session) to 1e-5, for batches of 1 to 500 rows
+    of feature-like and of wilder numbers."""
+    from ngpm_runtime import bundled
+    from ngpm_runtime.inference.guide_format import input_name
+
+    g = bundled.bundled_guide()
+    assert len(g.nets) == 8 and [g.engine(s) for s in g.nets] == ["numpy"] * 8
+    rng = np.random.default_rng(8)
+    for s, net in g.nets.items():
+        for n, scale in ((1, 1.0), (4, 3.0), (50, 1.0), (500, 0.5)):
+            x = (rng.uniform(-1, 1, size=(n, net["n_f"])) * scale).astype(np.float32)
+            (want,) = g.site_sessions[s].run(None, {input_name(s): x})
+            np.testing.assert_allclose(g.numpy_nets[s](x), want, rtol=1e-5, atol=1e-5)
+
+
+def test_engine_names_the_path(tmp_path):
+    """Guide.engine: numpy for a net that reads features, onnxruntime for a feature-free
+    one, the prior for a site without a net; emptying numpy_nets switches to onnxruntime."""
+    g = Guide.load(write_onnx(random_model(2, "all", skip=(2,)), tmp_path / "g.onnx"),
+                   fake_program())
+    assert [g.engine(s) for s in range(4)] == ["numpy", "numpy", "prior", "numpy"]
+    g.numpy_nets = {}
+    assert g.engine(0) == "onnxruntime"
+    c = Guide.load(write_onnx(random_model(2, "const"), tmp_path / "c.onnx"), fake_program())
+    assert c.engine(0) == "onnxruntime"
+
+
 def test_const_guide_runs_in_onnxruntime(tmp_path):
     """A graph of another form (the const nets' Expand) gets no numpy engine."""
     g = Guide.load(write_onnx(random_model(2, "const"), tmp_path / "c.onnx"), fake_program())
