@@ -145,7 +145,7 @@ def choices(allowed: Sequence[str], what: str) -> Callable[[str], tuple[str, ...
     return parse
 
 
-def _proposal(field: str, value: float | None) -> float | None:
+def _proposal(field: str, value: float) -> float:
     """`value` checked as ProposalSettings checks its `field` (one rule, kept there)."""
     from ngpm_runtime.errors import GuideError
     from ngpm_runtime.inference.guide import ProposalSettings
@@ -166,7 +166,7 @@ def _number(text: str) -> float:
 
 def temperatures(text: str) -> tuple[float, ...]:
     """Comma-separated proposal temperatures (the range ProposalSettings allows)."""
-    return tuple(_proposal("temperature", _number(x)) for x in items(text))  # type: ignore
+    return tuple(_proposal("temperature", _number(x)) for x in items(text))
 
 
 def ess_thresholds(text: str) -> tuple[float | None, ...]:

@@ -125,7 +125,7 @@ def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str
 def shape_tasks(models: Iterable[str], datasets: dict[str, int], ns: Iterable[int],
                 repeats: int, base_seed: int = 0) -> list[RunTask]:
     """Every (model, dataset target, N, repeat) combination; `datasets` maps name -> count."""
-    tasks = []
+    tasks: list[RunTask] = []
     offset = 0
     for ds, count in datasets.items():
         for ti in range(count):
