@@ -7,9 +7,13 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ngpm_runtime.image.resolution import MIN_SIDE  # not targets: no PIL at start-up
+
+if TYPE_CHECKING:  # the SMC loads only for the commands that run it
+    from ngpm_runtime.inference.smc import FinalParticle
+    from ngpm_runtime.program import Program
 
 MAX_RENDER_SIZE = 8192  # pixels per side of a rendered image (`sample --size`)
 MAX_TARGET_SIZE = 1024  # pixels per side of a target's working resolution (`--size`)
@@ -198,9 +202,10 @@ def add_target_size(parser: argparse.ArgumentParser) -> None:
                              f"{MAX_TARGET_SIZE})")
 
 
-def limit_note(particle: Any, program: Any, max_modules: int | None) -> str | None:
+def limit_note(particle: FinalParticle, program: Program,
+               max_modules: int | None) -> str | None:
     """One line saying which cap stopped `particle`, and how to raise it; None if none did."""
-    if getattr(particle, "status", None) != "limit" or not getattr(particle, "limit", None):
+    if particle.status != "limit" or not particle.limit:
         return None
     from ngpm_runtime.inference.smc import module_cap
 
