@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, TextIO
 
 PLAIN_INTERVAL = 10.0  # seconds between plain progress lines
+Log = Callable[[str], None]  # where long jobs report a line: print, or a log file's writer
 
 
 class Progress:

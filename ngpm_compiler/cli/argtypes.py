@@ -7,9 +7,13 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from ngpm_runtime.image.resolution import MIN_SIDE  # not targets: no PIL at start-up
+
+if TYPE_CHECKING:  # the SMC loads only for the commands that run it
+    from ngpm_runtime.inference.smc import FinalParticle
+    from ngpm_runtime.program import Program
 
 MAX_RENDER_SIZE = 8192  # pixels per side of a rendered image (`sample --size`)
 MAX_TARGET_SIZE = 1024  # pixels per side of a target's working resolution (`--size`)
@@ -145,7 +149,7 @@ def choices(allowed: Sequence[str], what: str) -> Callable[[str], tuple[str, ...
     return parse
 
 
-def _proposal(field: str, value: float | None) -> float | None:
+def _proposal(field: str, value: float) -> float:
     """`value` checked as ProposalSettings checks its `field` (one rule, kept there)."""
     from ngpm_runtime.errors import GuideError
     from ngpm_runtime.inference.guide import ProposalSettings
@@ -166,7 +170,7 @@ def _number(text: str) -> float:
 
 def temperatures(text: str) -> tuple[float, ...]:
     """Comma-separated proposal temperatures (the range ProposalSettings allows)."""
-    return tuple(_proposal("temperature", _number(x)) for x in items(text))  # type: ignore
+    return tuple(_proposal("temperature", _number(x)) for x in items(text))
 
 
 def ess_thresholds(text: str) -> tuple[float | None, ...]:
@@ -198,9 +202,10 @@ def add_target_size(parser: argparse.ArgumentParser) -> None:
                              f"{MAX_TARGET_SIZE})")
 
 
-def limit_note(particle: Any, program: Any, max_modules: int | None) -> str | None:
+def limit_note(particle: FinalParticle, program: Program,
+               max_modules: int | None) -> str | None:
     """One line saying which cap stopped `particle`, and how to raise it; None if none did."""
-    if getattr(particle, "status", None) != "limit" or not getattr(particle, "limit", None):
+    if particle.status != "limit" or not particle.limit:
         return None
     from ngpm_runtime.inference.smc import module_cap
 

@@ -11,7 +11,7 @@ from ngpm_compiler.experiments import demo
 DEFAULT_OUT = "ngpm_demo"
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "demo", help="grow guided and unguided vines into built-in targets (no training)",
         description="Grow the vines model into a few built-in targets with the bundled "

@@ -22,7 +22,7 @@ from ngpm_compiler.experiments.config import EvalConfig, quick_config
 from ngpm_compiler.experiments.pipeline import STAGES, EvalError, run_eval
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("eval", help="run the paper's experiments and write results",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("-o", "--out", required=True, type=argtypes.path,

@@ -21,7 +21,7 @@ GRAMMAR_HELP = ("the .lsys file, or a *_sampler.py written by `ngpmc compile`: t
                 "other .py files without running them)")
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("compile", help="compile a .lsys grammar into a Python sampler")
     p.add_argument("grammar", help="the .lsys file")
     p.add_argument("-o", "--out", type=argtypes.path, default=".",

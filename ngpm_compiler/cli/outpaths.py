@@ -9,7 +9,7 @@ from pathlib import Path
 from ngpm_runtime.errors import NgpmError
 
 
-def check_output_file(path: str | os.PathLike, what: str = "file") -> Path:
+def check_output_file(path: str | os.PathLike[str], what: str = "file") -> Path:
     """NgpmError unless `path` can be written as a file: not a folder, in a writable folder."""
     path = Path(path)
     folder = path.parent
@@ -22,7 +22,7 @@ def check_output_file(path: str | os.PathLike, what: str = "file") -> Path:
     return path
 
 
-def check_output_folder(path: str | os.PathLike) -> Path:
+def check_output_folder(path: str | os.PathLike[str]) -> Path:
     """NgpmError unless `path` is a folder or can be made one."""
     path = Path(path)
     if path.exists() and not path.is_dir():

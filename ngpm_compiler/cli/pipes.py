@@ -51,7 +51,7 @@ def install() -> TextIO:
     """Wrap sys.stdout; returns the stream it wrapped (to put back with `restore`)."""
     old = sys.stdout
     if not isinstance(old, PipeSafeStdout):
-        sys.stdout = PipeSafeStdout(old)  # type: ignore[assignment]
+        sys.stdout = PipeSafeStdout(old)
     return old
 
 

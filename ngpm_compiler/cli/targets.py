@@ -14,7 +14,7 @@ from ngpm_compiler.cli.outpaths import check_output_file
 from ngpm_compiler.datasets.build import DATASETS, DatasetWarning, build_dataset, contact_sheet
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "targets", help="build, list and preview target image datasets",
         description="Build, list and preview target image datasets (see docs/datasets.md).")

@@ -20,7 +20,9 @@ PICTURE = "my_picture"  # the tour's target picture: the demo's horse, copied
 
 def fences(text: str) -> list[tuple[str, str]]:
     """(language, body) of every fenced block, in order."""
-    out, lang, body = [], None, []
+    out: list[tuple[str, str]] = []
+    lang: str | None = None
+    body: list[str] = []
     for line in text.splitlines():
         if line.startswith("```"):
             if lang is None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import hashlib
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from ngpm_runtime.files import atomic_write
@@ -31,6 +31,7 @@ from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
     SUMMARY_FIELDS,
     UNGUIDED,
+    RunResult,
     RunTask,
     n_to_match,
     pick,
@@ -39,6 +40,10 @@ from ngpm_compiler.evaluation.runs import (
     summarize,
     write_csv,
 )
+from ngpm_compiler.progress import Log
+
+if TYPE_CHECKING:  # targets loads PIL: only when targets are loaded
+    from ngpm_runtime.image.targets import Target
 
 RUNS_FILE = "heldout_runs.csv"
 HASH_FIELDS = ("guide_sha", "target_sha", "grammar_sha")
@@ -56,7 +61,7 @@ def parse_pairs(text: str) -> dict[str, str]:
     return out
 
 
-def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Any]]:
+def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Target]]:
     """k targets of each set, spread evenly over the set's sorted files (no mirrors)."""
     from ngpm_runtime.image.targets import load_dataset
 
@@ -64,7 +69,7 @@ def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Any]]:
             for name, d in sets.items()}
 
 
-def heldout_tasks(targets: dict[str, list[Any]], guides: list[str], guided_n: int,
+def heldout_tasks(targets: dict[str, list[Target]], guides: list[str], guided_n: int,
                   unguided_ns: tuple[int, ...], repeats: int, base_seed: int = 0
                   ) -> list[RunTask]:
     """Every guide at `guided_n` and unguided SMC at `guided_n` and `unguided_ns`; a run's
@@ -86,14 +91,14 @@ def short_hash(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def target_hash(target: Any) -> str:
+def target_hash(target: Target) -> str:
     """Content hash of a loaded target: what a run sees of it, its mask and start."""
     mask = np.ascontiguousarray(target.mask, dtype=bool)
     shape_start = repr((mask.shape, tuple(float(v) for v in target.start))).encode()
     return short_hash(shape_start + np.packbits(mask).tobytes())
 
 
-def run_ids(tasks: list[RunTask], targets: dict[str, list[Any]], grammar: str,
+def run_ids(tasks: list[RunTask], targets: dict[str, list[Target]], grammar: str,
             guides: dict[str, str]) -> dict[RunTask, dict[str, Any]]:
     """Each task's cache identity: the key columns of its row in heldout_runs.csv."""
     grammar_sha = short_hash(Path(grammar).read_bytes())
@@ -115,7 +120,7 @@ def _key(row: dict[str, Any]) -> tuple[Any, ...]:
 def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dict[str, str],
                 k: int = 16, repeats: int = 3, guided_n: int = 10,
                 unguided_ns: tuple[int, ...] = (200, 600, 2000), workers: int = 2,
-                seed: int = 0, log: Any = print) -> dict[str, Any]:
+                seed: int = 0, log: Log = print) -> dict[str, Any]:
     """Run what `heldout_runs.csv` lacks, then write the summary and table."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -137,14 +142,14 @@ def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dic
     return {"rows": rows, "summary": summary, "table": table}
 
 
-def _run_todo(runs_path: Path, grammar: str, targets: dict[str, list[Any]],
+def _run_todo(runs_path: Path, grammar: str, targets: dict[str, list[Target]],
               guides: dict[str, str], todo: list[RunTask], ids: dict[RunTask, dict[str, Any]],
               have: dict[tuple[Any, ...], dict[str, str]], workers: int, seed: int,
-              log: Any) -> None:
+              log: Log) -> None:
     """Run `todo`, appending each run to `runs_path` (and to `have`) as it finishes."""
     done = 0
     with open(runs_path, "a", encoding="utf-8", newline="") as fh:
-        def note(r: Any) -> None:
+        def note(r: RunResult) -> None:
             nonlocal done
             row = append_run(fh, {**r.row(), **ids[r.task]}, HELDOUT_FIELDS)
             have[_key(row)] = row

@@ -18,13 +18,14 @@ from typing import Any, TextIO
 from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.evaluation.runs import write_csv
+from ngpm_compiler.progress import Log
 
 INTS = ("n", "repeat", "seed", "primitives")  # columns that must read as numbers
 FLOATS = ("similarity", "seconds")
 
 
 def read_runs(path: str | Path, fields: tuple[str, ...], required: tuple[str, ...],
-              log: Any = print) -> list[dict[str, str]]:
+              log: Log = print) -> list[dict[str, str]]:
     """The readable rows of `path` (none if it is missing) with every column of `fields`,
     after rewriting the file if it holds a torn or bad line or another header. `required`:
     the columns a file must have to be a runs file at all."""

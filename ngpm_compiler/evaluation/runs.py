@@ -20,13 +20,19 @@ import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.jobs import backends, pool
 from ngpm_compiler.jobs.driver import drive
+
+if TYPE_CHECKING:  # targets loads PIL, grow the SMC: only in the workers that run
+    from ngpm_runtime.geometry.turtle import Prim
+    from ngpm_runtime.image.targets import Target
+    from ngpm_runtime.inference.proposals import Proposal
+    from ngpm_runtime.program import Program
 
 RUN_FIELDS = ("model", "dataset", "target", "n", "repeat", "seed", "similarity", "seconds",
               "primitives")
@@ -51,7 +57,7 @@ class RunResult:
     target_name: str
     similarity: float
     seconds: float
-    primitives: list[tuple]
+    primitives: list[Prim]
 
     def row(self) -> dict[str, Any]:
         t = self.task
@@ -66,8 +72,8 @@ def run_seed(base: int, target: int, n: int, repeat: int) -> int:
                .generate_state(1)[0])
 
 
-def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
-              ) -> tuple[float, float, list[tuple]]:
+def grow_once(program: Program, target: Target, proposal: Proposal | None, n: int, seed: int
+              ) -> tuple[float, float, list[Prim]]:
     """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
     from ngpm_runtime.grow import grow
 
@@ -77,7 +83,7 @@ def grow_once(program: Any, target: Any, proposal: Any, n: int, seed: int
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, text: str, targets: dict[str, list[Any]],
+def _worker_setup(grammar: str, text: str, targets: dict[str, list[Target]],
                   guides: dict[str, str | bytes]) -> dict[str, Any]:
     """A worker's state: the grammar from its text, the targets, and each guide from its path
     or, for workers that may be on other machines, from its file's bytes."""
@@ -97,7 +103,7 @@ def _run(task: RunTask) -> RunResult:
     return RunResult(task, target.name, sim, seconds, prims)
 
 
-def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str],
+def run_tasks(grammar: str, targets: dict[str, list[Target]], guides: dict[str, str],
               tasks: list[RunTask], workers: int = 1, shuffle_seed: int = 0,
               on_result: Callable[[RunResult], None] | None = None, backend: str = "local",
               address: str | None = None) -> list[RunResult]:
@@ -125,7 +131,7 @@ def run_tasks(grammar: str, targets: dict[str, list[Any]], guides: dict[str, str
 def shape_tasks(models: Iterable[str], datasets: dict[str, int], ns: Iterable[int],
                 repeats: int, base_seed: int = 0) -> list[RunTask]:
     """Every (model, dataset target, N, repeat) combination; `datasets` maps name -> count."""
-    tasks = []
+    tasks: list[RunTask] = []
     offset = 0
     for ds, count in datasets.items():
         for ti in range(count):

@@ -21,11 +21,15 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ngpm_runtime.errors import NgpmError
 
 from ngpm_compiler.jobs import pool
+
+if TYPE_CHECKING:  # onnxruntime loads only in the workers that use a guide
+    from ngpm_runtime.inference.guide import Guide
+    from ngpm_runtime.program import Program
 
 BACKENDS = ("local", "ray")
 Job = Callable[[Any], Any]
@@ -194,7 +198,7 @@ def ship_file(path: str | None, kind: str) -> str | bytes | None:
     return Path(path).read_bytes()
 
 
-def load_guide(guide: str | bytes, program: Any) -> Any:
+def load_guide(guide: str | bytes, program: Program) -> Guide:
     """A worker's Guide from a path or from a guide file's bytes (`ship_file`)."""
     from ngpm_runtime.inference.guide import Guide
 

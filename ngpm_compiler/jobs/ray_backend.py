@@ -64,7 +64,7 @@ def check_reachable(address: str, timeout: float = 10.0) -> None:
                         "is `ray start --head` running there?") from None
 
 
-def start_reaper(pids: set[int]) -> subprocess.Popen | None:
+def start_reaper(pids: set[int]) -> subprocess.Popen[bytes] | None:
     """A `ray_reaper` process for the local instance's processes `pids`: it stops what they
     leave behind once this process has exited, however it ended (None off Linux)."""
     if not sys.platform.startswith("linux") or not pids:
@@ -74,7 +74,7 @@ def start_reaper(pids: set[int]) -> subprocess.Popen | None:
                             stderr=subprocess.DEVNULL, start_new_session=True)
 
 
-def stop_reaper(reaper: subprocess.Popen | None) -> None:
+def stop_reaper(reaper: subprocess.Popen[bytes] | None) -> None:
     """Close the reaper's pipe (so it kills what the shut-down instance left, then exits)."""
     if reaper is None:
         return
@@ -112,7 +112,7 @@ class RayBackend:
         self._setup = (setup, setup_args)
         self._retries = max_retries
         self._started = False  # a local instance we started (and shut down on exit)
-        self._reaper: subprocess.Popen | None = None
+        self._reaper: subprocess.Popen[bytes] | None = None
         self._running: dict[Any, int] = {}  # ObjectRef -> key
         self._box: list[Any] = []
         self._remote: Any = None

@@ -6,7 +6,7 @@ import builtins
 import keyword
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.program import Site, prior_problem
@@ -74,6 +74,17 @@ class Group:
     rule: Rule  # the first rule: its parameter names and condition
     alts: list[Alt] = field(default_factory=list)
     site: int | None = None  # the `choose` site when there are several alternatives
+
+    def probs(self) -> tuple[float, ...]:
+        """The alternatives' probabilities (check_groups saw that each one has one)."""
+        out = tuple(a.prob for a in self.alts if a.prob is not None)
+        assert len(out) == len(self.alts), f"{self.key}: an alternative without a probability"
+        return out
+
+
+# A site found in the source: (line, col, 0 for a choice or 1 for a call), the site (index
+# still -1: sites are numbered in source order once all are found), its group or call.
+FoundSite = tuple[tuple[int, int, int], Site, Call | Group]
 
 
 @dataclass
@@ -325,7 +336,8 @@ class Checker:
             if not (x0 < x1 and y0 < y1):
                 raise self.err("viewport needs xmin < xmax and ymin < ymax", h["viewport"])
             self.viewport = (x0, x1, y0, y1)
-        self.start = tuple(values.get("start", [0.0, 0.0, 90.0]))
+        x, y, heading = values.get("start", [0.0, 0.0, 90.0])  # lsys.lark: three values
+        self.start = (x, y, heading)
         self.derivation_length = self.integer(values, "derivation length", 0,
                                               DEFAULT_DERIVATION_LENGTH)
         self.max_primitives = self.integer(values, "max primitives", 1, DEFAULT_MAX_PRIMITIVES)
@@ -464,7 +476,7 @@ class Checker:
 
     def collect_sites(self, axiom: list[Resolved], sets: list[dict[str, RuleSet]]) -> None:
         """Number every random call and every stochastic group, in source order."""
-        found: list[tuple[tuple[int, int, int], dict, Call | None]] = []
+        found: list[FoundSite] = []
         self.add_calls(found, "axiom", "axiom", 0, axiom)
         for section in sets:
             for rs in section.values():
@@ -473,9 +485,9 @@ class Checker:
                         r = group.rule
                         texts = list(dict.fromkeys(a.rule.text for a in group.alts))
                         source = shorten(" ".join(texts[0].split()), len(texts) > 1)
-                        found.append(((r.line, r.col, 0), dict(
-                            id=f"{group.key}/choice", kind="categorical", k=len(group.alts),
-                            probs=tuple(a.prob for a in group.alts),
+                        found.append(((r.line, r.col, 0), Site(
+                            index=-1, id=f"{group.key}/choice", kind="categorical",
+                            k=len(group.alts), probs=group.probs(),
                             name=f"choice of {rs.pred}", module=rs.pred, arity=rs.arity,
                             line=r.line, col=r.col, source=source), group))
                     for i, alt in enumerate(group.alts):
@@ -484,14 +496,14 @@ class Checker:
         found.sort(key=lambda f: f[0])
         self.sites: list[Site] = []
         self.call_sites: dict[int, int] = {}
-        for index, (_, fields, owner) in enumerate(found):
-            self.sites.append(Site(index=index, **fields))
+        for index, (_, site, owner) in enumerate(found):
+            self.sites.append(replace(site, index=index))
             if isinstance(owner, Call):
                 self.call_sites[id(owner)] = index
             elif isinstance(owner, Group):
                 owner.site = index
 
-    def add_calls(self, found: list, prefix: str, module: str, arity: int,
+    def add_calls(self, found: list[FoundSite], prefix: str, module: str, arity: int,
                   mods: list[Resolved]) -> None:
         counts: dict[str, int] = {}
         for m in mods:
@@ -502,8 +514,8 @@ class Checker:
                         kind = RANDOM_CALLS[node.name][0]
                         n = counts.get(kind, 0)
                         counts[kind] = n + 1
-                        found.append(((node.line, node.col, 1), dict(
-                            id=f"{prefix}/{kind}{n}", kind=kind,
+                        found.append(((node.line, node.col, 1), Site(
+                            index=-1, id=f"{prefix}/{kind}{n}", kind=kind,
                             k=len(node.args) if kind == "categorical" else 2,
                             name=shorten(f"{node.text} in {module}", False), module=module,
                             arity=arity, line=node.line, col=node.col,

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import textwrap
 
-from ngpm_runtime.program import HEADER_END, HEADER_START, PROTOCOL
+from ngpm_runtime.program import HEADER_END, HEADER_START, PROTOCOL, Site
 
 from ngpm_compiler.language.checker import Alt, Checked, Group, Resolved, RuleSet
 from ngpm_compiler.language.errors import ErrorSink
 from ngpm_compiler.language.expr import ExprPrinter, escape, q
-from ngpm_compiler.language.nodes import Expr, Num
+from ngpm_compiler.language.nodes import Expr, Num, Successor
 
 # ---- the module ----------------------------------------------------------------------------
 
@@ -132,7 +132,7 @@ class ModuleWriter:
             lines.append("    return None  # no rule applies: the module stays as it is")
         return lines
 
-    def site(self, s) -> list[str]:
+    def site(self, s: Site) -> list[str]:
         items = [f"index={q(s.index)}", f"id={q(s.id)}", f"kind={q(s.kind)}",
                  f"name={q(s.name)}", f"module={q(s.module)}", f"arity={q(s.arity)}"]
         if s.kind == "categorical":
@@ -156,11 +156,17 @@ class ModuleWriter:
             out.append(noqa(line))
         return out
 
+    def axiom_node(self) -> Successor:
+        """The grammar's 'Axiom:' line (the checker refuses a grammar without one)."""
+        axiom = self.c.grammar.axiom
+        assert axiom is not None, "a checked grammar has an axiom"
+        return axiom
+
     def locations(self) -> list[str]:
         """LOCATIONS: (line, col) of the axiom and of each production's and interpretation
         rule's first alternative; the runtime names them in its error messages."""
         c = self.c
-        axiom = c.grammar.axiom
+        axiom = self.axiom_node()
         items = [f"{q('axiom')}: {q((axiom.line, axiom.col))}"]
         for kind, section in (("production", c.productions),
                               ("interpretation", c.interpretation)):
@@ -200,10 +206,9 @@ class ModuleWriter:
     def write(self) -> str:
         c = self.c
         body: list[str] = []
-        axiom_text = c.grammar.axiom.text if c.grammar.axiom else ""
+        axiom = self.axiom_node()
         body += ["", "", "def axiom(ctx):"]
-        body += self.docstring([f"Axiom: {axiom_text}"], c.grammar.axiom.line,
-                               c.grammar.axiom.line, "    ")
+        body += self.docstring([f"Axiom: {axiom.text}"], axiom.line, axiom.line, "    ")
         body += self.successor(c.axiom, ExprPrinter(c.const_names, c.call_sites), "    ")
         prods: dict[str, str] = {}
         interps: dict[str, str] = {}

@@ -46,7 +46,7 @@ def grammar_name(filename: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in stem) or "grammar"
 
 
-def compile_grammar(path_or_text: str | os.PathLike, filename: str | None = None
+def compile_grammar(path_or_text: str | os.PathLike[str], filename: str | None = None
                     ) -> CompiledGrammar:
     """Compile a grammar given as a path or as its text; raise GrammarError if malformed.
 
@@ -115,7 +115,7 @@ def _too_large(size: int) -> str:
             f"{MAX_GRAMMAR_BYTES // 1024} KiB")
 
 
-def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike) -> tuple[Path, Path]:
+def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike[str]) -> tuple[Path, Path]:
     """Write `<name>_sampler.py` and `<name>_sites.json` into out_dir (atomically)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -13,7 +13,7 @@ from ngpm_compiler.language.tables import (
     RANDOM_CALLS,
 )
 
-Literal = str | float | int | None | tuple
+Literal = str | float | int | None | tuple["Literal", ...]
 
 
 def escape(text: str) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 
@@ -47,7 +48,7 @@ class Call(Node):
 Expr = Num | Var | Unary | Binary | Call
 
 
-def walk(expr: Expr):
+def walk(expr: Expr) -> Iterator[Expr]:
     """Yield every node of an expression, outer before inner, left to right."""
     yield expr
     if isinstance(expr, Unary):

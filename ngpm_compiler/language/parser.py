@@ -99,7 +99,8 @@ def syntax_error(err: UnexpectedInput, sink: ErrorSink, source: str) -> GrammarE
             return sink.error(f"unexpected end of line, {_expected(expected)}", line, col)
     else:
         assert isinstance(err, UnexpectedCharacters)
-        text = source[err.pos_in_stream] if err.pos_in_stream < len(source) else ""
+        at = err.pos_in_stream
+        text = source[at] if at is not None and at < len(source) else ""
         expected = set(err.allowed or ())
     first = text[:1]
     if first in UNSUPPORTED and expected & _SUCCESSOR_HINT:
@@ -118,55 +119,55 @@ class Builder:
         self.sink = sink
         self.source = source
         self.section = "production"
-        self.ended: Tree | None = None
+        self.ended: Tree[Token] | None = None
 
-    def text(self, tree: Tree | Token) -> str:
+    def text(self, tree: Tree[Token] | Token) -> str:
         if isinstance(tree, Token):
             return str(tree)
         return self.source[tree.meta.start_pos:tree.meta.end_pos]
 
-    def grammar(self, tree: Tree) -> Grammar:
+    def grammar(self, tree: Tree[Token]) -> Grammar:
         g = Grammar(self.sink.filename, self.source)
-        for stmt in tree.children:
+        for child in tree.children:
             if self.ended is not None:
-                raise self.sink.error("text after 'endlsystem'", *pos(stmt))
+                raise self.sink.error("text after 'endlsystem'", *pos(child))
+            stmt = subtree(child)
             getattr(self, "stmt_" + stmt.data)(g, stmt)
         return g
 
     # ---- statements ----------------------------------------------------------------------
 
-    def stmt_hash_define(self, g: Grammar, t: Tree) -> None:
+    def stmt_hash_define(self, g: Grammar, t: Tree[Token]) -> None:
         _, name, expr = t.children
-        g.defines.append(Define(name.line, name.column, str(name), self.expr(expr),
-                                self.text(t)))
+        g.defines.append(Define(*pos(name), str(name), self.expr(expr), self.text(t)))
 
-    def stmt_define(self, g: Grammar, t: Tree) -> None:
+    def stmt_define(self, g: Grammar, t: Tree[Token]) -> None:
         kids = t.children[1:]
         for name, expr in zip(kids[0::2], kids[1::2], strict=True):
-            g.defines.append(Define(name.line, name.column, str(name), self.expr(expr),
+            g.defines.append(Define(*pos(name), str(name), self.expr(expr),
                                     f"{name} = {self.text(expr)}"))
 
-    def stmt_module_decl(self, g: Grammar, t: Tree) -> None:
+    def stmt_module_decl(self, g: Grammar, t: Tree[Token]) -> None:
         for decl in t.children:
             if not isinstance(decl, Tree):
                 continue
             name = decl.children[0]
-            params = self.params(decl.children[1]) if len(decl.children) > 1 else []
-            g.decls.append(ModuleDecl(name.line, name.column, str(name), [p for p, _ in params]))
+            params = self.params(subtree(decl.children[1])) if len(decl.children) > 1 else []
+            g.decls.append(ModuleDecl(*pos(name), str(name), [p for p, _ in params]))
 
-    def stmt_axiom(self, g: Grammar, t: Tree) -> None:
+    def stmt_axiom(self, g: Grammar, t: Tree[Token]) -> None:
         if g.axiom is not None:
             raise self.sink.error("a second 'Axiom:' line", *pos(t))
-        g.axiom = self.successor(t.children[1])
+        g.axiom = self.successor(subtree(t.children[1]))
 
-    def stmt_section(self, g: Grammar, t: Tree) -> None:
+    def stmt_section(self, g: Grammar, t: Tree[Token]) -> None:
         word = str(t.children[0]).lower()
         self.section = "production" if word.startswith("production") else "interpretation"
 
-    def stmt_endlsystem(self, g: Grammar, t: Tree) -> None:
+    def stmt_endlsystem(self, g: Grammar, t: Tree[Token]) -> None:
         self.ended = t
 
-    def _header(self, g: Grammar, t: Tree) -> None:
+    def _header(self, g: Grammar, t: Tree[Token]) -> None:
         kind = HEADER_KINDS[t.data]
         if kind in g.headers:
             raise self.sink.error(f"a second '{kind}:' line", *pos(t))
@@ -177,14 +178,16 @@ class Builder:
     stmt_derivation_length = stmt_viewport = stmt_angle = _header
     stmt_start_pose = stmt_max_primitives = stmt_max_modules = _header
 
-    def stmt_rule(self, g: Grammar, t: Tree) -> None:
+    def stmt_rule(self, g: Grammar, t: Tree[Token]) -> None:
         kids = t.children
-        pred_tree, alts_tree = kids[0], kids[-1]
+        pred_tree, alts_tree = subtree(kids[0]), subtree(kids[-1])
         cond_tree = kids[1] if len(kids) == 4 else None
         name = pred_tree.children[0]
-        params = self.params(pred_tree.children[1]) if len(pred_tree.children) > 1 else []
+        params = (self.params(subtree(pred_tree.children[1])) if len(pred_tree.children) > 1
+                  else [])
         cond = self.expr(cond_tree) if cond_tree is not None else None
         cond_text = self.text(cond_tree) if cond_tree is not None else ""
+        pairs: list[tuple[Tree[Token] | Token, Tree[Token] | Token | None]]
         if alts_tree.data == "plain":
             pairs = [(alts_tree.children[0], None)]
         else:
@@ -193,35 +196,36 @@ class Builder:
         rule_text = self.text(t)
         for succ, prob in pairs:
             g.rules.append(Rule(
-                name.line, name.column, str(name), [p for p, _ in params],
-                [q for _, q in params], cond, cond_text, self.successor(succ),
+                *pos(name), str(name), [p for p, _ in params],
+                [q for _, q in params], cond, cond_text, self.successor(subtree(succ)),
                 self.expr(prob) if prob is not None else None, self.section,
                 rule_text, t.meta.end_line,
             ))
 
     # ---- parts ---------------------------------------------------------------------------
 
-    def params(self, t: Tree) -> list[tuple[str, tuple[int, int]]]:
-        return [(str(p), (p.line, p.column)) for p in t.children if isinstance(p, Token)]
+    def params(self, t: Tree[Token]) -> list[tuple[str, tuple[int, int]]]:
+        return [(str(p), pos(p)) for p in t.children if isinstance(p, Token)]
 
-    def successor(self, t: Tree) -> Successor:
+    def successor(self, t: Tree[Token]) -> Successor:
         line, col = pos(t)
         if t.data == "delete":
             return Successor(line, col, [], "*")
         mods = []
-        for item in t.children:
+        for child in t.children:
+            item = subtree(child)
             head = item.children[0]
             if isinstance(head, Tree):  # a turtle symbol
                 head = head.children[0]
-            args = item.children[1] if len(item.children) > 1 else None
+            args = subtree(item.children[1]) if len(item.children) > 1 else None
             mods.append(ModuleUse(
-                head.line, head.column, str(head),
+                *pos(head), str(head),
                 [self.expr(a) for a in args.children] if args is not None else [],
                 args is not None,
             ))
         return Successor(line, col, mods, self.text(t) if t.children else "")
 
-    def expr(self, t: Tree | Token, depth: int = 0) -> Expr:
+    def expr(self, t: Tree[Token] | Token, depth: int = 0) -> Expr:
         """The expression node of `t`; `depth` counts the nodes above it (at most
         MAX_EXPR_DEPTH, which keeps every recursive pass over expressions in bounds)."""
         line, col = pos(t)
@@ -232,7 +236,7 @@ class Builder:
             return self.expr(Tree("number" if t.type == "NUMBER" else "var", [t]), depth)
         kind, kids = t.data, t.children
 
-        def sub(node: Tree | Token) -> Expr:
+        def sub(node: Tree[Token] | Token) -> Expr:
             return self.expr(node, depth + 1)
 
         if kind == "number":
@@ -250,16 +254,21 @@ class Builder:
             return Unary(line, col, "not", sub(kids[1]))
         if kind in ("binary", "compare"):
             op = str(kids[1])
-            return Binary(kids[1].line, kids[1].column, "^" if op == "**" else op,
-                          sub(kids[0]), sub(kids[2]))
+            return Binary(*pos(kids[1]), "^" if op == "**" else op, sub(kids[0]), sub(kids[2]))
         if kind in ("or_", "and_"):
-            return Binary(kids[1].line, kids[1].column, kind[:-1], sub(kids[0]), sub(kids[2]))
+            return Binary(*pos(kids[1]), kind[:-1], sub(kids[0]), sub(kids[2]))
         if kind == "call":
             return Call(line, col, str(kids[0]), [sub(a) for a in kids[1:]], self.text(t))
         raise self.sink.error(f"unexpected expression ({kind})", line, col)  # pragma: no cover
 
 
-def pos(t: Tree | Token) -> tuple[int, int]:
+def subtree(node: Tree[Token] | Token) -> Tree[Token]:
+    """`node`, where lsys.lark puts a rule (never a token) at that place."""
+    assert isinstance(node, Tree), f"a rule expected, not {node!r}"
+    return node
+
+
+def pos(t: Tree[Token] | Token) -> tuple[int, int]:
     if isinstance(t, Token):
         return t.line or 1, t.column or 1
     if t.meta.empty:

@@ -30,6 +30,7 @@ from ngpm_compiler.learning.traces import (
     TraceSet,
     generate_traces,
 )
+from ngpm_compiler.progress import Log
 
 JOB_STRIDE = 10 ** 8  # job ids of the k-th merged traces directory are offset by k * this
 
@@ -83,7 +84,7 @@ def merge_traces(sets: list[TraceSet]) -> TraceSet:
                     sum(ts.dropped for ts in sets))
 
 
-def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Any) -> list[str]:
+def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Log) -> list[str]:
     """Round r's traces, one directory per training-target directory."""
     dirs = []
     for i, targets in enumerate(cfg.targets):
@@ -99,7 +100,8 @@ def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Any) -> list
     return dirs
 
 
-def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> tuple[str, dict]:
+def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str],
+                log: Log) -> tuple[str, dict[str, Any]]:
     """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.traces import load_traces
@@ -128,7 +130,7 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Any) -> t
     return str(path), s
 
 
-def validate(cfg: RoundsConfig, name: str, guide: str, log: Any) -> float:
+def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
     """Mean over validation targets of the median similarity at N = val_n."""
     from ngpm_compiler.evaluation.heldout import run_heldout
 
@@ -142,7 +144,7 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Any) -> float:
     return score
 
 
-def expert_iteration(cfg: RoundsConfig, log: Any = print) -> list[dict[str, Any]]:
+def expert_iteration(cfg: RoundsConfig, log: Log = print) -> list[dict[str, Any]]:
     """Run the rounds (resuming finished ones); one row per round, best guide copied to
     out/best.onnx."""
     if cfg.init_guide:  # a guide that does not load or fit: one error, before workers

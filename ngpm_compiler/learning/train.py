@@ -229,7 +229,7 @@ class GuideFileError(NgpmError):
     """A model.pt file cannot be read."""
 
 
-def load_model_file(path: str) -> Any:
+def load_model_file(path: str) -> GuideModel:
     if not Path(path).is_file():
         raise GuideFileError(f"{path}: no such model file")
     try:

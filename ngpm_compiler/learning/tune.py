@@ -25,6 +25,7 @@ from ngpm_runtime.inference.guide import PROPOSAL_KEY, ProposalSettings
 
 from ngpm_compiler.evaluation.heldout import run_heldout
 from ngpm_compiler.evaluation.runs import UNGUIDED, write_csv
+from ngpm_compiler.progress import Log
 
 TUNE_FIELDS = ["setting", "temperature", "choice_temperature", "ess_threshold"]
 
@@ -59,7 +60,7 @@ def with_settings(src: str | Path, dst: str | Path, settings: ProposalSettings) 
 
 def tune(grammar: str, guide: str, validation: dict[str, str], out: str | Path,
          work: str | Path, settings: list[ProposalSettings], k: int = 36, repeats: int = 5,
-         workers: int = 2, seed: int = 0, log: Any = print) -> dict[str, Any]:
+         workers: int = 2, seed: int = 0, log: Log = print) -> dict[str, Any]:
     """Score every setting on `validation` (guided N = 10, k targets per set or all of a
     smaller set, `repeats` runs), write `out` with the best; returns {"best", "rows",
     "table"}."""
