@@ -30,37 +30,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.geometry.mesh_base import PALETTE as PALETTE
+from ngpm_runtime.geometry.mesh_base import Material as Material
+from ngpm_runtime.geometry.mesh_base import MeshData as MeshData
+from ngpm_runtime.geometry.mesh_base import MeshError as MeshError
+from ngpm_runtime.geometry.mesh_files import save_mesh
+from ngpm_runtime.image.render3d import render_mesh
 
 Prim = tuple[Any, ...]
 
-
-class MeshError(NgpmError):
-    """Primitives that make no mesh, or a mesh file that cannot be written."""
-
-
-@dataclass(frozen=True)
-class Material:
-    name: str
-    rgb: tuple[int, int, int]  # sRGB, 0-255
-
-
-PALETTE: tuple[Material, ...] = (
-    Material("bark", (101, 67, 33)),
-    Material("leaf", (74, 140, 52)),
-    Material("dark_bark", (64, 42, 24)),
-    Material("pale_wood", (156, 118, 78)),
-    Material("young_leaf", (140, 190, 64)),
-    Material("dark_leaf", (34, 90, 30)),
-    Material("autumn", (216, 176, 52)),
-    Material("blossom", (236, 138, 178)),
-)
 KIND_DEFAULT = {"seg3": 0, "leaf3": 1, "poly3": 1, "sphere": 7}  # material of colour 0
 SIDES = (12, 8, 6)  # cylinder sides, thick to thin
 SIDE_STEPS = (0.01, 0.002)  # radius / plant size from which a cylinder gets 12, then 8 sides
@@ -69,40 +52,15 @@ LEAF_POINTS = 12  # vertices on a leaf's outline
 SPHERE_LON, SPHERE_LAT = 12, 6
 
 
-@dataclass(frozen=True)
-class Mesh:
-    """Triangles with one material per face. `vertices` (V, 3) float64, `faces` (F, 3)
-    int64 indices, counter-clockwise seen from outside; `face_material` (F,) indices into
-    `materials`. A vertex belongs to faces of one material only."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    face_material: np.ndarray
-    materials: tuple[Material, ...] = PALETTE
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """(2, 3): the lowest and highest corner (zeros for an empty mesh)."""
-        if len(self.vertices) == 0:
-            return np.zeros((2, 3))
-        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
-
-    def vertex_material(self) -> np.ndarray:
-        """(V,) the material of each vertex (0 for a vertex no face uses)."""
-        out = np.zeros(len(self.vertices), dtype=np.int64)
-        out[self.faces.ravel()] = np.repeat(self.face_material, 3)
-        return out
+class Mesh(MeshData):
+    """A `MeshData` that saves (`save`) and draws itself (`render`)."""
 
     def save(self, path: str | Path, **render_options: Any) -> Path:
         """Write .glb, .obj (+ .mtl), .ply, or a .png / .gif render, by the suffix."""
-        from ngpm_runtime.geometry.mesh_files import save_mesh
-
         return save_mesh(self, path, **render_options)
 
     def render(self, size: int = 512, view: tuple[float, float] | None = None) -> np.ndarray:
         """A shaded RGB picture (size, size, 3) uint8 (image.render3d.render_mesh)."""
-        from ngpm_runtime.image.render3d import render_mesh
-
         return render_mesh(self, size=size, view=view)
 
 

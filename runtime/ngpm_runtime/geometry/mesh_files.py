@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.geometry.mesh import Mesh, MeshError
+from ngpm_runtime.geometry.mesh_base import MeshData, MeshError
 
 MESH_SUFFIXES = (".glb", ".obj", ".ply")
 PICTURE_SUFFIXES = (".png", ".gif")
@@ -29,10 +29,12 @@ def _linear(rgb: tuple[int, int, int]) -> list[float]:
     return [round(float(x), 6) for x in lin]
 
 
-def by_material(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int, int, int]]]:
+Group = tuple[int, int, int, int, int]  # material, first vertex, vertices, first face, faces
+
+
+def by_material(mesh: MeshData) -> tuple[np.ndarray, np.ndarray, list[Group]]:
     """Vertices and faces reordered so each material's are contiguous, faces indexing
-    into their material's vertex range; with (material, first vertex, vertex count,
-    first face, face count) per material used."""
+    into their material's vertex range; with a `Group` per material used."""
     vmat = mesh.vertex_material()
     vorder = np.argsort(vmat, kind="stable")
     new_index = np.empty_like(vorder)
@@ -54,7 +56,7 @@ def _pad(data: bytes, fill: bytes) -> bytes:
     return data + fill * (-len(data) % 4)
 
 
-def glb_bytes(mesh: Mesh) -> bytes:
+def glb_bytes(mesh: MeshData) -> bytes:
     """Binary glTF 2.0: one mesh, one primitive per material (positions and uint32
     indices), metallic-roughness materials (double-sided: leaves are thin)."""
     verts, faces, groups = by_material(mesh)
@@ -102,7 +104,7 @@ def glb_bytes(mesh: Mesh) -> bytes:
     return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
 
 
-def obj_text(mesh: Mesh, mtl_name: str) -> tuple[str, str]:
+def obj_text(mesh: MeshData, mtl_name: str) -> tuple[str, str]:
     """(.obj text, .mtl text): faces grouped by `usemtl`, 1-based indices."""
     verts, faces, groups = by_material(mesh)
     out = [f"# ngpm plant: {len(verts)} vertices, {len(faces)} triangles, Y up, metres\n",
@@ -120,7 +122,7 @@ def obj_text(mesh: Mesh, mtl_name: str) -> tuple[str, str]:
     return "".join(out), "".join(mtl)
 
 
-def ply_bytes(mesh: Mesh) -> bytes:
+def ply_bytes(mesh: MeshData) -> bytes:
     """Binary little-endian PLY: float xyz and uchar rgb per vertex, int faces."""
     colors = np.array([m.rgb for m in mesh.materials], dtype=np.uint8)
     vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
@@ -143,7 +145,7 @@ def ply_bytes(mesh: Mesh) -> bytes:
     return header.encode("ascii") + vert.tobytes() + face.tobytes()
 
 
-def save_mesh(mesh: Mesh, path: str | Path, **render_options: Any) -> Path:
+def save_mesh(mesh: MeshData, path: str | Path, **render_options: Any) -> Path:
     """Write the mesh by the suffix: .glb, .obj (and a .mtl beside it), .ply, or a
     picture (.png, or a turntable .gif; `render_options` go to image.render3d)."""
     path = Path(path)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ngpm_runtime.files import atomic_write
-from ngpm_runtime.geometry.mesh import Mesh
+from ngpm_runtime.geometry.mesh_base import MeshData
 
 DEFAULT_VIEW = (45.0, 20.0)  # a 3/4 view: azimuth, elevation in degrees
 BACKGROUND = (255, 255, 255)
@@ -49,7 +49,7 @@ def _fit(projected: list[np.ndarray], size: int) -> tuple[float, np.ndarray]:
     return scale, (lo + hi) / 2
 
 
-def _fit_turning(mesh: Mesh, axes: np.ndarray, views: list[np.ndarray],
+def _fit_turning(mesh: MeshData, axes: np.ndarray, views: list[np.ndarray],
                  size: int) -> tuple[float, np.ndarray]:
     """Scale that fits the mesh in every view, centred on the box's middle (so a turning
     plant stays in place); with the centre in `axes`' screen coordinates."""
@@ -63,7 +63,7 @@ def _fit_turning(mesh: Mesh, axes: np.ndarray, views: list[np.ndarray],
     return scale, centre
 
 
-def _shades(mesh: Mesh, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _shades(mesh: MeshData, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Visible faces and their RGB float colours."""
     tri = mesh.vertices[mesh.faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -137,7 +137,7 @@ def _candidates(x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int,
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
 
-def _draw(mesh: Mesh, axes: np.ndarray, scale: float, centre: np.ndarray,
+def _draw(mesh: MeshData, axes: np.ndarray, scale: float, centre: np.ndarray,
           h: int, w: int) -> np.ndarray:
     """RGB float picture (h, w, 3) of the mesh seen along `axes`."""
     img = np.empty((h * w, 3))
@@ -158,7 +158,7 @@ def _draw(mesh: Mesh, axes: np.ndarray, scale: float, centre: np.ndarray,
     return img.reshape(h, w, 3)
 
 
-def render_mesh(mesh: Mesh, size: int = 512, view: tuple[float, float] | None = None,
+def render_mesh(mesh: MeshData, size: int = 512, view: tuple[float, float] | None = None,
                 supersample: int = 2, fit_views: list[tuple[float, float]] | None = None
                 ) -> np.ndarray:
     """RGB uint8 (size, size, 3): the mesh from `view` (azimuth, elevation in degrees;
@@ -177,7 +177,7 @@ def render_mesh(mesh: Mesh, size: int = 512, view: tuple[float, float] | None = 
     return out
 
 
-def turntable(mesh: Mesh, frames: int = GIF_FRAMES, size: int = GIF_SIZE,
+def turntable(mesh: MeshData, frames: int = GIF_FRAMES, size: int = GIF_SIZE,
               view: tuple[float, float] | None = None) -> list[np.ndarray]:
     """Pictures of the mesh turning once about the vertical axis, one scale for all."""
     az, el = DEFAULT_VIEW if view is None else view
@@ -204,7 +204,7 @@ def _gif(frames: list[np.ndarray], ms: int = 80) -> bytes:
     return buf.getvalue()
 
 
-def save_picture(mesh: Mesh, path: str | Path, size: int | None = None,
+def save_picture(mesh: MeshData, path: str | Path, size: int | None = None,
                  view: tuple[float, float] | None = None, frames: int = GIF_FRAMES) -> Path:
     """A .png picture (default 512 pixels) or a turntable .gif (`frames` pictures, default
     256 pixels) of the mesh, by the suffix."""

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-
 from ngpm_runtime.geometry.mesh import (
     PALETTE,
     Mesh,

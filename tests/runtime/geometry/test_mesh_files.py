@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from ngpm_runtime.geometry.mesh import PALETTE, MeshError, mesh_from_primitives
 
 trimesh = pytest.importorskip("trimesh")
