@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,13 @@ MARGIN = 0.05  # of the picture's side, around the plant
 TILE = 32  # largest bounding box rasterized whole; bigger triangles are cut in tiles
 CHUNK = 1 << 21  # candidate pixels per batch
 GIF_SIZE, GIF_FRAMES = 256, 24
+
+
+def _dot(v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Rows of v (n, 3) dotted with a (3,): plain numpy, as a threaded BLAS call for this
+    shape is slow on a busy machine."""
+    out: np.ndarray = v[:, 0] * a[0] + v[:, 1] * a[1] + v[:, 2] * a[2]
+    return out
 
 
 def view_axes(az: float, el: float) -> np.ndarray:
@@ -49,47 +57,66 @@ def _fit(projected: list[np.ndarray], size: int) -> tuple[float, np.ndarray]:
     return scale, (lo + hi) / 2
 
 
-def _fit_turning(mesh: MeshData, axes: np.ndarray, views: list[np.ndarray],
+def _fit_turning(mesh: MeshData, views: list[np.ndarray],
                  size: int) -> tuple[float, np.ndarray]:
-    """Scale that fits the mesh in every view, centred on the box's middle (so a turning
-    plant stays in place); with the centre in `axes`' screen coordinates."""
+    """Scale that fits the mesh in every view, and the box's middle (world), on which every
+    view is centred (so a turning plant stays in place)."""
     if len(mesh.vertices) == 0:
-        return 1.0, np.zeros(2)
+        return 1.0, np.zeros(3)
     lo, hi = mesh.bounds
-    mid = (lo + hi) / 2
-    half = max(float(np.abs((mesh.vertices - mid) @ a[:2].T).max()) for a in views)
-    scale = size * (1 - 2 * MARGIN) / (2 * half) if half > 0 else 1.0
-    centre: np.ndarray = axes[:2] @ mid
-    return scale, centre
+    mid: np.ndarray = (lo + hi) / 2
+    half = max(float(np.abs(_dot(mesh.vertices - mid, d)).max()) for a in views for d in a[:2])
+    return (size * (1 - 2 * MARGIN) / (2 * half) if half > 0 else 1.0), mid
 
 
-def _shades(mesh: MeshData, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Visible faces and their RGB float colours."""
+@dataclass(frozen=True)
+class _Faces:
+    """What pictures from any view share: the faces with an area, their unit normals and
+    material colours (RGB floats)."""
+
+    faces: np.ndarray
+    normals: np.ndarray
+    rgb: np.ndarray
+
+
+def _prepare(mesh: MeshData) -> _Faces:
     tri = mesh.vertices[mesh.faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normal, axis=1)
-    facing = normal @ axes[2]
-    visible = np.nonzero((facing > 0) & (length > 0))[0]
-    n = normal[visible] / length[visible, None]
+    keep = length > 0
+    rgb = np.array([m.rgb for m in mesh.materials], dtype=np.float64).reshape(-1, 3)
+    return _Faces(mesh.faces[keep], normal[keep] / length[keep, None],
+                  rgb[mesh.face_material[keep]])
+
+
+def _shades(faces: _Faces, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Visible faces (indices) and their shaded RGB float colours."""
+    visible = np.nonzero(_dot(faces.normals, axes[2]) > 0)[0]
     light = axes[2] * 0.8 + axes[1] * 0.5 - axes[0] * 0.35
     light /= np.linalg.norm(light)
-    lambert = AMBIENT + (1 - AMBIENT) * np.clip(n @ light, 0.0, 1.0)
-    rgb = np.array([m.rgb for m in mesh.materials], dtype=np.float64)
-    return visible, rgb[mesh.face_material[visible]] * lambert[:, None]
+    lambert = AMBIENT + (1 - AMBIENT) * np.clip(_dot(faces.normals[visible], light),
+                                                 0.0, 1.0)
+    return visible, faces.rgb[visible] * lambert[:, None]
 
 
-def _units(x: np.ndarray, y: np.ndarray, h: int, w: int) -> dict[int, tuple[np.ndarray, ...]]:
+Units = dict[tuple[int, int], tuple[np.ndarray, ...]]
+
+
+def _units(x: np.ndarray, y: np.ndarray, h: int, w: int) -> Units:
     """Bounding boxes (pixel centres) of screen triangles (x, y: (t, 3)), clipped to the
-    picture, grouped by tile size: {size: (triangle, x0, y0, x1, y1)}; boxes over TILE
-    pixels are cut into TILE x TILE tiles."""
-    x0 = np.maximum(np.ceil(x.min(axis=1) - 0.5), 0).astype(np.int64)
-    x1 = np.minimum(np.floor(x.max(axis=1) - 0.5), w - 1).astype(np.int64)
-    y0 = np.maximum(np.ceil(y.min(axis=1) - 0.5), 0).astype(np.int64)
-    y1 = np.minimum(np.floor(y.max(axis=1) - 0.5), h - 1).astype(np.int64)
+    picture, grouped by tile size: {(width, height): (triangle, x0, y0, x1, y1)}; boxes
+    over TILE pixels are cut into TILE x TILE tiles."""
+    lo_x = np.minimum(np.minimum(x[:, 0], x[:, 1]), x[:, 2])  # faster than .min(axis=1)
+    hi_x = np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])
+    lo_y = np.minimum(np.minimum(y[:, 0], y[:, 1]), y[:, 2])
+    hi_y = np.maximum(np.maximum(y[:, 0], y[:, 1]), y[:, 2])
+    x0 = np.maximum(np.ceil(lo_x - 0.5), 0).astype(np.int64)
+    x1 = np.minimum(np.floor(hi_x - 0.5), w - 1).astype(np.int64)
+    y0 = np.maximum(np.ceil(lo_y - 0.5), 0).astype(np.int64)
+    y1 = np.minimum(np.floor(hi_y - 0.5), h - 1).astype(np.int64)
     t = np.nonzero((x1 >= x0) & (y1 >= y0))[0]
     x0, x1, y0, y1 = x0[t], x1[t], y0[t], y1[t]
-    span = np.maximum(x1 - x0, y1 - y0) + 1
-    big = span > TILE
+    big = (x1 - x0 >= TILE) | (y1 - y0 >= TILE)
     if big.any():  # one unit per tile of each big box
         nx, ny = (x1[big] - x0[big]) // TILE + 1, (y1[big] - y0[big]) // TILE + 1
         rep = nx * ny
@@ -100,21 +127,25 @@ def _units(x: np.ndarray, y: np.ndarray, h: int, w: int) -> dict[int, tuple[np.n
         x1 = np.concatenate([x1[~big], np.minimum(np.repeat(x1[big], rep), tx + TILE - 1)])
         y1 = np.concatenate([y1[~big], np.minimum(np.repeat(y1[big], rep), ty + TILE - 1)])
         x0, y0 = np.concatenate([x0[~big], tx]), np.concatenate([y0[~big], ty])
-        span = np.maximum(x1 - x0, y1 - y0) + 1
-    size = 1 << np.ceil(np.log2(span)).astype(np.int64)
-    return {int(s): (t[size == s], x0[size == s], y0[size == s], x1[size == s],
-                     y1[size == s]) for s in np.unique(size)}
+    # boxes rounded up to powers of two, wide and high apart (thin strips stay thin)
+    key = (np.ceil(np.log2(x1 - x0 + 1)).astype(np.int64) * 8
+           + np.ceil(np.log2(y1 - y0 + 1)).astype(np.int64))
+    out: Units = {}
+    for k in np.unique(key):
+        sel = key == k
+        out[(1 << int(k // 8), 1 << int(k % 8))] = (t[sel], x0[sel], y0[sel], x1[sel], y1[sel])
+    return out
 
 
 def _candidates(x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int,
-                units: dict[int, tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
+                units: Units) -> tuple[np.ndarray, ...]:
     """Pixels inside triangles: (pixel index, depth, triangle), over all units."""
     area = ((x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0])
             - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0]))
     out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    for s, (tri, ux0, uy0, ux1, uy1) in units.items():
-        step = max(1, CHUNK // (s * s))
-        dx, dy = np.arange(s * s) % s, np.arange(s * s) // s
+    for (sw, sh), (tri, ux0, uy0, ux1, uy1) in units.items():
+        step = max(1, CHUNK // (sw * sh))
+        dx, dy = np.arange(sw * sh) % sw, np.arange(sw * sh) // sw
         for c in range(0, len(tri), step):
             t = tri[c:c + step]
             px = ux0[c:c + step, None] + dx
@@ -137,19 +168,18 @@ def _candidates(x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int,
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
 
-def _draw(mesh: MeshData, axes: np.ndarray, scale: float, centre: np.ndarray,
-          h: int, w: int) -> np.ndarray:
-    """RGB float picture (h, w, 3) of the mesh seen along `axes`."""
-    img = np.empty((h * w, 3))
+def _draw(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float,
+          centre: np.ndarray, h: int, w: int) -> np.ndarray:
+    """RGB float picture (h, w, 3) of the faces seen along `axes`."""
+    img = np.empty((h * w, 3), dtype=np.float32)
     img[:] = BACKGROUND
-    if len(mesh.faces) == 0:
+    if len(faces.faces) == 0:
         return img.reshape(h, w, 3)
-    visible, color = _shades(mesh, axes)
-    p = mesh.vertices @ axes.T
-    sx = (p[:, 0] - centre[0]) * scale + w / 2
-    sy = h / 2 - (p[:, 1] - centre[1]) * scale
-    f = mesh.faces[visible]
-    x, y, z = sx[f], sy[f], p[f, 2]
+    visible, color = _shades(faces, axes)
+    sx = (_dot(vertices, axes[0]) - centre[0]) * scale + w / 2
+    sy = h / 2 - (_dot(vertices, axes[1]) - centre[1]) * scale
+    f = faces.faces[visible]
+    x, y, z = sx[f], sy[f], _dot(vertices, axes[2])[f]
     pix, depth, tri = _candidates(x, y, z, w, _units(x, y, h, w))
     zbuf = np.full(h * w, -np.inf)
     np.maximum.at(zbuf, pix, depth)
@@ -158,31 +188,38 @@ def _draw(mesh: MeshData, axes: np.ndarray, scale: float, centre: np.ndarray,
     return img.reshape(h, w, 3)
 
 
-def render_mesh(mesh: MeshData, size: int = 512, view: tuple[float, float] | None = None,
-                supersample: int = 2, fit_views: list[tuple[float, float]] | None = None
-                ) -> np.ndarray:
-    """RGB uint8 (size, size, 3): the mesh from `view` (azimuth, elevation in degrees;
-    default DEFAULT_VIEW), scaled to fit (fitted to all of `fit_views` when given)."""
-    az, el = DEFAULT_VIEW if view is None else view
-    axes = view_axes(az, el)
-    s = max(1, int(supersample))
-    big = int(size) * s
-    if fit_views:
-        scale, centre = _fit_turning(mesh, axes, [view_axes(*v) for v in fit_views], big)
-    else:
-        scale, centre = _fit([mesh.vertices @ axes[:2].T], big)
-    img = _draw(mesh, axes, scale, centre, big, big)
-    small = img.reshape(int(size), s, int(size), s, 3).mean(axis=(1, 3))
+def _picture(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float,
+             centre: np.ndarray, size: int, s: int) -> np.ndarray:
+    """_draw at s times the size, averaged down to uint8 (size, size, 3)."""
+    img = _draw(vertices, faces, axes, scale * s, centre, size * s, size * s)
+    blocks = img.reshape(size, s, size, s, 3)
+    rows = sum((blocks[:, i] for i in range(1, s)), blocks[:, 0])  # faster than .mean
+    small = sum((rows[:, :, j] for j in range(1, s)), rows[:, :, 0]) / np.float32(s * s)
     out: np.ndarray = np.clip(np.round(small), 0, 255).astype(np.uint8)
     return out
 
 
+def render_mesh(mesh: MeshData, size: int = 512, view: tuple[float, float] | None = None,
+                supersample: int = 2) -> np.ndarray:
+    """RGB uint8 (size, size, 3): the mesh from `view` (azimuth, elevation in degrees;
+    default DEFAULT_VIEW), scaled to fit."""
+    axes = view_axes(*(DEFAULT_VIEW if view is None else view))
+    xy = np.stack([_dot(mesh.vertices, axes[0]), _dot(mesh.vertices, axes[1])], axis=1)
+    scale, centre = _fit([xy], int(size))
+    return _picture(mesh.vertices, _prepare(mesh), axes, scale, centre, int(size),
+                    max(1, int(supersample)))
+
+
 def turntable(mesh: MeshData, frames: int = GIF_FRAMES, size: int = GIF_SIZE,
-              view: tuple[float, float] | None = None) -> list[np.ndarray]:
+              view: tuple[float, float] | None = None, supersample: int = 2
+              ) -> list[np.ndarray]:
     """Pictures of the mesh turning once about the vertical axis, one scale for all."""
     az, el = DEFAULT_VIEW if view is None else view
-    views = [(az + 360.0 * k / frames, el) for k in range(frames)]
-    return [render_mesh(mesh, size, v, fit_views=views) for v in views]
+    views = [view_axes(az + 360.0 * k / frames, el) for k in range(frames)]
+    scale, mid = _fit_turning(mesh, views, int(size))
+    faces = _prepare(mesh)
+    return [_picture(mesh.vertices, faces, axes, scale, axes[:2] @ mid, int(size),
+                     max(1, int(supersample))) for axes in views]
 
 
 def _png(rgb: np.ndarray) -> bytes:
