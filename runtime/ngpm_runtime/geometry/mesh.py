@@ -55,9 +55,11 @@ SPHERE_LON, SPHERE_LAT = 12, 6
 class Mesh(MeshData):
     """A `MeshData` that saves (`save`) and draws itself (`render`)."""
 
-    def save(self, path: str | Path, **render_options: Any) -> Path:
-        """Write .glb, .obj (+ .mtl), .ply, or a .png / .gif render, by the suffix."""
-        return save_mesh(self, path, **render_options)
+    def save(self, path: str | Path, size: int | None = None,
+             view: tuple[float, float] | None = None, frames: int | None = None) -> Path:
+        """Write .glb, .obj (+ .mtl), .ply, a .png picture or a turntable .gif, by the
+        suffix (`size`, `view` and `frames` are for the pictures; mesh_files.save_mesh)."""
+        return save_mesh(self, path, size=size, view=view, frames=frames)
 
     def render(self, size: int = 512, view: tuple[float, float] | None = None) -> np.ndarray:
         """A shaded RGB picture (size, size, 3) uint8 (image.render3d.render_mesh)."""

@@ -145,9 +145,11 @@ def ply_bytes(mesh: MeshData) -> bytes:
     return header.encode("ascii") + vert.tobytes() + face.tobytes()
 
 
-def save_mesh(mesh: MeshData, path: str | Path, **render_options: Any) -> Path:
+def save_mesh(mesh: MeshData, path: str | Path, size: int | None = None,
+              view: tuple[float, float] | None = None, frames: int | None = None) -> Path:
     """Write the mesh by the suffix: .glb, .obj (and a .mtl beside it), .ply, or a
-    picture (.png, or a turntable .gif; `render_options` go to image.render3d)."""
+    picture: .png (`size` default 512) or a turntable .gif (`frames` default 24, `size`
+    default 256); `view` (azimuth, elevation in degrees) for both (image.render3d)."""
     path = Path(path)
     suffix = path.suffix.lower()
     try:
@@ -163,7 +165,7 @@ def save_mesh(mesh: MeshData, path: str | Path, **render_options: Any) -> Path:
         elif suffix in PICTURE_SUFFIXES:
             from ngpm_runtime.image.render3d import save_picture
 
-            save_picture(mesh, path, **render_options)
+            save_picture(mesh, path, size, view, *([] if frames is None else [frames]))
         else:
             raise MeshError(f"{path}: unknown mesh format {suffix or '(none)'!r}; use "
                             + ", ".join(MESH_SUFFIXES + PICTURE_SUFFIXES))
