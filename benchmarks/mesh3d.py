@@ -22,7 +22,6 @@ from importlib import util
 from pathlib import Path
 
 import numpy as np
-
 from ngpm_runtime.geometry.mesh import Mesh, mesh_from_primitives
 
 
