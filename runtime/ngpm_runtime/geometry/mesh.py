@@ -71,6 +71,13 @@ def material_index(kind: str, color: Any) -> int:
     return KIND_DEFAULT[kind] if c == 0 else c % len(PALETTE)
 
 
+def _materials(kind: str, colors: np.ndarray) -> np.ndarray:
+    """material_index for an array of colour indices."""
+    c = colors.astype(np.int64)
+    out: np.ndarray = np.where(c == 0, KIND_DEFAULT[kind], c % len(PALETTE))
+    return out
+
+
 def _finite(arr: np.ndarray, kind: str) -> None:
     if not np.isfinite(arr).all():
         raise MeshError(f"a {kind} primitive has a coordinate that is not finite")
@@ -184,16 +191,16 @@ class _Builder:
         if not self.faces:
             return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
                         np.zeros(0, dtype=np.int64))
-        return Mesh(np.concatenate(self.vertices).astype(np.float64),
-                    np.concatenate(self.faces).astype(np.int64),
-                    np.concatenate(self.materials).astype(np.int64))
+        return Mesh(np.concatenate(self.vertices, dtype=np.float64),
+                    np.concatenate(self.faces, dtype=np.int64),
+                    np.concatenate(self.materials, dtype=np.int64))
 
 
 def _segments(b: _Builder, segs: list[Prim]) -> None:
     """Cylinders for ("seg3", ...) tuples, joined along branches (module docstring)."""
     arr = np.array([s[1:9] for s in segs], dtype=np.float64).reshape(-1, 8)
     _finite(arr, "seg3")
-    mat = np.array([material_index("seg3", s[8]) for s in segs], dtype=np.int64)
+    mat = _materials("seg3", arr[:, 7])
     p0, p1, r = arr[:, 0:3], arr[:, 3:6], np.abs(arr[:, 6]) / 2
     length = np.linalg.norm(p1 - p0, axis=1)
     keep = (length > 0) & (r > 0)
@@ -259,9 +266,9 @@ def _cylinder_faces(b: _Builder, s: int, idx: np.ndarray, start_base: np.ndarray
 
 def _leaves(b: _Builder, leaves: list[Prim]) -> None:
     """Ellipses for ("leaf3", ...) tuples: both windings (double-sided)."""
-    arr = np.array([p[1:12] for p in leaves], dtype=np.float64).reshape(-1, 11)
+    arr = np.array([p[1:13] for p in leaves], dtype=np.float64).reshape(-1, 12)
     _finite(arr, "leaf3")
-    mat = np.array([material_index("leaf3", p[12]) for p in leaves], dtype=np.int64)
+    mat = _materials("leaf3", arr[:, 11])
     base, h, lat = arr[:, 0:3], _unit(arr[:, 3:6]), _unit(arr[:, 6:9])
     a, w = np.abs(arr[:, 9]) / 2, np.abs(arr[:, 10]) / 2
     keep = (a > 0) & (w > 0)
@@ -306,9 +313,9 @@ def _sphere_template() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _spheres(b: _Builder, spheres: list[Prim]) -> None:
-    arr = np.array([p[1:5] for p in spheres], dtype=np.float64).reshape(-1, 4)
+    arr = np.array([p[1:6] for p in spheres], dtype=np.float64).reshape(-1, 5)
     _finite(arr, "sphere")
-    mat = np.array([material_index("sphere", p[5]) for p in spheres], dtype=np.int64)
+    mat = _materials("sphere", arr[:, 4])
     keep = np.abs(arr[:, 3]) > 0
     arr, mat = arr[keep], mat[keep]
     if len(arr) == 0:
@@ -334,8 +341,10 @@ def _polygons(b: _Builder, polys: list[Prim]) -> None:
             groups.setdefault(len(p[1]), []).append(p)
     for k, group in sorted(groups.items()):
         pts = np.array([p[1] for p in group], dtype=np.float64).reshape(-1, k, 3)
+        colors = np.array([p[2] for p in group], dtype=np.float64)
         _finite(pts, "poly3")
-        mat = np.array([material_index("poly3", p[2]) for p in group], dtype=np.int64)
+        _finite(colors, "poly3")
+        mat = _materials("poly3", colors)
         normal = _newell(pts)
         flat = np.linalg.norm(normal, axis=1) > 0
         pts, mat, normal = pts[flat], mat[flat], normal[flat]
