@@ -42,9 +42,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--size", type=argtypes.render_size, default=512,
                    help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
     p.add_argument("--png", type=argtypes.output_file(".png"), metavar="PATH",
-                   help="3D grammars: also write a shaded picture of the mesh")
+                   help="3D grammars: also write a shaded picture of the mesh (default: none)")
     p.add_argument("--gif", type=argtypes.output_file(".gif"), metavar="PATH",
-                   help="3D grammars: also write a turntable GIF (24 frames, half --size)")
+                   help="3D grammars: also write a turntable GIF, 24 frames of half --size "
+                        "(default: none)")
     p.add_argument("--view", type=view, metavar="AZ,EL",
                    help="3D grammars: the pictures' view, azimuth and elevation in degrees "
                         "(default 45,20; 0,0 looks from +Z, as the 2D render)")
