@@ -41,6 +41,9 @@ def test_api_md_examples_run(tmp_path: Path, monkeypatch) -> None:
     with Image.open(tmp_path / "horse_vine.png") as img:
         img.verify()
     assert (tmp_path / "prior.svg").read_text().startswith("<svg")
+    assert re.search(r"^\d+ vertices, \d+ triangles$", text, re.M), text
+    for name in ("plant.glb", "plant.obj", "plant.mtl", "plant.ply", "plant.png", "plant.gif"):
+        assert (tmp_path / name).stat().st_size > 0, name
 
 
 def test_first_example_guides_better_than_the_prior(tmp_path: Path, monkeypatch) -> None:

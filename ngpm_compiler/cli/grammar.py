@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from ngpm_runtime.errors import NgpmError
@@ -36,11 +37,34 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     p.add_argument("-o", "--out", required=True, type=argtypes.path,
-                   help="image to write (.png or .svg)")
+                   help="file to write: a picture (.png or .svg); for a 3D grammar a mesh "
+                        "(.glb, .obj with its .mtl, .ply) or a shaded .png")
     p.add_argument("--size", type=argtypes.render_size, default=512,
                    help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
+    p.add_argument("--png", type=argtypes.output_file(".png"), metavar="PATH",
+                   help="3D grammars: also write a shaded picture of the mesh (default: none)")
+    p.add_argument("--gif", type=argtypes.output_file(".gif"), metavar="PATH",
+                   help="3D grammars: also write a turntable GIF, 24 frames of half --size "
+                        "(default: none)")
+    p.add_argument("--view", type=view, metavar="AZ,EL",
+                   help="3D grammars: the pictures' view, azimuth and elevation in degrees "
+                        "(default 45,20; 0,0 looks from +Z, as the 2D render)")
     argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_sample)
+
+
+def view(text: str) -> tuple[float, float]:
+    """An argparse type: AZ,EL in degrees (elevation from -90 to 90)."""
+    parts = text.split(",")
+    try:
+        az, el = (float(x) for x in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected AZ,EL in degrees, like 45,20, got {text!r}") from None
+    if not (math.isfinite(az) and -90 <= el <= 90):
+        raise argparse.ArgumentTypeError(
+            f"the azimuth must be a number and the elevation from -90 to 90, got {text!r}")
+    return az, el
 
 
 def check_file(path: str) -> str:
@@ -84,21 +108,61 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+MESH_SUFFIXES = (".glb", ".obj", ".ply")
+
+
 def cmd_sample(args: argparse.Namespace) -> int:
-    from ngpm_runtime.image.render import save_render
     from ngpm_runtime.inference.smc import forward
 
     suffix = Path(args.out).suffix.lower()
-    if suffix not in (".png", ".svg"):
-        raise NgpmError(f"{args.out}: the output must be a .png or .svg file")
+    if suffix not in (".png", ".svg", *MESH_SUFFIXES):
+        raise NgpmError(f"{args.out}: the output must be a .png or .svg file (or .glb, .obj, "
+                        ".ply for a 3D grammar)")
     program = (load_grammar(check_file(args.grammar)) if args.grammar.endswith(".py")
                else load(args.grammar).program())
+    three_d = getattr(program, "dim", 2) == 3
+    check_sample_outputs(args, suffix, three_d)
     particle = forward(program, seed=args.seed, max_modules=args.max_modules)
     prims = list(particle.primitives)
-    save_render(prims, args.out, viewport=program.viewport, size=args.size)
+    if three_d:
+        written = save_3d(args, prims)
+    else:
+        from ngpm_runtime.image.render import save_render
+
+        save_render(prims, args.out, viewport=program.viewport, size=args.size)
+        written = args.out
     print(f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
-          f"log prior {particle.log_prior:.3f}, status {particle.status} -> {args.out}")
+          f"log prior {particle.log_prior:.3f}, status {particle.status} -> {written}")
     note = argtypes.limit_note(particle, program, args.max_modules)
     if note:
         print(note)
     return 0
+
+
+def check_sample_outputs(args: argparse.Namespace, suffix: str, three_d: bool) -> None:
+    """One-line errors for outputs the grammar's dimension has no use for."""
+    if not three_d:
+        if suffix in MESH_SUFFIXES:
+            raise NgpmError(f"{args.out}: mesh output ({', '.join(MESH_SUFFIXES)}) is for 3D "
+                            f"grammars; {args.grammar} is 2D (write .png or .svg)")
+        extra = [f"--{k}" for k in ("png", "gif", "view") if getattr(args, k) is not None]
+        if extra:
+            raise NgpmError(f"{' and '.join(extra)}: for 3D grammars; {args.grammar} is 2D")
+    elif suffix == ".svg":
+        raise NgpmError(f"{args.out}: SVG output is for 2D grammars; {args.grammar} is 3D "
+                        "(write .png, .glb, .obj or .ply)")
+
+
+def save_3d(args: argparse.Namespace, prims: list) -> str:
+    """The mesh of a 3D sample, saved to -o, --png and --gif; returns what was written."""
+    from ngpm_runtime.geometry.mesh import mesh_from_primitives
+
+    mesh = mesh_from_primitives(prims)
+    done = [args.out]
+    mesh.save(args.out, size=args.size, view=args.view)
+    for path in (args.png, args.gif):
+        if path is not None:
+            size = args.size if path.lower().endswith(".png") else max(1, args.size // 2)
+            mesh.save(path, size=size, view=args.view)
+            done.append(path)
+    return f"{', '.join(done)} ({len(mesh.faces)} triangles)"

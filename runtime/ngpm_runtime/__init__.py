@@ -1,9 +1,9 @@
 """ngpm_runtime: the torch-free runtime for neurally-guided procedural models.
 
 `grow(program, target, guide)` grows a vine into a target; `bundled` holds the vines
-model, its pretrained guide and demo targets. Packages: `geometry` (derivation, turtle),
-`image` (raster, features, render, targets), `inference` (SMC, proposals, guide,
-likelihoods).
+model, its pretrained guide and demo targets. Packages: `geometry` (derivation, turtle,
+meshes and mesh files), `image` (raster, features, render, targets, pictures of meshes),
+`inference` (SMC, proposals, guide, likelihoods).
 
 `grow` is imported here (the module `ngpm_runtime.grow` has the function's name, so the
 package binds the function after importing it); the other names below are imported on
@@ -27,6 +27,10 @@ _EXPORTS = {
     "Program": "ngpm_runtime.program",
     "Site": "ngpm_runtime.program",
     "load_program": "ngpm_runtime.program",
+    "Mesh": "ngpm_runtime.geometry.mesh",
+    "MeshError": "ngpm_runtime.geometry.mesh",
+    "mesh_from_primitives": "ngpm_runtime.geometry.mesh",
+    "render_mesh": "ngpm_runtime.image.render3d",
     "Target": "ngpm_runtime.image.targets",
     "load_target": "ngpm_runtime.image.targets",
     "Guide": "ngpm_runtime.inference.guide",

@@ -1,5 +1,5 @@
-"""The runtime must work with torch, lark, scipy, scikit-image, matplotlib, tqdm and the
-compiler unimportable."""
+"""The runtime must work with torch, lark, scipy, scikit-image, matplotlib, tqdm, the mesh
+libraries the tests read meshes with (trimesh, pygltflib) and the compiler unimportable."""
 
 import textwrap
 from pathlib import Path
@@ -7,7 +7,8 @@ from pathlib import Path
 from blocked_imports import run_blocked
 from repo_paths import VINES_SAMPLER
 
-BLOCKED = ("torch", "lark", "ngpm_compiler", "scipy", "skimage", "matplotlib", "tqdm")
+BLOCKED = ("torch", "lark", "ngpm_compiler", "scipy", "skimage", "matplotlib", "tqdm",
+           "trimesh", "pygltflib")
 
 SCRIPT = textwrap.dedent(
     """
@@ -26,6 +27,10 @@ SCRIPT = textwrap.dedent(
     target = bundled.demo_targets()[2]
     res = grow(bundled.bundled_program(), target, bundled.bundled_guide(), 3, seed=1)
     assert res.primitives and 0.0 <= res.similarity <= 1.0
+    from ngpm_runtime import mesh_from_primitives
+    mesh = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.1, 0), ("sphere", 0, 1, 0, 0.2, 0)])
+    for suffix in ("glb", "obj", "ply", "png", "gif"):
+        mesh.save(f"plant.{suffix}", size=32, frames=2)
     """
 )
 

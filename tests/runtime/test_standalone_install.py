@@ -1,5 +1,6 @@
 """`pip install ./runtime` in a fresh virtual environment (no system site-packages) gives a
-runtime that grows a vine without lark, torch, matplotlib, scipy or scikit-image."""
+runtime that grows a vine and writes 3D meshes and pictures without lark, torch, matplotlib,
+scipy, scikit-image or a mesh library."""
 
 from __future__ import annotations
 
@@ -25,8 +26,13 @@ SCRIPT = textwrap.dedent(
     target = bundled.demo_targets()[1]
     res = grow(bundled.bundled_program(), target, bundled.bundled_guide(), 3, seed=0)
     assert res.primitives and 0.0 <= res.similarity <= 1.0, res
+    from ngpm_runtime import mesh_from_primitives
+    mesh = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.1, 0), ("sphere", 0, 1, 0, 0.2, 0)])
+    for suffix in ("glb", "obj", "ply", "png"):
+        assert mesh.save(f"plant.{suffix}", size=32).stat().st_size > 100
     missing = [m for m in ("lark", "torch", "matplotlib", "scipy", "skimage", "tqdm",
-                           "ngpm_compiler") if importlib.util.find_spec(m) is not None]
+                           "trimesh", "pygltflib", "ngpm_compiler")
+               if importlib.util.find_spec(m) is not None]
     assert not missing, missing
     print("grown", target.name, len(res.primitives), round(res.similarity, 3))
     """
