@@ -45,19 +45,21 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
     and a spiral drawn here; all framed like the datasets' silhouettes, automatic start."""
     from skimage.data import horse
 
-    from ngpm_compiler.datasets.build import SUPERSAMPLE, default_font, fit_mask, render_glyph
+    from ngpm_compiler.datasets.common import SUPERSAMPLE
+    from ngpm_compiler.datasets.glyphs import default_font, render_glyph
+    from ngpm_compiler.datasets.silhouettes import fit_mask
 
     face = ImageFont.truetype(str(default_font()), size * SUPERSAMPLE)
     masks = {
         "glyph": render_glyph(face, "S", size),
-        "horse": fit_mask(~horse(), size)[0],
+        "horse": fit_mask(~horse(), size)[0],  # type: ignore[no-untyped-call]  # unannotated
         "heart": fit_mask(_heart_mask(size * SUPER), size)[0],
         "spiral": fit_mask(_spiral_mask(size * SUPER), size)[0],
     }
     return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
 
 
-def write_demo_targets(out_dir: str | os.PathLike) -> list[Path]:
+def write_demo_targets(out_dir: str | os.PathLike[str]) -> list[Path]:
     """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
     return [save_target(t, Path(out_dir) / f"demo_{name}.png")
             for name, t in make_demo_targets().items()]

@@ -176,7 +176,7 @@ def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> n
 
 def target_picture(target: Target, size: int) -> np.ndarray:
     """The target mask (dark gray on white) with its start as a red arrow from a green dot."""
-    from ngpm_compiler.datasets.build import draw_start
+    from ngpm_compiler.datasets.sheets import draw_start
 
     tile = np.where(target.mask, 70, 255).astype(np.uint8)
     img = Image.fromarray(tile, mode="L").resize((size, size), Image.Resampling.NEAREST)
