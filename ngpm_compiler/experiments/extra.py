@@ -64,7 +64,7 @@ def _circuit_setup(grammar: str) -> dict[str, Any]:
 
 
 def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
-    from ngpm_compiler.learning.traces import MIN_PRIMITIVES, job_arrays
+    from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES, job_arrays
 
     job, base_seed, particles = args
     seed = run_seed(base_seed, job, particles, 99)
@@ -76,13 +76,8 @@ def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
 def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
     """Unguided circuit-SMC traces (kept: >= 10 primitives) as a traces directory."""
     from ngpm_compiler.language.compile import load_grammar
-    from ngpm_compiler.learning.traces import (
-        TRACE_FORMAT,
-        TraceStore,
-        merge_arrays,
-        save_npz,
-        site_layouts,
-    )
+    from ngpm_compiler.learning.trace_jobs import site_layouts
+    from ngpm_compiler.learning.trace_store import TRACE_FORMAT, TraceStore, merge_arrays, save_npz
 
     store = TraceStore(out_dir)
     m = store.manifest()

@@ -41,7 +41,7 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = print) -> dict[str, 
     result: dict[str, Any] = {}
     need_shape = any(s in cfg.stages for s in ("shape", "grids"))
     if need_shape:
-        from ngpm_compiler.learning.traces import load_traces
+        from ngpm_compiler.learning.trace_data import load_traces
 
         targets = shape.test_targets(cfg)
         settings["test_targets"] = {k: len(v) for k, v in targets.items()}
