@@ -11,7 +11,7 @@ from ngpm_compiler.cli.extras import missing_extra
 from ngpm_compiler.cli.grammar import GRAMMAR_HELP
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
         "serve", help="a local web page: draw a shape, watch a guided vine grow into it",
         description="Start a local web server (127.0.0.1 only) with a page where you draw a "

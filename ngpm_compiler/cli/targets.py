@@ -16,7 +16,7 @@ from ngpm_compiler.datasets.common import DatasetWarning
 from ngpm_compiler.datasets.sheets import contact_sheet
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "targets", help="build, list and preview target image datasets",
         description="Build, list and preview target image datasets (see docs/datasets.md).")

@@ -102,7 +102,8 @@ def model_info(onnx_path: str) -> dict[str, Any]:
     `ngpmc export` stores in the ONNX metadata ({} if neither is readable)."""
     p = Path(onnx_path).with_suffix(".json")
     if p.is_file():
-        return json.loads(p.read_text(encoding="utf-8"))
+        info: dict[str, Any] = json.loads(p.read_text(encoding="utf-8"))
+        return info
     try:
         import onnxruntime as ort
 
