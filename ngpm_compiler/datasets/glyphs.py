@@ -30,7 +30,8 @@ def font_codepoints(font_path: Path) -> list[int]:
     from fontTools.ttLib import TTFont
 
     try:
-        cmap = TTFont(str(font_path), lazy=True).getBestCmap() or {}
+        with TTFont(str(font_path), lazy=True) as face:  # closed: no ResourceWarning later
+            cmap = face.getBestCmap() or {}
     except Exception as err:  # fontTools raises many kinds on a bad file
         raise DatasetError(f"cannot read font {font_path}: {err}") from None
     return [c for lo, hi in GLYPH_RANGES for c in range(lo, hi + 1)

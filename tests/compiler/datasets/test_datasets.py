@@ -17,7 +17,7 @@ from skimage.morphology import skeletonize
 from ngpm_compiler.datasets import build as datasets
 from ngpm_compiler.datasets.build import build_dataset
 from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
-from ngpm_compiler.datasets.glyphs import default_font, glyph_ok, render_glyph
+from ngpm_compiler.datasets.glyphs import default_font, font_codepoints, glyph_ok, render_glyph
 from ngpm_compiler.datasets.scribbles import scribble
 from ngpm_compiler.datasets.sheets import contact_sheet
 from ngpm_compiler.datasets.silhouettes import SHAPE_KINDS, fit_mask, procedural_silhouette
@@ -95,6 +95,20 @@ def test_glyphs_with_other_font(tmp_path):
     index = json.loads((tmp_path / "index.json").read_text())
     assert len(files) == 5 and index["font"] == str(serif)
     assert index["sources"][0].startswith("DejaVuSerif.ttf")
+
+
+def test_reading_a_fonts_code_points_closes_the_file():
+    """fontTools kept the font file open; its ResourceWarning, raised whenever the garbage
+    collector ran, landed in a later test's recorded warnings."""
+    import gc
+    import warnings
+
+    serif = default_font().with_name("DejaVuSerif.ttf")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        assert len(font_codepoints(serif)) > 100
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
 
 
 def test_bad_font(tmp_path):
