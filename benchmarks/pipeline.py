@@ -23,14 +23,9 @@ from ngpm_runtime.inference.guide import Guide
 from ngpm_compiler.datasets.build import build_dataset
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.export import write_onnx
-from ngpm_compiler.learning.traces import (
-    TraceConfig,
-    generate_traces,
-    job_spec,
-    load_targets,
-    load_traces,
-    run_job,
-)
+from ngpm_compiler.learning.trace_data import load_traces
+from ngpm_compiler.learning.trace_jobs import job_spec, load_targets, run_job
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.learning.train import TrainConfig, train_guide
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -253,7 +253,7 @@ def trace_jobs(program: Any, targets: list) -> None:
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
     from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
-    from ngpm_compiler.learning.traces import run_job
+    from ngpm_compiler.learning.trace_jobs import run_job
 
     vp = program.viewport
     job, full = [], []

@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from ngpm_compiler.datasets.build import build_dataset
-from ngpm_compiler.learning.traces import TraceConfig, TraceStore, generate_traces
+from ngpm_compiler.learning.trace_store import TraceStore
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
 ROOT = Path(__file__).resolve().parents[1]
 

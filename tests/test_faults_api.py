@@ -129,7 +129,8 @@ def test_smc_rejects_a_fractional_particle_count_and_bad_seeds() -> None:
 
 
 def test_generate_traces_without_viewport(tmp_path: Path) -> None:
-    from ngpm_compiler.learning.traces import TraceConfig, TraceError, generate_traces
+    from ngpm_compiler.learning.shards import TraceError
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     g = tmp_path / "nv.lsys"
     g.write_text("Axiom: F F\nendlsystem\n")

@@ -16,7 +16,8 @@ from ngpm_compiler.cli.extras import missing_extra
 # Command-family modules, in the order `ngpmc --help` lists them.
 COMMAND_MODULES = [
     "ngpm_compiler.cli.grammar",  # compile, check, sample
-    "ngpm_compiler.cli.guide",  # traces, train, export, grow
+    "ngpm_compiler.cli.guide",  # traces, train, iterate, export, tune
+    "ngpm_compiler.cli.grow",  # grow
     "ngpm_compiler.cli.targets",  # targets build, list, show
     "ngpm_compiler.cli.evaluate",  # eval
     "ngpm_compiler.cli.demo",  # demo

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.guide import add_backend_arguments
-from ngpm_compiler.experiments.config import EvalConfig, quick_config
-from ngpm_compiler.experiments.pipeline import STAGES, EvalError, run_eval
+from ngpm_compiler.experiments.config import STAGES, EvalConfig, eval_config, quick_config
+from ngpm_compiler.experiments.pipeline import EvalError, run_eval
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -80,7 +80,7 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
     if args.quick:
         cfg = quick_config(out, work, workers=args.workers or 1)
     else:
-        cfg = EvalConfig(out=out, work=work)
+        cfg = eval_config(out, work)
     cfg.stages = tuple(args.stages)
     for key in ("grammar", "chain_grammar", "traces", "guide_all", "glyphs", "silhouettes",
                 "n_glyphs", "n_silhouettes",
@@ -89,17 +89,17 @@ def config_from_args(args: argparse.Namespace) -> EvalConfig:
         v = getattr(args, key, None)
         key = "unguided_extra_ns" if key == "unguided_ns" else key
         if v is not None:
-            setattr(cfg, key, v)
-    cfg.seed = args.seed
-    if cfg.ray_address and cfg.backend != "ray":
+            cfg.set(key, v)
+    cfg.set("seed", args.seed)
+    if cfg.shape.ray_address and cfg.shape.backend != "ray":
         raise EvalError("--ray-address needs --backend ray")
     for key in ("traces", "guide_all", "glyphs", "silhouettes"):
-        v = getattr(cfg, key)
+        v = getattr(cfg.shape, key)
         if v is not None and not Path(v).exists():
             raise EvalError(f"--{key.replace('_', '-')} {v}: no such file or directory")
-    needs = {"grammar": ("shape", "grids", "circuit"), "chain_grammar": ("chain",)}
-    for key, stages in needs.items():
-        path = getattr(cfg, key)
+    needs = {"grammar": (cfg.shape.grammar, ("shape", "grids", "circuit")),
+             "chain_grammar": (cfg.chain.chain_grammar, ("chain",))}
+    for key, (path, stages) in needs.items():
         if set(stages) & set(cfg.stages) and not Path(path).is_file():
             where = (" (grammars/chain.lsys of a clone of the ngpm repository; it is not "
                      "installed with the package)" if key == "chain_grammar" else "")

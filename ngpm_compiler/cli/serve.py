@@ -42,7 +42,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         import uvicorn  # noqa: F401
     except ImportError as err:
         raise NgpmError(missing_extra("serve", err) or str(err)) from None
-    from ngpm_compiler.web.app import Limits, bind, load_config, make_server
+    from ngpm_compiler.web.app import bind, make_server
+    from ngpm_compiler.web.config import Limits, load_config
 
     if not 0 <= args.port <= 65535:
         raise NgpmError(f"--port must be from 0 to 65535, got {args.port}")

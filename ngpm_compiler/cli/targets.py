@@ -11,7 +11,9 @@ from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.outpaths import check_output_file
-from ngpm_compiler.datasets.build import DATASETS, DatasetWarning, build_dataset, contact_sheet
+from ngpm_compiler.datasets.build import DATASETS, build_dataset
+from ngpm_compiler.datasets.common import DatasetWarning
+from ngpm_compiler.datasets.sheets import contact_sheet
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -45,7 +45,9 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
     and a spiral drawn here; all framed like the datasets' silhouettes, automatic start."""
     from skimage.data import horse
 
-    from ngpm_compiler.datasets.build import SUPERSAMPLE, default_font, fit_mask, render_glyph
+    from ngpm_compiler.datasets.common import SUPERSAMPLE
+    from ngpm_compiler.datasets.glyphs import default_font, render_glyph
+    from ngpm_compiler.datasets.silhouettes import fit_mask
 
     face = ImageFont.truetype(str(default_font()), size * SUPERSAMPLE)
     masks = {
@@ -57,7 +59,7 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
     return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
 
 
-def write_demo_targets(out_dir: str | os.PathLike) -> list[Path]:
+def write_demo_targets(out_dir: str | os.PathLike[str]) -> list[Path]:
     """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
     return [save_target(t, Path(out_dir) / f"demo_{name}.png")
             for name, t in make_demo_targets().items()]

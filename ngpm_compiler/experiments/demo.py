@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.image.targets import Target
 from PIL import Image, ImageDraw, ImageFont
 
@@ -76,7 +77,7 @@ def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
     return rows, guide
 
 
-def prepare_out_dir(path: str | os.PathLike) -> Path:
+def prepare_out_dir(path: str | os.PathLike[str]) -> Path:
     """Create the output folder and check that it is writable, before any work."""
     out = Path(path)
     try:
@@ -182,7 +183,7 @@ def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
         return ImageFont.load_default()
 
 
-def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> np.ndarray:
+def _render(prims: list[Prim], viewport: Any, mask: np.ndarray, size: int) -> np.ndarray:
     from ngpm_runtime.image.render import render_array
 
     return render_array(prims, viewport, size, target_mask=mask)
@@ -190,7 +191,7 @@ def _render(prims: list[tuple], viewport: Any, mask: np.ndarray, size: int) -> n
 
 def target_picture(target: Target, size: int) -> np.ndarray:
     """The target mask (dark gray on white) with its start as a red arrow from a green dot."""
-    from ngpm_compiler.datasets.build import draw_start
+    from ngpm_compiler.datasets.sheets import draw_start
 
     tile = np.where(target.mask, 70, 255).astype(np.uint8)
     img = Image.fromarray(tile, mode="L").resize((size, size), Image.Resampling.NEAREST)
@@ -249,7 +250,7 @@ def _write_text(path: Path, text: str) -> None:
     atomic_write(path, text)
 
 
-def write_demo(out_dir: str | os.PathLike, particles: int = 10, seed: int = 0, runs: int = 3,
+def write_demo(out_dir: str | os.PathLike[str], particles: int = 10, seed: int = 0, runs: int = 3,
                program: Any = None, guide: Any = None) -> tuple[list[DemoRow], Any, list[Path]]:
     """Run the demo and write its renders, `demo.png` and `summary.md` into `out_dir`.
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from ngpm_compiler.evaluation.runs import grow_once, run_seed, t_interval, write_csv
 from ngpm_compiler.experiments import plots
-from ngpm_compiler.experiments.config import EvalConfig
+from ngpm_compiler.experiments.config import ChainConfig, CircuitConfig
 from ngpm_compiler.experiments.models import ModelSpec, train_models
 from ngpm_compiler.jobs import pool
 
@@ -64,7 +64,7 @@ def _circuit_setup(grammar: str) -> dict[str, Any]:
 
 
 def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
-    from ngpm_compiler.learning.traces import MIN_PRIMITIVES, job_arrays
+    from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES, job_arrays
 
     job, base_seed, particles = args
     seed = run_seed(base_seed, job, particles, 99)
@@ -73,16 +73,11 @@ def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
     return job_arrays(job, 0, seed, list(best.trace or []), n_prims, n_prims >= MIN_PRIMITIVES)
 
 
-def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
+def circuit_traces(cfg: CircuitConfig, out_dir: str, log: Any = print) -> str:
     """Unguided circuit-SMC traces (kept: >= 10 primitives) as a traces directory."""
     from ngpm_compiler.language.compile import load_grammar
-    from ngpm_compiler.learning.traces import (
-        TRACE_FORMAT,
-        TraceStore,
-        merge_arrays,
-        save_npz,
-        site_layouts,
-    )
+    from ngpm_compiler.learning.trace_jobs import site_layouts
+    from ngpm_compiler.learning.trace_store import TRACE_FORMAT, TraceStore, merge_arrays, save_npz
 
     store = TraceStore(out_dir)
     m = store.manifest()
@@ -122,7 +117,7 @@ def circuit_traces(cfg: EvalConfig, out_dir: str, log: Any = print) -> str:
     return out_dir
 
 
-def run_circuit(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
+def run_circuit(cfg: CircuitConfig, log: Any = print) -> list[dict[str, Any]]:
     """Traces, a guide, then reference / guided / unguided equal N / equal time runs."""
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
@@ -218,7 +213,7 @@ def chain_arc(rng: np.random.Generator, program: Any, size: int = 50, links: int
     return Target(mask, start, name)
 
 
-def run_chain(cfg: EvalConfig, log: Any = print) -> list[dict[str, Any]]:
+def run_chain(cfg: ChainConfig, log: Any = print) -> list[dict[str, Any]]:
     """Chain of Figure 1: prior samples, unguided vs guided SMC, guide samples."""
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide

@@ -29,7 +29,7 @@ class ModelSpec:
 
 def subset(data: dict[int, Any], kept_jobs: np.ndarray, n: int | None) -> dict[int, Any]:
     """Site data restricted to the first `n` kept jobs (by job id)."""
-    from ngpm_compiler.learning.traces import SiteData
+    from ngpm_compiler.learning.trace_data import SiteData
 
     if n is None or n >= len(kept_jobs):
         return dict(data)
@@ -51,7 +51,7 @@ def _key(spec: ModelSpec, traces_dir: str, manifest: dict[str, Any]) -> dict[str
 def train_one(spec: ModelSpec, traces_dir: str, out_dir: str, seed: int = 0) -> str:
     """Train and export one model; returns the .onnx path (reused when up to date)."""
     from ngpm_compiler.learning.export import write_onnx
-    from ngpm_compiler.learning.traces import load_traces
+    from ngpm_compiler.learning.trace_data import load_traces
     from ngpm_compiler.learning.train import TrainConfig, train_guide
 
     out = Path(out_dir) / f"{spec.name}.onnx"
@@ -102,7 +102,8 @@ def model_info(onnx_path: str) -> dict[str, Any]:
     `ngpmc export` stores in the ONNX metadata ({} if neither is readable)."""
     p = Path(onnx_path).with_suffix(".json")
     if p.is_file():
-        return json.loads(p.read_text(encoding="utf-8"))
+        info: dict[str, Any] = json.loads(p.read_text(encoding="utf-8"))
+        return info
     try:
         import onnxruntime as ort
 

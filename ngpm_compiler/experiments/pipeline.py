@@ -15,8 +15,6 @@ from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.experiments.config import EvalConfig
 
-STAGES = ("shape", "grids", "circuit", "chain", "report")
-
 
 class EvalError(NgpmError):
     """The evaluation cannot run with the given options or inputs."""
@@ -41,31 +39,32 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = print) -> dict[str, 
     result: dict[str, Any] = {}
     need_shape = any(s in cfg.stages for s in ("shape", "grids"))
     if need_shape:
-        from ngpm_compiler.learning.traces import load_traces
+        from ngpm_compiler.learning.trace_data import load_traces
 
-        targets = shape.test_targets(cfg)
+        targets = shape.test_targets(cfg.shape)
         settings["test_targets"] = {k: len(v) for k, v in targets.items()}
         settings["test_target_names"] = {k: [t.name for t in v] for k, v in targets.items()}
-        traces = cfg.traces or shape.tiny_traces(cfg)
+        traces = cfg.shape.traces or shape.tiny_traces(cfg.shape)
         kept = len(load_traces(traces).kept_jobs)
         if kept < 2:
             raise EvalError(f"{traces}: needs at least 2 kept traces, has {kept}")
         settings.update(traces=traces, kept_traces=kept)
         _save_settings(settings_path, settings)
-        guides = shape.prepare_guides(cfg, traces, kept, log)
+        guides = shape.prepare_guides(cfg.shape, traces, kept, log)
         if "shape" in cfg.stages:
-            rows = shape.run_shape(cfg, targets, guides, kept, log)
+            rows = shape.run_shape(cfg.shape, targets, guides, kept, log)
         else:
-            rows = shape.load_rows(cfg)
-        result.update(shape.analyze_shape(cfg, rows, kept))
+            rows = shape.load_rows(cfg.shape)
+        result.update(shape.analyze_shape(cfg.shape, rows, kept))
         log(f"shape study done ({len(rows)} runs)")
         if "grids" in cfg.stages:
-            result["grids"] = shape.run_grids(cfg, targets, guides, result["summary"], log)
+            result["grids"] = shape.run_grids(cfg.shape, targets, guides, result["summary"],
+                                              log)
     if "circuit" in cfg.stages:
-        result["circuit"] = extra.run_circuit(cfg, log)
+        result["circuit"] = extra.run_circuit(cfg.circuit, log)
         log("circuit study done")
     if "chain" in cfg.stages:
-        result["chain"] = extra.run_chain(cfg, log)
+        result["chain"] = extra.run_chain(cfg.chain, log)
         log("chain study done")
     if command and cfg.stages != ("report",):
         settings.setdefault("commands", {})[",".join(cfg.stages)] = command

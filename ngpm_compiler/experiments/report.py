@@ -10,13 +10,9 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ngpm_compiler.evaluation.runs import (
-    UNGUIDED,
-    atomic_write,
-    curve,
-    read_csv,
-    time_to_reach,
-)
+from ngpm_runtime.files import atomic_write
+
+from ngpm_compiler.evaluation.runs import UNGUIDED, curve, read_csv, time_to_reach
 from ngpm_compiler.experiments.config import SHAPE_MODELS
 from ngpm_compiler.experiments.extra import chain_table, circuit_table
 from ngpm_compiler.experiments.plots import label

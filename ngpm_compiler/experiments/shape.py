@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.geometry.turtle import Prim
 
 from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
@@ -35,13 +36,13 @@ from ngpm_compiler.evaluation.runs import (
     write_csv,
 )
 from ngpm_compiler.experiments import plots
-from ngpm_compiler.experiments.config import SHAPE_MODELS, EvalConfig
+from ngpm_compiler.experiments.config import SHAPE_MODELS, ShapeConfig
 from ngpm_compiler.experiments.models import ModelSpec, model_info, train_models
 
 TEST_SETS = ("glyphs", "silhouettes")
 
 
-def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:
+def test_targets(cfg: ShapeConfig) -> dict[str, list[Any]]:
     """The held-out test targets: evenly spread glyphs and silhouettes (built if needed)."""
     from ngpm_runtime.image.targets import load_dataset
 
@@ -60,7 +61,7 @@ def test_targets(cfg: EvalConfig) -> dict[str, list[Any]]:
     return out
 
 
-def tiny_traces(cfg: EvalConfig) -> str:
+def tiny_traces(cfg: ShapeConfig) -> str:
     """A few unguided-SMC traces on a few scribbles (quick mode / no canonical traces)."""
     from ngpm_compiler.datasets.build import build_dataset
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
@@ -76,7 +77,7 @@ def tiny_traces(cfg: EvalConfig) -> str:
     return str(out)
 
 
-def model_specs(cfg: EvalConfig, kept: int) -> list[ModelSpec]:
+def model_specs(cfg: ShapeConfig, kept: int) -> list[ModelSpec]:
     """The shape-matching guides: feature ablation, K = 1, training-set sizes."""
     specs = [ModelSpec(f, f, 4, None, cfg.epochs) for f in SHAPE_MODELS]
     if cfg.guide_all:
@@ -88,7 +89,7 @@ def model_specs(cfg: EvalConfig, kept: int) -> list[ModelSpec]:
     return specs
 
 
-def trainset_models(cfg: EvalConfig, kept: int) -> dict[int, str]:
+def trainset_models(cfg: ShapeConfig, kept: int) -> dict[int, str]:
     """{training traces: model name} for the training-set-size curve."""
     out = {n: f"all_n{n}" for n in cfg.trainset_sizes if n < kept}
     out[kept] = "all"
@@ -113,7 +114,7 @@ def _round(x: Any) -> Any:
     return "" if x is None else round(float(x), 3)
 
 
-def run_shape(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, str],
+def run_shape(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str, str],
               kept: int, log: Any = print) -> list[dict[str, Any]]:
     """Every SMC run of the shape study; writes shape_runs.csv and returns its rows."""
     counts = {ds: len(ts) for ds, ts in targets.items()}
@@ -143,7 +144,7 @@ def run_shape(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
     return rows
 
 
-def analyze_shape(cfg: EvalConfig, rows: list[dict[str, Any]], kept: int) -> dict[str, Any]:
+def analyze_shape(cfg: ShapeConfig, rows: list[dict[str, Any]], kept: int) -> dict[str, Any]:
     """Summaries, speedups, training-set curve and the four plots from the run rows."""
     out = Path(cfg.out)
     summary = summarize(rows, "all")
@@ -177,7 +178,7 @@ def analyze_shape(cfg: EvalConfig, rows: list[dict[str, Any]], kept: int) -> dic
     return {"summary": summary, "speedup": speed, "trainset": ts_rows}
 
 
-def prepare_guides(cfg: EvalConfig, traces: str, kept: int, log: Any = print) -> dict[str, str]:
+def prepare_guides(cfg: ShapeConfig, traces: str, kept: int, log: Any = print) -> dict[str, str]:
     specs = model_specs(cfg, kept)
     log(f"training {len(specs)} guides on {traces}: {', '.join(s.name for s in specs)}")
     guides = train_models(specs, traces, str(Path(cfg.work) / "models"), cfg.workers, cfg.seed)
@@ -214,7 +215,7 @@ def equal_time_n(summary: list[dict[str, Any]], seconds: float, n_min: int) -> i
 
 
 def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int, seed: int,
-                   tries: int = 4, n_max: int = 5000) -> tuple[float, float, list[tuple], int]:
+                   tries: int = 4, n_max: int = 5000) -> tuple[float, float, list[Prim], int]:
     """Unguided SMC whose wall time is closest to `seconds`: start from the estimate `n`,
     rescale N by the time ratio (at most x4 per try) until within 25%; returns
     (similarity, seconds, primitives, N) of the try closest in time."""
@@ -233,7 +234,7 @@ def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int
     return sim, secs, prims, n
 
 
-def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, str],
+def run_grids(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str, str],
               summary: list[dict[str, Any]], log: Any = print) -> list[dict[str, Any]]:
     """Target | Reference | Guided | Unguided equal N | Unguided equal time, per test set."""
     from ngpm_runtime.image.render import render_array
@@ -282,7 +283,7 @@ def run_grids(cfg: EvalConfig, targets: dict[str, list[Any]], guides: dict[str, 
     return rows_csv
 
 
-def load_rows(cfg: EvalConfig) -> list[dict[str, Any]]:
+def load_rows(cfg: ShapeConfig) -> list[dict[str, Any]]:
     return read_csv(Path(cfg.out) / "shape_runs.csv")
 
 

@@ -23,13 +23,9 @@ from typing import Any
 import numpy as np
 from ngpm_runtime.files import atomic_write
 
-from ngpm_compiler.learning.traces import (
-    SiteData,
-    TraceConfig,
-    TraceError,
-    TraceSet,
-    generate_traces,
-)
+from ngpm_compiler.learning.shards import TraceError
+from ngpm_compiler.learning.trace_data import SiteData, TraceSet
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.progress import Log
 
 JOB_STRIDE = 10 ** 8  # job ids of the k-th merged traces directory are offset by k * this
@@ -104,7 +100,7 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str],
                 log: Log) -> tuple[str, dict[str, Any]]:
     """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
-    from ngpm_compiler.learning.traces import load_traces
+    from ngpm_compiler.learning.trace_data import load_traces
     from ngpm_compiler.learning.train import TrainConfig, load_model, save_model, train_guide
 
     ts = merge_traces([load_traces(d) for d in trace_dirs])

@@ -31,7 +31,7 @@ from ngpm_compiler.learning.nets import (
     continuous_z,
     select_columns,
 )
-from ngpm_compiler.learning.traces import SiteData
+from ngpm_compiler.learning.trace_data import SiteData
 from ngpm_compiler.progress import Progress
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"

@@ -163,7 +163,7 @@ def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.M
     monkeypatch.chdir(tmp_path)  # no grammars/ here
     parse = build_parser().parse_args
     cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "shape,report"]))
-    assert Path(cfg.grammar) == bundled.sampler_path()
+    assert Path(cfg.shape.grammar) == bundled.sampler_path()
     assert main(["eval", "--quick", "-o", "r", "--stages", "chain"]) != 0
     err = capsys.readouterr().err
     assert "grammars/chain.lsys: no such grammar; give --chain-grammar" in err
@@ -172,7 +172,7 @@ def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.M
     chain = str(REPO / "grammars" / "chain.lsys")
     cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "chain",
                                   "--chain-grammar", chain, "--grammar", "missing.lsys"]))
-    assert cfg.chain_grammar == chain and cfg.grammar == "missing.lsys"
+    assert cfg.chain.chain_grammar == chain and cfg.chain.grammar == "missing.lsys"
 
 
 def test_no_grammar_is_package_data() -> None:

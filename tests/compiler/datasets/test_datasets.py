@@ -1,4 +1,4 @@
-"""Tests for ngpm_compiler.datasets.build: scribbles, glyphs, silhouettes, builds, sheets."""
+"""Tests for ngpm_compiler.datasets: scribbles, glyphs, silhouettes, builds, sheets."""
 
 from __future__ import annotations
 
@@ -15,18 +15,12 @@ from skimage.measure import label
 from skimage.morphology import skeletonize
 
 from ngpm_compiler.datasets import build as datasets
-from ngpm_compiler.datasets.build import (
-    DatasetError,
-    DatasetWarning,
-    build_dataset,
-    contact_sheet,
-    default_font,
-    fit_mask,
-    glyph_ok,
-    procedural_silhouette,
-    render_glyph,
-    scribble,
-)
+from ngpm_compiler.datasets.build import build_dataset
+from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
+from ngpm_compiler.datasets.glyphs import default_font, font_codepoints, glyph_ok, render_glyph
+from ngpm_compiler.datasets.scribbles import scribble
+from ngpm_compiler.datasets.sheets import contact_sheet
+from ngpm_compiler.datasets.silhouettes import SHAPE_KINDS, fit_mask, procedural_silhouette
 
 
 def rng(i: int, seed: int = 0) -> np.random.Generator:
@@ -101,6 +95,20 @@ def test_glyphs_with_other_font(tmp_path):
     index = json.loads((tmp_path / "index.json").read_text())
     assert len(files) == 5 and index["font"] == str(serif)
     assert index["sources"][0].startswith("DejaVuSerif.ttf")
+
+
+def test_reading_a_fonts_code_points_closes_the_file():
+    """fontTools kept the font file open; its ResourceWarning, raised whenever the garbage
+    collector ran, landed in a later test's recorded warnings."""
+    import gc
+    import warnings
+
+    serif = default_font().with_name("DejaVuSerif.ttf")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        assert len(font_codepoints(serif)) > 100
+        gc.collect()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
 
 
 def test_bad_font(tmp_path):
@@ -179,7 +187,7 @@ def test_silhouettes_from_dir_read_any_mode_and_skip_huge_images(tmp_path):
 def test_silhouettes_default_has_horse_and_procedural(tmp_path):
     files = build_dataset("silhouettes", tmp_path)
     index = json.loads((tmp_path / "index.json").read_text())
-    assert len(files) == 1 + 2 * len(datasets.SHAPE_KINDS)
+    assert len(files) == 1 + 2 * len(SHAPE_KINDS)
     assert index["sources"][0] == "skimage.data.horse"
     for t in load_dataset(tmp_path):
         assert 0.05 < t.mask.mean() < 0.8 and t.mask[t.start_pixel()]
@@ -187,7 +195,7 @@ def test_silhouettes_default_has_horse_and_procedural(tmp_path):
         build_dataset("silhouettes", tmp_path / "x", source_dir=tmp_path / "nope")
 
 
-@pytest.mark.parametrize("kind", datasets.SHAPE_KINDS)
+@pytest.mark.parametrize("kind", SHAPE_KINDS)
 def test_procedural_silhouettes_are_one_shape(kind):
     t = procedural_silhouette(kind, rng(0))
     assert label(t.mask, connectivity=2).max() == 1

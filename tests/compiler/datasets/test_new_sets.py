@@ -11,14 +11,9 @@ from ngpm_runtime.image.morphology import label
 from ngpm_runtime.image.targets import load_dataset
 from PIL import Image, ImageDraw
 
-from ngpm_compiler.datasets.build import (
-    MAX_WIDTH_PX,
-    MIN_WIDTH_PX,
-    VARIED_KINDS,
-    build_dataset,
-    clipart_reject,
-    varied,
-)
+from ngpm_compiler.datasets.build import build_dataset
+from ngpm_compiler.datasets.clipart import clipart_reject
+from ngpm_compiler.datasets.varied import MAX_WIDTH_PX, MIN_WIDTH_PX, VARIED_KINDS, varied
 
 SCRIPT_FONT = Path("/usr/share/fonts/opentype/urw-base35/Z003-MediumItalic.otf")
 CLIPART = Path("/usr/share/openclipart/svg/animals/mammals")

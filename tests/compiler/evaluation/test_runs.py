@@ -29,7 +29,7 @@ from ngpm_compiler.evaluation.runs import (
 from ngpm_compiler.experiments.extra import chain_arc, circuit_score
 from ngpm_compiler.experiments.models import subset
 from ngpm_compiler.experiments.shape import equal_time_n, pick
-from ngpm_compiler.learning.traces import SiteData
+from ngpm_compiler.learning.trace_data import SiteData
 
 
 def test_t_interval_matches_formula() -> None:

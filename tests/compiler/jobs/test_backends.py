@@ -85,7 +85,8 @@ def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatc
     from fixtures.datasets import CHAIN, make_dataset
 
     from ngpm_compiler.jobs import backends
-    from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces
+    from ngpm_compiler.learning.trace_data import load_traces
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     data = make_dataset(tmp_path / "data", 2)
     cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,

@@ -20,12 +20,9 @@ from repo_paths import REPO
 ray = pytest.importorskip("ray", reason="ray is not installed (pip install -e '.[cluster]')")
 
 from ngpm_compiler.cli import main  # noqa: E402
-from ngpm_compiler.learning.traces import (  # noqa: E402
-    TraceConfig,
-    TraceStore,
-    generate_traces,
-    load_traces,
-)
+from ngpm_compiler.learning.trace_data import load_traces  # noqa: E402
+from ngpm_compiler.learning.trace_store import TraceStore  # noqa: E402
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces  # noqa: E402
 
 N, PARTICLES, SEED, SHARD = 24, 30, 3, 4
 
@@ -197,14 +194,15 @@ def test_a_task_whose_setup_fails_raises_its_own_one_line_error(local_ray, refer
     from ngpm_runtime.errors import GuideError
 
     from ngpm_compiler.jobs.ray_backend import RayBackend
-    from ngpm_compiler.learning.traces import _do_job, _worker_setup, load_targets
+    from ngpm_compiler.learning.trace_jobs import load_targets
+    from ngpm_compiler.learning.trace_workers import do_job, worker_setup
 
     data, _ = reference
     text = Path(CHAIN).read_text(encoding="utf-8")
     setup_args = (CHAIN, text, load_targets(data, 50, False), b"not an onnx file")
     with pytest.raises(GuideError) as info:
-        with RayBackend(2, _worker_setup, setup_args) as jobs:
-            jobs.submit(0, _do_job, (0, SEED, PARTICLES, 10))
+        with RayBackend(2, worker_setup, setup_args) as jobs:
+            jobs.submit(0, do_job, (0, SEED, PARTICLES, 10, None))
             while jobs.running():
                 jobs.results(0.05)
     assert "not a readable ONNX guide" in str(info.value)

@@ -15,7 +15,8 @@ from ngpm_runtime.inference.smc import TraceRecording
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.export import write_onnx
 from ngpm_compiler.learning.nets import select_columns
-from ngpm_compiler.learning.traces import TraceConfig, generate_traces, load_traces
+from ngpm_compiler.learning.trace_data import load_traces
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.learning.train import TrainConfig, train_guide
 
 

@@ -22,13 +22,10 @@ from ngpm_compiler.learning.rounds import (
     expert_iteration,
     merge_traces,
 )
-from ngpm_compiler.learning.traces import (
-    TraceConfig,
-    TraceError,
-    generate_traces,
-    load_traces,
-    run_job,
-)
+from ngpm_compiler.learning.shards import TraceError
+from ngpm_compiler.learning.trace_data import load_traces
+from ngpm_compiler.learning.trace_jobs import run_job
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.learning.train import load_model
 
 GRAMMAR = str(REPO / "grammars" / "vines.lsys")
@@ -84,7 +81,7 @@ def test_guided_traces_directory_records_the_guide(tmp_path):
     m = generate_traces(cfg, tmp_path / "traces", progress=False)
     assert m["kept"] == 2 and len(m["key"]["guide"]) == 64
     unguided = TraceConfig(grammar=GRAMMAR, targets=str(d), n=1, particles=5, workers=1)
-    assert "guide" not in generate_traces(unguided, tmp_path / "u", progress=False)["key"]
+    assert generate_traces(unguided, tmp_path / "u", progress=False)["key"]["guide"] is None
     ts = merge_traces([load_traces(tmp_path / "traces"), load_traces(tmp_path / "u")])
     assert len(ts.kept_jobs) == 3 and (ts.kept_jobs >= JOB_STRIDE).sum() == 1
     # `ngpmc train` takes several directories

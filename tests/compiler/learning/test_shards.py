@@ -17,14 +17,10 @@ import pytest
 from fixtures.datasets import CHAIN, make_dataset
 
 from ngpm_compiler.cli import main
-from ngpm_compiler.learning.traces import (
-    TraceConfig,
-    TraceError,
-    TraceStore,
-    generate_traces,
-    load_traces,
-    save_npz,
-)
+from ngpm_compiler.learning.shards import TraceError
+from ngpm_compiler.learning.trace_data import load_traces
+from ngpm_compiler.learning.trace_store import TraceStore, save_npz
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
 SHARD = "shard_00000002.npz"  # the middle one of three shards of two jobs
 

@@ -18,15 +18,11 @@ from repo_paths import REPO
 
 from ngpm_compiler.cli.guide import FEATURE_SETS
 from ngpm_compiler.learning.nets import FEATURE_SETS as NET_FEATURE_SETS
-from ngpm_compiler.learning.traces import (
-    TraceConfig,
-    TraceError,
-    TraceStore,
-    generate_traces,
-    job_arrays,
-    job_spec,
-    load_traces,
-)
+from ngpm_compiler.learning.shards import TraceError
+from ngpm_compiler.learning.trace_data import load_traces
+from ngpm_compiler.learning.trace_jobs import job_arrays, job_spec
+from ngpm_compiler.learning.trace_store import TraceStore
+from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
 
 def test_feature_set_names_agree():
@@ -132,7 +128,7 @@ def test_resume_refuses_other_configuration(tmp_path):
 
 
 def test_mirror_adds_missing_copies(tmp_path):
-    from ngpm_compiler.learning.traces import load_targets
+    from ngpm_compiler.learning.trace_jobs import load_targets
 
     data = make_dataset(tmp_path / "data", 2)
     names = [t.name for t in load_targets(data, 50, mirror=True)]
@@ -146,16 +142,16 @@ def test_mirror_adds_missing_copies(tmp_path):
 def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
     from ngpm_runtime.errors import SMCFailed
 
-    import ngpm_compiler.learning.traces as traces_mod
+    import ngpm_compiler.learning.trace_workers as workers_mod
 
-    real = traces_mod.run_job
+    real = workers_mod.run_job
 
     def flaky(program, target, seed, particles, **kw):
         if seed % 3 == 0:
             raise SMCFailed("every particle's weight is zero")
         return real(program, target, seed, particles, **kw)
 
-    monkeypatch.setattr(traces_mod, "run_job", flaky)
+    monkeypatch.setattr(workers_mod, "run_job", flaky)
     data = make_dataset(tmp_path / "data", 2)
     m = generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4,
                                     workers=1), tmp_path / "t", progress=False)
@@ -239,12 +235,12 @@ def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeyp
     there, the other jobs stay pending, and a rerun writes the same last shard."""
     import errno
 
-    import ngpm_compiler.learning.traces as traces_mod
+    import ngpm_compiler.learning.trace_store as store_mod
 
     data = make_dataset(tmp_path / "data", 2)
     cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
                       shard_size=4)
-    real, full = traces_mod.atomic_write, []
+    real, full = store_mod.atomic_write, []
 
     def write(path, data):
         if full or Path(path).name == "shard_00000004.npz":
@@ -252,7 +248,7 @@ def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeyp
             raise OSError(errno.ENOSPC, "No space left on device", str(path))
         return real(path, data)
 
-    monkeypatch.setattr(traces_mod, "atomic_write", write)
+    monkeypatch.setattr(store_mod, "atomic_write", write)
     out = tmp_path / "full"
     with pytest.raises(OSError, match="No space left on device"):
         generate_traces(cfg, out, progress=False)

@@ -44,17 +44,10 @@ from PIL import Image, ImageDraw  # noqa: E402
 from repo_paths import REPO  # noqa: E402
 
 from ngpm_compiler.cli import main  # noqa: E402
-from ngpm_compiler.web.app import (  # noqa: E402
-    FrameStream,
-    Limits,
-    Run,
-    RunCheck,
-    RunStopped,
-    bind,
-    create_app,
-    load_config,
-    make_server,
-)
+from ngpm_compiler.web.app import bind, create_app, make_server  # noqa: E402
+from ngpm_compiler.web.config import Limits, load_config  # noqa: E402
+from ngpm_compiler.web.runs import Run, RunCheck, RunStopped  # noqa: E402
+from ngpm_compiler.web.sse import FrameStream  # noqa: E402
 
 BASE = "http://127.0.0.1"
 

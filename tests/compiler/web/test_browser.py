@@ -39,7 +39,8 @@ if CHROMIUM is None:
 
 from PIL import Image, ImageDraw  # noqa: E402
 
-from ngpm_compiler.web.app import bind, load_config, make_server  # noqa: E402
+from ngpm_compiler.web.app import bind, make_server  # noqa: E402
+from ngpm_compiler.web.config import load_config  # noqa: E402
 
 # The network is closed: these flags keep Chromium from waiting on it.
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",

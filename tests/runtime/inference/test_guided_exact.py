@@ -22,7 +22,7 @@ from ngpm_runtime.inference.guide import Guide, ProposalSettings  # noqa: E402
 from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc  # noqa: E402
 
 from ngpm_compiler.learning.export import write_onnx  # noqa: E402
-from ngpm_compiler.learning.traces import SiteData, prior_arg_columns  # noqa: E402
+from ngpm_compiler.learning.trace_data import SiteData, prior_arg_columns  # noqa: E402
 from ngpm_compiler.learning.train import TrainConfig, train_guide  # noqa: E402
 
 VIEWPORT = (-4.0, 4.0, -4.0, 4.0)
