@@ -95,7 +95,12 @@ def cmd_sample(args: argparse.Namespace) -> int:
                else load(args.grammar).program())
     particle = forward(program, seed=args.seed, max_modules=args.max_modules)
     prims = list(particle.primitives)
-    save_render(prims, args.out, viewport=program.viewport, size=args.size)
+    if program.dim == 3:  # until 3D outputs: the picture seen from +Z
+        from ngpm_runtime.geometry.turtle3d import project_xy
+
+        save_render(project_xy(prims), args.out, viewport=program.viewport, size=args.size)
+    else:
+        save_render(prims, args.out, viewport=program.viewport, size=args.size)
     print(f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
           f"log prior {particle.log_prior:.3f}, status {particle.status} -> {args.out}")
     note = argtypes.limit_note(particle, program, args.max_modules)
