@@ -551,8 +551,11 @@ class Checker:
                            "2D", node)
         dim = 3 if signs or self.dims == 3 else 2
         if dim == 3 and self.viewport is not None and len(self.viewport) != 6:
-            raise self.err("a 3D grammar's viewport is a box of 6 numbers: xmin xmax ymin ymax "
-                           "zmin zmax", h["viewport"])
+            node, what = (min(signs, key=lambda s: (s[0].line, s[0].col)) if signs
+                          else (h["dimensions"], "'dimensions: 3'"))
+            raise self.err(f"this grammar is 3D ({what} at line {node.line}:{node.col}), so its "
+                           "viewport is a box of 6 numbers: xmin xmax ymin ymax zmin zmax",
+                           h["viewport"])
         return dim
 
     # ---- all -------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from pathlib import Path
 
@@ -46,6 +47,10 @@ TERMINAL_NAMES = {
 # was expected, so the messages read as they did before 3D (lists are cut at six anyway).
 UNLISTED = {"TROPISM", "DIMENSIONS", "AMPERSAND", "CIRCUMFLEX", "BACKSLASH", "SLASH", "DOLLAR",
             "SEMICOLON"}
+# A viewport line cut short (5 numbers, say): the message says what it takes.
+VIEWPORT_LINE = re.compile(r"\s*viewport\s*:", re.I)
+VIEWPORT_COUNT = ("'viewport:' takes 4 numbers (xmin xmax ymin ymax), or 6 for a 3D grammar "
+                  "(xmin xmax ymin ymax zmin zmax)")
 # Deepest expression (nodes from the top, each operator and call one level): deeper ones are
 # an error, so the recursive passes over expressions stay within Python's recursion limit.
 MAX_EXPR_DEPTH = 100
@@ -99,6 +104,8 @@ def syntax_error(err: UnexpectedInput, sink: ErrorSink, source: str) -> GrammarE
             return sink.error(f"unexpected end of file, {_expected(expected)}",
                               len(lines), len(lines[-1]) + 1)
         if err.token.type in ("_NL", "ALT_NL"):
+            if VIEWPORT_LINE.match(source.splitlines()[line - 1]):
+                return sink.error(VIEWPORT_COUNT, line, col)
             return sink.error(f"unexpected end of line, {_expected(expected)}", line, col)
     else:
         assert isinstance(err, UnexpectedCharacters)

@@ -55,11 +55,11 @@ def test_missing_file_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) ->
 
 def test_console_script_runs(tmp_path: Path) -> None:
     bad = tmp_path / "bad.lsys"
-    bad.write_text("Axiom: A\nA --> F & F\n")
+    bad.write_text("Axiom: A\nA --> F ~c F\n")
     res = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "check", str(bad)],
                          capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr
-    assert "unsupported symbol '&'" in res.stderr
+    assert "unsupported symbol '~c'" in res.stderr
 
 
 @pytest.mark.parametrize("suffix", [".png", ".svg"])
