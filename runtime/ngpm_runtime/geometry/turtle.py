@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.turtle3d import prim3_bounds
 from ngpm_runtime.program import Module
 
 Turtle = tuple[float, float, float, float]  # (x, y, heading, width)
@@ -116,8 +117,6 @@ def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
         ys = [v[1] for v in prim[1]]
         return min(xs), min(ys), max(xs), max(ys)
     if kind in ("seg3", "sphere", "leaf3", "poly3"):  # a 3D primitive: its box seen from +Z
-        from ngpm_runtime.geometry.turtle3d import prim3_bounds
-
         b = prim3_bounds(prim)
         return b[0], b[1], b[3], b[4]
     raise ValueError(f"unknown primitive {kind!r}")

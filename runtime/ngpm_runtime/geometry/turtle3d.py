@@ -24,9 +24,11 @@ import math
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError
-from ngpm_runtime.geometry.turtle import Cons, Prim
 from ngpm_runtime.program import Module
 
+# as in turtle.py (which imports this module, so it imports nothing of turtle.py)
+Prim = tuple[Any, ...]
+Cons = tuple[Any, Any]
 Tropism = tuple[float, float, float, float]  # (tx, ty, tz) unit, elasticity e
 Turtle3 = tuple[Any, ...]  # (x, y, z, H, L, U as 9 floats, width, color, tropism | None)
 
@@ -166,7 +168,7 @@ def _color(mod: Module, color: int) -> int:
 
 def _direction(x: Any, y: Any, z: Any) -> tuple[float, float, float]:
     """The unit vector along (x, y, z); ValueError for a zero or non-finite one."""
-    n = math.sqrt(float(x) ** 2 + float(y) ** 2 + float(z) ** 2)
+    n = math.hypot(float(x), float(y), float(z))
     if not (n > 0 and math.isfinite(n)):
         raise ValueError(f"tropism direction ({x:g}, {y:g}, {z:g}) has no direction")
     return (x / n, y / n, z / n)
@@ -236,7 +238,9 @@ def bend(t: Turtle3, trop: Tropism) -> Turtle3:
 
 
 def _unit(x: float, y: float, z: float) -> tuple[float, float, float]:
-    n = math.sqrt(x * x + y * y + z * z)
+    n = math.hypot(x, y, z)
+    if n == 0:
+        raise ValueError("the turtle's frame has collapsed")
     return (x / n, y / n, z / n)
 
 
