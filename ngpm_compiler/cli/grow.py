@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ngpm_runtime.errors import NgpmError
-from ngpm_runtime.program import Program
+from ngpm_runtime.program import Program, require_2d
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.grammar import GRAMMAR_HELP
@@ -142,6 +142,7 @@ def cmd_grow(args: argparse.Namespace) -> int:
         if not Path(grammar).is_file():
             raise NgpmError(f"{grammar}: no such grammar file")
         program = load_grammar(grammar)
+    require_2d(program, "growing into a picture")  # before the target and the guide
     target = load_target(image, size=args.size) if image is not None else None
     fit = target.fit_note() if target is not None else None
     if fit:

@@ -32,6 +32,7 @@ from ngpm_compiler.language.tables import (
     RANDOM_CALLS,
     REWRITABLE_TURTLE,
     TURTLE,
+    TURTLE_3D,
 )
 
 PROB_TOLERANCE = 1e-6
@@ -116,6 +117,9 @@ class Checked:
     start: tuple[float, float, float]
     max_primitives: int
     max_modules: int | None = None  # 'max modules:' (None: the runtime's default)
+    dim: int = 2  # 3: the grammar is 3D (`dimension`)
+    box: tuple[float, ...] | None = None  # a 3D grammar's viewport: x, y and z ranges
+    tropism: tuple[float, float, float, float] | None = None  # unit direction, elasticity
 
 
 def safe_name(name: str, taken: set[str], prefix: str) -> str:
@@ -309,9 +313,9 @@ class Checker:
     def check_symbol(self, use: ModuleUse) -> None:
         if use.name[:1] == "~" and use.name != "~l":
             raise self.err(f"unsupported symbol '{use.name}': the only surface is ~l (leaf)", use)
-        if use.name[:1] == "@" and use.name != "@O":
-            raise self.err(f"unsupported symbol '{use.name}': the only @ symbol is @O (disk)",
-                           use)
+        if use.name[:1] == "@" and use.name not in TURTLE:
+            raise self.err(f"unsupported symbol '{use.name}': the @ symbols are @O (disk or "
+                           "sphere), @Tp and @Ts (3D tropism)", use)
 
     def defaults(self, use: ModuleUse) -> list[Expr]:
         if use.name not in TURTLE:
@@ -332,10 +336,24 @@ class Checker:
         self.angle = values.get("angle", [90.0])[0]
         self.viewport = None
         if "viewport" in values:
-            x0, x1, y0, y1 = values["viewport"]
-            if not (x0 < x1 and y0 < y1):
-                raise self.err("viewport needs xmin < xmax and ymin < ymax", h["viewport"])
-            self.viewport = (x0, x1, y0, y1)
+            vp = values["viewport"]
+            if not all(lo < hi for lo, hi in zip(vp[0::2], vp[1::2], strict=True)):
+                raise self.err("viewport needs xmin < xmax and ymin < ymax"
+                               + " and zmin < zmax" * (len(vp) == 6), h["viewport"])
+            self.viewport = tuple(vp)
+        self.tropism = None
+        if "tropism" in values:
+            tx, ty, tz, e = values["tropism"]
+            norm = math.sqrt(tx * tx + ty * ty + tz * tz)
+            if norm == 0:
+                raise self.err("'tropism:' needs a direction other than 0 0 0", h["tropism"])
+            self.tropism = (tx / norm, ty / norm, tz / norm, e)
+        self.dims = None
+        if "dimensions" in values:
+            self.dims = values["dimensions"][0]
+            if self.dims not in (2, 3):
+                raise self.err(f"'dimensions:' must be 2 or 3, got {self.dims:g}",
+                               h["dimensions"].values[0])
         x, y, heading = values.get("start", [0.0, 0.0, 90.0])  # lsys.lark: three values
         self.start = (x, y, heading)
         self.derivation_length = self.integer(values, "derivation length", 0,
@@ -521,6 +539,37 @@ class Checker:
                             arity=arity, line=node.line, col=node.col,
                             source=shorten(node.text, False)), node))
 
+    # ---- dimension -------------------------------------------------------------------------
+
+    def dimension(self, axiom: list[Resolved], sets: list[dict[str, RuleSet]]) -> int:
+        """3 when the grammar says so ('dimensions: 3') or uses anything only 3D has: a 3D
+        turtle symbol, a 'tropism:' line or a viewport of 6 numbers; else 2. A 3D grammar's
+        viewport is a box (6 numbers)."""
+        uses = [m.use for m in axiom if m.name in TURTLE_3D]
+        uses += [m.use for section in sets for rs in section.values() for g in rs.groups
+                 for a in g.alts for m in a.modules if m.name in TURTLE_3D]
+        signs: list[tuple[Node, str]] = []
+        if uses:
+            first = min(uses, key=lambda u: (u.line, u.col))
+            signs.append((first, f"the 3D symbol '{first.name}'"))
+        h = self.g.headers
+        if "tropism" in h:
+            signs.append((h["tropism"], "'tropism:'"))
+        if self.viewport is not None and len(self.viewport) == 6:
+            signs.append((h["viewport"], "a viewport of 6 numbers (a 3D box)"))
+        if self.dims == 2 and signs:
+            node, what = min(signs, key=lambda s: (s[0].line, s[0].col))
+            raise self.err(f"{what} needs a 3D grammar, but 'dimensions: 2' says this one is "
+                           "2D", node)
+        dim = 3 if signs or self.dims == 3 else 2
+        if dim == 3 and self.viewport is not None and len(self.viewport) != 6:
+            node, what = (min(signs, key=lambda s: (s[0].line, s[0].col)) if signs
+                          else (h["dimensions"], "'dimensions: 3'"))
+            raise self.err(f"this grammar is 3D ({what} at line {node.line}:{node.col}), so its "
+                           "viewport is a box of 6 numbers: xmin xmax ymin ymax zmin zmax",
+                           h["viewport"])
+        return dim
+
     # ---- all -------------------------------------------------------------------------------
 
     def run(self) -> Checked:
@@ -538,11 +587,16 @@ class Checker:
         self.check_groups(interpretation)
         self.check_recursion(productions)
         self.collect_sites(axiom, [productions, interpretation])
+        dim = self.dimension(axiom, [productions, interpretation])
+        box = self.viewport if dim == 3 else None
+        vp = self.viewport
+        viewport = (vp[0], vp[1], vp[2], vp[3]) if vp is not None else None  # x and y ranges
         return Checked(
             self.g, self.name, self.constants, self.const_names, axiom, productions,
             interpretation, dict(self.arity), self.sites, self.call_sites,
             self.derivation_length, self.angle,
-            self.viewport, self.start, self.max_primitives, max_modules=self.max_modules,
+            viewport, self.start, self.max_primitives, max_modules=self.max_modules,
+            dim=dim, box=box, tropism=self.tropism,
         )
 
 

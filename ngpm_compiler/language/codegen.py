@@ -200,6 +200,12 @@ class ModuleWriter:
         ]
         if c.max_modules is not None:
             lines.append(f"    max_modules={q(c.max_modules)},")
+        if c.dim == 3:  # 2D modules stay as they were before 3D
+            lines.append("    dim=DIM,")
+            if c.box is not None:
+                lines.append(f"    box={q(tuple(float(v) for v in c.box))},")
+            if c.tropism is not None:
+                lines.append(f"    tropism={q(tuple(float(v) for v in c.tropism))},")
         lines += ["    locations=LOCATIONS,", ")"]
         return [noqa(x) for x in lines]
 
@@ -228,6 +234,8 @@ class ModuleWriter:
         head.append("from ngpm_runtime.program import Program" + (", Site" if c.sites else ""))
         protocol = f"PROTOCOL = {q(PROTOCOL)}  # the runtime refuses a module of another protocol"
         head += ["", protocol]
+        if c.dim == 3:
+            head.append("DIM = 3  # a 3D grammar: the runtime's 3D turtle draws it")
         const = self.constants()
         head += [""] + (const + [""] if const else []) + sites + [""] + self.locations()
         return "\n".join(head) + "\n" + code + "\n"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from functools import lru_cache
 from pathlib import Path
 
@@ -38,14 +39,18 @@ TERMINAL_NAMES = {
     "DERIVATION_LENGTH": "'derivation length:'", "PRODUCTION": "'production:'",
     "INTERPRETATION": "'interpretation:'", "VIEWPORT": "'viewport:'", "ANGLE": "'angle:'",
     "START": "'start:'", "MAX_PRIMITIVES": "'max primitives:'",
-    "MAX_MODULES": "'max modules:'",
+    "MAX_MODULES": "'max modules:'", "TROPISM": "'tropism:'", "DIMENSIONS": "'dimensions:'",
+    "AMPERSAND": "'&'", "CIRCUMFLEX": "'^'", "BACKSLASH": "'\\'", "SLASH": "'/'",
+    "DOLLAR": "'$'", "SEMICOLON": "';'",
 }
-# Symbols of L-Py / cpfg that ngpm does not support, and why.
-UNSUPPORTED = {
-    "&": "3D pitch", "^": "3D pitch", "\\": "3D roll", "/": "3D roll", "$": "3D roll to vertical",
-}
-# Successor positions: where a turtle symbol could have been expected.
-_SUCCESSOR_HINT = {"LSQB", "NAME", "SPECIAL"}
+# Terminals of the 3D language and its headers, left out of a syntax error's list of what
+# was expected, so the messages read as they did before 3D (lists are cut at six anyway).
+UNLISTED = {"TROPISM", "DIMENSIONS", "AMPERSAND", "CIRCUMFLEX", "BACKSLASH", "SLASH", "DOLLAR",
+            "SEMICOLON"}
+# A viewport line cut short (5 numbers, say): the message says what it takes.
+VIEWPORT_LINE = re.compile(r"\s*viewport\s*:", re.I)
+VIEWPORT_COUNT = ("'viewport:' takes 4 numbers (xmin xmax ymin ymax), or 6 for a 3D grammar "
+                  "(xmin xmax ymin ymax zmin zmax)")
 # Deepest expression (nodes from the top, each operator and call one level): deeper ones are
 # an error, so the recursive passes over expressions stay within Python's recursion limit.
 MAX_EXPR_DEPTH = 100
@@ -53,6 +58,7 @@ MAX_EXPR_DEPTH = 100
 HEADER_KINDS = {
     "derivation_length": "derivation length", "viewport": "viewport", "angle": "angle",
     "start_pose": "start", "max_primitives": "max primitives", "max_modules": "max modules",
+    "tropism": "tropism", "dimensions": "dimensions",
 }
 
 
@@ -74,7 +80,9 @@ def parse(source: str, filename: str = "<grammar>") -> Grammar:
 
 
 def _expected(names: set[str]) -> str:
-    words = sorted({TERMINAL_NAMES.get(n, n) for n in names if not n.startswith("__")})
+    hidden = UNLISTED | ({"COMMA"} if "LSQB" in names else set())  # `,` in a successor
+    words = sorted({TERMINAL_NAMES.get(n, n) for n in names
+                    if not n.startswith("__") and n not in hidden})
     if not words:
         return ""
     if len(words) > 6:
@@ -96,6 +104,8 @@ def syntax_error(err: UnexpectedInput, sink: ErrorSink, source: str) -> GrammarE
             return sink.error(f"unexpected end of file, {_expected(expected)}",
                               len(lines), len(lines[-1]) + 1)
         if err.token.type in ("_NL", "ALT_NL"):
+            if VIEWPORT_LINE.match(source.splitlines()[line - 1]):
+                return sink.error(VIEWPORT_COUNT, line, col)
             return sink.error(f"unexpected end of line, {_expected(expected)}", line, col)
     else:
         assert isinstance(err, UnexpectedCharacters)
@@ -103,9 +113,6 @@ def syntax_error(err: UnexpectedInput, sink: ErrorSink, source: str) -> GrammarE
         text = source[at] if at is not None and at < len(source) else ""
         expected = set(err.allowed or ())
     first = text[:1]
-    if first in UNSUPPORTED and expected & _SUCCESSOR_HINT:
-        return sink.error(f"unsupported symbol '{first}' ({UNSUPPORTED[first]}): ngpm's turtle "
-                          "is 2D", line, col)
     if first in "<>" and "ARROW" in expected:
         return sink.error("context-sensitive rules (A < B > C) are not supported", line, col)
     shown = text if text.strip() else repr(text)
@@ -177,6 +184,7 @@ class Builder:
 
     stmt_derivation_length = stmt_viewport = stmt_angle = _header
     stmt_start_pose = stmt_max_primitives = stmt_max_modules = _header
+    stmt_tropism = stmt_dimensions = _header
 
     def stmt_rule(self, g: Grammar, t: Tree[Token]) -> None:
         kids = t.children

@@ -55,5 +55,11 @@ TURTLE: dict[str, tuple[int, int, tuple[float | str, ...]]] = {
     "|": (0, 0, ()), "[": (0, 0, ()), "]": (0, 0, ()), "!": (1, 1, ()),
     "~l": (0, 2, (1.0, 1.0)), "@O": (0, 1, (1.0,)), "{": (0, 0, ()), ".": (0, 0, ()),
     "}": (0, 0, ()), "%": (0, 0, ()), "halt": (0, 0, ()),
+    # 3D (docs/language.md section 4.1); `;` and `,` without an argument step the colour
+    "&": (0, 1, ("angle",)), "^": (0, 1, ("angle",)), "\\": (0, 1, ("angle",)),
+    "/": (0, 1, ("angle",)), "$": (0, 0, ()), ";": (0, 1, ()), ",": (0, 1, ()),
+    "@Tp": (3, 3, ()), "@Ts": (1, 1, ()),
 }
 REWRITABLE_TURTLE = {"F", "f"}  # turtle symbols a rule may rewrite
+# Symbols only the 3D turtle has: a grammar that uses one is 3D.
+TURTLE_3D = {"&", "^", "\\", "/", "$", "@Tp", "@Ts"}

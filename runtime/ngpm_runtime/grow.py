@@ -30,7 +30,7 @@ from ngpm_runtime.inference.smc import (
     TraceRecording,
     smc,
 )
-from ngpm_runtime.program import Program
+from ngpm_runtime.program import Program, require_2d
 
 if TYPE_CHECKING:  # targets loads PIL: only when a target is made
     from ngpm_runtime.image.targets import Target
@@ -52,6 +52,7 @@ class GrowResult:
 
 
 def _viewport(program: Program) -> Viewport:
+    require_2d(program, "growing into a picture")
     if program.viewport is None:
         raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
     return program.viewport

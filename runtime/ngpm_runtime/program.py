@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.errors import ProgramError, printable
 from ngpm_runtime.inference.sitekinds import KINDS, numbers_text
 from ngpm_runtime.inference.sitekinds import SITE_KINDS as SITE_KINDS  # re-exported
 
@@ -98,6 +98,12 @@ class Program:
     start: tuple[float, float, float] = (0.0, 0.0, 90.0)
     max_primitives: int = 5000
     max_modules: int | None = None  # 'max modules:' header; None: derive.DEFAULT_MAX_MODULES
+    # 3D grammars (docs/language.md section 4.1): dim 3, drawn by geometry/turtle3d.py; box is
+    # the 3D viewport (xmin, xmax, ymin, ymax, zmin, zmax; `viewport` is then its x and y
+    # ranges) and tropism the unit direction T and elasticity e of the 'tropism:' header
+    dim: int = 2
+    box: tuple[float, float, float, float, float, float] | None = None
+    tropism: tuple[float, float, float, float] | None = None
     source: str = ""
     grammar_hash: str = ""
     # (line, col) in the grammar of "axiom", "production NAME" and "interpretation NAME"
@@ -110,6 +116,15 @@ class Program:
             if s.id == key:
                 return s
         raise KeyError(key)
+
+
+def require_2d(program: Program, what: str) -> None:
+    """ProgramError when `program` is 3D: `what` (a run into a picture, a guide's features)
+    works in 2D only, until guided 3D growth (issue #26)."""
+    if program.dim != 2:
+        raise ProgramError(f"{printable(program.name)} is a 3D grammar and {what} is 2D: guided "
+                           "3D growth needs a 3D target (issue #26); `ngpmc sample` draws "
+                           "3D grammars")
 
 
 def load_program(path: str | Path, code: str | None = None) -> Program:

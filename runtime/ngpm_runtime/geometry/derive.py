@@ -27,6 +27,7 @@ from ngpm_runtime.geometry.turtle import (
     Turtle,
     interpret,
 )
+from ngpm_runtime.geometry.turtle3d import TURTLE3D_SYMBOLS, Turtle3, interpret3d, start3d
 from ngpm_runtime.program import Module, Program, prior_problem
 
 MAX_INTERP_DEPTH = 64
@@ -109,7 +110,7 @@ class Particle:
         "values", "sites", "cont", "need", "in_interp", "last", "status", "limit", "work",
     )
 
-    def __init__(self, stack: Node | None, turtle: Turtle) -> None:
+    def __init__(self, stack: Node | None, turtle: Turtle | Turtle3) -> None:
         self.stack = stack
         self.turtle = turtle
         self.tstack: Cons | None = None
@@ -196,6 +197,13 @@ class Deriver:
         self.dlen = program.derivation_length
         self.angle = float(program.angle)
         self.max_modules = max_modules
+        if program.dim not in (2, 3):
+            raise ProgramError(f"program {printable(program.name)}: dim must be 2 or 3, got "
+                               f"{program.dim!r}")
+        # the turtle: 2D (turtle.py) or 3D (turtle3d.py), the same calling convention
+        self.dim = program.dim
+        self.interpret = interpret3d if self.dim == 3 else interpret
+        self.symbols = TURTLE3D_SYMBOLS if self.dim == 3 else TURTLE_SYMBOLS
         self.ctx = ReplayCtx()
         self.dispatch: dict[str, int] = {}
         self.pcache: dict[object, Outcome] = {}
@@ -203,7 +211,12 @@ class Deriver:
 
     def start(self, turtle: Turtle) -> Particle:
         """A new particle at `turtle` = (x, y, heading, width); the axiom's modules get
-        depth 0 (the axiom runs as a pseudo-module, so it may draw random values too)."""
+        depth 0 (the axiom runs as a pseudo-module, so it may draw random values too). A 3D
+        program's turtle starts at that pose in the XY plane (`turtle3d.start3d`)."""
+        if self.dim == 3:
+            x, y, h, w = turtle
+            return Particle(((AXIOM,), -1, 0, None),
+                            start3d(x, y, h, w, self.program.tropism))
         return Particle(((AXIOM,), -1, 0, None), turtle)
 
     def _call(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module) -> Outcome:
@@ -273,11 +286,12 @@ class Deriver:
         shared by the copies.
 
         Long because it is the derivation's hot loop: productions, interpretation rules and
-        memoization are inlined; every turtle symbol goes through `turtle.interpret`, the one
-        turtle semantics."""
+        memoization are inlined; every turtle symbol goes through the program's one turtle
+        semantics, `turtle.interpret` (2D) or `turtle3d.interpret3d` (3D)."""
         prods, interp, dlen = self.prods, self.interp, self.dlen
         pcache, icache, memo = self.pcache, self.icache, self._memo
         dispatch = self.dispatch
+        turtle_step = self.interpret
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
@@ -357,7 +371,7 @@ class Deriver:
                         p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                         return DRAWN
                     stack = rest
-                    turtle, tstack, poly, prim = interpret(mod, turtle, tstack, poly, angle)
+                    turtle, tstack, poly, prim = turtle_step(mod, turtle, tstack, poly, angle)
                     if prim is None:
                         continue
                     p.last = prim
@@ -396,9 +410,8 @@ class Deriver:
         self.dispatch[name] = code
         return code
 
-    @staticmethod
-    def _turtle_code(name: str) -> int:
-        if name in TURTLE_SYMBOLS:
+    def _turtle_code(self, name: str) -> int:
+        if name in self.symbols:
             return _TURTLE
         return {CUT: _CUT, HALT: _HALT}.get(name, _IGNORE)
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.turtle3d import prim3_bounds
 from ngpm_runtime.program import Module
 
 Turtle = tuple[float, float, float, float]  # (x, y, heading, width)
@@ -92,7 +93,8 @@ def interpret(
 
 
 def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
-    """World bounding box `(xmin, ymin, xmax, ymax)` of a primitive (as raster.DrawBatch)."""
+    """World bounding box `(xmin, ymin, xmax, ymax)` of a primitive (as raster.DrawBatch);
+    of a 3D one (turtle3d.py), the box of its x and y ranges."""
     kind = prim[0]
     if kind == "seg":
         _, x0, y0, x1, y1, w = prim
@@ -114,6 +116,9 @@ def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:
         xs = [v[0] for v in prim[1]]
         ys = [v[1] for v in prim[1]]
         return min(xs), min(ys), max(xs), max(ys)
+    if kind in ("seg3", "sphere", "leaf3", "poly3"):  # a 3D primitive: its box seen from +Z
+        b = prim3_bounds(prim)
+        return b[0], b[1], b[3], b[4]
     raise ValueError(f"unknown primitive {kind!r}")
 
 

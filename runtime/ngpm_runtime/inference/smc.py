@@ -47,7 +47,7 @@ from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBa
 from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
 from ngpm_runtime.inference.resample import SCHEMES
 from ngpm_runtime.inference.resample import resample as draw_ancestors
-from ngpm_runtime.program import Program, Site
+from ngpm_runtime.program import Program, Site, require_2d
 
 
 class SMCOptionError(NgpmError):
@@ -324,6 +324,8 @@ class _Run:
         maker (for a proposal that reads features, or full traces)."""
         program, likelihood = self.program, self.likelihood
         need_features = self.use_features or self.trace is TraceRecording.FULL
+        if likelihood is not None or need_features:
+            require_2d(program, "SMC with a likelihood, a guide or full traces")
         self.canvas = None
         if need_features or (likelihood is not None and likelihood.needs_canvas):
             if program.viewport is None:

@@ -55,11 +55,11 @@ def test_missing_file_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) ->
 
 def test_console_script_runs(tmp_path: Path) -> None:
     bad = tmp_path / "bad.lsys"
-    bad.write_text("Axiom: A\nA --> F & F\n")
+    bad.write_text("Axiom: A\nA --> F ~c F\n")
     res = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "check", str(bad)],
                          capture_output=True, text=True)
     assert res.returncode == 2 and "Traceback" not in res.stderr
-    assert "unsupported symbol '&'" in res.stderr
+    assert "unsupported symbol '~c'" in res.stderr
 
 
 @pytest.mark.parametrize("suffix", [".png", ".svg"])
@@ -172,3 +172,19 @@ def test_sample_takes_a_generated_sampler_too(tmp_path: Path,
     assert main(["sample", str(VINES), "--seed", "3", "-o", str(tmp_path / "b.png")]) == 0
     out = capsys.readouterr().out
     assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes(), out
+
+
+def test_sample_draws_a_3d_grammar_seen_from_z(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """Until 3D outputs, a 3D grammar's sample is its picture seen from +Z (project_xy):
+    the tree's trunk stands in the bottom middle of the picture."""
+    np = pytest.importorskip("numpy")
+    image = pytest.importorskip("PIL.Image")
+    out = tmp_path / "tree.png"
+    assert main(["sample", str(REPO / "grammars" / "tree3d.lsys"), "-o", str(out),
+                 "--size", "100"]) == 0
+    assert "1457 primitives" in capsys.readouterr().out
+    ink = np.asarray(image.open(out).convert("L")) < 200
+    assert ink.mean() > 0.05
+    rows, cols = np.nonzero(ink[90:, :])  # the bottom rows: only the trunk
+    assert 40 < cols.min() and cols.max() < 60

@@ -241,3 +241,15 @@ def test_a_low_similarity_is_explained(horse: Path, capsys) -> None:
     sim = float(LINE_RE.search(text).group(2))
     explained = "similarity: 1 = the target exactly, 0 = no better than a blank canvas" in text
     assert code == 0 and explained == (sim < 0.2), text
+
+
+@pytest.mark.parametrize("guide", [[], ["--guide", "none"]])
+def test_grow_with_a_3d_grammar_is_a_one_line_error(horse: Path, guide: list[str],
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Guided 3D growth needs a 3D target (issue #26): said before the target or the guide
+    is read, in one line."""
+    tree = str(REPO / "grammars" / "tree3d.lsys")
+    assert main(["grow", str(horse), "--grammar", tree, "-o", "x.png", *guide]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ngpmc: error: tree3d is a 3D grammar") and "issue #26" in err
+    assert "\n" not in err and not Path("x.png").exists()

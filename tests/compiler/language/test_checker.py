@@ -206,3 +206,64 @@ def test_polygon_closed_without_an_opening_is_an_error() -> None:
     assert "unmatched '}' in rule for A: no '{' before it" in e.message and (e.line, e.col) == (
         2, 11)
     compile_grammar("Axiom: A\nA --> { . F . } [ { . ]\n")
+
+
+# --- 3D (docs/language.md section 4.1) ------------------------------------------------------
+
+
+@pytest.mark.parametrize("text", [
+    "Axiom: F & F\n", "Axiom: F ^(10) F\n", "Axiom: F \\ F\n", "Axiom: F / F\n",
+    "Axiom: F $ F\n", "Axiom: @Tp(0, -1, 0) F\n", "Axiom: @Ts(0.2) F\n",
+    "Axiom: A\nA --> F [/ F]\n", "Axiom: A\ninterpretation:\nA --> F & F\n",
+    "tropism: 0 -1 0 0.2\nAxiom: F\n", "dimensions: 3\nAxiom: F\n",
+    "viewport: -1 1 -1 1 -1 1\nAxiom: F\n",
+])
+def test_what_makes_a_grammar_3d(text: str) -> None:
+    assert compile_grammar(text).checked.dim == 3
+
+
+@pytest.mark.parametrize("text", [
+    "Axiom: F + F - F | F\n", "Axiom: F ; F , F ;(2)\n", "dimensions: 2\nAxiom: F ; F\n",
+    "viewport: -1 1 -1 1\nAxiom: F(2 ^ 2 / 2)\n",
+])
+def test_2d_grammars_stay_2d(text: str) -> None:
+    assert compile_grammar(text).checked.dim == 2
+
+
+ERRORS_3D = [
+    ("dimensions: 2\nAxiom: F & F\n", "the 3D symbol '&' needs a 3D grammar, but "
+     "'dimensions: 2' says this one is 2D", 2, 10),
+    ("dimensions: 2\ntropism: 0 -1 0 1\nAxiom: F\n", "'tropism:' needs a 3D grammar", 2, 1),
+    ("dimensions: 2\nviewport: 0 1 0 1 0 1\nAxiom: F\n", "a viewport of 6 numbers", 2, 1),
+    ("dimensions: 4\nAxiom: F\n", "'dimensions:' must be 2 or 3, got 4", 1, 13),
+    ("viewport: 0 1 0 1\nAxiom: A\nA --> F / F\n", "this grammar is 3D (the 3D symbol '/' at "
+     "line 3:9), so its viewport is a box of 6 numbers", 1, 1),
+    ("dimensions: 3\nviewport: 0 1 0 1\nAxiom: F\n", "('dimensions: 3' at line 1:1)", 2, 1),
+    ("viewport: 0 1 0 1 1 0\nAxiom: F\n", "xmin < xmax and ymin < ymax and zmin < zmax", 1, 1),
+    ("tropism: 0 0 0 0.5\nAxiom: F\n", "'tropism:' needs a direction other than 0 0 0", 1, 1),
+    ("tropism: 0 -1 0 (uniform(0, 1))\nAxiom: F\n", "not allowed in 'tropism:'", 1, 18),
+    ("Axiom: @Tp(1, 2)\n", "turtle symbol @Tp takes 3 arguments, got 2", 1, 8),
+    ("Axiom: @Ts\n", "turtle symbol @Ts takes 1 argument, got 0", 1, 8),
+    ("Axiom: &(1, 2)\n", "turtle symbol & takes 0 to 1 arguments, got 2", 1, 8),
+    ("Axiom: ;(1, 2)\n", "turtle symbol ; takes 0 to 1 arguments, got 2", 1, 8),
+    ("Axiom: A\n/ --> F\n", "unexpected '/'", 2, 1),
+    ("Axiom: @Tx\n", "the @ symbols are @O (disk or sphere), @Tp and @Ts", 1, 8),
+]
+
+
+@pytest.mark.parametrize(("text", "fragment", "line", "col"), ERRORS_3D)
+def test_3d_errors_name_the_place(text: str, fragment: str, line: int, col: int) -> None:
+    e = err(text)
+    assert fragment in str(e), str(e)
+    assert (e.line, e.col) == (line, col), str(e)
+    assert str(e).startswith(f"t.lsys:{line}:{col}: ") and str(e).splitlines()[-1].endswith("^")
+
+
+def test_3d_headers_and_defaults() -> None:
+    c = compile_grammar("angle: 30\nviewport: -1 1 -2 2 -3 3\ntropism: 0, -2, 0, 0.3\n"
+                        "Axiom: & ^(10) \\ / ; , ;(3) ~l @O F\n").checked
+    assert (c.dim, c.box, c.viewport) == (3, (-1, 1, -2, 2, -3, 3), (-1, 1, -2, 2))
+    assert c.tropism == (0.0, -1.0, 0.0, 0.3)  # a unit direction
+    got = [(m.name, [a.value for a in m.args]) for m in c.axiom]
+    assert got == [("&", [30.0]), ("^", [10.0]), ("\\", [30.0]), ("/", [30.0]), (";", []),
+                   (",", []), (";", [3.0]), ("~l", [1.0, 1.0]), ("@O", [1.0]), ("F", [1.0])]

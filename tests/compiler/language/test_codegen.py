@@ -330,3 +330,21 @@ def test_architecture_doc_shows_the_real_generated_module(monkeypatch) -> None:
         found = code.find(chunk.strip("\n"), at)
         assert found >= 0, f"docs/architecture.md's example is stale here:\n{chunk}"
         at = found + len(chunk.strip("\n"))
+
+
+def test_3d_module_says_so_and_2d_modules_do_not(tmp_path: Path) -> None:
+    """A 3D grammar's module has `DIM = 3` and passes dim, box and tropism to Program; a 2D
+    module is as it was before 3D (no DIM, no new fields: the golden files hold it)."""
+    for name in GRAMMARS:
+        code = compiled(name).source_code
+        is_3d = name.endswith("3d")
+        assert ("\nDIM = 3  #" in code) == is_3d and ("    dim=DIM,\n" in code) == is_3d
+        assert ("box=" in code) == is_3d
+    sampler, _ = write_compiled(compiled("tree3d"), tmp_path)
+    prog = load_program(sampler)
+    assert (prog.dim, prog.box, prog.tropism) == (3, (-600.0, 600.0, -20.0, 1150.0, -600.0,
+                                                      600.0), (0.0, -1.0, 0.0, 0.22))
+    assert prog.viewport == (-600.0, 600.0, -20.0, 1150.0)
+    assert compiled("vines").program().dim == 2
+    flat = compile_grammar("dimensions: 3\nAxiom: F\n").program()
+    assert (flat.dim, flat.box, flat.tropism) == (3, None, None)

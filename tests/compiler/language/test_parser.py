@@ -92,11 +92,37 @@ def test_syntax_error_messages() -> None:
     assert caret[-1] == "\t" + " " * 10 + "^"
 
 
-@pytest.mark.parametrize("sym", ["&", "^", "\\", "/", "$"])
-def test_3d_symbols_are_rejected(sym: str) -> None:
-    e = err(f"Axiom: A\nA --> F {sym} F\n")
-    assert f"unsupported symbol '{sym}'" in str(e) and "2D" in str(e)
-    assert (e.line, e.col) == (2, 9)
+@pytest.mark.parametrize("sym", ["&", "^", "\\", "/", "$", ";", ","])
+def test_3d_symbols_parse(sym: str) -> None:
+    g = parse(f"Axiom: A\nA --> F {sym} F{sym}(2) [{sym}F]\n", "t")
+    mods = g.rules[0].successor.modules
+    assert [m.name for m in mods] == ["F", sym, "F", sym, "[", sym, "F", "]"]
+    assert (mods[1].line, mods[1].col) == (2, 9) and not mods[1].args
+    assert isinstance(mods[3].args[0], Num) and mods[3].args[0].value == 2.0
+
+
+def test_3d_symbols_beside_expressions() -> None:
+    """`^`, `/` and `,` are operators and separators inside arguments and probabilities,
+    turtle symbols between modules."""
+    g = parse("Axiom: F(2 ^ 3 / 4, 1)/(90 / 2)^F,F\nF --> F/F : 1/2 | F^F : 1/2\n", "t")
+    assert [m.name for m in g.axiom.modules] == ["F", "/", "^", "F", ",", "F"]
+    assert g.axiom.modules[0].args[0].op == "/" and len(g.axiom.modules[0].args) == 2
+    assert [[m.name for m in r.successor.modules] for r in g.rules] == [["F", "/", "F"],
+                                                                       ["F", "^", "F"]]
+
+
+def test_3d_headers_and_tropism_symbols() -> None:
+    g = parse("dimensions: 3\ntropism: 0, -1, 0, 0.22\nviewport: -1 1 -2 2 (-3) 3\n"
+              "Axiom: @Tp(1, 0, 0) @Ts(0.1) @O\n", "t")
+    assert [len(g.headers[k].values) for k in ("dimensions", "tropism", "viewport")] == [1, 4, 6]
+    assert [m.name for m in g.axiom.modules] == ["@Tp", "@Ts", "@O"]
+
+
+def test_3d_symbols_out_of_place_and_short_viewports() -> None:
+    assert "unexpected '&'" in str(err("Axiom: A\n& --> F\n"))
+    e = err("viewport: 1 2 3 4 5\nAxiom: A\n")
+    assert "'viewport:' takes 4 numbers" in str(e) and (e.line, e.col) == (1, 20)
+    assert "unexpected '7'" in str(err("viewport: 1 2 3 4 5 6 7\nAxiom: A\n"))
 
 
 @pytest.mark.parametrize("rule", ["A < B --> F", "B > A --> F", "A(x) < B --> F"])

@@ -1,0 +1,306 @@
+"""The 3D turtle of ABOP chapter 1, cpfg and L-Py (docs/language.md section 4.1).
+
+Turtle state is a plain tuple `(x, y, z, hx, hy, hz, lx, ly, lz, ux, uy, uz, width, color,
+tropism)`: the position, the orthonormal frame H (heading), L (left), U (up) with
+H x L = U, the width (a diameter), the colour index and the tropism `(tx, ty, tz, e)` (unit
+direction, elasticity) or None. World Y is up. The start pose `(x, y, heading)` lies in the
+XY plane: H = (cos h, sin h, 0), L = (-sin h, cos h, 0), U = (0, 0, 1), so `+` turns
+counter-clockwise seen from +Z as in 2D, and a planar grammar seen from +Z is its 2D picture.
+The push-down stack and the open polygons are persistent cons lists, as in `turtle.py`.
+
+Primitives (plain tuples, world coordinates; the colour is an int index):
+
+    ("seg3", x0, y0, z0, x1, y1, z1, width, color)      # width = diameter
+    ("sphere", x, y, z, r, color)
+    ("leaf3", x, y, z, hx, hy, hz, lx, ly, lz, length, width, color)
+        # ellipse with its base at (x, y, z), long axis along the unit H (length), short
+        # axis along the unit L (width)
+    ("poly3", ((x, y, z), ...), color)                   # planar face, >= 3 vertices
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.program import Module
+
+# as in turtle.py (which imports this module, so it imports nothing of turtle.py)
+Prim = tuple[Any, ...]
+Cons = tuple[Any, Any]
+Tropism = tuple[float, float, float, float]  # (tx, ty, tz) unit, elasticity e
+Turtle3 = tuple[Any, ...]  # (x, y, z, H, L, U as 9 floats, width, color, tropism | None)
+
+# Symbols the 3D turtle acts on; every other module is ignored by it.
+TURTLE3D_SYMBOLS = frozenset(["F", "f", "+", "-", "&", "^", "\\", "/", "|", "$", "[", "]", "!",
+                              "~l", "@O", "{", ".", "}", ";", ",", "@Tp", "@Ts"])
+GRAVITY = (0.0, -1.0, 0.0)  # the tropism direction `@Ts` uses when none was set
+_RAD = math.pi / 180.0
+_EPS = 1e-12
+
+
+def _cos_sin(degrees: float) -> tuple[float, float]:
+    """cos and sin of an angle in degrees, exact at multiples of 90 (a start pose)."""
+    quarter = degrees / 90.0
+    if quarter == int(quarter):
+        return ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[int(quarter) % 4]
+    return math.cos(degrees * _RAD), math.sin(degrees * _RAD)
+
+
+def start3d(x: float, y: float, heading: float, width: float = 1.0,
+            tropism: Tropism | None = None) -> Turtle3:
+    """The 3D turtle at the 2D start pose (x, y, heading degrees), z = 0, colour 0."""
+    c, s = _cos_sin(float(heading))
+    return (float(x), float(y), 0.0, c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0, float(width), 0,
+            tropism)
+
+
+def interpret3d(
+    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, angle: float
+) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+    """Apply one turtle symbol; returns (turtle, tstack, poly, primitive drawn or None), as
+    `turtle.interpret` does in 2D. Rotations by `a` degrees (default `angle`): `+`/`-` about
+    U (+ turns H toward L), `&`/`^` about L (& pitches H toward -U), `/`/`\\` about H (/ rolls
+    L toward U)."""
+    name = mod[0]
+    if name == "F":
+        return _forward(mod, turtle, tstack, poly)
+    if name in _AXES:
+        a = (mod[1] if len(mod) > 1 else angle) * _RAD
+        return _rotate(turtle, name, a), tstack, poly, None
+    if name == "[":
+        return turtle, (turtle, tstack), poly, None
+    if name == "]":
+        if tstack is None:
+            raise ProgramError("turtle: ']' without a matching '['")
+        return tstack[0], tstack[1], poly, None
+    if name == "f":
+        step = mod[1] if len(mod) > 1 else 1.0
+        t = turtle
+        return ((t[0] + step * t[3], t[1] + step * t[4], t[2] + step * t[5]) + t[3:],
+                tstack, poly, None)
+    return _other(mod, turtle, tstack, poly)
+
+
+def _forward(mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None
+             ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+    """`F`: a segment from the turtle along H; then tropism bends the frame (ABOP p.58)."""
+    step = mod[1] if len(mod) > 1 else 1.0
+    x, y, z = t[0], t[1], t[2]
+    x1, y1, z1 = x + step * t[3], y + step * t[4], z + step * t[5]
+    moved = (x1, y1, z1) + t[3:]
+    trop = t[14]
+    if trop is not None and trop[3] != 0.0:
+        moved = bend(moved, trop)
+    return moved, tstack, poly, ("seg3", x, y, z, x1, y1, z1, t[12], t[13])
+
+
+# rotation symbol -> (axis, sign): the frame vectors it turns and the sense
+_AXES = {"+": ("U", 1.0), "-": ("U", -1.0), "&": ("L", 1.0), "^": ("L", -1.0),
+         "/": ("H", 1.0), "\\": ("H", -1.0)}
+
+
+def _rotate(t: Turtle3, name: str, a: float) -> Turtle3:
+    """The turtle turned by `a` radians (times the symbol's sign) about one frame axis,
+    right-handed: about U, H -> H cos + L sin; about L, U -> U cos + H sin; about H,
+    L -> L cos + U sin (the third vector p x q follows)."""
+    axis, sign = _AXES[name]
+    c, s = math.cos(a), sign * math.sin(a)
+    h, lv, u = t[3:6], t[6:9], t[9:12]
+    if axis == "U":  # p = H, q = L
+        h, lv = _turn(h, lv, c, s)
+    elif axis == "L":  # p = U, q = H
+        u, h = _turn(u, h, c, s)
+    else:  # p = L, q = U
+        lv, u = _turn(lv, u, c, s)
+    return t[:3] + h + lv + u + t[12:]
+
+
+def _turn(p: tuple[float, ...], q: tuple[float, ...], c: float, s: float
+          ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(p cos + q sin, q cos - p sin): p and q turned in their plane."""
+    return ((p[0] * c + q[0] * s, p[1] * c + q[1] * s, p[2] * c + q[2] * s),
+            (q[0] * c - p[0] * s, q[1] * c - p[1] * s, q[2] * c - p[2] * s))
+
+
+def _other(mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None
+           ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+    """The symbols other than moves, turns and brackets."""
+    name = mod[0]
+    t = turtle
+    if name == "!":
+        return t[:12] + (float(mod[1]) if len(mod) > 1 else t[12],) + t[13:], tstack, poly, None
+    if name == "|":  # turn around: 180 degrees about U
+        turned = (-t[3], -t[4], -t[5], -t[6], -t[7], -t[8])
+        return t[:3] + turned + t[9:], tstack, poly, None
+    if name == "$":
+        return roll_horizontal(t), tstack, poly, None
+    if name == "~l":
+        length = float(mod[1]) if len(mod) > 1 else 1.0
+        width = float(mod[2]) if len(mod) > 2 else 1.0
+        return t, tstack, poly, ("leaf3",) + t[:9] + (length, width, t[13])
+    if name == "@O":
+        r = float(mod[1]) if len(mod) > 1 else 1.0
+        return t, tstack, poly, ("sphere", t[0], t[1], t[2], r, t[13])
+    if name in (";", ","):
+        return t[:13] + (_color(mod, t[13]),) + t[14:], tstack, poly, None
+    if name in ("{", ".", "}"):
+        return _polygon(name, t, tstack, poly)
+    if name == "@Tp":
+        e = t[14][3] if t[14] is not None else 0.0
+        return t[:14] + (_direction(mod[1], mod[2], mod[3]) + (e,),), tstack, poly, None
+    if name == "@Ts":
+        d = t[14][:3] if t[14] is not None else GRAVITY
+        return t[:14] + (d + (float(mod[1]),),), tstack, poly, None
+    return t, tstack, poly, None
+
+
+def _color(mod: Module, color: int) -> int:
+    """`;` one colour up, `,` one down (not below 0); with an argument, that index."""
+    if len(mod) > 1:
+        v = float(mod[1])
+        if not math.isfinite(v):
+            raise ValueError(f"colour index {v}")
+        return max(0, int(math.floor(v)))
+    return color + 1 if mod[0] == ";" else max(0, color - 1)
+
+
+def _direction(x: Any, y: Any, z: Any) -> tuple[float, float, float]:
+    """The unit vector along (x, y, z); ValueError for a zero or non-finite one."""
+    n = math.hypot(float(x), float(y), float(z))
+    if not (n > 0 and math.isfinite(n)):
+        raise ValueError(f"tropism direction ({x:g}, {y:g}, {z:g}) has no direction")
+    return (x / n, y / n, z / n)
+
+
+def _polygon(name: str, t: Turtle3, tstack: Cons | None, poly: Cons | None
+             ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+    """`{` opens a polygon, `.` records the turtle's position, `}` closes it (a planar face
+    of >= 3 vertices, in the turtle's colour)."""
+    if name == "{":
+        return t, tstack, (None, poly), None
+    if name == ".":
+        if poly is None:
+            return t, tstack, poly, None  # a vertex outside a polygon records nothing
+        return t, tstack, (((t[0], t[1], t[2]), poly[0]), poly[1]), None
+    if poly is None:
+        raise ProgramError("turtle: '}' without a matching '{'")
+    verts = []
+    node = poly[0]
+    while node is not None:
+        verts.append(node[0])
+        node = node[1]
+    verts.reverse()
+    prim = ("poly3", tuple(verts), t[13]) if len(verts) >= 3 else None
+    return t, tstack, poly[1], prim
+
+
+def roll_horizontal(t: Turtle3) -> Turtle3:
+    """`$` (ABOP p.57): roll about H so that L is horizontal, L = V x H / |V x H| with V
+    the world up (0, 1, 0), U = H x L. A vertical H leaves the frame as it is."""
+    hx, hy, hz = t[3], t[4], t[5]
+    n = math.sqrt(hz * hz + hx * hx)  # |V x H|, V x H = (hz, 0, -hx)
+    if n < _EPS:
+        return t
+    lx, ly, lz = hz / n, 0.0, -hx / n
+    u = (hy * lz - hz * ly, hz * lx - hx * lz, hx * ly - hy * lx)
+    return t[:6] + (lx, ly, lz) + u + t[12:]
+
+
+def bend(t: Turtle3, trop: Tropism) -> Turtle3:
+    """Tropism (ABOP p.58): the frame turned about H x T by alpha = e |H x T| radians, which
+    turns H toward T; then made orthonormal again (H unit, L unit and normal to H, U = H x
+    L), so many bends do not let the frame drift."""
+    hx, hy, hz = t[3], t[4], t[5]
+    tx, ty, tz, e = trop
+    ax, ay, az = hy * tz - hz * ty, hz * tx - hx * tz, hx * ty - hy * tx
+    s = math.sqrt(ax * ax + ay * ay + az * az)
+    if s < _EPS:
+        return t
+    alpha = e * s
+    ax, ay, az = ax / s, ay / s, az / s
+    c, sn = math.cos(alpha), math.sin(alpha)
+
+    def rot(vx: float, vy: float, vz: float) -> tuple[float, float, float]:
+        # Rodrigues: v cos + (a x v) sin + a (a . v)(1 - cos)
+        d = (ax * vx + ay * vy + az * vz) * (1.0 - c)
+        return (vx * c + (ay * vz - az * vy) * sn + ax * d,
+                vy * c + (az * vx - ax * vz) * sn + ay * d,
+                vz * c + (ax * vy - ay * vx) * sn + az * d)
+
+    h = _unit(*rot(hx, hy, hz))
+    lx, ly, lz = rot(t[6], t[7], t[8])
+    dot = lx * h[0] + ly * h[1] + lz * h[2]
+    lv = _unit(lx - dot * h[0], ly - dot * h[1], lz - dot * h[2])
+    u = (h[1] * lv[2] - h[2] * lv[1], h[2] * lv[0] - h[0] * lv[2], h[0] * lv[1] - h[1] * lv[0])
+    return t[:3] + h + lv + u + t[12:]
+
+
+def _unit(x: float, y: float, z: float) -> tuple[float, float, float]:
+    n = math.hypot(x, y, z)
+    if n == 0:
+        raise ValueError("the turtle's frame has collapsed")
+    return (x / n, y / n, z / n)
+
+
+def prim3_bounds(prim: Prim) -> tuple[float, float, float, float, float, float]:
+    """World box `(xmin, ymin, zmin, xmax, ymax, zmax)` of a 3D primitive."""
+    kind = prim[0]
+    if kind == "seg3":
+        _, x0, y0, z0, x1, y1, z1, w, _ = prim
+        r = abs(w) / 2.0
+        return (min(x0, x1) - r, min(y0, y1) - r, min(z0, z1) - r,
+                max(x0, x1) + r, max(y0, y1) + r, max(z0, z1) + r)
+    if kind == "sphere":
+        _, x, y, z, r, _ = prim
+        r = abs(r)
+        return x - r, y - r, z - r, x + r, y + r, z + r
+    if kind == "leaf3":
+        _, x, y, z, hx, hy, hz, lx, ly, lz, length, width, _ = prim
+        a, b = length / 2.0, abs(width) / 2.0
+        centre = (x + a * hx, y + a * hy, z + a * hz)
+        ext = [math.sqrt((a * hv) ** 2 + (b * lv) ** 2) for hv, lv in
+               ((hx, lx), (hy, ly), (hz, lz))]
+        lo = tuple(c - e for c, e in zip(centre, ext, strict=True))
+        hi = tuple(c + e for c, e in zip(centre, ext, strict=True))
+        return lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+    if kind == "poly3":
+        xs, ys, zs = zip(*prim[1], strict=True)
+        return min(xs), min(ys), min(zs), max(xs), max(ys), max(zs)
+    raise ValueError(f"unknown 3D primitive {kind!r}")
+
+
+def bounds3d(prims: list[Prim]) -> tuple[float, float, float, float, float, float] | None:
+    """The world box `(xmin, ymin, zmin, xmax, ymax, zmax)` of 3D primitives (None: none)."""
+    if not prims:
+        return None
+    boxes = [prim3_bounds(p) for p in prims]
+    lo = [min(b[i] for b in boxes) for i in range(3)]
+    hi = [max(b[i] for b in boxes) for i in range(3, 6)]
+    return lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+
+
+def project_xy(prims: list[Prim], points: int = 16) -> list[Prim]:
+    """3D primitives seen from +Z (dropping z and colour) as 2D ones (`turtle.py`'s), for a
+    picture of a 3D grammar: seg3 -> seg, sphere -> disk, leaf3 and poly3 -> poly (a leaf
+    as `points` points of its ellipse)."""
+    out: list[Prim] = []
+    for p in prims:
+        kind = p[0]
+        if kind == "seg3":
+            out.append(("seg", p[1], p[2], p[4], p[5], p[7]))
+        elif kind == "sphere":
+            out.append(("disk", p[1], p[2], p[4]))
+        elif kind == "poly3":
+            out.append(("poly", tuple((v[0], v[1]) for v in p[1])))
+        elif kind == "leaf3":
+            _, x, y, _, hx, hy, _, lx, ly, _, length, width, _ = p
+            a, b = length / 2.0, width / 2.0
+            ring = [(math.cos(2 * math.pi * k / points), math.sin(2 * math.pi * k / points))
+                    for k in range(points)]
+            out.append(("poly", tuple((x + a * hx + a * c * hx + b * s * lx,
+                                       y + a * hy + a * c * hy + b * s * ly) for c, s in ring)))
+        else:
+            raise ValueError(f"unknown 3D primitive {kind!r}")
+    return out
