@@ -17,12 +17,12 @@ from collections.abc import Callable
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError, printable
+from ngpm_runtime.geometry.cons import Cons
 from ngpm_runtime.geometry.turtle import (
     CUT,
     DRAWING,
     HALT,
     TURTLE_SYMBOLS,
-    Cons,
     Prim,
     Turtle,
     interpret,

@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.cons import Cons, cons_to_list
 from ngpm_runtime.geometry.turtle3d import prim3_bounds
 from ngpm_runtime.program import Module
 
 Turtle = tuple[float, float, float, float]  # (x, y, heading, width)
 Prim = tuple[Any, ...]  # ("seg", x0, y0, x1, y1, width), ("disk", x, y, r), ...
-Cons = tuple[Any, Any]  # a cons list node (head, rest); rest is a Cons or None
 
 # Symbols the turtle acts on; every other module is ignored by it.
 TURTLE_SYMBOLS = frozenset(["F", "f", "+", "-", "|", "[", "]", "!", "~l", "@O", "{", ".", "}"])
@@ -81,12 +81,7 @@ def interpret(
     if name == "}":
         if poly is None:
             raise ProgramError("turtle: '}' without a matching '{'")
-        verts = []
-        node = poly[0]
-        while node is not None:
-            verts.append(node[0])
-            node = node[1]
-        verts.reverse()
+        verts = cons_to_list(poly[0])
         prim = ("poly", tuple(verts)) if len(verts) >= 3 else None
         return turtle, tstack, poly[1], prim
     return turtle, tstack, poly, None
@@ -157,13 +152,3 @@ def prim_bboxes(kind: str, prims: list[Prim]) -> tuple[np.ndarray, np.ndarray | 
     else:
         raise ValueError(f"unknown primitive kind {kind!r}")
     return np.stack(box, axis=1), P
-
-
-def cons_to_list(node: Cons | None) -> list[Any]:
-    """A cons list `(head, rest)` (newest first) as a Python list, oldest first."""
-    out = []
-    while node is not None:
-        out.append(node[0])
-        node = node[1]
-    out.reverse()
-    return out

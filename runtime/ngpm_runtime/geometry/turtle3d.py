@@ -24,11 +24,11 @@ import math
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.cons import Cons, cons_to_list
 from ngpm_runtime.program import Module
 
 # as in turtle.py (which imports this module, so it imports nothing of turtle.py)
 Prim = tuple[Any, ...]
-Cons = tuple[Any, Any]
 Tropism = tuple[float, float, float, float]  # (tx, ty, tz) unit, elasticity e
 Turtle3 = tuple[Any, ...]  # (x, y, z, H, L, U as 9 floats, width, color, tropism | None)
 
@@ -186,12 +186,7 @@ def _polygon(name: str, t: Turtle3, tstack: Cons | None, poly: Cons | None
         return t, tstack, (((t[0], t[1], t[2]), poly[0]), poly[1]), None
     if poly is None:
         raise ProgramError("turtle: '}' without a matching '{'")
-    verts = []
-    node = poly[0]
-    while node is not None:
-        verts.append(node[0])
-        node = node[1]
-    verts.reverse()
+    verts = cons_to_list(poly[0])
     prim = ("poly3", tuple(verts), t[13]) if len(verts) >= 3 else None
     return t, tstack, poly[1], prim
 

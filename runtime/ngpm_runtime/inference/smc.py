@@ -31,6 +31,7 @@ from typing import Any, Protocol, cast, runtime_checkable
 import numpy as np
 
 from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
+from ngpm_runtime.geometry.cons import cons_to_list
 from ngpm_runtime.geometry.derive import (
     DEFAULT_MAX_MODULES,
     DONE,
@@ -40,7 +41,7 @@ from ngpm_runtime.geometry.derive import (
     Deriver,
     Particle,
 )
-from ngpm_runtime.geometry.turtle import Prim, cons_to_list, prim_bbox
+from ngpm_runtime.geometry.turtle import Prim, prim_bbox
 from ngpm_runtime.image.raster import DrawBatch
 from ngpm_runtime.inference.distributions import kind_of, prior_logpdf
 from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBatch
