@@ -53,7 +53,9 @@ class GrowResult:
 
 def _viewport(program: Program) -> Viewport:
     if program.viewport is None:
-        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
+        raise NgpmError(f"grammar {program.source or program.name} has no viewport: cannot "
+                        "grow into a target; add a 'viewport: XMIN XMAX YMIN YMAX' line (`ngpmc "
+                        "check GRAMMAR` proposes one from forward samples)")
     return program.viewport
 
 
