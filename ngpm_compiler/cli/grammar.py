@@ -96,8 +96,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     print(f"{args.grammar}: ok, {len(compiled.sites)} sites")
     if compiled.sites:
         print("\n".join(site_table(compiled)))
-    diag = diagnose(compiled.checked, compiled.program(), args.grammar,
-                    samples=0 if args.no_samples else args.samples, seed=args.seed)
+    diag = diagnose(compiled, samples=0 if args.no_samples else args.samples, seed=args.seed)
     for line in [*sample_lines(diag), *warning_lines(diag)]:
         print(line, flush=True)
     return 0

@@ -34,6 +34,7 @@ from ngpm_runtime.inference.smc import SMCObserver
 from ngpm_runtime.program import Program
 
 from ngpm_compiler.language.checker import Alt, Checked
+from ngpm_compiler.language.compile import CompiledGrammar
 
 SAMPLE_BATCH = 10  # forward samples per batched run
 TARGET_N = 600  # particles of the run whose time is estimated
@@ -277,12 +278,13 @@ class Diagnosis:
     timing: Timing | None = None
 
 
-def diagnose(checked: Checked, program: Program, filename: str, samples: int = 40,
-             seed: int = 0, budget: float = 2.0, time_smc: float = 3.0) -> Diagnosis:
+def diagnose(compiled: CompiledGrammar, samples: int = 40, seed: int = 0,
+             budget: float = 2.0, time_smc: float = 3.0) -> Diagnosis:
     """Branching from the grammar; with `samples` > 0, forward samples (for about `budget`
     seconds), a proposed viewport (when the grammar has none) and, with `time_smc` > 0, the
     time of one 600-particle SMC run (measured for at most `time_smc` seconds)."""
-    diag = Diagnosis(filename, program, supercritical(checked))
+    program = compiled.program()
+    diag = Diagnosis(compiled.filename, program, supercritical(compiled.checked))
     if samples <= 0:
         return diag
     s = diag.samples = forward_samples(program, samples, budget=budget, seed=seed)

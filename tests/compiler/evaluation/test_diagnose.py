@@ -55,7 +55,7 @@ def test_supercritical_loops_name_the_rule_that_forks(tmp_path: Path) -> None:
 
 def test_an_exploding_grammar_gets_one_warning_naming_the_rule(tmp_path: Path) -> None:
     c = compiled(tmp_path, EXPLODING, "explode.lsys")
-    diag = diagnose(c.checked, c.program(), c.filename, samples=20, budget=60, time_smc=0)
+    diag = diagnose(c, samples=20, budget=60, time_smc=0)
     s = diag.samples
     assert s is not None and s.n == 20 and s.capped == s.limits["max primitives"] > 0
     assert max(s.primitives) == 600 and min(s.primitives) < 600
@@ -70,11 +70,11 @@ def test_an_exploding_grammar_gets_one_warning_naming_the_rule(tmp_path: Path) -
 
 def test_a_bounded_fork_gets_no_warning(tmp_path: Path) -> None:
     c = compiled(tmp_path, BOUNDED)
-    diag = diagnose(c.checked, c.program(), c.filename, samples=20, time_smc=0)
+    diag = diagnose(c, samples=20, time_smc=0)
     assert diag.branching and diag.samples is not None and diag.samples.capped == 0
     assert warning_lines(diag) == []
     # without samples nothing tells, so it is a note, not a warning
-    quiet = diagnose(c.checked, c.program(), c.filename, samples=0)
+    quiet = diagnose(c, samples=0)
     (line,) = warning_lines(quiet)
     assert line.startswith("note: ") and "rule A branches supercritically" in line
     assert sample_lines(quiet) == []
@@ -84,7 +84,7 @@ def test_a_bounded_fork_gets_no_warning(tmp_path: Path) -> None:
                          ids=lambda p: p.name)
 def test_the_shipped_grammars_get_no_warning(grammar: Path) -> None:
     c = compile_grammar(grammar, filename=str(grammar))
-    diag = diagnose(c.checked, c.program(), str(grammar), samples=20, time_smc=0)
+    diag = diagnose(c, samples=20, time_smc=0)
     assert diag.samples is not None and diag.samples.capped == 0
     assert [x for x in warning_lines(diag) if x.startswith("warning")] == []
 
@@ -94,7 +94,7 @@ def test_samples_at_a_cap_without_a_supercritical_rule_are_a_warning(tmp_path: P
                "Axiom: A\nproduction:\n"
                "A --> F A\nendlsystem\n")
     c = compiled(tmp_path, endless)
-    diag = diagnose(c.checked, c.program(), c.filename, samples=5, time_smc=0)
+    diag = diagnose(c, samples=5, time_smc=0)
     assert diag.branching == []
     (line,) = warning_lines(diag)
     assert line.startswith(f"warning: {c.filename}: 5 of 5 samples ran to a cap")
@@ -124,7 +124,7 @@ def test_propose_viewport_is_square_padded_and_round() -> None:
 
 def test_a_grammar_without_viewport_gets_one_proposed(tmp_path: Path) -> None:
     c = compiled(tmp_path, NO_VIEWPORT)
-    diag = diagnose(c.checked, c.program(), c.filename, samples=20, time_smc=0)
+    diag = diagnose(c, samples=20, time_smc=0)
     assert diag.viewport is not None and diag.samples is not None
     box = diag.samples.box
     assert box is not None
@@ -135,7 +135,7 @@ def test_a_grammar_without_viewport_gets_one_proposed(tmp_path: Path) -> None:
     # pasted into the grammar, it is the grammar's viewport and nothing more is proposed
     fixed = compiled(tmp_path, viewport_line(diag.viewport) + "\n" + NO_VIEWPORT, "fixed.lsys")
     assert fixed.program().viewport == pytest.approx(diag.viewport)
-    again = diagnose(fixed.checked, fixed.program(), "fixed.lsys", samples=5, time_smc=0)
+    again = diagnose(fixed, samples=5, time_smc=0)
     assert again.viewport is None and "viewport" not in "\n".join(sample_lines(again))
 
 
@@ -149,3 +149,9 @@ def test_smc_time_measures_a_short_run_and_scales_a_stopped_one() -> None:
     assert t.seconds == pytest.approx(t.measured * 12)
     t = smc_time(program, longest=1, budget=0.0)  # past the longest sample: a floor
     assert t.lower_bound and t.seconds == t.measured
+
+
+def test_the_api_docs_show_the_exploding_grammar_of_these_tests() -> None:
+    text = (REPO / "docs" / "api.md").read_text(encoding="utf-8")
+    assert f"```\n{EXPLODING}```" in text
+    assert f"warning: explode.lsys:{EXPLODING_LINE}: rule A branches" in text
