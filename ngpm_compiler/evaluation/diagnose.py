@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from ngpm_runtime.errors import printable
 from ngpm_runtime.inference.smc import SMCObserver
 from ngpm_runtime.program import Program
 
@@ -90,7 +91,7 @@ def forward_samples(program: Program, n: int = 40, budget: float = 2.0,
     for b in range(math.ceil(n / SAMPLE_BATCH)):
         size = min(SAMPLE_BATCH, n - b * SAMPLE_BATCH)
         # equal weights (no likelihood) keep the ESS at N: no resampling, independent samples
-        options = SMCOptions(seed=seed + b, ess_threshold=0.5)
+        options = SMCOptions(seed=(seed + b) % 2**63, ess_threshold=0.5)
         try:
             res = smc(program, None, size, options=options,
                       observers=[Deadline(t0 + hard_cap)])
@@ -354,9 +355,9 @@ def _duration(seconds: float) -> str:
 def warning_lines(diag: Diagnosis) -> list[str]:
     """One line per problem: a supercritical loop of rules when samples ran to a cap (a
     note when there are no samples to tell), or samples at a cap with no such loop."""
-    s, out = diag.samples, []
+    s, out, name = diag.samples, [], printable(diag.filename)
     for b in diag.branching:
-        head = (f"{diag.filename}:{b.line}: rule {b.pred} branches supercritically: chains "
+        head = (f"{name}:{b.line}: rule {b.pred} branches supercritically: chains "
                 f"of {', '.join(b.modules)} fork into {b.rate:.2f} per generation on average")
         if s is None:
             out.append(f"note: {head}, so only a condition or the derivation length ends "
@@ -366,7 +367,7 @@ def warning_lines(diag: Diagnosis) -> list[str]:
                        f"{s.n} samples ran to a cap; make it fork less often, or end its "
                        "chains with a condition")
     if s is not None and s.capped and not diag.branching:
-        out.append(f"warning: {diag.filename}: {s.capped} of {s.n} samples ran to a cap (see "
+        out.append(f"warning: {name}: {s.capped} of {s.n} samples ran to a cap (see "
                    "above): the grammar does not end by itself; add a 'derivation length:' "
                    "or a condition that ends it")
     return out
