@@ -88,8 +88,10 @@ def _register_iterate(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     p = subparsers.add_parser(
         "iterate", help="expert iteration: guided traces -> train -> repeat, keep the best",
         description="Rounds of: record traces with SMC guided by the best guide so far, train "
-                    "a guide on all rounds' traces, score it on validation targets at N = 10; "
-                    "the best round's guide is copied to OUT/best.onnx.")
+                    "a guide on all rounds' traces, score it on validation targets at N = 10 "
+                    "with the default proposal settings (a tuned --init-guide is scored untuned "
+                    "too, so rounds compare under equal settings); the best round's guide is "
+                    "copied to OUT/best.onnx.")
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--targets", required=True, type=argtypes.paths,
                    help="training-target directories, comma-separated")

@@ -7,7 +7,11 @@ with the same budget. Each round records `n` traces per training-target director
 guided by the best guide so far (the first round, with no guide to start from, runs
 unguided SMC), trains a guide on every round's traces together (and on `init_traces`),
 exports it, and scores it on validation targets at N = `val_n`; the best round's guide is
-copied to `best.onnx`. Files under `out`: round_<r>/{traces_<i>, model.pt, guide.onnx},
+copied to `best.onnx`. Rounds compare under equal proposal settings: a new round's guide
+proposes with the default ones (no `ngpmc tune`), so an initial guide tuned by `ngpmc
+tune` is scored as an untuned copy (round_0/untuned.onnx: the same networks), while the
+tuned file itself teaches round 1 and is what best.onnx holds when round 0 stays the best.
+Tune best.onnx afterwards. Files under `out`: round_<r>/{traces_<i>, model.pt, guide.onnx},
 validation/ (the run cache of evaluation/heldout.py: appended run by run and keyed by the
 content hashes of each round's guide and of the targets, so a resumed iteration scores a
 retrained round anew), rounds.csv, best.onnx.
@@ -22,6 +26,7 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.inference.guide import ProposalSettings
 
 from ngpm_compiler.learning.shards import TraceError
 from ngpm_compiler.learning.trace_data import SiteData, TraceSet
@@ -140,22 +145,40 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
     return score
 
 
+def untuned(guide: str, settings: ProposalSettings, folder: Path, log: Log) -> str:
+    """The guide to score for `guide` (which proposes with `settings`) under the default
+    proposal settings, as every new round's guide proposes: `guide` itself, or a copy
+    without its tuned settings."""
+    from ngpm_compiler.learning.tune import with_settings
+
+    if settings == ProposalSettings():
+        return guide
+    copy = with_settings(guide, folder / "untuned.onnx", ProposalSettings())
+    log(f"round 0: {guide} proposes with {settings.label()} (ngpmc tune); scored with the "
+        f"default settings ({copy}), as the new rounds are, so that rounds compare under "
+        "equal settings")
+    return str(copy)
+
+
 def expert_iteration(cfg: RoundsConfig, log: Log = print) -> list[dict[str, Any]]:
     """Run the rounds (resuming finished ones); one row per round, best guide copied to
     out/best.onnx."""
+    settings = ProposalSettings()
     if cfg.init_guide:  # a guide that does not load or fit: one error, before workers
         from ngpm_compiler.jobs.backends import load_guide
         from ngpm_compiler.language.compile import load_grammar
 
-        load_guide(cfg.init_guide, load_grammar(cfg.grammar))
+        settings = load_guide(cfg.init_guide, load_grammar(cfg.grammar)).settings
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write(out / "config.json", json.dumps(asdict(cfg), indent=1))
     rows: list[dict[str, Any]] = []
     best: tuple[float, str | None] = (-np.inf, None)
     if cfg.init_guide:
-        score = validate(cfg, "round_0", cfg.init_guide, log)
-        rows.append({"round": 0, "teacher": "initial guide", "traces": "", "val_nll": "",
+        scored = untuned(cfg.init_guide, settings, out / "round_0", log)
+        score = validate(cfg, "round_0", scored, log)
+        rows.append({"round": 0, "teacher": "initial guide" if scored == cfg.init_guide
+                     else "initial guide (scored untuned)", "traces": "", "val_nll": "",
                      "validation": round(score, 4), "guide": cfg.init_guide})
         best = (score, cfg.init_guide)
     trace_dirs = list(cfg.init_traces)

@@ -25,11 +25,13 @@ MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
 Trace = list[tuple[int, np.ndarray, float]]  # (site, features, value) per site visit
 
 
-def viewport(program: Program) -> Viewport:
-    """The grammar's viewport; TraceError without one (traces draw into target images)."""
+def viewport(program: Program, where: str | None = None) -> Viewport:
+    """The grammar's viewport; TraceError without one (traces draw into target images).
+    `where` names the grammar in the error (its file), else its name."""
     if program.viewport is None:
-        raise TraceError(f"grammar {program.name} has no 'viewport:' line; traces draw into "
-                         "target images, so add one (e.g. 'viewport: -12 12 -22 2')")
+        raise TraceError(f"{where or 'grammar ' + program.name}: the grammar has no "
+                         "'viewport:' line; traces draw into target images, so add one "
+                         "(e.g. 'viewport: -12 12 -22 2'; `ngpmc check` proposes one)")
     return program.viewport
 
 

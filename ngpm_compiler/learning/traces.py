@@ -151,9 +151,7 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(cfg.grammar)
-    if program.viewport is None:
-        raise TraceError(f"{cfg.grammar}: the grammar has no 'viewport:' line; traces draw "
-                         "into target images, so add one (e.g. 'viewport: -12 12 -22 2')")
+    viewport(program, cfg.grammar)
     if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
         backends.load_guide(cfg.guide, program)
     targets = load_targets(cfg.targets, cfg.size, cfg.mirror)

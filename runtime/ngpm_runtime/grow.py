@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.errors import NgpmError, printable
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.image.raster import Viewport, rasterize
 from ngpm_runtime.inference.likelihood import (
@@ -54,7 +54,10 @@ class GrowResult:
 def _viewport(program: Program) -> Viewport:
     require_2d(program, "growing into a picture")
     if program.viewport is None:
-        raise NgpmError(f"grammar {program.name} has no viewport: cannot grow into a target")
+        name = printable(program.source or program.name)
+        raise NgpmError(f"grammar {name} has no viewport: cannot grow into a target; add a "
+                        "'viewport: XMIN XMAX YMIN YMAX' line (`ngpmc check GRAMMAR` "
+                        "proposes one from forward samples)")
     return program.viewport
 
 

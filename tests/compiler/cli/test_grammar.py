@@ -22,6 +22,48 @@ def test_check_prints_ok_and_site_table(capsys: pytest.CaptureFixture[str]) -> N
     assert out[0] == f"{VINES}: ok, 8 sites"
     assert out[1].split()[:3] == ["#", "id", "kind"]
     assert "C1/choice" in out[8] and "categorical" in out[8] and "(0.66, 0.34)" in out[8]
+    # then the estimates from forward samples, and no warning
+    assert out[10].startswith("forward samples: 40 in ")
+    assert out[11].startswith("  primitives per sample: median ")
+    assert out[12] == "  samples stopped by a cap: none of 40"
+    assert re.match(r"  one 600-particle SMC run: (about|more than) \S+ (s|min) \(unguided "
+                    r"into the demo horse", out[13]), out[13]
+    assert len(out) == 14
+    assert main(["check", str(VINES), "--no-samples"]) == 0
+    assert len(capsys.readouterr().out.splitlines()) == 10
+
+
+def test_check_warns_of_an_exploding_rule_in_one_line(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from fixtures.grammars import EXPLODING, EXPLODING_LINE
+
+    g = tmp_path / "explode.lsys"
+    g.write_text(EXPLODING)
+    assert main(["check", str(g), "--samples", "10"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[3].startswith("forward samples: 10 in ")
+    assert re.match(r"  samples stopped by a cap: \d+ of 10 \(\d+%\): \d+ at max primitives "
+                    r"\(600\)$", out[5]), out[5]
+    assert out[6].startswith("  one 600-particle SMC run: ")
+    warned = [x for x in out if "warning" in x]
+    assert warned == [out[-1]] and warned[0].startswith(
+        f"warning: {g}:{EXPLODING_LINE}: rule A branches supercritically")
+    for bad in ("0", "x"):
+        with pytest.raises(SystemExit, match="2"):
+            main(["check", str(g), "--samples", bad])
+
+
+def test_check_proposes_a_viewport(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    g = tmp_path / "nv.lsys"
+    g.write_text("derivation length: 8\nangle: 30\nAxiom: A\nproduction:\n"
+                 "A --> F [ + A ] : 0.5 | F : 0.5\nendlsystem\n")
+    assert main(["check", str(g), "--samples", "20"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2].startswith("  no 'viewport:' line: the samples span x ")
+    assert re.fullmatch(r"    viewport: \S+ \S+ \S+ \S+", out[-1]), out[-1]
+    g.write_text(out[-1].strip() + "\n" + g.read_text())  # pasted, it holds
+    assert main(["check", str(g), "--samples", "20"]) == 0
+    assert "no 'viewport:' line" not in capsys.readouterr().out
 
 
 def test_compile_writes_sampler_and_sites(tmp_path: Path) -> None:

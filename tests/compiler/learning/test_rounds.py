@@ -11,7 +11,7 @@ from fixtures.guides import perturbed_guide
 from ngpm_runtime import bundled
 from ngpm_runtime.grow import grow
 from ngpm_runtime.image.targets import save_target
-from ngpm_runtime.inference.guide import Guide
+from ngpm_runtime.inference.guide import Guide, ProposalSettings
 from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, replay, smc
 from repo_paths import REPO
 
@@ -189,3 +189,55 @@ def test_cli_iterate_refuses_an_initial_guide_of_another_grammar(tmp_path):
     assert proc.stderr.startswith(f"ngpmc: error: {guide}: guide was trained for grammar "
                                   "'vines'") and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "ei").exists()
+
+
+def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
+    """Issue 23: an initial guide tuned by `ngpmc tune` was scored with its tuned settings
+    and every new round untuned, so round 0 (0.583) was kept over a round 1 that was better
+    under equal settings. Here scoring is faked: a guide's score is its networks' quality
+    plus 0.083 when it proposes with tuned settings; round 0 is now scored untuned."""
+    from ngpm_compiler.evaluation import heldout
+    from ngpm_compiler.learning import rounds
+    from ngpm_compiler.learning.tune import with_settings
+
+    program = bundled.bundled_program()
+    tuned = ProposalSettings(1.0, 0.3, 0.3)
+    init = with_settings(bundled.guide_path(), tmp_path / "init.onnx", tuned)
+    round_1 = with_settings(perturbed_guide(bundled.guide_path(), tmp_path / "new.onnx"),
+                            tmp_path / "round_1.onnx", ProposalSettings())  # as trained
+    quality = {"round_0": 0.50, "round_1": 0.544}
+    scored: dict[str, ProposalSettings] = {}
+    teachers: list[str | None] = []
+
+    def fake_heldout(out, grammar, sets, guides, **kw):
+        ((name, path),) = guides.items()
+        scored[name] = Guide.load(path, program).settings
+        bonus = 0.083 if scored[name] != ProposalSettings() else 0.0
+        return {"summary": [{"model": name, "n": kw["guided_n"],
+                             "mean_similarity": quality[name] + bonus}]}
+
+    def fake_record(cfg, r, guide, log):
+        teachers.append(guide)
+        return []
+
+    monkeypatch.setattr(heldout, "run_heldout", fake_heldout)
+    monkeypatch.setattr(rounds, "record_round", fake_record)
+    monkeypatch.setattr(rounds, "train_round",
+                        lambda cfg, r, dirs, log: (str(round_1), {"traces": 2, "val_nll": 1.0}))
+    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(tmp_path)],
+                       validation={"v": str(tmp_path)}, out=str(tmp_path / "ei"), rounds=1,
+                       init_guide=str(init), workers=1)
+    logs: list[str] = []
+    rows = expert_iteration(cfg, log=logs.append)
+    assert scored == {"round_0": ProposalSettings(), "round_1": ProposalSettings()}
+    assert [r["validation"] for r in rows] == [0.5, 0.544]
+    assert rows[0]["teacher"] == "initial guide (scored untuned)"
+    assert rows[0]["guide"] == str(init) and teachers == [str(init)]  # the tuned file teaches
+    assert (tmp_path / "ei" / "best.onnx").read_bytes() == round_1.read_bytes()
+    assert "proposes with T=1,Tc=0.3,ess=0.3 (ngpmc tune); scored with the default" in logs[0]
+    # an untuned initial guide is scored as it is, with no copy
+    plain = with_settings(bundled.guide_path(), tmp_path / "plain.onnx", ProposalSettings())
+    rows = expert_iteration(replace(cfg, init_guide=str(plain), out=str(tmp_path / "p")),
+                            log=lambda _m: None)
+    assert rows[0]["teacher"] == "initial guide"
+    assert not (tmp_path / "p" / "round_0" / "untuned.onnx").exists()

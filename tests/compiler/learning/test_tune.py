@@ -252,3 +252,23 @@ def test_cli_tune_and_its_errors(tmp_path: Path, capsys) -> None:
                  "--validate", f"v={val}"])
     err = capsys.readouterr().err
     assert code != 0 and "t0.png" in err and "Traceback" not in err
+
+
+def test_cli_tune_counts_the_targets_of_a_set_of_12(tmp_path: Path, monkeypatch,
+                                                    capsys) -> None:
+    """Issue 23: `ngpmc tune` printed "36 targets per set" (the --targets default) for sets
+    of 12. The runs are faked (similarity 0.5): only the count is checked."""
+    from ngpm_compiler.evaluation.runs import RunResult
+
+    val = bars(tmp_path / "v", n=12)
+
+    def fake_runs(grammar, targets, guides, tasks, on_result=None, **_kw):
+        for t in tasks:
+            on_result(RunResult(t, targets[t.dataset][t.target].name, 0.5, 0.01, []))
+
+    monkeypatch.setattr(heldout, "run_tasks", fake_runs)
+    assert main(["tune", VINES, str(bundled.guide_path()), "--validate", f"v={val},w={val}",
+                 "-o", str(tmp_path / "g.onnx"), "--choice-temperatures", "0.5", "--ess",
+                 "none", "--repeats", "1"]) == 0
+    (head,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("Guided")]
+    assert head.startswith("Guided SMC, N = 10, 12 targets per set, 1 runs each")
