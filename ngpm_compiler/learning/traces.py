@@ -318,15 +318,11 @@ def _do_job(args: tuple[int, ...]) -> tuple[dict[str, np.ndarray], float]:
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Any]) -> dict[str, Any]:
-    key = {"grammar_hash": program.grammar_hash, "grammar": program.name,
-           "targets": [t.name for t in targets], "particles": cfg.particles,
-           "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
-           "min_primitives": cfg.min_primitives}
-    if cfg.max_modules is not None:  # only when set: older traces directories still resume
-        key["max_modules"] = cfg.max_modules
-    if cfg.guide is not None:  # unguided directories keep the key they always had
-        key["guide"] = _file_hash(cfg.guide)
-    return key
+    return {"grammar_hash": program.grammar_hash, "grammar": program.name,
+            "targets": [t.name for t in targets], "particles": cfg.particles,
+            "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
+            "min_primitives": cfg.min_primitives, "max_modules": cfg.max_modules,
+            "guide": _file_hash(cfg.guide)}
 
 
 def _file_hash(path: str | None) -> str | None:

@@ -84,7 +84,7 @@ def test_guided_traces_directory_records_the_guide(tmp_path):
     m = generate_traces(cfg, tmp_path / "traces", progress=False)
     assert m["kept"] == 2 and len(m["key"]["guide"]) == 64
     unguided = TraceConfig(grammar=GRAMMAR, targets=str(d), n=1, particles=5, workers=1)
-    assert "guide" not in generate_traces(unguided, tmp_path / "u", progress=False)["key"]
+    assert generate_traces(unguided, tmp_path / "u", progress=False)["key"]["guide"] is None
     ts = merge_traces([load_traces(tmp_path / "traces"), load_traces(tmp_path / "u")])
     assert len(ts.kept_jobs) == 3 and (ts.kept_jobs >= JOB_STRIDE).sum() == 1
     # `ngpmc train` takes several directories
@@ -92,12 +92,13 @@ def test_guided_traces_directory_records_the_guide(tmp_path):
     assert main(["train", f"{tmp_path / 'traces'},{tmp_path / 'u'}", "-o", str(out),
                  "--epochs", "1"]) == 0
     assert load_model(out).summary["traces"] == 3
-    # traces of an older ngpm (no context columns) do not mix with new ones
-    old = load_traces(tmp_path / "u")
-    old.layouts = {i: {g: sl for g, sl in lay.items() if g != "context"}
-                   for i, lay in old.layouts.items()}
-    with pytest.raises(TraceError, match="feature layouts"):
-        merge_traces([load_traces(tmp_path / "traces"), old])
+    # traces of other feature layouts (another feature definition) do not mix
+    other = load_traces(tmp_path / "u")
+    other.layouts = {i: {**lay, "context": slice(lay["context"].start, lay["context"].stop - 1)}
+                     for i, lay in other.layouts.items()}
+    with pytest.raises(TraceError, match="traces with different feature layouts cannot be "
+                                         "merged$"):
+        merge_traces([load_traces(tmp_path / "traces"), other])
 
 
 def small_rounds(tmp_path, d, rounds: int, val_targets: int) -> RoundsConfig:
