@@ -10,8 +10,7 @@ runs, which do not depend on the guide, are measured once), and a guide, target 
 changed under the same name is run again, never served from the cache. Files written:
 - heldout_runs.csv    one row per SMC run (runs.RUN_FIELDS, then guide_sha, target_sha,
                       grammar_sha: the first 16 hex digits of sha256; guide_sha is empty for
-                      unguided runs; rows of an older ngpm have all three empty: kept in
-                      the file, never reused)
+                      unguided runs)
 - heldout.csv         per set, model and N: mean of per-target medians, 95% CI, seconds
 - heldout.md          the table: guided N = 10 vs unguided N, crossing N, losses per target
 """
@@ -128,7 +127,7 @@ def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dic
     targets = load_sets(sets, k)
     tasks = heldout_tasks(targets, list(guides), guided_n, unguided_ns, repeats, seed)
     ids = run_ids(tasks, targets, grammar, guides)
-    have = {_key(r): r for r in read_runs(runs_path, HELDOUT_FIELDS, RUN_FIELDS, log)}
+    have = {_key(r): r for r in read_runs(runs_path, HELDOUT_FIELDS, log)}
     todo = [t for t in tasks if _key(ids[t]) not in have]
     log(f"held-out: {len(tasks)} runs, {len(todo)} to do")
     if todo:

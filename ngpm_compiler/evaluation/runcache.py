@@ -4,8 +4,7 @@ Each run is appended as one line the moment it finishes (one write, flushed): a 
 process loses at most the runs in flight. A kill can still cut the last line short; a file
 that does not end with a newline has its last record dropped (never read as a shorter
 number), and so are records with missing fields or unreadable numbers. Before appending,
-such a file is rewritten atomically without them, in the current columns; rows of an older
-header keep their values and leave the new columns empty.
+such a file is rewritten atomically without them. A file with other columns is not read.
 """
 
 from __future__ import annotations
@@ -24,11 +23,10 @@ INTS = ("n", "repeat", "seed", "primitives")  # columns that must read as number
 FLOATS = ("similarity", "seconds")
 
 
-def read_runs(path: str | Path, fields: tuple[str, ...], required: tuple[str, ...],
-              log: Log = print) -> list[dict[str, str]]:
-    """The readable rows of `path` (none if it is missing) with every column of `fields`,
-    after rewriting the file if it holds a torn or bad line or another header. `required`:
-    the columns a file must have to be a runs file at all."""
+def read_runs(path: str | Path, fields: tuple[str, ...], log: Log = print
+              ) -> list[dict[str, str]]:
+    """The readable rows of `path` (none if it is missing), whose columns must be `fields`,
+    after rewriting the file if it holds a torn or bad line."""
     path = Path(path)
     if not path.is_file():
         write_csv(path, [], fields)
@@ -44,26 +42,23 @@ def read_runs(path: str | Path, fields: tuple[str, ...], required: tuple[str, ..
     if not records:  # empty, or only a torn header
         write_csv(path, [], fields)
         return []
-    header = records[0]
-    if not set(required) <= set(header):
-        raise NgpmError(f"{path}: not a runs file (its header lacks "
-                        f"{', '.join(sorted(set(required) - set(header)))}); move it away")
-    rows = [r for r in (_row(header, rec, fields) for rec in records[1:]) if r is not None]
+    if tuple(records[0]) != fields:
+        raise NgpmError(f"{path}: not a runs file (its columns are not "
+                        f"{','.join(fields)}); move it away")
+    rows = [r for r in (_row(rec, fields) for rec in records[1:]) if r is not None]
     dropped = len(records) - 1 - len(rows) + torn
-    if dropped or tuple(header) != fields:
-        if dropped:
-            log(f"{path}: dropped {dropped} unreadable line(s) (a run cut off by an "
-                "interrupt, or an edit)")
+    if dropped:
+        log(f"{path}: dropped {dropped} unreadable line(s) (a run cut off by an "
+            "interrupt, or an edit)")
         write_csv(path, rows, fields)
     return rows
 
 
-def _row(header: list[str], record: list[str], fields: tuple[str, ...]
-         ) -> dict[str, str] | None:
+def _row(record: list[str], fields: tuple[str, ...]) -> dict[str, str] | None:
     """One record as {field: text}, or None if it has the wrong length or bad numbers."""
-    if len(record) != len(header):
+    if len(record) != len(fields):
         return None
-    got = dict(zip(header, record, strict=True))
+    got = dict(zip(fields, record, strict=True))
     try:
         for f in INTS:
             if f in got:
@@ -73,7 +68,7 @@ def _row(header: list[str], record: list[str], fields: tuple[str, ...]
                 float(got[f])
     except ValueError:
         return None
-    return {f: got.get(f, "") for f in fields}
+    return got
 
 
 def csv_line(row: dict[str, Any], fields: tuple[str, ...]) -> str:

@@ -9,6 +9,7 @@ import re
 from dataclasses import dataclass, field, replace
 
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
+from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.program import Site, prior_problem
 
 from ngpm_compiler.language.errors import ErrorSink, GrammarError
@@ -534,7 +535,7 @@ class Checker:
                         counts[kind] = n + 1
                         found.append(((node.line, node.col, 1), Site(
                             index=-1, id=f"{prefix}/{kind}{n}", kind=kind,
-                            k=len(node.args) if kind == "categorical" else 2,
+                            k=len(node.args) if KINDS[kind].weighted else 2,
                             name=shorten(f"{node.text} in {module}", False), module=module,
                             arity=arity, line=node.line, col=node.col,
                             source=shorten(node.text, False)), node))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import textwrap
 
+from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.program import HEADER_END, HEADER_START, PROTOCOL, Site
 
 from ngpm_compiler.language.checker import Alt, Checked, Group, Resolved, RuleSet
@@ -135,7 +136,7 @@ class ModuleWriter:
     def site(self, s: Site) -> list[str]:
         items = [f"index={q(s.index)}", f"id={q(s.id)}", f"kind={q(s.kind)}",
                  f"name={q(s.name)}", f"module={q(s.module)}", f"arity={q(s.arity)}"]
-        if s.kind == "categorical":
+        if KINDS[s.kind].weighted:  # k: the number of weights
             items.append(f"k={q(s.k)}")
         if s.probs is not None:
             items.append("probs=" + q(tuple(float(p) for p in s.probs)))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from ngpm_runtime.inference.sitekinds import KINDS
+
 from ngpm_compiler.language.nodes import Binary, Call, Expr, Num, Unary, Var
 from ngpm_compiler.language.tables import (
     BOOL_OPS,
@@ -115,7 +117,7 @@ class ExprPrinter:
         if expr.name in RANDOM_CALLS:
             kind = RANDOM_CALLS[expr.name][0]
             site = q(self.sites[id(expr)])
-            if kind == "categorical":
+            if KINDS[kind].weighted:  # the weights go as one tuple
                 return f"ctx.categorical({site}, ({', '.join(args)}))"
             return f"ctx.{kind}({site}, {', '.join(args)})"
         return FUNC_TEMPLATES[expr.name](args)

@@ -68,8 +68,7 @@ def merge_traces(sets: list[TraceSet]) -> TraceSet:
         if ts.manifest["grammar_hash"] != first.manifest["grammar_hash"]:
             raise TraceError("traces of different grammars cannot be merged")
         if ts.layouts != first.layouts:
-            raise TraceError("traces with different feature layouts cannot be merged (some "
-                             "were recorded by an older ngpm, without the context columns)")
+            raise TraceError("traces with different feature layouts cannot be merged")
     data: dict[int, SiteData] = {}
     for k, ts in enumerate(sets):
         for site, d in ts.data.items():

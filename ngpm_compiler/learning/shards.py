@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.image.features import FEATURE_GROUPS
 from ngpm_runtime.program import SITE_KINDS
 
 JOB_ARRAYS = {"jobs": np.int64, "kept": np.bool_, "n_prims": np.int64, "target": np.int64,
@@ -32,6 +33,7 @@ MANIFEST_FIELDS = {"format": str, "key": dict, "grammar_hash": str, "sites": lis
 MANIFEST_OPTIONAL = {"config": dict, "requested": int, "kept": int, "dropped": int,
                      "failed": int, "jobs_done": int, "seconds": float, "job_seconds": list,
                      "shards": list}
+LAYOUT_GROUPS = FEATURE_GROUPS["all+context"]  # the column groups traces record, every set's
 
 
 class TraceError(NgpmError):
@@ -169,7 +171,7 @@ def _is(value: Any, kind: type) -> bool:
 
 def _check_sites(path: Path, sites: list[Any], layouts: dict[str, Any]) -> None:
     """Every site entry has an index, id and kind, and one layout of [start, stop] column
-    ranges with a "local" group; no layout belongs to no site."""
+    ranges with every group of LAYOUT_GROUPS; no layout belongs to no site."""
     indices = []
     for n, s in enumerate(sites):
         if not (isinstance(s, dict) and _is(s.get("index"), int)
@@ -181,12 +183,13 @@ def _check_sites(path: Path, sites: list[Any], layouts: dict[str, Any]) -> None:
         raise TraceError(f"{path}: corrupt manifest: 'layouts' has sites "
                          f"{sorted(layouts)}, 'sites' has {sorted(indices)}")
     for i, lay in layouts.items():
-        ok = isinstance(lay, dict) and "local" in lay and all(
+        ok = isinstance(lay, dict) and all(g in lay for g in LAYOUT_GROUPS) and all(
             isinstance(r, list) and len(r) == 2 and all(_is(x, int) for x in r)
             and r[0] <= r[1] for r in lay.values())
         if not ok:
             raise TraceError(f"{path}: corrupt manifest: 'layouts' entry {i!r} is not a set "
-                             "of [start, stop] column ranges with a 'local' group")
+                             f"of [start, stop] column ranges of the groups "
+                             f"{', '.join(LAYOUT_GROUPS)}")
 
 
 def layout_widths(layouts: dict[int, dict[str, slice]]) -> dict[int, int]:

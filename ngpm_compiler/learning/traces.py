@@ -161,7 +161,9 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     key = _config_key(cfg, program, targets)
     old = store.manifest()
     if old is not None and old.get("key") != key:
-        diff = sorted(k for k in key if old.get("key", {}).get(k) != key[k])
+        theirs = old.get("key", {})
+        diff = sorted(k for k in {*key, *theirs}  # a key missing on one side differs too
+                      if (k in key, key.get(k)) != (k in theirs, theirs.get(k)))
         raise TraceError(f"{store.dir}: holds traces of another configuration "
                          f"(differs in {', '.join(diff)}); use a new directory")
     done = store.finished()

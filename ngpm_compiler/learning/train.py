@@ -109,8 +109,8 @@ def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
         if len(rows) == 0:
             rows = d.features
         sel = rows[:, cols].astype(np.float64)
-        # rows end at the context group only for guides that read it: the others take the
-        # rows of older traces (and the runtime does not compute context for them)
+        # rows end at the context group only for guides that read it: the runtime computes
+        # context columns for those alone
         last = "context" if "context" in FEATURE_GROUPS[config.feature_set] else "partial"
         n_f = layouts[site.index][last].stop
         spec = NetSpec(site_index=site.index, kind=site.kind, n_f=n_f,

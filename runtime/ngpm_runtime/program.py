@@ -182,8 +182,8 @@ def _read_sampler(path: Path) -> str:
 
 def _check_header(path: Path, code: str) -> None:
     """ProgramError, before anything runs, unless the code starts with ngpmc's header, with
-    the path escaped as ngpmc escapes it (no bare quote: an older ngpmc pasted it unescaped,
-    so a crafted file name could end the docstring)."""
+    the path escaped as ngpmc escapes it (no bare quote, so no file name ends the docstring
+    and runs the rest of the line)."""
     first = code.split("\n", 1)[0].rstrip("\r")
     if not (first.startswith(HEADER_START) and first.endswith(HEADER_END)
             and _ESCAPED.fullmatch(first[len(HEADER_START):len(first) - len(HEADER_END)])):

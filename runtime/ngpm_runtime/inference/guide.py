@@ -121,7 +121,7 @@ class Guide:
         self.path = path
         self.meta = meta
         self.nets: dict[int, dict[str, Any]] = {int(k): v for k, v in meta["nets"].items()}
-        self.feature_set: str = meta["features"].get("feature_set", "all")
+        self.feature_set: str = meta["features"]["feature_set"]
         self.uses_features = self.feature_set != "const"
         self.feature_context = "context" in self.feature_set.split("+")
         self.K = int(meta["K"])

@@ -33,9 +33,9 @@ MAX_WEIGHT = 1e12  # |float parameter|; export's are far smaller (inputs scale b
 MAX_INT = 1_000_000  # |integer constant|: column indices and widths
 JSON_KEYS = ("sites", "features", "nets", "training")
 GROUPS = ("local", "target", "partial", "context")
-# the operators `ngpmc export` writes (Sub: older exports); all cost linear time
-GUIDE_OPS = frozenset({"Gather", "Gemm", "Tanh", "Mul", "Sub", "Slice", "LogSoftmax",
-                       "Softmax", "Sigmoid", "Concat", "Shape", "Expand"})
+# the operators `ngpmc export` writes; all cost linear time
+GUIDE_OPS = frozenset({"Gather", "Gemm", "Tanh", "Mul", "Slice", "LogSoftmax", "Softmax",
+                       "Sigmoid", "Concat", "Shape", "Expand"})
 PROBE_ROWS = 5
 TOL = 1e-3  # on the sums of probabilities and of mixture weights
 

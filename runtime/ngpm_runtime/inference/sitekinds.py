@@ -6,8 +6,8 @@ guide network's output (`n_out`, `columns`, `head`: the network's last operation
 (`proposal_sample`, `proposal_logpdf`, `proposal_draw`), its tempering (`temper`), what
 valid outputs are (`output_problem`) and the networks' training targets (`to_z`). The
 runtime (program.py, distributions.py, smc.py, proposals.py, guide.py, guide_checks.py) and
-the compiler (learning/nets.py, learning/export.py) ask this table instead of switching on
-kind names; a new kind is one more entry here.
+the compiler (language/checker.py, expr.py, codegen.py; learning/nets.py, export.py) ask
+this table instead of switching on kind names; a new kind is one more entry here.
 
 Arrays are batched over `n` particles: `args` is `(n, n_args)` float64, `params` `(n,
 n_out)` (guide outputs), `values` `(n,)` float64. Log densities are float64; impossible

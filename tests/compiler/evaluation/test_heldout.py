@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from fixtures.interrupt import interrupt_after
 from ngpm_runtime import bundled
+from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.image.targets import Target, save_target
 from repo_paths import REPO
 
@@ -107,8 +108,9 @@ def test_changed_targets_are_not_served_from_the_cache(tmp_path):
                                            **kw))
 
 
-def test_an_older_cache_is_kept_but_not_reused(tmp_path):
-    """Rows without content hashes (an older ngpm's) stay in the file, never served."""
+def test_a_runs_file_of_other_columns_is_a_one_line_error(tmp_path):
+    """A heldout_runs.csv without the content-hash columns (as docs/results' copy) is
+    refused in one line and left as it is, never mixed with new runs."""
     d = _demo_set(tmp_path / "set", n=1)
     grammar = str(REPO / "grammars" / "vines.lsys")
     out = tmp_path / "out"
@@ -116,10 +118,10 @@ def test_an_older_cache_is_kept_but_not_reused(tmp_path):
     old = "model,dataset,target,n,repeat,seed,similarity,seconds,primitives\n"
     old += f"unguided,demo,{bundled.demo_targets()[0].name},3,0,1,0.99,0.1,5\n"
     (out / "heldout_runs.csv").write_text(old)
-    logs: list[str] = []
-    run_heldout(out, grammar, {"demo": str(d)}, {}, k=1, repeats=1, guided_n=3,
-                unguided_ns=(), workers=1, log=logs.append)
-    assert logs == ["held-out: 1 runs, 1 to do"]
-    lines = (out / "heldout_runs.csv").read_text().splitlines()
-    assert lines[0].endswith(",guide_sha,target_sha,grammar_sha") and len(lines) == 3
-    assert lines[1].endswith(",0.99,0.1,5,,,")
+    with pytest.raises(NgpmError) as err:
+        run_heldout(out, grammar, {"demo": str(d)}, {}, k=1, repeats=1, guided_n=3,
+                    unguided_ns=(), workers=1, log=lambda _m: None)
+    message = str(err.value)
+    assert message.startswith(f"{out / 'heldout_runs.csv'}: not a runs file (its columns")
+    assert "grammar_sha" in message and "\n" not in message
+    assert (out / "heldout_runs.csv").read_text() == old

@@ -1,5 +1,5 @@
 """The context feature group end to end: traces record it, `all+context` guides read it,
-`all` guides trained on the same traces read rows without it (like every older guide)."""
+`all` guides trained on the same traces read rows without it."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from ngpm_runtime.inference.smc import TraceRecording
 
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.export import write_onnx
-from ngpm_compiler.learning.nets import select_columns
 from ngpm_compiler.learning.trace_data import load_traces
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.learning.train import TrainConfig, train_guide
@@ -64,10 +63,3 @@ def test_guides_with_and_without_context(traces, feature_set) -> None:
     # seeded runs repeat
     again = grow(program, target, guide, 6, seed=2)
     assert again.similarity == res.similarity
-
-
-def test_context_needs_traces_that_have_it() -> None:
-    old = {"local": slice(0, 9), "target": slice(9, 45), "partial": slice(45, 81)}
-    assert len(select_columns(old, "all")) == 81
-    with pytest.raises(ValueError, match="record new ones"):
-        select_columns(old, "all+context")

@@ -89,12 +89,13 @@ def test_guided_traces_directory_records_the_guide(tmp_path):
     assert main(["train", f"{tmp_path / 'traces'},{tmp_path / 'u'}", "-o", str(out),
                  "--epochs", "1"]) == 0
     assert load_model(out).summary["traces"] == 3
-    # traces of an older ngpm (no context columns) do not mix with new ones
-    old = load_traces(tmp_path / "u")
-    old.layouts = {i: {g: sl for g, sl in lay.items() if g != "context"}
-                   for i, lay in old.layouts.items()}
-    with pytest.raises(TraceError, match="feature layouts"):
-        merge_traces([load_traces(tmp_path / "traces"), old])
+    # traces of other feature layouts (another feature definition) do not mix
+    other = load_traces(tmp_path / "u")
+    other.layouts = {i: {**lay, "context": slice(lay["context"].start, lay["context"].stop - 1)}
+                     for i, lay in other.layouts.items()}
+    with pytest.raises(TraceError, match="traces with different feature layouts cannot be "
+                                         "merged$"):
+        merge_traces([load_traces(tmp_path / "traces"), other])
 
 
 def small_rounds(tmp_path, d, rounds: int, val_targets: int) -> RoundsConfig:

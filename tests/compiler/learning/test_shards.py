@@ -180,6 +180,12 @@ MANIFEST_CASES = {
     "layout not ranges": (lambda m: {**m, "layouts": {"0": {"local": [5, 1]}}},
                           "corrupt manifest: 'layouts' entry '0' is not a set of [start, "
                           "stop] column ranges"),
+    "layout without context": (lambda m: {**m, "layouts": {i: {g: r for g, r in lay.items()
+                                                              if g != "context"}
+                                                          for i, lay in m["layouts"].items()}},
+                               "corrupt manifest: 'layouts' entry '0' is not a set of [start, "
+                               "stop] column ranges of the groups local, target, partial, "
+                               "context"),
 }
 
 

@@ -123,6 +123,15 @@ def test_resume_refuses_other_configuration(tmp_path):
     cfg.particles = 5
     with pytest.raises(TraceError, match="particles"):
         generate_traces(cfg, tmp_path / "t", progress=False)
+    # a key without the fields it always has now (max_modules, guide: None when unset)
+    cfg.particles = 4
+    manifest = tmp_path / "t" / "manifest.json"
+    m = json.loads(manifest.read_text())
+    m["key"] = {k: v for k, v in m["key"].items() if k not in ("max_modules", "guide")}
+    manifest.write_text(json.dumps(m))
+    with pytest.raises(TraceError, match=r"another configuration \(differs in guide, "
+                                         r"max_modules\); use a new directory"):
+        generate_traces(cfg, tmp_path / "t", progress=False)
     with pytest.raises(TraceError, match="not a traces directory"):
         load_traces(tmp_path / "data")
 

@@ -4,6 +4,7 @@ proposal densities, tempering and the networks' training targets."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -116,3 +117,20 @@ def test_the_table_answers_for_the_api() -> None:
     with pytest.raises(ValueError, match="unknown site kind"):
         dist.temper("poisson", np.zeros((2, 1)), 2.0, 2.0)
     assert prior_problem("bernoulli", (1.5,)) == KINDS["bernoulli"].args_problem([1.5], False)
+
+
+def test_no_module_switches_on_kind_names() -> None:
+    """The runtime and the compiler ask KINDS what a kind is (`.weighted`, `.head`, ...)
+    instead of comparing kind names; only the table itself names the kinds' parts."""
+    names = "|".join(SITE_KINDS)
+    switch = re.compile(rf"""kind\)?\s*(==|!=|\bin\b)\s*[(\[{{]?\s*["']({names})["']""")
+    found = []
+    for root in (REPO / "ngpm_compiler", REPO / "runtime" / "ngpm_runtime"):
+        for path in sorted(root.rglob("*.py")):
+            if path.name == "sitekinds.py":
+                continue
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+                if switch.search(line):
+                    found.append(f"{path.relative_to(REPO)}:{n}: {line.strip()}")
+    assert not found, "\n".join(found)
+    assert switch.search('if s.kind == "categorical":')  # the pattern finds a switch
