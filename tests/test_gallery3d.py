@@ -1,9 +1,12 @@
-"""docs/img/3d holds a picture of every shipped 3D grammar, written by scripts/gallery3d.py
-(docs/3d.md shows them); the script draws what `ngpmc sample` draws."""
+"""docs/img/3d holds a picture of every shipped 3D grammar, written by scripts/gallery3d.py;
+the script draws what `ngpmc sample` draws; docs/3d.md shows them, and its commands parse and
+its counts are true."""
 
 from __future__ import annotations
 
 import importlib.util
+import re
+import shlex
 from pathlib import Path
 from types import ModuleType
 
@@ -76,3 +79,42 @@ def test_the_script_writes_and_checks_pictures(gallery: ModuleType, tmp_path: Pa
     with pytest.raises(SystemExit):
         gallery.main(["--only", "vines"])  # 2D: not in the gallery
     assert "not a shipped 3D grammar: vines" in capsys.readouterr().err
+
+
+DOC = (REPO / "docs" / "3d.md").read_text(encoding="utf-8")
+
+
+def test_docs_3d_commands_parse_and_links_exist() -> None:
+    from ngpm_compiler.cli import build_parser
+
+    lines = re.findall(r"`(ngpmc [^`]+)`", DOC)
+    lines += [ln.split("#")[0].strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S)
+              for ln in block.splitlines()]
+    lines = [ln for ln in lines if ln.startswith("ngpmc sample ") and "NAME" not in ln]
+    assert len(lines) >= 8
+    for line in lines:
+        args = build_parser().parse_args(shlex.split(line)[1:])
+        assert args.handler, line
+        if args.grammar.startswith("grammars/"):
+            assert (REPO / args.grammar).is_file(), line
+    for link in re.findall(r"\]\(([^)#]+)\)", DOC):
+        assert (REPO / "docs" / link).resolve().exists(), link
+    for path in sorted(PICTURES.glob("*.png")):
+        assert f"](img/3d/{path.name})" in DOC, f"docs/3d.md does not show {path.name}"
+
+
+def test_docs_3d_counts_are_those_of_seed_0() -> None:
+    """The table's primitive and triangle counts are what `ngpmc sample` prints."""
+    from ngpm_runtime import mesh_from_primitives
+    from ngpm_runtime.inference.smc import forward
+
+    from ngpm_compiler.language.compile import compile_grammar
+
+    rows = re.findall(r"\[`(\w+)\.lsys`\].*?([\d,]+) primitives(?:, ([\d,]+) triangles)?", DOC)
+    assert {r[0] for r in rows} >= {"bush3d", "plant3d", "tree3d"}
+    for name, prims, tris in rows:
+        got = forward(compile_grammar(REPO / "grammars" / f"{name}.lsys").program(),
+                      seed=0).primitives
+        assert len(got) == int(prims.replace(",", "")), name
+        if tris:
+            assert len(mesh_from_primitives(got).faces) == int(tris.replace(",", "")), name
