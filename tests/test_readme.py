@@ -125,3 +125,22 @@ def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
     for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx",
                 f"out/{stem}_tuned.onnx"):
         assert (tmp_path / out).is_file(), out
+
+
+def test_readme_3d_commands_run(tmp_path: Path, monkeypatch) -> None:
+    """The 3D section's commands, run as written in a folder holding the grammars."""
+    import shutil
+
+    from ngpm_compiler.cli import main
+
+    section = README[README.index("## 3D"):]
+    section = section[:section.index("\n## ")]
+    lines = [shlex.split(ln)[1:] for b in blocks("bash", section) for ln in commands(b)]
+    assert len(lines) >= 2 and all(argv[0] == "sample" for argv in lines)
+    shutil.copytree(REPO / "grammars", tmp_path / "grammars")
+    monkeypatch.chdir(tmp_path)
+    for argv in lines:
+        assert main(argv) == 0, argv
+    for name in ("tree.glb", "tree.png", "tree.obj", "turn.gif"):
+        assert (tmp_path / name).stat().st_size > 1000, name
+    assert "newmtl bark" in (tmp_path / "tree.mtl").read_text()

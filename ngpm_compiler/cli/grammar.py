@@ -168,7 +168,7 @@ def check_sample_outputs(args: argparse.Namespace, suffix: str, three_d: bool) -
             raise NgpmError(f"{' and '.join(extra)}: for 3D grammars; {args.grammar} is 2D")
     elif suffix == ".svg":
         raise NgpmError(f"{args.out}: SVG output is for 2D grammars; {args.grammar} is 3D "
-                        "(write .png, .glb, .obj or .ply)")
+                        "(write .glb, .obj, .ply, or a .png picture: --view 0,0 looks from +Z)")
 
 
 def save_3d(args: argparse.Namespace, prims: list) -> str:

@@ -89,6 +89,10 @@ def load_config(grammar: str | None = None, guide: str | None = None,
             vines.guides.clear()
         return WebConfig(choices, limits or Limits())
     program = _load_grammar(grammar)
+    if program.dim != 2:
+        raise NgpmError(f"{grammar} is a 3D grammar: the page grows 2D grammars into pictures; "
+                        f"see a 3D grammar with `ngpmc sample {grammar} -o tree.glb --png "
+                        "tree.png`")
     mine = GrammarChoice("cli", f"{program.name or Path(grammar).stem} ({Path(grammar).name})",
                          "command line", program)
     if program.viewport is None:

@@ -520,6 +520,12 @@ def test_serve_command_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -
     assert "argument --port: must be from 0 to 65535" in capsys.readouterr().err
     assert main(["serve", "--grammar", "nope.lsys"]) == 1
     assert "nope.lsys: no such grammar file" in capsys.readouterr().err
+    tree = str(REPO / "grammars" / "tree3d.lsys")
+    assert main(["serve", "--grammar", tree, "--guide", "none"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "tree3d.lsys is a 3D grammar" in err
+    assert "grows 2D grammars into pictures" in err
+    assert f"`ngpmc sample {tree} -o tree.glb --png tree.png`" in err
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen(1)
