@@ -33,18 +33,30 @@ def main() -> None:
     runs: dict[str, dict[str, list]] = {"before": {}, "after": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
-            for which in (("before", "after") if r % 2 == 0 else ("after", "before")):
+            for which in ("before", "after") if r % 2 == 0 else ("after", "before"):
                 env = dict(os.environ)
                 if which == "before":
                     env["PYTHONPATH"] = str(Path(args.old).resolve())
                 out = Path(tmp) / f"{which}{r}.json"
-                subprocess.run([sys.executable, str(HERE / "smc.py"), "--seeds",
-                                str(args.seeds), "--json", str(out)], env=env, check=True,
-                               stdout=subprocess.DEVNULL)
+                subprocess.run(
+                    [
+                        sys.executable,
+                        str(HERE / "smc.py"),
+                        "--seeds",
+                        str(args.seeds),
+                        "--json",
+                        str(out),
+                    ],
+                    env=env,
+                    check=True,
+                    stdout=subprocess.DEVNULL,
+                )
                 for label, rs in json.loads(out.read_text()).items():
                     runs[which].setdefault(label, []).extend(rs)
-    print(f"CPU ms per SMC step, median over {args.rounds} rounds of the step table "
-          "(before and after in turn)")
+    print(
+        f"CPU ms per SMC step, median over {args.rounds} rounds of the step table "
+        "(before and after in turn)"
+    )
     print(f"{'':16s} {'before':>8s} {'after':>8s}   similarity before/after")
     med = {}
     for label in runs["after"]:
@@ -53,8 +65,10 @@ def main() -> None:
             rs = runs[which][label]
             med[which, label] = statistics.median(1000 * x["cpu"] / x["steps"] for x in rs)
             row.append(statistics.mean(x["sim"] for x in rs))
-        print(f"{label:16s} {med['before', label]:8.3f} {med['after', label]:8.3f}   "
-              f"{row[0]:.3f} / {row[1]:.3f}")
+        print(
+            f"{label:16s} {med['before', label]:8.3f} {med['after', label]:8.3f}   "
+            f"{row[0]:.3f} / {row[1]:.3f}"
+        )
     for which in ("before", "after"):
         ratio = med[which, "guided N=10"] / med[which, "unguided N=10"]
         print(f"guided N=10 / unguided N=10, {which}: {ratio:.2f}x")

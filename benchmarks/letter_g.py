@@ -60,9 +60,12 @@ def targets() -> dict[str, Target]:
     sketch = sketched_g()
     a = np.radians(330.0)  # Pillow's arc angles run clockwise from 3 o'clock (y down)
     pen = (0.5 + 0.36 * np.cos(a), 0.5 + 0.36 * np.sin(a), np.sin(a), -np.cos(a))
-    out = {"sketched G": Target(sketch, auto_start(sketch), "sketched G"),
-           "sketched G, pen start": Target(sketch, tuple(float(v) for v in pen),
-                                           "sketched G, pen start")}
+    out = {
+        "sketched G": Target(sketch, auto_start(sketch), "sketched G"),
+        "sketched G, pen start": Target(
+            sketch, tuple(float(v) for v in pen), "sketched G, pen start"
+        ),
+    }
     fonts = {"DejaVu Sans Bold G": Path(ImageFont.truetype("DejaVuSans-Bold.ttf", 10).path)}
     if Z003.is_file():
         fonts["URW Z003 G"] = Z003
@@ -74,8 +77,12 @@ def targets() -> dict[str, Target]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--guide", action="append", default=[],
-                    help="NAME=PATH of a guide .onnx (repeatable; default: the bundled one)")
+    ap.add_argument(
+        "--guide",
+        action="append",
+        default=[],
+        help="NAME=PATH of a guide .onnx (repeatable; default: the bundled one)",
+    )
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("-N", type=int, default=10, help="particles (default 10)")
     ap.add_argument("--fill", type=float, default=0.5, help="coverage that counts as filled")
@@ -96,19 +103,22 @@ def main() -> None:
                 covered = (res.image > 0) & target.mask
                 sims.append(res.similarity)
                 covs.append(covered.sum() / target.mask.sum())
-                row.append(render_array(res.primitives, program.viewport, 150,
-                                        target_mask=target.mask))
+                row.append(
+                    render_array(res.primitives, program.viewport, 150, target_mask=target.mask)
+                )
             tiles.append(row)
             filled = sum(c >= args.fill for c in covs)
             runs = " ".join(f"{s:.2f}/{c:.2f}" for s, c in zip(sims, covs, strict=True))
-            print(f"| {gname} | {tname} | {runs} | {filled} of {args.seeds} | "
-                  f"{np.mean(sims):.3f} | {np.mean(covs):.3f} |")
+            print(
+                f"| {gname} | {tname} | {runs} | {filled} of {args.seeds} | "
+                f"{np.mean(sims):.3f} | {np.mean(covs):.3f} |"
+            )
     if args.out:
         h, w, _ = tiles[0][0].shape
         grid = np.full((len(tiles) * (h + 4), args.seeds * (w + 4), 3), 255, dtype=np.uint8)
         for r, row in enumerate(tiles):
             for c, tile in enumerate(row):
-                grid[r * (h + 4):r * (h + 4) + h, c * (w + 4):c * (w + 4) + w] = tile
+                grid[r * (h + 4) : r * (h + 4) + h, c * (w + 4) : c * (w + 4) + w] = tile
         Image.fromarray(grid).save(args.out)
         print(f"grid: {args.out} (rows: guide x target, columns: seeds)")
 

@@ -66,10 +66,17 @@ def library_rows(mesh: Mesh, out: Path, repeat: int) -> None:
             continue
         folder = Path(spec.origin).parent
         size = sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
-        code = f"import time; t = time.perf_counter(); import {name}; " \
-               "print(time.perf_counter() - t)"
-        took = min(float(subprocess.run([sys.executable, "-c", code], capture_output=True,
-                                        text=True, check=True).stdout) for _ in range(repeat))
+        code = (
+            f"import time; t = time.perf_counter(); import {name}; print(time.perf_counter() - t)"
+        )
+        took = min(
+            float(
+                subprocess.run(
+                    [sys.executable, "-c", code], capture_output=True, text=True, check=True
+                ).stdout
+            )
+            for _ in range(repeat)
+        )
         print(f"{name}: {size / 1e6:.1f} MB installed (its own folder), import {took:.2f} s")
     if util.find_spec("trimesh") is not None:
         import trimesh
@@ -87,16 +94,24 @@ def main() -> None:
     args = ap.parse_args()
     prims = plant(args.segments)
     mesh = mesh_from_primitives(prims)
-    print(f"{args.segments} segments, {len(prims) - args.segments} leaves -> "
-          f"{len(mesh.vertices)} vertices, {len(mesh.faces)} triangles")
+    print(
+        f"{args.segments} segments, {len(prims) - args.segments} leaves -> "
+        f"{len(mesh.vertices)} vertices, {len(mesh.faces)} triangles"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         rows = [("mesh_from_primitives", lambda: mesh_from_primitives(prims))]
-        rows += [(f"write .{s}", lambda s=s: mesh.save(out / f"plant.{s}"))
-                 for s in ("glb", "obj", "ply")]
+        rows += [
+            (f"write .{s}", lambda s=s: mesh.save(out / f"plant.{s}"))
+            for s in ("glb", "obj", "ply")
+        ]
         rows.append((f"picture {args.size} px", lambda: mesh.render(args.size)))
-        rows.append((f"turntable GIF, 24 frames of {args.size // 2} px",
-                     lambda: mesh.save(out / "t.gif", size=args.size // 2)))
+        rows.append(
+            (
+                f"turntable GIF, 24 frames of {args.size // 2} px",
+                lambda: mesh.save(out / "t.gif", size=args.size // 2),
+            )
+        )
         for name, fn in rows:
             print(f"{name}: {best(fn, args.repeat):.3f} s")
         library_rows(mesh, out, args.repeat)

@@ -39,8 +39,11 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--targets", type=int, default=60, help="scribble targets (+ mirrored)")
     ap.add_argument("--grow", type=int, default=20, help="held-out targets to grow into")
-    ap.add_argument("--ablation", action="store_true",
-                    help="also train const / local / local+target / all (K=4) and all (K=1)")
+    ap.add_argument(
+        "--ablation",
+        action="store_true",
+        help="also train const / local / local+target / all (K=4) and all (K=1)",
+    )
     ap.add_argument("--out", help="work directory (default: a temporary one)")
     args = ap.parse_args()
     work = Path(args.out or tempfile.mkdtemp(prefix="ngpm_bench_"))
@@ -51,8 +54,10 @@ def main() -> None:
     targets = load_targets(data, 50, mirror=False)
     build_dataset("scribbles", work / "test", count=args.grow, seed=1)
     tests = load_targets(work / "test", 50, mirror=False)
-    print(f"grammar {program.name}: {len(program.sites)} sites; {len(targets)} targets; "
-          f"work dir {work}")
+    print(
+        f"grammar {program.name}: {len(program.sites)} sites; {len(targets)} targets; "
+        f"work dir {work}"
+    )
 
     # 1. one 600-particle trace job, single process
     times, kept = [], 0
@@ -63,32 +68,52 @@ def main() -> None:
         times.append(time.perf_counter() - t0)
         kept += n_prims >= 10
     per_job = statistics.mean(times)
-    print(f"trace job ({args.particles} particles, 1 process): {per_job:.2f} s mean, "
-          f"{min(times):.2f}-{max(times):.2f} s over {len(times)} jobs ({kept} kept)")
+    print(
+        f"trace job ({args.particles} particles, 1 process): {per_job:.2f} s mean, "
+        f"{min(times):.2f}-{max(times):.2f} s over {len(times)} jobs ({kept} kept)"
+    )
 
     # 2. N kept traces on `workers` processes
     out = work / "traces"
-    m = generate_traces(TraceConfig(grammar=args.grammar, targets=str(data), n=args.traces,
-                                    particles=args.particles, workers=args.workers),
-                        out, progress=False)
+    m = generate_traces(
+        TraceConfig(
+            grammar=args.grammar,
+            targets=str(data),
+            n=args.traces,
+            particles=args.particles,
+            workers=args.workers,
+        ),
+        out,
+        progress=False,
+    )
     wall = m["seconds"]  # summed over runs when the traces directory is resumed
     jobs = m["kept"] + m["dropped"]
-    print(f"{m['kept']} traces ({m['dropped']} dropped, {jobs} jobs) on {args.workers} "
-          f"processes: {wall:.1f} s wall = {wall / m['kept']:.2f} s per kept trace; "
-          f"extrapolated to 1000 traces: {wall / m['kept'] * 1000 / 60:.1f} min (goal <= 10)")
+    print(
+        f"{m['kept']} traces ({m['dropped']} dropped, {jobs} jobs) on {args.workers} "
+        f"processes: {wall:.1f} s wall = {wall / m['kept']:.2f} s per kept trace; "
+        f"extrapolated to 1000 traces: {wall / m['kept'] * 1000 / 60:.1f} min (goal <= 10)"
+    )
 
     # 3. training
     ts = load_traces(out)
     rows = sum(len(d.values) for d in ts.data.values())
     t0 = time.perf_counter()
-    model = train_guide(ts.sites, ts.layouts, ts.data, TrainConfig(),
-                        grammar=program.name, grammar_hash=program.grammar_hash)
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        ts.data,
+        TrainConfig(),
+        grammar=program.name,
+        grammar_hash=program.grammar_hash,
+    )
     train_s = time.perf_counter() - t0
     s = model.summary
-    print(f"training on {m['kept']} traces ({rows} site visits): {train_s:.1f} s, "
-          f"{s['epochs_run']} epochs (best {s['best_epoch']}), validation NLL "
-          f"{s['val_nll']:.2f} per trace; extrapolated to 1000 traces: "
-          f"{train_s * 1000 / m['kept'] / 60:.2f} min (goal <= 2)")
+    print(
+        f"training on {m['kept']} traces ({rows} site visits): {train_s:.1f} s, "
+        f"{s['epochs_run']} epochs (best {s['best_epoch']}), validation NLL "
+        f"{s['val_nll']:.2f} per trace; extrapolated to 1000 traces: "
+        f"{train_s * 1000 / m['kept'] / 60:.2f} min (goal <= 2)"
+    )
 
     # 4. guided vs unguided N = 10, on held-out targets
     guide = Guide.load(write_onnx(model, work / "guide.onnx"), program)
@@ -98,11 +123,22 @@ def main() -> None:
     report("unguided", program, tests, None)
     if args.ablation:
         for features, K in (("const", 4), ("local", 4), ("local+target", 4), ("all", 1)):
-            m2 = train_guide(ts.sites, ts.layouts, ts.data, TrainConfig(feature_set=features,
-                             K=K), grammar=program.name, grammar_hash=program.grammar_hash)
+            m2 = train_guide(
+                ts.sites,
+                ts.layouts,
+                ts.data,
+                TrainConfig(feature_set=features, K=K),
+                grammar=program.name,
+                grammar_hash=program.grammar_hash,
+            )
             g2 = Guide.load(write_onnx(m2, work / f"guide_{features}_{K}.onnx"), program)
-            report(f"guided ({features}, K={K})", program, tests, g2,
-                   f", validation NLL {m2.summary['val_nll']:.2f}")
+            report(
+                f"guided ({features}, K={K})",
+                program,
+                tests,
+                g2,
+                f", validation NLL {m2.summary['val_nll']:.2f}",
+            )
 
 
 def report(name: str, program: object, tests: list, proposal: object, extra: str = "") -> None:
@@ -111,9 +147,11 @@ def report(name: str, program: object, tests: list, proposal: object, extra: str
         r = grow(program, target, proposal, 10, seed=i)  # type: ignore[arg-type]
         secs.append(r.seconds)
         sims.append(r.similarity)
-    print(f"{name} N=10: {statistics.mean(secs):.3f} s per result (median "
-          f"{statistics.median(secs):.3f}), mean similarity {statistics.mean(sims):.3f} "
-          f"over {len(secs)} held-out targets{extra}")
+    print(
+        f"{name} N=10: {statistics.mean(secs):.3f} s per result (median "
+        f"{statistics.median(secs):.3f}), mean similarity {statistics.mean(sims):.3f} "
+        f"over {len(secs)} held-out targets{extra}"
+    )
 
 
 if __name__ == "__main__":

@@ -31,8 +31,10 @@ SEEDS = (0, 1, 2)
 def grow_table(work: Path, grows: list[list[str]]) -> list[str]:
     """Each grow line of the tour with seeds 0, 1, 2: similarities and seconds."""
 
-    rows = ["| grow | " + " | ".join(f"seed {s}" for s in SEEDS) + " | mean | seconds |",
-            "|---|" + "---|" * (len(SEEDS) + 2)]
+    rows = [
+        "| grow | " + " | ".join(f"seed {s}" for s in SEEDS) + " | mean | seconds |",
+        "|---|" + "---|" * (len(SEEDS) + 2),
+    ]
     for argv in grows:
         sims, secs = [], []
         for seed in SEEDS:
@@ -41,8 +43,11 @@ def grow_table(work: Path, grows: list[list[str]]) -> list[str]:
             sims.append(tour.similarity(steps[0].output))
             secs.append(steps[0].seconds)
         guide = argv[argv.index("--guide") + 1] if "--guide" in argv else "(bundled)"
-        rows.append(f"| `--guide {guide}` | " + " | ".join(f"{s:.3f}" for s in sims)
-                    + f" | {statistics.mean(sims):.3f} | {statistics.mean(secs):.2f} |")
+        rows.append(
+            f"| `--guide {guide}` | "
+            + " | ".join(f"{s:.3f}" for s in sims)
+            + f" | {statistics.mean(sims):.3f} | {statistics.mean(secs):.2f} |"
+        )
     return rows
 
 
@@ -63,19 +68,32 @@ def main() -> int:
         grows = [s.argv for s in steps if s.argv[0] == "grow"]
         table = grow_table(work, grows)
         total, load1 = time.perf_counter() - t0, os.getloadavg()[0]
-    lines = ["# The README's quick tour, measured", "",
-             "Made by `python benchmarks/quick_tour.py` (every command of the tour as the "
-             "README writes it, then each `grow` line with seeds 0, 1, 2 on the demo's horse).",
-             "", f"Machine: {os.cpu_count()} cores, {platform.python_implementation()} "
-             f"{platform.python_version()}; load average {load0:.1f} at the start, "
-             f"{load1:.1f} at the end (a load above the core count means other jobs shared "
-             "the machine and the seconds are longer than on an idle one).", "",
-             "| command | seconds |", "|---|---|"]
+    lines = [
+        "# The README's quick tour, measured",
+        "",
+        "Made by `python benchmarks/quick_tour.py` (every command of the tour as the "
+        "README writes it, then each `grow` line with seeds 0, 1, 2 on the demo's horse).",
+        "",
+        f"Machine: {os.cpu_count()} cores, {platform.python_implementation()} "
+        f"{platform.python_version()}; load average {load0:.1f} at the start, "
+        f"{load1:.1f} at the end (a load above the core count means other jobs shared "
+        "the machine and the seconds are longer than on an idle one).",
+        "",
+        "| command | seconds |",
+        "|---|---|",
+    ]
     lines += [f"| `ngpmc {' '.join(s.argv)}` | {s.seconds:.1f} |" for s in steps]
-    lines += [f"| **the tour, in all** | **{sum(s.seconds for s in steps):.0f}** |", "",
-              "Similarity of the best particle (1 = the target exactly, 0 = no better than a "
-              "blank canvas, below 0 = worse than blank):", "", *table, "",
-              f"Whole run, with the seeds: {total:.0f} s.", ""]
+    lines += [
+        f"| **the tour, in all** | **{sum(s.seconds for s in steps):.0f}** |",
+        "",
+        "Similarity of the best particle (1 = the target exactly, 0 = no better than a "
+        "blank canvas, below 0 = worse than blank):",
+        "",
+        *table,
+        "",
+        f"Whole run, with the seeds: {total:.0f} s.",
+        "",
+    ]
     text = "\n".join(lines)
     atomic_write(args.out, text.encode("utf-8"))
     print(text)

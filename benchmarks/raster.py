@@ -25,8 +25,16 @@ def _prims(rng: np.random.Generator, n: int, kinds: tuple[str, ...]) -> list[tup
         a = rng.uniform(0, 360)
         kind = kinds[rng.integers(len(kinds))]
         if kind == "seg":
-            out.append(("seg", x, y, x + 2 * math.cos(math.radians(a)),
-                        y + 2 * math.sin(math.radians(a)), rng.uniform(0.1, 0.75)))
+            out.append(
+                (
+                    "seg",
+                    x,
+                    y,
+                    x + 2 * math.cos(math.radians(a)),
+                    y + 2 * math.sin(math.radians(a)),
+                    rng.uniform(0.1, 0.75),
+                )
+            )
         elif kind == "leaf":
             out.append(("leaf", x, y, a, 2.05, 0.975))
         else:
@@ -52,8 +60,9 @@ def main() -> None:
     yy, xx = np.mgrid[0:50, 0:50]
     target = (np.abs(xx - 25) < 6) & (yy > 5)
     reps = 50
-    batches = {k: [_prims(rng, n, k) for _ in range(reps)]
-               for k in [("seg",), ("seg", "leaf", "disk")]}
+    batches = {
+        k: [_prims(rng, n, k) for _ in range(reps)] for k in [("seg",), ("seg", "leaf", "disk")]
+    }
     for kinds, sets in batches.items():
         canvas = Canvas(n, 50, 50, VP)
         it = iter(sets * 5)
@@ -61,22 +70,26 @@ def main() -> None:
         print(f"Canvas.draw  {n} particles {'+'.join(kinds):15s} {ms:7.3f} ms/call")
     canvas = Canvas(n, 50, 50, VP)
     draws = [canvas.draw(idx, p) for p in batches[("seg",)][:reps]]
-    for name, lik in (("ShapeLikelihood", ShapeLikelihood(target, VP)),
-                      ("CircuitLikelihood", CircuitLikelihood(VP))):
+    for name, lik in (
+        ("ShapeLikelihood", ShapeLikelihood(target, VP)),
+        ("CircuitLikelihood", CircuitLikelihood(VP)),
+    ):
         state = lik.start(n)
         it = iter(draws * 5)
-        ms = _time(lambda it=it, lik=lik, state=state: lik.increment(state, canvas, next(it)),
-                   reps)
+        ms = _time(lambda it=it, lik=lik, state=state: lik.increment(state, canvas, next(it)), reps)
         print(f"{name}.increment {n} particles        {ms:7.3f} ms/call")
     anc = np.sort(rng.integers(0, n, n))
     ms = _time(lambda: canvas.take(anc), reps)
     print(f"Canvas.take  {n} particles                 {ms:7.3f} ms/call")
     site = Site(index=0, id="B/0/normal0", kind="normal", arity=1)
-    prog = Program(name="b", sites=[site], axiom=lambda ctx: [], productions={},
-                   derivation_length=400)
+    prog = Program(
+        name="b", sites=[site], axiom=lambda ctx: [], productions={}, derivation_length=400
+    )
     fm = FeatureMaker(prog, VP, target)
-    turtle = np.stack([rng.uniform(-12, 12, n), rng.uniform(-22, 2, n),
-                       rng.uniform(0, 360, n), np.full(n, 0.5)], axis=1)
+    turtle = np.stack(
+        [rng.uniform(-12, 12, n), rng.uniform(-22, 2, n), rng.uniform(0, 360, n), np.full(n, 0.5)],
+        axis=1,
+    )
     depth, params, args = np.ones(n), np.ones((n, 1)), np.ones((n, 2))
     ms = _time(lambda: fm.features(site, canvas, idx, turtle, depth, params, args), reps)
     print(f"FeatureMaker.features {n} particles        {ms:7.3f} ms/call")

@@ -47,8 +47,12 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-STEP_CONFIGS = (("guided N=10", True, 10), ("unguided N=10", False, 10),
-                ("unguided N=200", False, 200), ("unguided N=600", False, 600))
+STEP_CONFIGS = (
+    ("guided N=10", True, 10),
+    ("unguided N=10", False, 10),
+    ("unguided N=200", False, 200),
+    ("unguided N=600", False, 600),
+)
 LADDER = "10,20,50,100,200,400,600,1000,1500"
 
 
@@ -79,16 +83,27 @@ def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict
 
     vp = program.viewport
     t0, c0 = time.perf_counter(), time.process_time()
-    res = smc(program, ShapeLikelihood(target.mask, vp), n, proposal,
-              options=SMCOptions(ess_from_proposal=True, seed=seed, start=target.start_pose(vp),
-                                 canvas_size=target.size, target_mask=target.mask))
+    res = smc(
+        program,
+        ShapeLikelihood(target.mask, vp),
+        n,
+        proposal,
+        options=SMCOptions(
+            ess_from_proposal=True,
+            seed=seed,
+            start=target.start_pose(vp),
+            canvas_size=target.size,
+            target_mask=target.mask,
+        ),
+    )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     sim = similarity(rasterize(res.best.primitives, vp, *target.size), target.mask)
     return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
 
 
-def step_table(program: Any, guide: Any, targets: list, seeds: int,
-               json_path: str | None = None) -> None:
+def step_table(
+    program: Any, guide: Any, targets: list, seeds: int, json_path: str | None = None
+) -> None:
     """The interleaved step-cost table (and every run's figures to `json_path`)."""
     rows: dict[str, list[dict[str, float]]] = {label: [] for label, _, _ in STEP_CONFIGS}
     for _, t in targets[:2]:  # warm-up (imports, caches)
@@ -100,26 +115,33 @@ def step_table(program: Any, guide: Any, targets: list, seeds: int,
                 rows[label].append(one_run(program, t, guide if guided else None, n, seed))
     if json_path:
         Path(json_path).write_text(json.dumps(rows))
-    print(f"\nstep cost: {len(targets)} held-out targets x {seeds} seeds, interleaved; medians "
-          "over runs (ms/step = run time / SMC steps)")
-    print(f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
-          f"{'s/run CPU':>9s} {'steps':>5s} {'similarity':>10s}")
+    print(
+        f"\nstep cost: {len(targets)} held-out targets x {seeds} seeds, interleaved; medians "
+        "over runs (ms/step = run time / SMC steps)"
+    )
+    print(
+        f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
+        f"{'s/run CPU':>9s} {'steps':>5s} {'similarity':>10s}"
+    )
     per_step: dict[str, float] = {}
     for label, rs in rows.items():
         cpu_step = statistics.median(1000 * r["cpu"] / r["steps"] for r in rs)
         per_step[label] = cpu_step
-        print(f"{label:16s} {cpu_step:11.3f} "
-              f"{statistics.median(1000 * r['wall'] / r['steps'] for r in rs):12.3f} "
-              f"{statistics.median(r['wall'] for r in rs):10.4f} "
-              f"{statistics.median(r['cpu'] for r in rs):9.4f} "
-              f"{statistics.median(r['steps'] for r in rs):5.0f} "
-              f"{statistics.mean(r['sim'] for r in rs):10.3f}")
+        print(
+            f"{label:16s} {cpu_step:11.3f} "
+            f"{statistics.median(1000 * r['wall'] / r['steps'] for r in rs):12.3f} "
+            f"{statistics.median(r['wall'] for r in rs):10.4f} "
+            f"{statistics.median(r['cpu'] for r in rs):9.4f} "
+            f"{statistics.median(r['steps'] for r in rs):5.0f} "
+            f"{statistics.mean(r['sim'] for r in rs):10.3f}"
+        )
     ratio = per_step["guided N=10"] / per_step["unguided N=10"]
     print(f"guided N=10 per step / unguided N=10 per step (CPU): {ratio:.2f}x")
 
 
-def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
-                     repeats: int) -> None:
+def equal_similarity(
+    program: Any, guide: Any, targets: list, ladder: list[int], repeats: int
+) -> None:
     """Guided N=10 vs the unguided ladder: crossing N and time ratio (evaluation/runs.py)."""
     from ngpm_compiler.evaluation.runs import (
         curve,
@@ -136,25 +158,41 @@ def equal_similarity(program: Any, guide: Any, targets: list, ladder: list[int],
                 for n in ns:
                     r = one_run(program, t, proposal, n, run_seed(0, ti, n, rep))
                     # CPU seconds: the machine is shared, and wall time counts the others
-                    rows.append({"model": model, "n": n, "dataset": ds, "target": t.name,
-                                 "similarity": r["sim"], "seconds": r["cpu"]})
-    print(f"\nequal similarity: {len(targets)} held-out targets x {repeats} repeats; mean over "
-          "targets of the per-target median similarity, mean CPU seconds per run")
+                    rows.append(
+                        {
+                            "model": model,
+                            "n": n,
+                            "dataset": ds,
+                            "target": t.name,
+                            "similarity": r["sim"],
+                            "seconds": r["cpu"],
+                        }
+                    )
+    print(
+        f"\nequal similarity: {len(targets)} held-out targets x {repeats} repeats; mean over "
+        "targets of the per-target median similarity, mean CPU seconds per run"
+    )
     for ds in sorted({r["dataset"] for r in rows}) + ["all"]:
         sub = [r for r in rows if ds == "all" or r["dataset"] == ds]
         summary = summarize(sub, ds)
         g = next(r for r in summary if r["model"] == "all")
         ns, sims, secs = curve(summary, "unguided")
-        table = ", ".join(f"{n}: {s:.3f} ({t:.2f} s)" for n, s, t in
-                          zip(ns.tolist(), sims.tolist(), secs.tolist(), strict=True))
+        table = ", ".join(
+            f"{n}: {s:.3f} ({t:.2f} s)"
+            for n, s, t in zip(ns.tolist(), sims.tolist(), secs.tolist(), strict=True)
+        )
         cross = n_to_match(summary, g["mean_similarity"])
         t_u = time_to_reach(sims, secs, g["mean_similarity"])
         ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
         more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
-        print(f"[{ds}] guided N=10: similarity {g['mean_similarity']:.3f} in "
-              f"{g['mean_seconds']:.3f} s; unguided by N: {table}")
-        print(f"[{ds}] unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: guided N=10 is "
-              f"{ratio:.1f}x faster at equal similarity{more}")
+        print(
+            f"[{ds}] guided N=10: similarity {g['mean_similarity']:.3f} in "
+            f"{g['mean_seconds']:.3f} s; unguided by N: {table}"
+        )
+        print(
+            f"[{ds}] unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: guided N=10 is "
+            f"{ratio:.1f}x faster at equal similarity{more}"
+        )
 
 
 # (module, owner, attribute, label): the parts of a guided step, outermost first
@@ -199,26 +237,40 @@ def breakdown(program: Any, guide: Any, targets: list) -> None:
             finally:
                 _slot[0] += time.process_time() - c0
                 _slot[1] += 1
+
         setattr(obj, attr, timed)
     steps = 0
     try:
         for seed in range(2):
             for _, t in targets:
-                steps += smc(program, _like(program, t), 10, guide,
-                             options=SMCOptions(ess_from_proposal=True, seed=seed,
-                                                start=t.start_pose(program.viewport),
-                                                canvas_size=t.size, target_mask=t.mask)).steps
+                steps += smc(
+                    program,
+                    _like(program, t),
+                    10,
+                    guide,
+                    options=SMCOptions(
+                        ess_from_proposal=True,
+                        seed=seed,
+                        start=t.start_pose(program.viewport),
+                        canvas_size=t.size,
+                        target_mask=t.mask,
+                    ),
+                ).steps
     finally:
         for obj, attr, fn in saved:
             setattr(obj, attr, fn)
-    print(f"\nguided N=10, {len(targets)} targets x 2 seeds, {steps} steps: CPU per step "
-          "(timers included)")
+    print(
+        f"\nguided N=10, {len(targets)} targets x 2 seeds, {steps} steps: CPU per step "
+        "(timers included)"
+    )
     print(f"{'part':48s} {'us/step':>8s} {'calls/step':>10s} {'us/call':>8s}")
     for _, _, _, label in PARTS:
         total, calls = acc[label]
         if calls:
-            print(f"{label:48s} {1e6 * total / steps:8.0f} {calls / steps:10.2f} "
-                  f"{1e6 * total / calls:8.1f}")
+            print(
+                f"{label:48s} {1e6 * total / steps:8.0f} {calls / steps:10.2f} "
+                f"{1e6 * total / calls:8.1f}"
+            )
 
 
 def _like(program: Any, target: Any) -> Any:
@@ -242,8 +294,16 @@ def nets(guide: Any) -> None:
         x = rng.normal(size=(rows, guide.nets[site]["n_f"])).astype(np.float32)
         num = max(20, 20000 // rows)
         a = min(timeit.repeat(lambda: numpy_net(x), number=num, repeat=7)) / num  # noqa: B023
-        b = min(timeit.repeat(lambda: sess.run(None, {f"f_{site}": x}),  # noqa: B023
-                              number=num, repeat=7)) / num
+        b = (
+            min(
+                timeit.repeat(
+                    lambda: sess.run(None, {f"f_{site}": x}),  # noqa: B023
+                    number=num,
+                    repeat=7,
+                )
+            )
+            / num
+        )
         print(f"{rows:5d} {1e6 * a:8.1f} {1e6 * b:8.1f}")
 
 
@@ -261,15 +321,26 @@ def trace_jobs(program: Any, targets: list) -> None:
         c0 = time.process_time()
         run_job(program, t, 5, 600)
         c1 = time.process_time()
-        smc(program, ShapeLikelihood(t.mask, vp), 600,
-            options=SMCOptions(seed=5, trace=TraceRecording.FULL,
-                               start=t.start_pose(vp), canvas_size=t.size, target_mask=t.mask))
+        smc(
+            program,
+            ShapeLikelihood(t.mask, vp),
+            600,
+            options=SMCOptions(
+                seed=5,
+                trace=TraceRecording.FULL,
+                start=t.start_pose(vp),
+                canvas_size=t.size,
+                target_mask=t.mask,
+            ),
+        )
         c2 = time.process_time()
         job.append(c1 - c0)
         full.append(c2 - c1)
-    print(f"\ntrace job, 600 particles: {statistics.mean(job):.3f} CPU s per job (values "
-          f"recorded, best replayed) vs {statistics.mean(full):.3f} with features for every "
-          f"particle; mean over {len(targets)} targets")
+    print(
+        f"\ntrace job, 600 particles: {statistics.mean(job):.3f} CPU s per job (values "
+        f"recorded, best replayed) vs {statistics.mean(full):.3f} with features for every "
+        f"particle; mean over {len(targets)} targets"
+    )
 
 
 def main() -> None:
@@ -294,9 +365,11 @@ def main() -> None:
     path = args.guide or str(guide_path())
     guide = Guide.load(path, program)
     targets = held_out_targets(args.glyphs, args.silhouettes)
-    print(f"vines, guide {Path(path).name}, {len(targets)} held-out targets "
-          f"({args.glyphs} glyphs, {args.silhouettes} silhouettes), one core, "
-          f"{os.cpu_count()} CPUs on the machine")
+    print(
+        f"vines, guide {Path(path).name}, {len(targets)} held-out targets "
+        f"({args.glyphs} glyphs, {args.silhouettes} silhouettes), one core, "
+        f"{os.cpu_count()} CPUs on the machine"
+    )
     if args.profile:
         breakdown(program, guide, targets)
         prof = cProfile.Profile()
@@ -310,8 +383,9 @@ def main() -> None:
         nets(guide)
     step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:
-        equal_similarity(program, guide, targets, [int(x) for x in args.ladder.split(",")],
-                         args.repeats)
+        equal_similarity(
+            program, guide, targets, [int(x) for x in args.ladder.split(",")], args.repeats
+        )
     if args.trace_jobs:
         trace_jobs(program, targets[:6])
 

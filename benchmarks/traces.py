@@ -30,14 +30,21 @@ ROOT = Path(__file__).resolve().parents[1]
 def run(cfg: TraceConfig, out: Path) -> dict[str, Any]:
     stamps: list[float] = []
     t0 = time.perf_counter()
-    m = generate_traces(cfg, out, progress=False,
-                        on_job=lambda _job: stamps.append(time.perf_counter()))
+    m = generate_traces(
+        cfg, out, progress=False, on_job=lambda _job: stamps.append(time.perf_counter())
+    )
     wall = time.perf_counter() - t0
     first = stamps[0] - t0 if stamps else wall
     steady = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else 0.0
-    return {"wall": wall, "first": first, "jobs": m["jobs_done"], "kept": m["kept"],
-            "rate": m["kept"] / wall, "steady": steady * m["kept"] / max(1, m["jobs_done"]),
-            "shards": {p.name: p.read_bytes() for p in TraceStore(out).shard_paths()}}
+    return {
+        "wall": wall,
+        "first": first,
+        "jobs": m["jobs_done"],
+        "kept": m["kept"],
+        "rate": m["kept"] / wall,
+        "steady": steady * m["kept"] / max(1, m["jobs_done"]),
+        "shards": {p.name: p.read_bytes() for p in TraceStore(out).shard_paths()},
+    }
 
 
 def main() -> None:
@@ -51,18 +58,29 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "scribbles"
         build_dataset("scribbles", data, count=20, seed=0, mirror=True)
-        print(f"vines, {args.traces} traces kept, {args.particles} particles, "
-              f"{args.workers} workers / Ray CPUs")
+        print(
+            f"vines, {args.traces} traces kept, {args.particles} particles, "
+            f"{args.workers} workers / Ray CPUs"
+        )
         results = {}
         for backend in args.backends.split(","):
-            cfg = TraceConfig(grammar=str(ROOT / "grammars" / "vines.lsys"), targets=str(data),
-                              n=args.traces, particles=args.particles, workers=args.workers,
-                              backend=backend, shard_size=10,
-                              ray_address=args.ray_address if backend == "ray" else None)
+            cfg = TraceConfig(
+                grammar=str(ROOT / "grammars" / "vines.lsys"),
+                targets=str(data),
+                n=args.traces,
+                particles=args.particles,
+                workers=args.workers,
+                backend=backend,
+                shard_size=10,
+                ray_address=args.ray_address if backend == "ray" else None,
+            )
             r = results[backend] = run(cfg, Path(tmp) / backend)
-            print(f"{backend:>5}: {r['wall']:6.1f} s wall ({r['jobs']} jobs), first job after "
-                  f"{r['first']:.1f} s, {r['rate']:.2f} traces/s overall, "
-                  f"{r['steady']:.2f} traces/s after the first job", flush=True)
+            print(
+                f"{backend:>5}: {r['wall']:6.1f} s wall ({r['jobs']} jobs), first job after "
+                f"{r['first']:.1f} s, {r['rate']:.2f} traces/s overall, "
+                f"{r['steady']:.2f} traces/s after the first job",
+                flush=True,
+            )
         if len(results) > 1:
             same = len({repr(sorted(r["shards"].items())) for r in results.values()}) == 1
             print(f"shards byte-identical across backends: {same}")

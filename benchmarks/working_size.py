@@ -34,8 +34,10 @@ def targets_at(sizes: list[int], n_glyphs: int, n_silhouettes: int) -> dict[int,
         for name, k in (("glyphs", n_glyphs), ("silhouettes", n_silhouettes)):
             d = Path(tmp) / name
             build_dataset(name, d, count=None, seed=0)
-            names = {t.name for t in pick([t for t in load_dataset(d, size=50)
-                                           if not t.name.endswith("_m")], k)}
+            names = {
+                t.name
+                for t in pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
+            }
             for s in sizes:
                 out[s] += [t for t in load_dataset(d, size=s) if t.name in names]
     return out
@@ -72,8 +74,10 @@ def main() -> int:
     print(f"| size | {head} |")
     print("|---" * (len(CONFIGS) + 1) + "|")
     for size in sizes:
-        cells = [f"{statistics.mean(sims[size, k, n]):.3f} "
-                 f"({statistics.mean(secs[size, k, n]):.2f})" for k, n in CONFIGS]
+        cells = [
+            f"{statistics.mean(sims[size, k, n]):.3f} ({statistics.mean(secs[size, k, n]):.2f})"
+            for k, n in CONFIGS
+        ]
         print(f"| {size} x {size} | " + " | ".join(cells) + " |")
     return 0
 

@@ -16,10 +16,18 @@ Log = Callable[[str], None]  # where long jobs report a line: print, or a log fi
 class Progress:
     """Counts `unit`s of `desc` up to `total`; `enabled=False` shows nothing."""
 
-    def __init__(self, desc: str, total: int | None = None, unit: str = "it", initial: int = 0,
-                 enabled: bool = True, stream: TextIO | None = None,
-                 interval: float = PLAIN_INTERVAL, delay: float = 0.0,
-                 leave: bool = True) -> None:
+    def __init__(
+        self,
+        desc: str,
+        total: int | None = None,
+        unit: str = "it",
+        initial: int = 0,
+        enabled: bool = True,
+        stream: TextIO | None = None,
+        interval: float = PLAIN_INTERVAL,
+        delay: float = 0.0,
+        leave: bool = True,
+    ) -> None:
         self.desc, self.total, self.unit, self.n = desc, total, unit, initial
         self.stream = stream or sys.stderr
         self.interval, self.enabled = interval, enabled
@@ -30,8 +38,15 @@ class Progress:
         if enabled and self.stream.isatty():
             from tqdm import tqdm
 
-            self.bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=self.stream,
-                            delay=delay, leave=leave)
+            self.bar = tqdm(
+                total=total,
+                initial=initial,
+                desc=desc,
+                unit=unit,
+                file=self.stream,
+                delay=delay,
+                leave=leave,
+            )
 
     def update(self, n: int = 1) -> None:
         self.n += n
@@ -57,8 +72,11 @@ class Progress:
         self.lines += 1
         done = f"{self.n}/{self.total}" if self.total else str(self.n)
         extra = "".join(f", {k} {v}" for k, v in self.postfix.items())
-        print(f"{self.desc}: {done} {self.unit}s, {self.last - self.start:.0f} s{extra}",
-              file=self.stream, flush=True)
+        print(
+            f"{self.desc}: {done} {self.unit}s, {self.last - self.start:.0f} s{extra}",
+            file=self.stream,
+            flush=True,
+        )
 
     def __enter__(self) -> Progress:
         return self

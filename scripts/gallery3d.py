@@ -62,14 +62,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=OUT, help="folder (default docs/img/3d)")
     parser.add_argument("--size", type=int, default=SIZE, help=f"pixels (default {SIZE})")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="these grammars only")
-    parser.add_argument("--check", action="store_true",
-                        help="write nothing; exit 1 when a 3D grammar has no picture")
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="write nothing; exit 1 when a 3D grammar has no picture",
+    )
     args = parser.parse_args(argv)
     if args.check:
         lacking = missing(args.out)
         if lacking:
-            print(f"no picture in {args.out} for: {', '.join(lacking)}; "
-                  "run python scripts/gallery3d.py")
+            print(
+                f"no picture in {args.out} for: {', '.join(lacking)}; "
+                "run python scripts/gallery3d.py"
+            )
         return 1 if lacking else 0
     paths = grammars_3d()
     if args.only:
@@ -81,8 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         data = picture(path, args.size)
         atomic_write(args.out / f"{path.stem}.png", data)
-        print(f"{args.out / path.stem}.png: {len(data) // 1024} KiB, "
-              f"{time.perf_counter() - t0:.1f} s")
+        print(
+            f"{args.out / path.stem}.png: {len(data) // 1024} KiB, {time.perf_counter() - t0:.1f} s"
+        )
     return 0
 
 

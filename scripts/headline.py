@@ -59,8 +59,10 @@ def demo() -> dict[str, list[str]]:
     """demo.md: the mean row (guided, seconds, unguided, seconds) and each target's runs."""
     text = (RESULTS / "demo.md").read_text(encoding="utf-8")
     mean = _find(r"^\| \*\*mean\*\* \| (.*) \|$", text, "demo.md").group(1).split(" | ")
-    runs = {m.group(1): m.group(2).split(", ")
-            for m in re.finditer(r"^- (\w+): guided ([\d., -]+); unguided", text, re.M)}
+    runs = {
+        m.group(1): m.group(2).split(", ")
+        for m in re.finditer(r"^- (\w+): guided ([\d., -]+); unguided", text, re.M)
+    }
     return {"mean": mean, **runs}
 
 
@@ -73,8 +75,9 @@ def tour() -> dict[str, str]:
     out["load0"], out["load1"] = load.groups()
     for cmd in ("traces", "train", "tune"):
         out[cmd] = _find(rf"^\| `ngpmc {cmd} .*` \| ([\d.]+) \|$", text, src).group(1)
-    out["total"] = _find(r"^\| \*\*the tour, in all\*\* \| \*\*([\d.]+)\*\* \|$", text,
-                         src).group(1)
+    out["total"] = _find(r"^\| \*\*the tour, in all\*\* \| \*\*([\d.]+)\*\* \|$", text, src).group(
+        1
+    )
     for key, guide in (("tuned", r"out/\w+_tuned\.onnx"), ("prior", "none")):
         row = _find(rf"^\| `--guide {guide}` \| (.*) \|$", text, src).group(1).split(" | ")
         out[key + "_list"] = _list([_two(x) for x in row[:-2]])
@@ -92,47 +95,60 @@ def heldout() -> dict[tuple[str, str, int], dict[str, str]]:
 
 def readme_demo() -> str:
     d = demo()
-    return (f"Over the 4 targets and 3 seeds, guided runs averaged similarity {_two(d['mean'][0])}"
-            f" and unguided ones {_two(d['mean'][2])} (every run and its seconds: "
-            "[docs/results/demo.md](docs/results/demo.md)).")
+    return (
+        f"Over the 4 targets and 3 seeds, guided runs averaged similarity {_two(d['mean'][0])}"
+        f" and unguided ones {_two(d['mean'][2])} (every run and its seconds: "
+        "[docs/results/demo.md](docs/results/demo.md))."
+    )
 
 
 def readme_tour_time() -> str:
     t = tour()
-    return (f"On the project's {t['cores']}-core test machine, shared with other jobs (load "
-            f"average {t['load0']} to {t['load1']}), the traces took {float(t['traces']):.0f} s "
-            f"and training {float(t['train']):.0f} s; the whole tour took "
-            f"{float(t['total']) / 60:.1f} minutes (`python benchmarks/quick_tour.py` runs it as "
-            "written and times it: [docs/results/quick_tour.md](docs/results/quick_tour.md)).")
+    return (
+        f"On the project's {t['cores']}-core test machine, shared with other jobs (load "
+        f"average {t['load0']} to {t['load1']}), the traces took {float(t['traces']):.0f} s "
+        f"and training {float(t['train']):.0f} s; the whole tour took "
+        f"{float(t['total']) / 60:.1f} minutes (`python benchmarks/quick_tour.py` runs it as "
+        "written and times it: [docs/results/quick_tour.md](docs/results/quick_tour.md))."
+    )
 
 
 def readme_tour_grow() -> str:
     t, horse = tour(), [float(x) for x in demo()["horse"]]
-    return ("With the demo's horse as `my_picture.png` (`runtime/ngpm_runtime/data/demo_horse.png`"
-            " and its sidecar `demo_horse.txt`, copied), 10 particles and seeds 0, 1, 2, this "
-            f"small tuned guide reached similarity {t['tuned_list']} (mean {t['tuned_mean']}) "
-            f"where the prior reached {t['prior_list']} (mean {t['prior_mean']}); the bundled "
-            f"vines guide reaches {_two(min(horse))} to {_two(max(horse))} on the same picture "
-            f"([docs/results/demo.md](docs/results/demo.md)); tune took "
-            f"{float(t['tune']):.0f} s of the tour.")
+    return (
+        "With the demo's horse as `my_picture.png` (`runtime/ngpm_runtime/data/demo_horse.png`"
+        " and its sidecar `demo_horse.txt`, copied), 10 particles and seeds 0, 1, 2, this "
+        f"small tuned guide reached similarity {t['tuned_list']} (mean {t['tuned_mean']}) "
+        f"where the prior reached {t['prior_list']} (mean {t['prior_mean']}); the bundled "
+        f"vines guide reaches {_two(min(horse))} to {_two(max(horse))} on the same picture "
+        f"([docs/results/demo.md](docs/results/demo.md)); tune took "
+        f"{float(t['tune']):.0f} s of the tour."
+    )
 
 
 def readme_guide() -> str:
     h = heldout()
     parts = []
-    for name, what in (("script", "script glyphs (URW Z003)"),
-                       ("silhouettes", "Openclipart silhouettes")):
+    for name, what in (
+        ("script", "script glyphs (URW Z003)"),
+        ("silhouettes", "Openclipart silhouettes"),
+    ):
         top = max(n for (ds, m, n) in h if ds == name and m == "unguided")
         g, u = h[(name, SHIPPED, GUIDED_N)], h[(name, "unguided", top)]
         side = "above" if float(g["mean_similarity"]) > float(u["mean_similarity"]) else "below"
-        parts.append(f"on {g['targets']} held-out {what} it scores {_two(g['mean_similarity'])} "
-                     f"at N = {GUIDED_N}, {side} unguided SMC with {top} particles "
-                     f"({_two(u['mean_similarity'])})")
-    untuned = [_two(h[(ds, UNTUNED, GUIDED_N)]["mean_similarity"])
-               for ds in ("script", "silhouettes")]
+        parts.append(
+            f"on {g['targets']} held-out {what} it scores {_two(g['mean_similarity'])} "
+            f"at N = {GUIDED_N}, {side} unguided SMC with {top} particles "
+            f"({_two(u['mean_similarity'])})"
+        )
+    untuned = [
+        _two(h[(ds, UNTUNED, GUIDED_N)]["mean_similarity"]) for ds in ("script", "silhouettes")
+    ]
     text = "; ".join(parts)
-    return (text[0].upper() + text[1:] + f". Untuned, the same networks score {untuned[0]} "
-            f"and {untuned[1]} ([docs/results](docs/results/README.md#the-shipped-guide)).")
+    return (
+        text[0].upper() + text[1:] + f". Untuned, the same networks score {untuned[0]} "
+        f"and {untuned[1]} ([docs/results](docs/results/README.md#the-shipped-guide))."
+    )
 
 
 # --- docs/results/README.md ----------------------------------------------------------------
@@ -142,12 +158,20 @@ def results_heldout() -> str:
     h = heldout()
     sets = sorted({ds for ds, _, _ in h})
     ns = sorted({n for (_, m, n) in h if m == "unguided"})
-    head = ["set", "targets", f"shipped guide, N = {GUIDED_N}", "untuned",
-            *(f"unguided N = {n}" for n in ns)]
+    head = [
+        "set",
+        "targets",
+        f"shipped guide, N = {GUIDED_N}",
+        "untuned",
+        *(f"unguided N = {n}" for n in ns),
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for ds in sets:
-        cells = [h[(ds, SHIPPED, GUIDED_N)], h[(ds, UNTUNED, GUIDED_N)],
-                 *(h[(ds, "unguided", n)] for n in ns)]
+        cells = [
+            h[(ds, SHIPPED, GUIDED_N)],
+            h[(ds, UNTUNED, GUIDED_N)],
+            *(h[(ds, "unguided", n)] for n in ns),
+        ]
         sims = [f"{float(c['mean_similarity']):.3f}" for c in cells]
         sims[0] = f"**{sims[0]}**"
         lines.append(f"| {ds} | {cells[0]['targets']} | " + " | ".join(sims) + " |")
@@ -155,8 +179,11 @@ def results_heldout() -> str:
 
 
 def _evaluation() -> dict:
-    return {"settings": json.loads((RESULTS / "settings.json").read_text()),
-            "summary": _csv("shape_summary.csv"), "speed": _csv("speedup.csv")}
+    return {
+        "settings": json.loads((RESULTS / "settings.json").read_text()),
+        "summary": _csv("shape_summary.csv"),
+        "speed": _csv("speedup.csv"),
+    }
 
 
 def results_eval_settings() -> str:
@@ -205,21 +232,32 @@ def _wrapped(make: Callable[[], str]) -> Callable[[], str]:
 
 
 PAGES: dict[str, dict[str, Callable[[], str]]] = {
-    "README.md": {"demo": _wrapped(readme_demo), "tour-time": _wrapped(readme_tour_time),
-                  "tour-grow": _wrapped(readme_tour_grow), "guide": _wrapped(readme_guide)},
+    "README.md": {
+        "demo": _wrapped(readme_demo),
+        "tour-time": _wrapped(readme_tour_time),
+        "tour-grow": _wrapped(readme_tour_grow),
+        "guide": _wrapped(readme_guide),
+    },
     "docs/results/README.md": {
-        "heldout": results_heldout, "eval-settings": results_eval_settings,
-        "eval-headline": results_eval_headline, "eval-similarity": results_eval_similarity,
-        "eval-trainset": results_eval_trainset, "eval-circuits": results_eval_circuits,
-        "eval-chain": results_eval_chain},
+        "heldout": results_heldout,
+        "eval-settings": results_eval_settings,
+        "eval-headline": results_eval_headline,
+        "eval-similarity": results_eval_similarity,
+        "eval-trainset": results_eval_trainset,
+        "eval-circuits": results_eval_circuits,
+        "eval-chain": results_eval_chain,
+    },
 }
 
 
 def render(text: str, blocks: dict[str, Callable[[], str]], page: str) -> str:
     """`text` with each block's lines replaced by what its function writes now."""
     for name, make in blocks.items():
-        pattern = re.compile(rf"(^<!-- begin {re.escape(name)} -->\n).*?(^<!-- end "
-                             rf"{re.escape(name)} -->$)", re.M | re.S)
+        pattern = re.compile(
+            rf"(^<!-- begin {re.escape(name)} -->\n).*?(^<!-- end "
+            rf"{re.escape(name)} -->$)",
+            re.M | re.S,
+        )
         if len(pattern.findall(text)) != 1:
             raise SourceError(f"{page}: needs one block {name!r}")
         text = pattern.sub(lambda m, make=make: m.group(1) + make() + "\n" + m.group(2), text)
@@ -252,8 +290,7 @@ def main(argv: list[str] | None = None) -> int:
 
     for page, text in todo.items():
         if args.check:
-            print(f"{page}: figures out of date; run python scripts/headline.py",
-                  file=sys.stderr)
+            print(f"{page}: figures out of date; run python scripts/headline.py", file=sys.stderr)
         else:
             atomic_write(REPO / page, text.encode("utf-8"))
             print(f"rewrote the figures of {page}")

@@ -29,11 +29,20 @@ print("ok")
 """
 
 
-def run_blocked(body: str, tmp_path: Path, *args: str,
-                blocked: tuple[str, ...] = ("torch", "lark", "ngpm_compiler"),
-                timeout: int = 300) -> subprocess.CompletedProcess:
+def run_blocked(
+    body: str,
+    tmp_path: Path,
+    *args: str,
+    blocked: tuple[str, ...] = ("torch", "lark", "ngpm_compiler"),
+    timeout: int = 300,
+) -> subprocess.CompletedProcess:
     """Run `body` with `blocked` unimportable; it prints "ok" at the end if none leaked in."""
     script = tmp_path / "blocked_check.py"
     script.write_text(PRELUDE.format(blocked=tuple(blocked)) + body + EPILOGUE)
-    return subprocess.run([sys.executable, str(script), *args], capture_output=True,
-                          text=True, timeout=timeout, cwd=tmp_path)
+    return subprocess.run(
+        [sys.executable, str(script), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=tmp_path,
+    )

@@ -21,6 +21,7 @@ def _edited_guide(tmp_path: Path, edit) -> Path:
 
 def test_guide_without_a_site_output_fails_at_load(tmp_path: Path) -> None:
     """The graph lacks p_3 though the metadata (intact) lists a network for site 3."""
+
     def drop_output(model):
         keep = [o for o in model.graph.output if o.name != "p_3"]
         del model.graph.output[:]
@@ -48,8 +49,11 @@ def test_guide_of_a_future_format_names_the_version(tmp_path: Path) -> None:
                 prop.value = "ngpm-guide-onnx/2"
 
     path = _edited_guide(tmp_path, future)
-    with pytest.raises(GuideError, match=r"guide format ngpm-guide-onnx/2 is newer than the "
-                                         r"ngpm-guide-onnx/1 this ngpm reads"):
+    with pytest.raises(
+        GuideError,
+        match=r"guide format ngpm-guide-onnx/2 is newer than the "
+        r"ngpm-guide-onnx/1 this ngpm reads",
+    ):
         Guide.load(path, bundled.bundled_program())
 
 
@@ -78,9 +82,14 @@ def test_stop_pool_returns_when_a_dead_worker_holds_the_queue_lock() -> None:
 # --------------------------------------------------------------------------- compile_grammar
 
 
-@pytest.mark.parametrize("arg, words", [
-    (None, "got NoneType"), (123, "got int"), (b"Axiom: F\n", "got bytes: decode them"),
-])
+@pytest.mark.parametrize(
+    "arg, words",
+    [
+        (None, "got NoneType"),
+        (123, "got int"),
+        (b"Axiom: F\n", "got bytes: decode them"),
+    ],
+)
 def test_compile_grammar_says_what_it_wants(arg, words) -> None:
     from ngpm_compiler import compile_grammar
 
@@ -105,13 +114,17 @@ def test_compile_grammar_refuses_huge_grammars_at_once(tmp_path: Path) -> None:
 
     rule = "A(x) : x > 0 --> F(x) [ +(gauss(10, 5)) A(x * 0.9) ] A(x - 0.1)\n"
     text = "derivation length: 5\nAxiom: A(1)\nproduction:\n" + rule * (
-        MAX_GRAMMAR_BYTES // len(rule) + 1)
+        MAX_GRAMMAR_BYTES // len(rule) + 1
+    )
     path = tmp_path / "huge.lsys"
     path.write_text(text)
     t0 = time.perf_counter()
     for arg in (path, text):
-        with pytest.raises(GrammarError, match=r"the grammar is 25\d KiB; ngpm reads grammars "
-                                               r"of up to 256 KiB"):
+        with pytest.raises(
+            GrammarError,
+            match=r"the grammar is 25\d KiB; ngpm reads grammars "
+            r"of up to 256 KiB",
+        ):
             compile_grammar(arg)
     assert time.perf_counter() - t0 < 2
 
@@ -145,8 +158,10 @@ def test_grow_api_takes_the_module_cap(tmp_path: Path) -> None:
 
     from ngpm_compiler.language.compile import compile_grammar
 
-    program = compile_grammar("viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\n"
-                              "production:\nA --> A A\nendlsystem\n").program()
+    program = compile_grammar(
+        "viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\n"
+        "production:\nA --> A A\nendlsystem\n"
+    ).program()
     target = bundled.demo_targets()[0]
     res = grow(program, target, None, 3, max_modules=100)
     assert res.primitives == [] and res.smc.best.limit == "max modules"

@@ -30,7 +30,7 @@ def gallery() -> ModuleType:
 def drawn(pic: Image.Image) -> np.ndarray:
     """True where a pixel is not the white background."""
     rgb = np.asarray(pic.convert("RGB"), dtype=np.int16)
-    return (np.abs(rgb - 255).max(axis=2) > 24)
+    return np.abs(rgb - 255).max(axis=2) > 24
 
 
 def test_every_shipped_3d_grammar_has_its_picture(gallery: ModuleType) -> None:
@@ -38,8 +38,9 @@ def test_every_shipped_3d_grammar_has_its_picture(gallery: ModuleType) -> None:
     assert {"bush3d", "plant3d", "tree3d", "stochastic_tree3d"} <= set(names)
     assert "vines" not in names and "bush" not in names  # 2D grammars have none
     assert gallery.missing() == []
-    assert sorted(p.stem for p in PICTURES.glob("*.png")) == sorted(names), \
+    assert sorted(p.stem for p in PICTURES.glob("*.png")) == sorted(names), (
         "a picture in docs/img/3d for no shipped 3D grammar"
+    )
     for name in names:
         with Image.open(PICTURES / f"{name}.png") as pic:
             assert pic.size == (gallery.SIZE, gallery.SIZE) and pic.mode == "P", name
@@ -61,12 +62,15 @@ def test_the_shipped_plant3d_picture_is_up_to_date(gallery: ModuleType) -> None:
         a = np.asarray(fresh.convert("RGB"), dtype=np.int16)
         b = np.asarray(shipped.convert("RGB"), dtype=np.int16)
     differ = (np.abs(a - b).max(axis=2) > 40).mean()
-    assert differ < 0.005, f"plant3d.png is out of date ({differ:.2%} of pixels differ); " \
+    assert differ < 0.005, (
+        f"plant3d.png is out of date ({differ:.2%} of pixels differ); "
         "run python scripts/gallery3d.py"
+    )
 
 
-def test_the_script_writes_and_checks_pictures(gallery: ModuleType, tmp_path: Path,
-                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_script_writes_and_checks_pictures(
+    gallery: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert gallery.main(["--only", "plant3d", "--size", "96", "--out", str(tmp_path)]) == 0
     assert [p.name for p in tmp_path.iterdir()] == ["plant3d.png"]
     with Image.open(tmp_path / "plant3d.png") as pic:
@@ -88,8 +92,11 @@ def test_docs_3d_commands_parse_and_links_exist() -> None:
     from ngpm_compiler.cli import build_parser
 
     lines = re.findall(r"`(ngpmc [^`]+)`", DOC)
-    lines += [ln.split("#")[0].strip() for block in re.findall(r"```bash\n(.*?)```", DOC, re.S)
-              for ln in block.splitlines()]
+    lines += [
+        ln.split("#")[0].strip()
+        for block in re.findall(r"```bash\n(.*?)```", DOC, re.S)
+        for ln in block.splitlines()
+    ]
     lines = [ln for ln in lines if ln.startswith("ngpmc sample ") and "NAME" not in ln]
     assert len(lines) >= 8
     for line in lines:
@@ -113,8 +120,9 @@ def test_docs_3d_counts_are_those_of_seed_0() -> None:
     rows = re.findall(r"\[`(\w+)\.lsys`\].*?([\d,]+) primitives(?:, ([\d,]+) triangles)?", DOC)
     assert {r[0] for r in rows} >= {"bush3d", "plant3d", "tree3d"}
     for name, prims, tris in rows:
-        got = forward(compile_grammar(REPO / "grammars" / f"{name}.lsys").program(),
-                      seed=0).primitives
+        got = forward(
+            compile_grammar(REPO / "grammars" / f"{name}.lsys").program(), seed=0
+        ).primitives
         assert len(got) == int(prims.replace(",", "")), name
         if tris:
             assert len(mesh_from_primitives(got).faces) == int(tris.replace(",", "")), name

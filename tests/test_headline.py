@@ -51,8 +51,9 @@ def test_a_page_without_its_block_is_an_error(monkeypatch) -> None:
         headline.stale()
 
 
-@pytest.mark.parametrize("page", ["docs/results/README.md", "experiments/notes/README.md",
-                                  "docs/results/demo.md"])
+@pytest.mark.parametrize(
+    "page", ["docs/results/README.md", "experiments/notes/README.md", "docs/results/demo.md"]
+)
 def test_relative_links_lead_to_files(page: str) -> None:
     text = (REPO / page).read_text(encoding="utf-8")
     links = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)

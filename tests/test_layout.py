@@ -10,13 +10,26 @@ from pathlib import Path
 
 from repo_paths import REPO
 
-PACKAGES = {"ngpm_compiler": REPO / "ngpm_compiler",
-            "ngpm_runtime": REPO / "runtime" / "ngpm_runtime"}
+PACKAGES = {
+    "ngpm_compiler": REPO / "ngpm_compiler",
+    "ngpm_runtime": REPO / "runtime" / "ngpm_runtime",
+}
 # The compiler's packages (and top-level modules), lowest first: each imports only those before
 # it (and the runtime), so no package cycle can form. A new package gets its place here.
-PACKAGE_ORDER = ("language", "datasets", "progress", "jobs", "evaluation", "learning",
-                 "experiments", "web", "cli")
+PACKAGE_ORDER = (
+    "language",
+    "datasets",
+    "progress",
+    "jobs",
+    "evaluation",
+    "learning",
+    "experiments",
+    "web",
+    "cli",
+)
 MAX_LINES = 80  # a longer function says why in its docstring ("Long because ...")
+
+
 # smc() is being split into readable parts on the speed branch (issue #10)
 def modules() -> dict[str, Path]:
     out = {}
@@ -60,7 +73,7 @@ def test_no_import_cycles() -> None:
         stack.append(m)
         for n in sorted(graph[m]):
             if state.get(n) == 1:
-                cycles.append(stack[stack.index(n):] + [n])
+                cycles.append(stack[stack.index(n) :] + [n])
             elif n not in state:
                 visit(n)
         stack.pop()
@@ -99,9 +112,11 @@ def package_graph() -> dict[str, dict[str, list[str]]]:
 
 def format_graph(graph: dict[str, dict[str, list[str]]]) -> str:
     """One line per package: what it imports, with the number of module imports behind each."""
-    return "\n".join(f"{src} -> " + ", ".join(f"{dst} ({len(edges)})"
-                                              for dst, edges in sorted(graph[src].items()))
-                     for src in sorted(graph))
+    return "\n".join(
+        f"{src} -> "
+        + ", ".join(f"{dst} ({len(edges)})" for dst, edges in sorted(graph[src].items()))
+        for src in sorted(graph)
+    )
 
 
 def test_packages_import_only_downward() -> None:
@@ -109,11 +124,14 @@ def test_packages_import_only_downward() -> None:
     print("\n" + format_graph(graph))
     unplaced = sorted(p for p in graph if p not in PACKAGE_ORDER)
     assert not unplaced, f"packages missing from PACKAGE_ORDER: {unplaced}"
-    upward = [edge for src, dsts in graph.items() for dst, edges in dsts.items()
-              if dst != "ngpm_runtime"
-              and (dst not in PACKAGE_ORDER
-                   or PACKAGE_ORDER.index(dst) > PACKAGE_ORDER.index(src))
-              for edge in edges]
+    upward = [
+        edge
+        for src, dsts in graph.items()
+        for dst, edges in dsts.items()
+        if dst != "ngpm_runtime"
+        and (dst not in PACKAGE_ORDER or PACKAGE_ORDER.index(dst) > PACKAGE_ORDER.index(src))
+        for edge in edges
+    ]
     assert not upward, "imports against PACKAGE_ORDER:\n" + "\n".join(upward)
 
 

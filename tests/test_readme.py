@@ -18,7 +18,7 @@ from ngpm_compiler.cli.tour import commands
 
 README = (REPO / "README.md").read_text(encoding="utf-8")
 SETUP = [
-    'pip install -e . && ngpmc demo -o demo_out',
+    "pip install -e . && ngpmc demo -o demo_out",
     "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu && "
     'pip install -e ".[train,eval,dev,web]" && python3 -m pytest',
 ]
@@ -56,18 +56,35 @@ def test_every_ngpmc_command_parses() -> None:
             pytest.fail(f"README command does not parse ({err}): {line}")
         assert getattr(args, "handler", None), line
         used.add(argv[0])
-    assert {"demo", "grow", "check", "compile", "sample", "targets", "traces", "train",
-            "export"} <= used
+    assert {
+        "demo",
+        "grow",
+        "check",
+        "compile",
+        "sample",
+        "targets",
+        "traces",
+        "train",
+        "export",
+    } <= used
 
 
 def test_links_and_named_files_exist() -> None:
     links = re.findall(r"\]\(([^)#]+)\)", README)
     assert "docs/img/demo.png" in links
-    for doc in ("docs/language.md", "docs/architecture.md", "docs/datasets.md", "docs/api.md",
-                "docs/results/"):
+    for doc in (
+        "docs/language.md",
+        "docs/architecture.md",
+        "docs/datasets.md",
+        "docs/api.md",
+        "docs/results/",
+    ):
         assert doc in links, doc
-    named = re.findall(r"(?<![\w/])((?:grammars|scripts|runtime|docs|tests|benchmarks|\.ci)"
-                       r"/[\w./-]*[\w/])", README)
+    named = re.findall(
+        r"(?<![\w/])((?:grammars|scripts|runtime|docs|tests|benchmarks|\.ci)"
+        r"/[\w./-]*[\w/])",
+        README,
+    )
     assert "scripts/train_vines_guide.sh" in named
     for rel in set(links) | set(named):
         if rel.startswith(("http://", "https://")):
@@ -90,7 +107,7 @@ def test_demo_picture_is_an_image() -> None:
     for r in range(4):
         for c in range(3):
             y0, x0 = HEADER + r * (CELL + CAPTION + PAD), PAD + c * (CELL + PAD)
-            inner = gray[y0 + 2:y0 + CELL - 2, x0 + 2:x0 + CELL - 2]  # inside the frame
+            inner = gray[y0 + 2 : y0 + CELL - 2, x0 + 2 : x0 + CELL - 2]  # inside the frame
             drawn = (inner != np.median(inner)).mean()
             assert drawn > 0.01, f"picture {r}, {c} of demo.png looks blank ({drawn:.3f})"
 
@@ -107,14 +124,37 @@ def test_readme_python_runs(monkeypatch) -> None:
 
 def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
     assert [argv[0] for argv in tour.tour_commands(README)] == [
-        "check", "compile", "sample", "targets", "traces", "train", "export", "targets", "tune",
-        "grow", "grow"]
+        "check",
+        "compile",
+        "sample",
+        "targets",
+        "traces",
+        "train",
+        "export",
+        "targets",
+        "tune",
+        "grow",
+        "grow",
+    ]
 
     def smaller(argv: list[str]) -> list[str]:
         argv = [SMALLER.get(argv[i - 1], a) if i else a for i, a in enumerate(argv)]
-        return argv + {"traces": ["--workers", "1"], "train": ["--epochs", "2"],
-                       "tune": ["--targets", "2", "--repeats", "1", "--choice-temperatures",
-                                "1,0.5", "--ess", "none", "--workers", "1"]}.get(argv[0], [])
+        return argv + {
+            "traces": ["--workers", "1"],
+            "train": ["--epochs", "2"],
+            "tune": [
+                "--targets",
+                "2",
+                "--repeats",
+                "1",
+                "--choice-temperatures",
+                "1,0.5",
+                "--ess",
+                "none",
+                "--workers",
+                "1",
+            ],
+        }.get(argv[0], [])
 
     steps = tour.run_tour(README, tmp_path, smaller)
     assert [s.code for s in steps] == [0] * 11, steps[-1]
@@ -122,8 +162,13 @@ def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
     assert "(guided)" in out and "(unguided)" in out
     assert tour.similarity(steps[-1].output) is not None
     stem = tour.prepare(README, tmp_path)[:-5]
-    for out in ("sample.png", f"{stem}.png", f"{stem}_prior.png", f"out/{stem}_guide.onnx",
-                f"out/{stem}_tuned.onnx"):
+    for out in (
+        "sample.png",
+        f"{stem}.png",
+        f"{stem}_prior.png",
+        f"out/{stem}_guide.onnx",
+        f"out/{stem}_tuned.onnx",
+    ):
         assert (tmp_path / out).is_file(), out
 
 
@@ -133,8 +178,8 @@ def test_readme_3d_commands_run(tmp_path: Path, monkeypatch) -> None:
 
     from ngpm_compiler.cli import main
 
-    section = README[README.index("## 3D"):]
-    section = section[:section.index("\n## ")]
+    section = README[README.index("## 3D") :]
+    section = section[: section.index("\n## ")]
     lines = [shlex.split(ln)[1:] for b in blocks("bash", section) for ln in commands(b)]
     assert len(lines) >= 2 and all(argv[0] == "sample" for argv in lines)
     shutil.copytree(REPO / "grammars", tmp_path / "grammars")

@@ -43,8 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ngpmc", description="Compile, train and grow neurally-guided procedural models."
     )
-    parser.add_argument("--version", action=_Version, nargs=0,
-                        help="show the version of ngpm and exit")
+    parser.add_argument(
+        "--version", action=_Version, nargs=0, help="show the version of ngpm and exit"
+    )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(subparsers)
@@ -73,8 +74,10 @@ def main(argv: list[str] | None = None) -> int:
         print("ngpmc: interrupted", file=sys.stderr)
         return 130
     except OSError as err:
-        print(f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
-              file=sys.stderr)
+        print(
+            f"ngpmc: error: {err.strerror or err}: {err.filename or ''}".rstrip(": "),
+            file=sys.stderr,
+        )
         return 1
     finally:
         pipes.restore(stdout)

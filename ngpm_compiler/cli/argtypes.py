@@ -38,11 +38,13 @@ def _integer(text: str) -> int:
 
 def integer(low: int, high: int, rule: str | None = None) -> Callable[[str], int]:
     """An argparse type: an integer from `low` to `high`; `rule` words the refusal."""
+
     def parse(text: str) -> int:
         value = _integer(text)
         if not low <= value <= high:
             raise argparse.ArgumentTypeError(
-                f"{rule or f'must be from {low} to {high}'}, got {value}")
+                f"{rule or f'must be from {low} to {high}'}, got {value}"
+            )
         return value
 
     parse.__name__ = "integer"  # argparse names the type in some messages
@@ -51,8 +53,9 @@ def integer(low: int, high: int, rule: str | None = None) -> Callable[[str], int
 
 seed = integer(0, 2**63 - 1, "seeds are integers from 0 to 2**63 - 1")  # numpy: no negatives
 render_size = integer(1, MAX_RENDER_SIZE, f"image sizes are 1 to {MAX_RENDER_SIZE} pixels")
-target_size = integer(MIN_SIDE, MAX_TARGET_SIZE,
-                      f"target sizes are {MIN_SIDE} to {MAX_TARGET_SIZE} pixels")
+target_size = integer(
+    MIN_SIDE, MAX_TARGET_SIZE, f"target sizes are {MIN_SIDE} to {MAX_TARGET_SIZE} pixels"
+)
 count = integer(1, MAX_COUNT)
 particles = integer(1, MAX_PARTICLES)
 workers = integer(1, MAX_WORKERS)
@@ -60,6 +63,7 @@ workers = integer(1, MAX_WORKERS)
 
 def positive_number(high: float) -> Callable[[str], float]:
     """An argparse type: a number above 0 and at most `high` (no nan or inf)."""
+
     def parse(text: str) -> float:
         try:
             value = float(text)
@@ -67,7 +71,8 @@ def positive_number(high: float) -> Callable[[str], float]:
             raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
         if not 0 < value <= high:  # nan fails too
             raise argparse.ArgumentTypeError(
-                f"must be a number above 0 and at most {high:g}, got {text}")
+                f"must be a number above 0 and at most {high:g}, got {text}"
+            )
         return value
 
     parse.__name__ = "number"
@@ -83,10 +88,12 @@ def path(text: str) -> str:
 
 def output_file(*suffixes: str) -> Callable[[str], str]:
     """An argparse type: a path to write, ending in one of `suffixes` (any case)."""
+
     def parse(text: str) -> str:
         if Path(path(text)).suffix.lower() not in suffixes:
             raise argparse.ArgumentTypeError(
-                f"the output must be a {' or '.join(suffixes)} file, got {text!r}")
+                f"the output must be a {' or '.join(suffixes)} file, got {text!r}"
+            )
         return text
 
     parse.__name__ = "output file"
@@ -137,12 +144,14 @@ def integers(low: int, high: int) -> Callable[[str], tuple[int, ...]]:
 
 def choices(allowed: Sequence[str], what: str) -> Callable[[str], tuple[str, ...]]:
     """An argparse type: a comma-separated subset of `allowed` (`what` names one)."""
+
     def parse(text: str) -> tuple[str, ...]:
         chosen = tuple(items(text))
         bad = [x for x in chosen if x not in allowed]
         if bad:
             raise argparse.ArgumentTypeError(
-                f"unknown {what} {', '.join(bad)}; choose from {', '.join(allowed)}")
+                f"unknown {what} {', '.join(bad)}; choose from {', '.join(allowed)}"
+            )
         return chosen
 
     parse.__name__ = "choices"
@@ -175,45 +184,61 @@ def temperatures(text: str) -> tuple[float, ...]:
 
 def ess_thresholds(text: str) -> tuple[float | None, ...]:
     """Comma-separated ESS thresholds, fractions of N in (0, 1], or 'none'."""
-    return tuple(None if x.lower() == "none" else _proposal("ess_threshold", _number(x))
-                 for x in items(text))
+    return tuple(
+        None if x.lower() == "none" else _proposal("ess_threshold", _number(x)) for x in items(text)
+    )
 
 
 def add_max_modules(parser: argparse.ArgumentParser) -> None:
     """The `--max-modules N` run option (the grammar's `max modules:` cap, overridden)."""
     parser.add_argument(
-        "--max-modules", type=integer(1, MAX_MODULES), default=None, metavar="N",
+        "--max-modules",
+        type=integer(1, MAX_MODULES),
+        default=None,
+        metavar="N",
         help="modules one particle may expand or interpret between two drawings before "
-             "it stops with status limit (default: the grammar's 'max modules:', else "
-             f"20000; at most {MAX_MODULES})")
+        "it stops with status limit (default: the grammar's 'max modules:', else "
+        f"20000; at most {MAX_MODULES})",
+    )
 
 
-def add_workers(parser: argparse.ArgumentParser, default: int | None = 2,
-                default_text: str = "2") -> None:
+def add_workers(
+    parser: argparse.ArgumentParser, default: int | None = 2, default_text: str = "2"
+) -> None:
     """The `--workers N` option (processes)."""
-    parser.add_argument("--workers", type=workers, default=default,
-                        help=f"processes (default {default_text}, at most {MAX_WORKERS})")
+    parser.add_argument(
+        "--workers",
+        type=workers,
+        default=default,
+        help=f"processes (default {default_text}, at most {MAX_WORKERS})",
+    )
 
 
 def add_target_size(parser: argparse.ArgumentParser) -> None:
     """The `--size N` option: a target's working resolution."""
-    parser.add_argument("--size", type=target_size, default=50,
-                        help=f"target size in pixels (default 50, {MIN_SIDE} to "
-                             f"{MAX_TARGET_SIZE})")
+    parser.add_argument(
+        "--size",
+        type=target_size,
+        default=50,
+        help=f"target size in pixels (default 50, {MIN_SIDE} to {MAX_TARGET_SIZE})",
+    )
 
 
-def limit_note(particle: FinalParticle, program: Program,
-               max_modules: int | None) -> str | None:
+def limit_note(particle: FinalParticle, program: Program, max_modules: int | None) -> str | None:
     """One line saying which cap stopped `particle`, and how to raise it; None if none did."""
     if particle.status != "limit" or not particle.limit:
         return None
     from ngpm_runtime.inference.smc import module_cap
 
     if particle.limit == "max modules":
-        return (f"status limit: max modules ({module_cap(program, max_modules)} modules "
-                "expanded in one step without drawing); raise it with --max-modules or a "
-                "'max modules:' line, or make the grammar draw sooner")
+        return (
+            f"status limit: max modules ({module_cap(program, max_modules)} modules "
+            "expanded in one step without drawing); raise it with --max-modules or a "
+            "'max modules:' line, or make the grammar draw sooner"
+        )
     if particle.limit == "max primitives":
-        return (f"status limit: max primitives ({program.max_primitives} drawn); raise it "
-                "with a 'max primitives:' line")
+        return (
+            f"status limit: max primitives ({program.max_primitives} drawn); raise it "
+            "with a 'max primitives:' line"
+        )
     return f"status limit: {particle.limit}"

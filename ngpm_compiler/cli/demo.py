@@ -13,18 +13,34 @@ DEFAULT_OUT = "ngpm_demo"
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
-        "demo", help="grow guided and unguided vines into built-in targets (no training)",
+        "demo",
+        help="grow guided and unguided vines into built-in targets (no training)",
         description="Grow the vines model into a few built-in targets with the bundled "
-                    "pretrained guide and without it (prior proposals), with the same number "
-                    "of particles, and write a side-by-side comparison.")
-    p.add_argument("-o", "--out", type=argtypes.path, default=DEFAULT_OUT,
-                   help=f"output folder (default: {DEFAULT_OUT})")
-    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
-                   help="particles per run, guided and unguided (default 10, at most "
-                        f"{argtypes.MAX_PARTICLES})")
+        "pretrained guide and without it (prior proposals), with the same number "
+        "of particles, and write a side-by-side comparison.",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        type=argtypes.path,
+        default=DEFAULT_OUT,
+        help=f"output folder (default: {DEFAULT_OUT})",
+    )
+    p.add_argument(
+        "-N",
+        "--particles",
+        type=argtypes.particles,
+        default=10,
+        help="particles per run, guided and unguided (default 10, at most "
+        f"{argtypes.MAX_PARTICLES})",
+    )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="first seed (default 0)")
-    p.add_argument("--runs", type=argtypes.count, default=3,
-                   help="runs per target and kind, seeds seed, seed+1, ... (default 3)")
+    p.add_argument(
+        "--runs",
+        type=argtypes.count,
+        default=3,
+        help="runs per target and kind, seeds seed, seed+1, ... (default 3)",
+    )
     p.set_defaults(handler=cmd_demo)
 
 
@@ -34,10 +50,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
     program = bundled_program()
     guide = bundled_guide(program)
     demo.prepare_out_dir(args.out)
-    print(f"growing vines into {len(DEMO_TARGETS)} built-in targets, guided and unguided, "
-          f"{args.particles} particles, {args.runs} runs each ...", flush=True)
-    rows, _, files = demo.write_demo(args.out, args.particles, args.seed, args.runs,
-                                     program, guide)
+    print(
+        f"growing vines into {len(DEMO_TARGETS)} built-in targets, guided and unguided, "
+        f"{args.particles} particles, {args.runs} runs each ...",
+        flush=True,
+    )
+    rows, _, files = demo.write_demo(args.out, args.particles, args.seed, args.runs, program, guide)
     print(demo.summary_table(rows, args.particles, args.runs))
     print(f"wrote {files[-2]}, {files[-1]} and {len(files) - 2} renders in {files[-1].parent}")
     return 0

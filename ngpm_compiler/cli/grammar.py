@@ -17,51 +17,85 @@ from ngpm_compiler.language.compile import (
 )
 
 # The help of every argument that takes a grammar, .lsys or generated (load_grammar).
-GRAMMAR_HELP = ("the .lsys file, or a *_sampler.py written by `ngpmc compile`: that file is "
-                "Python and runs when loaded, so give only samplers you trust (ngpm refuses "
-                "other .py files without running them)")
+GRAMMAR_HELP = (
+    "the .lsys file, or a *_sampler.py written by `ngpmc compile`: that file is "
+    "Python and runs when loaded, so give only samplers you trust (ngpm refuses "
+    "other .py files without running them)"
+)
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("compile", help="compile a .lsys grammar into a Python sampler")
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument("-o", "--out", type=argtypes.path, default=".",
-                   help="output folder (default: current)")
+    p.add_argument(
+        "-o", "--out", type=argtypes.path, default=".", help="output folder (default: current)"
+    )
     p.set_defaults(handler=cmd_compile)
 
     p = subparsers.add_parser(
-        "check", help="check a .lsys grammar, list its sites and estimate its cost",
+        "check",
+        help="check a .lsys grammar, list its sites and estimate its cost",
         description="Check a grammar and list its sites; then, from forward samples (a few "
-                    "seconds), the primitives per sample, the share of samples stopped by a "
-                    "cap, the time of one 600-particle SMC run, a proposed 'viewport:' line "
-                    "when the grammar has none, and a warning naming the rule when chains "
-                    "fork more than once per generation on average and samples run to a cap.")
+        "seconds), the primitives per sample, the share of samples stopped by a "
+        "cap, the time of one 600-particle SMC run, a proposed 'viewport:' line "
+        "when the grammar has none, and a warning naming the rule when chains "
+        "fork more than once per generation on average and samples run to a cap.",
+    )
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument("--no-samples", action="store_true",
-                   help="only check and list the sites (no forward samples, no estimates)")
-    p.add_argument("--samples", type=argtypes.integer(1, 1000), default=40, metavar="N",
-                   help="forward samples to draw at most (default 40, 1 to 1000; drawing "
-                        "stops after about 2 s)")
-    p.add_argument("--seed", type=argtypes.seed, default=0,
-                   help="seed of the first forward sample (default 0)")
+    p.add_argument(
+        "--no-samples",
+        action="store_true",
+        help="only check and list the sites (no forward samples, no estimates)",
+    )
+    p.add_argument(
+        "--samples",
+        type=argtypes.integer(1, 1000),
+        default=40,
+        metavar="N",
+        help="forward samples to draw at most (default 40, 1 to 1000; drawing "
+        "stops after about 2 s)",
+    )
+    p.add_argument(
+        "--seed", type=argtypes.seed, default=0, help="seed of the first forward sample (default 0)"
+    )
     p.set_defaults(handler=cmd_check)
 
     p = subparsers.add_parser("sample", help="draw one forward sample of a grammar's prior")
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
-    p.add_argument("-o", "--out", required=True, type=argtypes.path,
-                   help="file to write: a picture (.png or .svg); for a 3D grammar a mesh "
-                        "(.glb, .obj with its .mtl, .ply) or a shaded .png")
-    p.add_argument("--size", type=argtypes.render_size, default=512,
-                   help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})")
-    p.add_argument("--png", type=argtypes.output_file(".png"), metavar="PATH",
-                   help="3D grammars: also write a shaded picture of the mesh (default: none)")
-    p.add_argument("--gif", type=argtypes.output_file(".gif"), metavar="PATH",
-                   help="3D grammars: also write a turntable GIF, 24 frames of half --size "
-                        "(default: none)")
-    p.add_argument("--view", type=view, metavar="AZ,EL",
-                   help="3D grammars: the pictures' view, azimuth and elevation in degrees "
-                        "(default 45,20; 0,0 looks from +Z, as the 2D render)")
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        type=argtypes.path,
+        help="file to write: a picture (.png or .svg); for a 3D grammar a mesh "
+        "(.glb, .obj with its .mtl, .ply) or a shaded .png",
+    )
+    p.add_argument(
+        "--size",
+        type=argtypes.render_size,
+        default=512,
+        help=f"image size in pixels (default 512, at most {argtypes.MAX_RENDER_SIZE})",
+    )
+    p.add_argument(
+        "--png",
+        type=argtypes.output_file(".png"),
+        metavar="PATH",
+        help="3D grammars: also write a shaded picture of the mesh (default: none)",
+    )
+    p.add_argument(
+        "--gif",
+        type=argtypes.output_file(".gif"),
+        metavar="PATH",
+        help="3D grammars: also write a turntable GIF, 24 frames of half --size (default: none)",
+    )
+    p.add_argument(
+        "--view",
+        type=view,
+        metavar="AZ,EL",
+        help="3D grammars: the pictures' view, azimuth and elevation in degrees "
+        "(default 45,20; 0,0 looks from +Z, as the 2D render)",
+    )
     argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_sample)
 
@@ -73,10 +107,12 @@ def view(text: str) -> tuple[float, float]:
         az, el = (float(x) for x in parts)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"expected AZ,EL in degrees, like 45,20, got {text!r}") from None
+            f"expected AZ,EL in degrees, like 45,20, got {text!r}"
+        ) from None
     if not (math.isfinite(az) and -90 <= el <= 90):
         raise argparse.ArgumentTypeError(
-            f"the azimuth must be a number and the elevation from -90 to 90, got {text!r}")
+            f"the azimuth must be a number and the elevation from -90 to 90, got {text!r}"
+        )
     return az, el
 
 
@@ -109,8 +145,10 @@ def site_table(compiled: CompiledGrammar) -> list[str]:
         prior = s.source if s.probs is None else "(" + ", ".join(f"{p:.3g}" for p in s.probs) + ")"
         rows.append((str(s.index), s.id, s.kind, prior, f"line {s.line}:{s.col}"))
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
-    return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=False)) + "  " + r[4]
-            for r in rows]
+    return [
+        "  " + "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=False)) + "  " + r[4]
+        for r in rows
+    ]
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -134,10 +172,15 @@ def cmd_sample(args: argparse.Namespace) -> int:
 
     suffix = Path(args.out).suffix.lower()
     if suffix not in (".png", ".svg", *MESH_SUFFIXES):
-        raise NgpmError(f"{args.out}: the output must be a .png or .svg file (or .glb, .obj, "
-                        ".ply for a 3D grammar)")
-    program = (load_grammar(check_file(args.grammar)) if args.grammar.endswith(".py")
-               else load(args.grammar).program())
+        raise NgpmError(
+            f"{args.out}: the output must be a .png or .svg file (or .glb, .obj, "
+            ".ply for a 3D grammar)"
+        )
+    program = (
+        load_grammar(check_file(args.grammar))
+        if args.grammar.endswith(".py")
+        else load(args.grammar).program()
+    )
     three_d = getattr(program, "dim", 2) == 3
     check_sample_outputs(args, suffix, three_d)
     particle = forward(program, seed=args.seed, max_modules=args.max_modules)
@@ -149,8 +192,10 @@ def cmd_sample(args: argparse.Namespace) -> int:
 
         save_render(prims, args.out, viewport=program.viewport, size=args.size)
         written = args.out
-    print(f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
-          f"log prior {particle.log_prior:.3f}, status {particle.status} -> {written}")
+    print(
+        f"{args.grammar}: seed {args.seed}, {len(prims)} primitives, "
+        f"log prior {particle.log_prior:.3f}, status {particle.status} -> {written}"
+    )
     note = argtypes.limit_note(particle, program, args.max_modules)
     if note:
         print(note)
@@ -161,14 +206,18 @@ def check_sample_outputs(args: argparse.Namespace, suffix: str, three_d: bool) -
     """One-line errors for outputs the grammar's dimension has no use for."""
     if not three_d:
         if suffix in MESH_SUFFIXES:
-            raise NgpmError(f"{args.out}: mesh output ({', '.join(MESH_SUFFIXES)}) is for 3D "
-                            f"grammars; {args.grammar} is 2D (write .png or .svg)")
+            raise NgpmError(
+                f"{args.out}: mesh output ({', '.join(MESH_SUFFIXES)}) is for 3D "
+                f"grammars; {args.grammar} is 2D (write .png or .svg)"
+            )
         extra = [f"--{k}" for k in ("png", "gif", "view") if getattr(args, k) is not None]
         if extra:
             raise NgpmError(f"{' and '.join(extra)}: for 3D grammars; {args.grammar} is 2D")
     elif suffix == ".svg":
-        raise NgpmError(f"{args.out}: SVG output is for 2D grammars; {args.grammar} is 3D "
-                        "(write .glb, .obj, .ply, or a .png picture: --view 0,0 looks from +Z)")
+        raise NgpmError(
+            f"{args.out}: SVG output is for 2D grammars; {args.grammar} is 3D "
+            "(write .glb, .obj, .ply, or a .png picture: --view 0,0 looks from +Z)"
+        )
 
 
 def save_3d(args: argparse.Namespace, prims: list) -> str:

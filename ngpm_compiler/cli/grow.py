@@ -21,39 +21,72 @@ if TYPE_CHECKING:
 
 
 GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
-SIMILARITY_SCALE = ("1 = the target exactly, 0 = no better than a blank canvas, below 0 = "
-                    "worse than blank (more drawn outside the shape than inside)")
+SIMILARITY_SCALE = (
+    "1 = the target exactly, 0 = no better than a blank canvas, below 0 = "
+    "worse than blank (more drawn outside the shape than inside)"
+)
 LOW_SIMILARITY = 0.2  # below it, grow explains the scale
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
-        "grow", help="grow a vine (or any grammar) into a picture with SMC",
+        "grow",
+        help="grow a vine (or any grammar) into a picture with SMC",
         description="Grow a grammar into a target image with SMC. With no --grammar it grows "
-                    "the bundled vines model, guided by the bundled pretrained guide. It "
-                    f"prints the similarity of the best particle: {SIMILARITY_SCALE}.")
-    p.add_argument("image", nargs="?", metavar="IMAGE",
-                   help="target image; a .txt sidecar beside it gives the start "
-                        "(`x y` then `dx dy`), else it is found automatically")
+        "the bundled vines model, guided by the bundled pretrained guide. It "
+        f"prints the similarity of the best particle: {SIMILARITY_SCALE}.",
+    )
+    p.add_argument(
+        "image",
+        nargs="?",
+        metavar="IMAGE",
+        help="target image; a .txt sidecar beside it gives the start "
+        "(`x y` then `dx dy`), else it is found automatically",
+    )
     p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
-    p.add_argument("--guide", type=argtypes.path,
-                   help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
-                        "for the grammar and likelihood, if any)")
-    p.add_argument("-N", "--particles", type=argtypes.particles, default=10,
-                   help=f"particles (default 10, at most {argtypes.MAX_PARTICLES})")
+    p.add_argument(
+        "--guide",
+        type=argtypes.path,
+        help="guide .onnx, or 'none' for unguided SMC (default: the bundled guide "
+        "for the grammar and likelihood, if any)",
+    )
+    p.add_argument(
+        "-N",
+        "--particles",
+        type=argtypes.particles,
+        default=10,
+        help=f"particles (default 10, at most {argtypes.MAX_PARTICLES})",
+    )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
     argtypes.add_target_size(p)
-    p.add_argument("--likelihood", choices=("shape", "circuit"), default="shape",
-                   help="shape: match the image (default); circuit: the paper's circuit-like "
-                        "density (the image, if any, only gives the start)")
-    p.add_argument("-o", "--out", type=argtypes.path,
-                   help="render of the best particle, .png or .svg (default: "
-                        f"IMAGE{GROW_SUFFIX}.png in the current folder)")
-    p.add_argument("--svg", nargs="?", const="", metavar="PATH",
-                   help="also write an SVG (default path: the -o file with .svg)")
-    p.add_argument("--steps-gif", nargs="?", const="", metavar="PATH",
-                   help="also write an animation of the growth (default path: the -o file "
-                        "with .gif)")
+    p.add_argument(
+        "--likelihood",
+        choices=("shape", "circuit"),
+        default="shape",
+        help="shape: match the image (default); circuit: the paper's circuit-like "
+        "density (the image, if any, only gives the start)",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        type=argtypes.path,
+        help="render of the best particle, .png or .svg (default: "
+        f"IMAGE{GROW_SUFFIX}.png in the current folder)",
+    )
+    p.add_argument(
+        "--svg",
+        nargs="?",
+        const="",
+        metavar="PATH",
+        help="also write an SVG (default path: the -o file with .svg)",
+    )
+    p.add_argument(
+        "--steps-gif",
+        nargs="?",
+        const="",
+        metavar="PATH",
+        help="also write an animation of the growth (default path: the -o file with .gif)",
+    )
     argtypes.add_max_modules(p)
     p.set_defaults(handler=cmd_grow)
 
@@ -62,11 +95,12 @@ def _grow_inputs(args: argparse.Namespace) -> tuple[str | None, str | None]:
     """(grammar or None for the bundled vines, image or None) from the command line."""
     grammar, image = args.grammar, args.image
     if image is not None and Path(image).is_dir():
-        raise NgpmError(f"{image} is a folder: grow wants one target image "
-                        "(ngpmc grow IMAGE -o vine.png), so run it once per image")
+        raise NgpmError(
+            f"{image} is a folder: grow wants one target image "
+            "(ngpmc grow IMAGE -o vine.png), so run it once per image"
+        )
     if image is not None and Path(image).suffix.lower() in (".lsys", ".py"):
-        raise NgpmError(f"{image} is a grammar, not an image: "
-                        f"ngpmc grow IMAGE --grammar {image}")
+        raise NgpmError(f"{image} is a grammar, not an image: ngpmc grow IMAGE --grammar {image}")
     return grammar, image
 
 
@@ -87,8 +121,11 @@ def _grow_outputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
             raise NgpmError(f"{path}: {flag} writes a {suffix} file")
         return path
 
-    paths = (out, derived(args.svg, ".svg", "--svg"),
-             derived(args.steps_gif, ".gif", "--steps-gif"))
+    paths = (
+        out,
+        derived(args.svg, ".svg", "--svg"),
+        derived(args.steps_gif, ".gif", "--steps-gif"),
+    )
     for path in paths:
         if path is not None:
             check_output_file(path)
@@ -107,9 +144,11 @@ def _grow_guide(choice: str | None, program: Program, likelihood: str) -> Guide 
         return Guide.load(choice, program)
     guide = bundled.default_guide(program, likelihood)
     if guide is None:
-        print(f"no bundled guide for grammar {program.name} with the {likelihood} "
-              "likelihood: unguided SMC (train one with ngpmc traces, train and export; "
-              "pass it with --guide)")
+        print(
+            f"no bundled guide for grammar {program.name} with the {likelihood} "
+            "likelihood: unguided SMC (train one with ngpmc traces, train and export; "
+            "pass it with --guide)"
+        )
     return guide
 
 
@@ -150,21 +189,33 @@ def cmd_grow(args: argparse.Namespace) -> int:
     guide = _grow_guide(args.guide, program, args.likelihood)
     if guide is not None and guide.fallback_sites:
         ids = ", ".join(program.sites[i].id for i in guide.fallback_sites)
-        print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the "
-              f"prior: {ids}")
+        print(f"guide: {len(guide.fallback_sites)} sites unseen in training use the prior: {ids}")
     from ngpm_runtime.grow import grow
 
     from ngpm_compiler.progress import Progress
 
     with Progress("grow", unit="step", delay=1.0, leave=False) as bar:
-        res = grow(program, target, guide, args.particles, args.seed, args.likelihood,
-                   observers=(_step_ticks(bar),), max_modules=args.max_modules)
+        res = grow(
+            program,
+            target,
+            guide,
+            args.particles,
+            args.seed,
+            args.likelihood,
+            observers=(_step_ticks(bar),),
+            max_modules=args.max_modules,
+        )
     kind = "guided" if guide else "unguided"
     name = target.name if target is not None else program.name
-    score = (f"similarity {res.similarity:.3f}" if args.likelihood == "shape" else
-             f"circuit log-likelihood {res.smc.best.log_likelihood:.2f}")
-    print(f"{name}: {score}, {res.particles} particles ({kind}), {res.seconds:.2f} s, "
-          f"{len(res.primitives)} primitives")
+    score = (
+        f"similarity {res.similarity:.3f}"
+        if args.likelihood == "shape"
+        else f"circuit log-likelihood {res.smc.best.log_likelihood:.2f}"
+    )
+    print(
+        f"{name}: {score}, {res.particles} particles ({kind}), {res.seconds:.2f} s, "
+        f"{len(res.primitives)} primitives"
+    )
     if args.likelihood == "shape" and res.similarity < LOW_SIMILARITY:
         print(f"similarity: {SIMILARITY_SCALE}")
     if guide is not None:

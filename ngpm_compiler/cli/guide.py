@@ -21,104 +21,197 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     _register_iterate(subparsers)
     p = subparsers.add_parser("export", help="export a trained guide to one ONNX file")
     p.add_argument("model", help="model file written by `ngpmc train`")
-    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".onnx"),
-                   help="ONNX file to write (.onnx)")
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        type=argtypes.output_file(".onnx"),
+        help="ONNX file to write (.onnx)",
+    )
     p.set_defaults(handler=cmd_export)
     _register_tune(subparsers)
 
 
 def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = subparsers.add_parser("traces", help="record training traces with SMC (unguided, or "
-                                             "guided by --guide)")
+    p = subparsers.add_parser(
+        "traces", help="record training traces with SMC (unguided, or guided by --guide)"
+    )
     p.add_argument("grammar", help=GRAMMAR_HELP)
-    p.add_argument("--targets", required=True, type=argtypes.path,
-                   help="dataset directory of target images")
-    p.add_argument("-n", type=argtypes.count, default=1000,
-                   help=f"traces to keep (default 1000, at most {argtypes.MAX_COUNT})")
-    p.add_argument("--particles", type=argtypes.particles, default=600,
-                   help=f"SMC particles (default 600, at most {argtypes.MAX_PARTICLES})")
-    p.add_argument("-o", "--out", required=True, type=argtypes.path,
-                   help="traces directory (resumed if present)")
+    p.add_argument(
+        "--targets", required=True, type=argtypes.path, help="dataset directory of target images"
+    )
+    p.add_argument(
+        "-n",
+        type=argtypes.count,
+        default=1000,
+        help=f"traces to keep (default 1000, at most {argtypes.MAX_COUNT})",
+    )
+    p.add_argument(
+        "--particles",
+        type=argtypes.particles,
+        default=600,
+        help=f"SMC particles (default 600, at most {argtypes.MAX_PARTICLES})",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        type=argtypes.path,
+        help="traces directory (resumed if present)",
+    )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
-    p.add_argument("--mirror", action="store_true",
-                   help="add mirrored copies of targets that have none")
+    p.add_argument(
+        "--mirror", action="store_true", help="add mirrored copies of targets that have none"
+    )
     argtypes.add_target_size(p)
-    p.add_argument("--shard-size", type=argtypes.count, default=50,
-                   help="jobs per shard (default 50)")
+    p.add_argument(
+        "--shard-size", type=argtypes.count, default=50, help="jobs per shard (default 50)"
+    )
     argtypes.add_max_modules(p)
     add_backend_arguments(p)
-    p.add_argument("--guide", type=argtypes.path,
-                   help="guide .onnx that proposes in SMC (expert iteration; default: "
-                        "unguided, the prior proposes)")
+    p.add_argument(
+        "--guide",
+        type=argtypes.path,
+        help="guide .onnx that proposes in SMC (expert iteration; default: "
+        "unguided, the prior proposes)",
+    )
     p.set_defaults(handler=cmd_traces)
 
 
 def _register_train(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("train", help="train guide networks on recorded traces")
-    p.add_argument("traces", type=argtypes.paths,
-                   help="traces directory written by `ngpmc traces` (several: "
-                        "comma-separated, trained on together)")
-    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".pt"),
-                   help="model file to write (model.pt)")
-    p.add_argument("--features", default="all", choices=FEATURE_SETS,
-                   help="feature set (default all)")
-    p.add_argument("--K", type=argtypes.integer(1, argtypes.MAX_K), default=4,
-                   help=f"mixture components (default 4, at most {argtypes.MAX_K})")
-    p.add_argument("--hidden", type=argtypes.integer(0, argtypes.MAX_HIDDEN), default=0,
-                   help="hidden units per site network (default 0: half its inputs, >= 8; "
-                        f"at most {argtypes.MAX_HIDDEN})")
-    p.add_argument("--epochs", type=argtypes.count, default=40,
-                   help="most training epochs (default 40)")
-    p.add_argument("--batch-size", type=argtypes.count, default=256,
-                   help="site visits per step (default 256)")
-    p.add_argument("--lr", type=argtypes.positive_number(1.0), default=0.005,
-                   help="Adam step size, above 0 and at most 1 (default 0.005)")
-    p.add_argument("--patience", type=argtypes.count, default=4,
-                   help="early-stopping patience in epochs (default 4)")
+    p.add_argument(
+        "traces",
+        type=argtypes.paths,
+        help="traces directory written by `ngpmc traces` (several: "
+        "comma-separated, trained on together)",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        type=argtypes.output_file(".pt"),
+        help="model file to write (model.pt)",
+    )
+    p.add_argument(
+        "--features", default="all", choices=FEATURE_SETS, help="feature set (default all)"
+    )
+    p.add_argument(
+        "--K",
+        type=argtypes.integer(1, argtypes.MAX_K),
+        default=4,
+        help=f"mixture components (default 4, at most {argtypes.MAX_K})",
+    )
+    p.add_argument(
+        "--hidden",
+        type=argtypes.integer(0, argtypes.MAX_HIDDEN),
+        default=0,
+        help="hidden units per site network (default 0: half its inputs, >= 8; "
+        f"at most {argtypes.MAX_HIDDEN})",
+    )
+    p.add_argument(
+        "--epochs", type=argtypes.count, default=40, help="most training epochs (default 40)"
+    )
+    p.add_argument(
+        "--batch-size", type=argtypes.count, default=256, help="site visits per step (default 256)"
+    )
+    p.add_argument(
+        "--lr",
+        type=argtypes.positive_number(1.0),
+        default=0.005,
+        help="Adam step size, above 0 and at most 1 (default 0.005)",
+    )
+    p.add_argument(
+        "--patience",
+        type=argtypes.count,
+        default=4,
+        help="early-stopping patience in epochs (default 4)",
+    )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="seed (default 0)")
-    p.add_argument("--threads", type=argtypes.workers, default=1,
-                   help="torch threads (default 1)")
-    p.add_argument("--allow-missing", action="store_true",
-                   help="train even if shards listed in the manifest are missing or unreadable")
+    p.add_argument("--threads", type=argtypes.workers, default=1, help="torch threads (default 1)")
+    p.add_argument(
+        "--allow-missing",
+        action="store_true",
+        help="train even if shards listed in the manifest are missing or unreadable",
+    )
     p.set_defaults(handler=cmd_train)
 
 
 def _register_iterate(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser(
-        "iterate", help="expert iteration: guided traces -> train -> repeat, keep the best",
+        "iterate",
+        help="expert iteration: guided traces -> train -> repeat, keep the best",
         description="Rounds of: record traces with SMC guided by the best guide so far, train "
-                    "a guide on all rounds' traces, score it on validation targets at N = 10 "
-                    "with the default proposal settings (a tuned --init-guide is scored untuned "
-                    "too, so rounds compare under equal settings); the best round's guide is "
-                    "copied to OUT/best.onnx.")
+        "a guide on all rounds' traces, score it on validation targets at N = 10 "
+        "with the default proposal settings (a tuned --init-guide is scored untuned "
+        "too, so rounds compare under equal settings); the best round's guide is "
+        "copied to OUT/best.onnx.",
+    )
     p.add_argument("grammar", help=GRAMMAR_HELP)
-    p.add_argument("--targets", required=True, type=argtypes.paths,
-                   help="training-target directories, comma-separated")
-    p.add_argument("--validate", required=True, type=argtypes.pairs,
-                   help="validation sets NAME=DIR,... (targets never trained on)")
-    p.add_argument("-o", "--out", required=True, type=argtypes.path,
-                   help="work directory (resumed if present)")
+    p.add_argument(
+        "--targets",
+        required=True,
+        type=argtypes.paths,
+        help="training-target directories, comma-separated",
+    )
+    p.add_argument(
+        "--validate",
+        required=True,
+        type=argtypes.pairs,
+        help="validation sets NAME=DIR,... (targets never trained on)",
+    )
+    p.add_argument(
+        "-o", "--out", required=True, type=argtypes.path, help="work directory (resumed if present)"
+    )
     p.add_argument("--rounds", type=argtypes.count, default=2, help="rounds (default 2)")
-    p.add_argument("-n", type=argtypes.count, default=300,
-                   help="traces per round and target directory (default 300)")
-    p.add_argument("--particles", type=argtypes.particles, default=200,
-                   help="guided particles (default 200)")
-    p.add_argument("--unguided-particles", type=argtypes.particles, default=600,
-                   help="particles of a round without a guide (default 600)")
-    p.add_argument("--init-guide", type=argtypes.path,
-                   help="guide .onnx of round 0 (default: none, round 1 is unguided)")
-    p.add_argument("--init-traces", type=argtypes.paths, default=(),
-                   help="traces directories added to every round's training, comma-separated "
-                        "(default: none)")
-    p.add_argument("--val-targets", type=argtypes.count, default=12,
-                   help="targets per validation set (default 12)")
-    p.add_argument("--val-repeats", type=argtypes.count, default=2,
-                   help="runs per validation target (default 2)")
-    p.add_argument("--features", default="all", choices=FEATURE_SETS,
-                   help="feature set of every round's guide (default all)")
-    p.add_argument("--epochs", type=argtypes.count, default=40,
-                   help="most training epochs (default 40)")
+    p.add_argument(
+        "-n",
+        type=argtypes.count,
+        default=300,
+        help="traces per round and target directory (default 300)",
+    )
+    p.add_argument(
+        "--particles", type=argtypes.particles, default=200, help="guided particles (default 200)"
+    )
+    p.add_argument(
+        "--unguided-particles",
+        type=argtypes.particles,
+        default=600,
+        help="particles of a round without a guide (default 600)",
+    )
+    p.add_argument(
+        "--init-guide",
+        type=argtypes.path,
+        help="guide .onnx of round 0 (default: none, round 1 is unguided)",
+    )
+    p.add_argument(
+        "--init-traces",
+        type=argtypes.paths,
+        default=(),
+        help="traces directories added to every round's training, comma-separated (default: none)",
+    )
+    p.add_argument(
+        "--val-targets",
+        type=argtypes.count,
+        default=12,
+        help="targets per validation set (default 12)",
+    )
+    p.add_argument(
+        "--val-repeats",
+        type=argtypes.count,
+        default=2,
+        help="runs per validation target (default 2)",
+    )
+    p.add_argument(
+        "--features",
+        default="all",
+        choices=FEATURE_SETS,
+        help="feature set of every round's guide (default all)",
+    )
+    p.add_argument(
+        "--epochs", type=argtypes.count, default=40, help="most training epochs (default 40)"
+    )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_iterate)
@@ -137,36 +230,61 @@ def _register_tune(subparsers: argparse._SubParsersAction[argparse.ArgumentParse
         return ",".join("none" if v is None else f"{v:g}" for v in values)
 
     p = subparsers.add_parser(
-        "tune", help="choose a guide's proposal temperatures and ESS threshold on validation "
-                     "targets",
+        "tune",
+        help="choose a guide's proposal temperatures and ESS threshold on validation targets",
         description="Score guided SMC (N = 10) on validation targets for every combination of "
-                    "the settings below and write a copy of the guide that proposes with the "
-                    "best one (its metadata; `grow`, `eval`, `traces` and the web page use it). "
-                    "Weights stay exact with every setting.")
+        "the settings below and write a copy of the guide that proposes with the "
+        "best one (its metadata; `grow`, `eval`, `traces` and the web page use it). "
+        "Weights stay exact with every setting.",
+    )
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
-    p.add_argument("--validate", required=True, type=argtypes.pairs,
-                   help="validation sets NAME=DIR,... (targets never trained on, not held out)")
-    p.add_argument("-o", "--out", required=True, type=argtypes.output_file(".onnx"),
-                   help="tuned guide .onnx to write")
-    p.add_argument("--work", type=argtypes.path,
-                   help="runs and candidates, resumed if present (default: OUT without "
-                        ".onnx, plus _tune)")
-    p.add_argument("--temperatures", type=argtypes.temperatures,
-                   default=TUNE_GRID["temperature"],
-                   help="continuous-value temperatures, comma-separated (default "
-                        f"{listed(TUNE_GRID['temperature'])})")
-    p.add_argument("--choice-temperatures", type=argtypes.temperatures,
-                   default=TUNE_GRID["choice_temperature"],
-                   help=f"choice temperatures (default {listed(TUNE_GRID['choice_temperature'])}; "
-                        "< 1 is sharper; 0.05 to 20)")
-    p.add_argument("--ess", type=argtypes.ess_thresholds, default=TUNE_GRID["ess_threshold"],
-                   help="ESS thresholds as fractions of N, 'none' = resample every step "
-                        f"(default {listed(TUNE_GRID['ess_threshold'])})")
-    p.add_argument("--targets", type=argtypes.count, default=36,
-                   help="targets per set (default 36; all of a smaller set)")
-    p.add_argument("--repeats", type=argtypes.count, default=5,
-                   help="runs per target (default 5)")
+    p.add_argument(
+        "--validate",
+        required=True,
+        type=argtypes.pairs,
+        help="validation sets NAME=DIR,... (targets never trained on, not held out)",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        type=argtypes.output_file(".onnx"),
+        help="tuned guide .onnx to write",
+    )
+    p.add_argument(
+        "--work",
+        type=argtypes.path,
+        help="runs and candidates, resumed if present (default: OUT without .onnx, plus _tune)",
+    )
+    p.add_argument(
+        "--temperatures",
+        type=argtypes.temperatures,
+        default=TUNE_GRID["temperature"],
+        help="continuous-value temperatures, comma-separated (default "
+        f"{listed(TUNE_GRID['temperature'])})",
+    )
+    p.add_argument(
+        "--choice-temperatures",
+        type=argtypes.temperatures,
+        default=TUNE_GRID["choice_temperature"],
+        help=f"choice temperatures (default {listed(TUNE_GRID['choice_temperature'])}; "
+        "< 1 is sharper; 0.05 to 20)",
+    )
+    p.add_argument(
+        "--ess",
+        type=argtypes.ess_thresholds,
+        default=TUNE_GRID["ess_threshold"],
+        help="ESS thresholds as fractions of N, 'none' = resample every step "
+        f"(default {listed(TUNE_GRID['ess_threshold'])})",
+    )
+    p.add_argument(
+        "--targets",
+        type=argtypes.count,
+        default=36,
+        help="targets per set (default 36; all of a smaller set)",
+    )
+    p.add_argument("--repeats", type=argtypes.count, default=5, help="runs per target (default 5)")
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_tune)
@@ -187,9 +305,19 @@ def cmd_tune(args: argparse.Namespace) -> int:
     Guide.load(args.guide, load_grammar(args.grammar))  # names a wrong or corrupt file first
     settings = grid(args.temperatures, args.choice_temperatures, args.ess)
     work = args.work or str(Path(args.out).with_suffix("")) + "_tune"
-    res = tune(args.grammar, args.guide, validation, args.out, work, settings,
-               k=args.targets, repeats=args.repeats, workers=args.workers, seed=args.seed,
-               log=_log)
+    res = tune(
+        args.grammar,
+        args.guide,
+        validation,
+        args.out,
+        work,
+        settings,
+        k=args.targets,
+        repeats=args.repeats,
+        workers=args.workers,
+        seed=args.seed,
+        log=_log,
+    )
     print(res["table"], end="")
     print(f"{args.out}: proposes with {res['best'].label()} (runs in {work})")
     return 0
@@ -200,31 +328,50 @@ def cmd_tune(args: argparse.Namespace) -> int:
 
 def add_backend_arguments(p: argparse.ArgumentParser) -> None:
     """--backend and --ray-address (traces and eval)."""
-    p.add_argument("--backend", choices=("local", "ray"), default="local",
-                   help="where jobs run: local worker processes (default) or Ray tasks "
-                        "(a local Ray instance with --workers CPUs, or --ray-address's "
-                        "cluster; needs `pip install ray`)")
-    p.add_argument("--ray-address", metavar="ADDRESS",
-                   help="a running Ray cluster (e.g. 10.0.0.1:6379 from `ray start --head`, "
-                        "or 'auto'); default: $RAY_ADDRESS, else a local Ray instance")
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="where jobs run: local worker processes (default) or Ray tasks "
+        "(a local Ray instance with --workers CPUs, or --ray-address's "
+        "cluster; needs `pip install ray`)",
+    )
+    p.add_argument(
+        "--ray-address",
+        metavar="ADDRESS",
+        help="a running Ray cluster (e.g. 10.0.0.1:6379 from `ray start --head`, "
+        "or 'auto'); default: $RAY_ADDRESS, else a local Ray instance",
+    )
 
 
 def cmd_traces(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
-    cfg = TraceConfig(grammar=args.grammar, targets=args.targets, n=args.n,
-                      particles=args.particles, seed=args.seed, workers=args.workers,
-                      mirror=args.mirror, size=args.size, shard_size=args.shard_size,
-                      max_modules=args.max_modules, backend=args.backend,
-                      ray_address=args.ray_address, guide=args.guide)
+    cfg = TraceConfig(
+        grammar=args.grammar,
+        targets=args.targets,
+        n=args.n,
+        particles=args.particles,
+        seed=args.seed,
+        workers=args.workers,
+        mirror=args.mirror,
+        size=args.size,
+        shard_size=args.shard_size,
+        max_modules=args.max_modules,
+        backend=args.backend,
+        ray_address=args.ray_address,
+        guide=args.guide,
+    )
     if args.guide is not None and not Path(args.guide).is_file():
         raise NgpmError(f"--guide {args.guide}: no such file")
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
-    print(f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped (fewer than "
-          f"{cfg.min_primitives} primitives{failed}), {len(m['shards'])} shards, "
-          f"{per:.2f} s per job")
+    print(
+        f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped (fewer than "
+        f"{cfg.min_primitives} primitives{failed}), {len(m['shards'])} shards, "
+        f"{per:.2f} s per job"
+    )
     return 0
 
 
@@ -239,21 +386,38 @@ def cmd_train(args: argparse.Namespace) -> int:
     ts = sets[0] if len(sets) == 1 else merge_traces(sets)
     if not ts.data:
         raise NgpmError(f"{','.join(args.traces)}: holds no site visits to train on")
-    cfg = TrainConfig(feature_set=args.features, K=args.K, epochs=args.epochs,
-                      batch_size=args.batch_size, lr=args.lr, patience=args.patience,
-                      seed=args.seed, threads=args.threads, hidden=args.hidden)
+    cfg = TrainConfig(
+        feature_set=args.features,
+        K=args.K,
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        patience=args.patience,
+        seed=args.seed,
+        threads=args.threads,
+        hidden=args.hidden,
+    )
     out = Path(args.out)
     ckpt = out.with_name(out.name + ".ckpt")
-    model = train_guide(ts.sites, ts.layouts, ts.data, cfg,
-                        grammar=ts.manifest["key"]["grammar"],
-                        grammar_hash=ts.manifest["grammar_hash"], checkpoint=ckpt,
-                        progress=True, on_epoch=_print_epoch)
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        ts.data,
+        cfg,
+        grammar=ts.manifest["key"]["grammar"],
+        grammar_hash=ts.manifest["grammar_hash"],
+        checkpoint=ckpt,
+        progress=True,
+        on_epoch=_print_epoch,
+    )
     save_model(model, out)
     ckpt.unlink(missing_ok=True)
     s = model.summary
-    print(f"{out}: {len(model.nets)} site networks, {s['traces']} traces "
-          f"({s['val_traces']} held out), best epoch {s['best_epoch']} of {s['epochs_run']}, "
-          f"validation NLL {s['val_nll']:.3f} per trace, {s['seconds']:.1f} s")
+    print(
+        f"{out}: {len(model.nets)} site networks, {s['traces']} traces "
+        f"({s['val_traces']} held out), best epoch {s['best_epoch']} of {s['epochs_run']}, "
+        f"validation NLL {s['val_nll']:.3f} per trace, {s['seconds']:.1f} s"
+    )
     unseen = [x["id"] for x in model.sites if x["index"] not in model.nets]
     if unseen:
         print(f"sites unseen in training (prior fallback): {', '.join(unseen)}")
@@ -264,22 +428,40 @@ def cmd_iterate(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.rounds import RoundsConfig, expert_iteration
 
     split, inits, validation = list(args.targets), list(args.init_traces), args.validate
-    for path in [*split, *inits, *validation.values(), *([args.init_guide] if args.init_guide
-                                                       else [])]:
+    for path in [
+        *split,
+        *inits,
+        *validation.values(),
+        *([args.init_guide] if args.init_guide else []),
+    ]:
         if not Path(path).exists():
             raise NgpmError(f"{path}: no such file or directory")
-    cfg = RoundsConfig(grammar=args.grammar, targets=split, validation=validation,
-                       out=args.out, rounds=args.rounds, n=args.n, particles=args.particles,
-                       unguided_particles=args.unguided_particles, init_guide=args.init_guide,
-                       init_traces=inits, val_targets=args.val_targets,
-                       val_repeats=args.val_repeats, feature_set=args.features,
-                       epochs=args.epochs, workers=args.workers, seed=args.seed)
+    cfg = RoundsConfig(
+        grammar=args.grammar,
+        targets=split,
+        validation=validation,
+        out=args.out,
+        rounds=args.rounds,
+        n=args.n,
+        particles=args.particles,
+        unguided_particles=args.unguided_particles,
+        init_guide=args.init_guide,
+        init_traces=inits,
+        val_targets=args.val_targets,
+        val_repeats=args.val_repeats,
+        feature_set=args.features,
+        epochs=args.epochs,
+        workers=args.workers,
+        seed=args.seed,
+    )
     rows = expert_iteration(cfg, log=_log)
     print("| round | teacher | traces | validation NLL | validation similarity (N=10) |")
     print("|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['round']} | {r['teacher']} | {r['traces']} | {r['val_nll']} | "
-              f"{r['validation']} |")
+        print(
+            f"| {r['round']} | {r['teacher']} | {r['traces']} | {r['val_nll']} | "
+            f"{r['validation']} |"
+        )
     return 0
 
 
@@ -292,8 +474,10 @@ def _log(text: str) -> None:
 def _print_epoch(row: dict[str, Any]) -> None:
     from tqdm import tqdm
 
-    tqdm.write(f"epoch {row['epoch']}: train NLL {row['train_nll']:.3f}, "
-               f"validation NLL {row['val_nll']:.3f} per trace")
+    tqdm.write(
+        f"epoch {row['epoch']}: train NLL {row['train_nll']:.3f}, "
+        f"validation NLL {row['val_nll']:.3f} per trace"
+    )
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -304,8 +488,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     check_output_file(args.out, "ONNX file")
     model = load_model_file(args.model)
     path = write_onnx(model, args.out)
-    print(f"{path}: {len(model.nets)} site networks, features {model.feature_set}, "
-          f"K {model.K}, {path.stat().st_size} bytes")
+    print(
+        f"{path}: {len(model.nets)} site networks, features {model.feature_set}, "
+        f"K {model.K}, {path.stat().st_size} bytes"
+    )
     unseen = [x["id"] for x in model.sites if x["index"] not in model.nets]
     if unseen:
         print(f"sites without a network (prior fallback): {', '.join(unseen)}")

@@ -26,6 +26,7 @@ def check_output_folder(path: str | os.PathLike[str]) -> Path:
     """NgpmError unless `path` is a folder or can be made one."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise NgpmError(f"{path}: is a file; -o wants a folder (the outputs are named after "
-                        "the grammar)")
+        raise NgpmError(
+            f"{path}: is a file; -o wants a folder (the outputs are named after the grammar)"
+        )
     return path

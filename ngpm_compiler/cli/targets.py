@@ -16,50 +16,92 @@ from ngpm_compiler.datasets.common import DatasetWarning
 from ngpm_compiler.datasets.sheets import contact_sheet
 
 
-def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser(
-        "targets", help="build, list and preview target image datasets",
-        description="Build, list and preview target image datasets (see docs/datasets.md).")
-    parser.set_defaults(handler=lambda _args: _help(parser))
-    sub = parser.add_subparsers(dest="targets_command", metavar="ACTION")
-
+def _add_build(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    """`ngpmc targets build`."""
     build = sub.add_parser("build", help="build a dataset into a directory")
     build.add_argument("name", choices=sorted(DATASETS), help="dataset to build")
     build.add_argument("-o", "--out", required=True, type=_path, help="output directory")
-    build.add_argument("--count", type=argtypes.count, default=None,
-                       help="number of targets (default: the dataset's own; at most "
-                            f"{argtypes.MAX_COUNT})")
+    build.add_argument(
+        "--count",
+        type=argtypes.count,
+        default=None,
+        help=f"number of targets (default: the dataset's own; at most {argtypes.MAX_COUNT})",
+    )
     build.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     argtypes.add_target_size(build)
-    build.add_argument("--font", type=_path, default=None,
-                       help="TTF/OTF font for glyphs (default DejaVu Sans Bold)")
-    build.add_argument("--from", dest="source_dir", type=_path, default=None,
-                       help="directory of silhouette images (default: the built-in "
-                            "silhouettes)")
-    build.add_argument("--polarity", choices=POLARITIES, default="auto",
-                       help="how to read --from images (default auto)")
+    build.add_argument(
+        "--font",
+        type=_path,
+        default=None,
+        help="TTF/OTF font for glyphs (default DejaVu Sans Bold)",
+    )
+    build.add_argument(
+        "--from",
+        dest="source_dir",
+        type=_path,
+        default=None,
+        help="directory of silhouette images (default: the built-in silhouettes)",
+    )
+    build.add_argument(
+        "--polarity",
+        choices=POLARITIES,
+        default="auto",
+        help="how to read --from images (default auto)",
+    )
     build.add_argument("--mirror", action="store_true", help="also write mirrored copies")
     build.set_defaults(handler=_build)
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "targets",
+        help="build, list and preview target image datasets",
+        description="Build, list and preview target image datasets (see docs/datasets.md).",
+    )
+    parser.set_defaults(handler=lambda _args: _help(parser))
+    sub = parser.add_subparsers(dest="targets_command", metavar="ACTION")
+
+    _add_build(sub)
 
     lst = sub.add_parser("list", help="list the datasets that can be built")
     lst.set_defaults(handler=_list)
 
     show = sub.add_parser("show", help="draw a contact sheet of a dataset or images")
     show.add_argument("source", type=_path, help="dataset directory or one image")
-    show.add_argument("-o", "--out", required=True, type=argtypes.output_file(".png"),
-                      help="output PNG")
-    show.add_argument("--max", type=argtypes.integer(1, argtypes.MAX_SHEET), default=120,
-                      help=f"at most this many (default 120, at most {argtypes.MAX_SHEET})")
-    show.add_argument("--cols", type=argtypes.integer(1, argtypes.MAX_COLUMNS), default=None,
-                      help=f"columns (default: about square; at most {argtypes.MAX_COLUMNS})")
-    show.add_argument("--cell", type=argtypes.integer(8, argtypes.MAX_CELL), default=64,
-                      help=f"cell size in pixels (default 64, 8 to {argtypes.MAX_CELL})")
-    show.add_argument("--size", type=argtypes.target_size, default=50,
-                      help="the working size to show them at, as grow reads them "
-                           f"(default 50, at most {argtypes.MAX_TARGET_SIZE})")
-    show.add_argument("--spread", action="store_true",
-                      help="show --max targets spread evenly over the set, mirrors left out "
-                           "(the ones `ngpmc eval --stages heldout` picks)")
+    show.add_argument(
+        "-o", "--out", required=True, type=argtypes.output_file(".png"), help="output PNG"
+    )
+    show.add_argument(
+        "--max",
+        type=argtypes.integer(1, argtypes.MAX_SHEET),
+        default=120,
+        help=f"at most this many (default 120, at most {argtypes.MAX_SHEET})",
+    )
+    show.add_argument(
+        "--cols",
+        type=argtypes.integer(1, argtypes.MAX_COLUMNS),
+        default=None,
+        help=f"columns (default: about square; at most {argtypes.MAX_COLUMNS})",
+    )
+    show.add_argument(
+        "--cell",
+        type=argtypes.integer(8, argtypes.MAX_CELL),
+        default=64,
+        help=f"cell size in pixels (default 64, 8 to {argtypes.MAX_CELL})",
+    )
+    show.add_argument(
+        "--size",
+        type=argtypes.target_size,
+        default=50,
+        help="the working size to show them at, as grow reads them "
+        f"(default 50, at most {argtypes.MAX_TARGET_SIZE})",
+    )
+    show.add_argument(
+        "--spread",
+        action="store_true",
+        help="show --max targets spread evenly over the set, mirrors left out "
+        "(the ones `ngpmc eval --stages heldout` picks)",
+    )
     show.set_defaults(handler=_show)
 
 
@@ -75,9 +117,17 @@ def _help(parser: argparse.ArgumentParser) -> int:
 def _build(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DatasetWarning)
-        files = build_dataset(args.name, args.out, count=args.count, seed=args.seed,
-                              size=args.size, font=args.font, source_dir=args.source_dir,
-                              mirror=args.mirror, polarity=args.polarity)
+        files = build_dataset(
+            args.name,
+            args.out,
+            count=args.count,
+            seed=args.seed,
+            size=args.size,
+            font=args.font,
+            source_dir=args.source_dir,
+            mirror=args.mirror,
+            polarity=args.polarity,
+        )
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in skipped:
         print(f"ngpmc: warning: {w.message}", file=sys.stderr)

@@ -51,13 +51,12 @@ def commands(block: str) -> list[str]:
 
 def tour_section(readme: str) -> str:
     start = readme.index(TOUR_HEADING)
-    return readme[start:readme.index("\n## ", start + 5)]
+    return readme[start : readme.index("\n## ", start + 5)]
 
 
 def tour_commands(readme: str) -> list[list[str]]:
     """The tour's ngpmc commands as argument lists (without `ngpmc`)."""
-    return [shlex.split(ln)[1:] for b in blocks("bash", tour_section(readme))
-            for ln in commands(b)]
+    return [shlex.split(ln)[1:] for b in blocks("bash", tour_section(readme)) for ln in commands(b)]
 
 
 def prepare(readme: str, work: Path) -> str:
@@ -87,8 +86,9 @@ class Step:
     code: int
 
 
-def run_tour(readme: str, work: Path,
-             adjust: Callable[[list[str]], list[str]] = lambda argv: argv) -> list[Step]:
+def run_tour(
+    readme: str, work: Path, adjust: Callable[[list[str]], list[str]] = lambda argv: argv
+) -> list[Step]:
     """Run every tour command in `work`, each through `adjust` first."""
     prepare(readme, work)
     return run_commands(work, [adjust(argv) for argv in tour_commands(readme)])

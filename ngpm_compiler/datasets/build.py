@@ -38,34 +38,60 @@ class DatasetSpec:
 
 DATASETS: dict[str, DatasetSpec] = {
     "scribbles": DatasetSpec(
-        "scribbles", "synthetic hand-drawn-looking strokes, start where the stroke began "
-        "(training)", 300, build_scribbles),
+        "scribbles",
+        "synthetic hand-drawn-looking strokes, start where the stroke began (training)",
+        300,
+        build_scribbles,
+    ),
     "glyphs": DatasetSpec(
-        "glyphs", "font glyphs with one connected component (default DejaVu Sans Bold; "
-        "--font PATH for any TTF/OTF), automatic start (testing)", None, build_glyphs),
+        "glyphs",
+        "font glyphs with one connected component (default DejaVu Sans Bold; "
+        "--font PATH for any TTF/OTF), automatic start (testing)",
+        None,
+        build_glyphs,
+    ),
     "silhouettes": DatasetSpec(
-        "silhouettes", "images from --from DIR, scikit-image's horse and procedural animal "
+        "silhouettes",
+        "images from --from DIR, scikit-image's horse and procedural animal "
         "and object silhouettes, automatic start unless a sidecar exists (testing)",
-        None, build_silhouettes),
+        None,
+        build_silhouettes,
+    ),
     "shapes": DatasetSpec(
-        "shapes", "procedural animal and object silhouettes (those of `silhouettes` without "
+        "shapes",
+        "procedural animal and object silhouettes (those of `silhouettes` without "
         "the horse; use another --seed than a test set's), automatic start (training)",
-        300, build_shapes),
+        300,
+        build_shapes,
+    ),
     "varied": DatasetSpec(
-        "varied", "synthetic strokes of width 1-6 px, thin script-like loops, filled blobs "
-        "and 2-3 disjoint parts, start where the first stroke began (training)", 300,
-        build_varied),
+        "varied",
+        "synthetic strokes of width 1-6 px, thin script-like loops, filled blobs "
+        "and 2-3 disjoint parts, start where the first stroke began (training)",
+        300,
+        build_varied,
+    ),
     "clipart": DatasetSpec(
-        "clipart", "silhouettes of public-domain clip art (default: Openclipart animals from "
+        "clipart",
+        "silhouettes of public-domain clip art (default: Openclipart animals from "
         "Debian's openclipart-svg, --from DIR for others), automatic start (testing)",
-        None, build_clipart),
+        None,
+        build_clipart,
+    ),
 }
 
 
-def build_dataset(name: str, out_dir: str | os.PathLike[str], count: int | None = None,
-                  seed: int = 0, size: int = 50, font: str | os.PathLike[str] | None = None,
-                  source_dir: str | os.PathLike[str] | None = None, mirror: bool = False,
-                  polarity: str = "auto") -> list[Path]:
+def build_dataset(
+    name: str,
+    out_dir: str | os.PathLike[str],
+    count: int | None = None,
+    seed: int = 0,
+    size: int = 50,
+    font: str | os.PathLike[str] | None = None,
+    source_dir: str | os.PathLike[str] | None = None,
+    mirror: bool = False,
+    polarity: str = "auto",
+) -> list[Path]:
     """Build dataset `name` into out_dir; returns the PNG paths in index order.
 
     Existing `NAME_####.png` files with sidecars are kept as they are (resume). Source
@@ -83,18 +109,30 @@ def build_dataset(name: str, out_dir: str | os.PathLike[str], count: int | None 
         raise DatasetError("size must be an integer >= 8")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    params = {"name": name, "seed": seed, "size": size, "mirror": mirror,
-              "font": str(font) if font is not None else None,
-              "source_dir": str(source_dir) if source_dir is not None else None}
+    params = {
+        "name": name,
+        "seed": seed,
+        "size": size,
+        "mirror": mirror,
+        "font": str(font) if font is not None else None,
+        "source_dir": str(source_dir) if source_dir is not None else None,
+    }
     _check_previous(out / "index.json", params)
     _write_index(out, {**params, "complete": False, "files": []})
     files: list[Path] = []
     sources: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DatasetWarning)
-        for i, (target, source) in enumerate(spec.builder(
-                count=count, seed=seed, size=size, font=font, source_dir=source_dir,
-                polarity=polarity)):
+        for i, (target, source) in enumerate(
+            spec.builder(
+                count=count,
+                seed=seed,
+                size=size,
+                font=font,
+                source_dir=source_dir,
+                polarity=polarity,
+            )
+        ):
             stem = f"{name}_{i:04d}"
             named = Target(target.mask, target.start, stem)
             versions = [named, named.mirrored()] if mirror else [named]
@@ -107,11 +145,19 @@ def build_dataset(name: str, out_dir: str | os.PathLike[str], count: int | None 
     skipped = [str(w.message) for w in caught if issubclass(w.category, DatasetWarning)]
     for w in caught:  # hand the warnings on to whoever called us
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    _write_index(out, {
-        **params, "source": spec.description, "count": len(files), "complete": True,
-        "skipped": len(skipped), "skipped_reasons": skipped,
-        "files": [p.name for p in files], "sources": sources,
-    })
+    _write_index(
+        out,
+        {
+            **params,
+            "source": spec.description,
+            "count": len(files),
+            "complete": True,
+            "skipped": len(skipped),
+            "skipped_reasons": skipped,
+            "files": [p.name for p in files],
+            "sources": sources,
+        },
+    )
     return files
 
 
@@ -121,12 +167,15 @@ def _check_previous(index: Path, params: dict[str, Any]) -> None:
     try:
         old = json.loads(index.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        raise DatasetError(f"{index} is not valid JSON; remove it or use another directory") \
-            from None
+        raise DatasetError(
+            f"{index} is not valid JSON; remove it or use another directory"
+        ) from None
     diff = [k for k, v in params.items() if old.get(k) != v]
     if diff:
-        raise DatasetError(f"{index.parent} holds a build with other settings "
-                           f"({', '.join(diff)}); use another directory")
+        raise DatasetError(
+            f"{index.parent} holds a build with other settings "
+            f"({', '.join(diff)}); use another directory"
+        )
 
 
 def _write_index(out: Path, meta: dict[str, Any]) -> None:

@@ -31,17 +31,23 @@ def rasterize_svg(svg: Path, png: Path, side: int = 200) -> None:
     if exe is None:
         raise DatasetError("rsvg-convert not found (apt-get install librsvg2-bin)")
     try:
-        subprocess.run([exe, "-w", str(side), "-h", str(side), "-a", "-o", str(png), str(svg)],
-                       check=True, capture_output=True, timeout=60)
+        subprocess.run(
+            [exe, "-w", str(side), "-h", str(side), "-a", "-o", str(png), str(svg)],
+            check=True,
+            capture_output=True,
+            timeout=60,
+        )
     except (subprocess.SubprocessError, OSError) as err:
         raise TargetError(f"{svg}: cannot rasterize ({err.__class__.__name__})") from None
 
 
 def clipart_files(source: Path) -> list[Path]:
     """SVG and raster images under `source` (recursively), in a fixed order."""
-    return sorted(p for p in source.rglob("*")
-                  if p.is_file() and (p.suffix.lower() == ".svg" or
-                                      p.suffix.lower() in IMAGE_SUFFIXES))
+    return sorted(
+        p
+        for p in source.rglob("*")
+        if p.is_file() and (p.suffix.lower() == ".svg" or p.suffix.lower() in IMAGE_SUFFIXES)
+    )
 
 
 def clipart_reject(mask: np.ndarray) -> str | None:
@@ -59,9 +65,13 @@ def clipart_reject(mask: np.ndarray) -> str | None:
     return None
 
 
-def build_clipart(count: int | None, seed: int, size: int,
-                  source_dir: str | os.PathLike[str] | None = None,
-                  **_: object) -> Iterator[Item]:
+def build_clipart(
+    count: int | None,
+    seed: int,
+    size: int,
+    source_dir: str | os.PathLike[str] | None = None,
+    **_: object,
+) -> Iterator[Item]:
     """Silhouettes (the opaque pixels) of clip art, by default Openclipart's public-domain
     animal drawings; files spread evenly over the sorted list, unusable ones skipped
     (too small, a filled rectangle, one color)."""
@@ -69,8 +79,10 @@ def build_clipart(count: int | None, seed: int, size: int,
 
     src = Path(source_dir) if source_dir is not None else CLIPART_DIR
     if not src.is_dir():
-        raise DatasetError(f"clip-art directory {src} does not exist "
-                           "(apt-get install openclipart-svg librsvg2-bin)")
+        raise DatasetError(
+            f"clip-art directory {src} does not exist "
+            "(apt-get install openclipart-svg librsvg2-bin)"
+        )
     files = clipart_files(src)
     order = np.random.default_rng(seed).permutation(len(files)) if seed else range(len(files))
     made = 0
@@ -93,5 +105,7 @@ def build_clipart(count: int | None, seed: int, size: int,
                 warnings.warn(f"skipped {path.name}: {why}", DatasetWarning, stacklevel=2)
                 continue
             made += 1
-            yield Target(target.mask, target.start, "clipart"), \
-                f"openclipart {path.relative_to(src)}"
+            yield (
+                Target(target.mask, target.start, "clipart"),
+                f"openclipart {path.relative_to(src)}",
+            )

@@ -25,17 +25,25 @@ Points = list[tuple[float, float, float]]  # pen positions (x, y, width) of a st
 Polygon = list[tuple[float, float]]
 
 
-def ellipse_poly(cx: float, cy: float, ra: float, rb: float, ang: float,
-                 n: int = 48) -> Polygon:
+def ellipse_poly(cx: float, cy: float, ra: float, rb: float, ang: float, n: int = 48) -> Polygon:
     t = np.linspace(0, 2 * np.pi, n, endpoint=False)
     ex, ey = ra * np.cos(t), rb * np.sin(t)
     c, s = math.cos(ang), math.sin(ang)
     return [(cx + c * a - s * b, cy + s * a + c * b) for a, b in zip(ex, ey, strict=True)]
 
 
-def pen(rng: np.random.Generator, s: float, x: float, y: float, theta: float, base_w: float,
-        sigma: float, length: float, margin: float = 0.1,
-        widths: tuple[float, float] = (0.85, 1.15)) -> Points:
+def pen(
+    rng: np.random.Generator,
+    s: float,
+    x: float,
+    y: float,
+    theta: float,
+    base_w: float,
+    sigma: float,
+    length: float,
+    margin: float = 0.1,
+    widths: tuple[float, float] = (0.85, 1.15),
+) -> Points:
     """Pen positions (x, y, width) of one stroke: curvature a mean-reverting random walk,
     width varying slowly around `base_w` (within `widths` x base_w), steered back toward the
     center within `margin` x s of the border."""

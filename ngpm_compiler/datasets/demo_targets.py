@@ -19,8 +19,10 @@ def _heart_mask(n: int) -> np.ndarray:
     t = np.linspace(0.0, 2 * math.pi, 400, endpoint=False)
     x = 16 * np.sin(t) ** 3
     y = 13 * np.cos(t) - 5 * np.cos(2 * t) - 2 * np.cos(3 * t) - np.cos(4 * t)
-    pts = [(n / 2 + n * 0.028 * float(a), n / 2 - n * 0.028 * float(b)) for a, b in zip(x, y,
-                                                                                       strict=True)]
+    pts = [
+        (n / 2 + n * 0.028 * float(a), n / 2 - n * 0.028 * float(b))
+        for a, b in zip(x, y, strict=True)
+    ]
     img = Image.new("L", (n, n), 0)
     ImageDraw.Draw(img).polygon(pts, fill=255)
     return np.asarray(img) >= 128
@@ -29,8 +31,10 @@ def _heart_mask(n: int) -> np.ndarray:
 def _spiral_mask(n: int) -> np.ndarray:
     th = np.linspace(0.0, 2.6 * math.pi, 600)
     r = n * (0.05 + 0.135 * th / math.pi)
-    pts = [(n / 2 + float(rr * math.cos(a)), n / 2 - float(rr * math.sin(a)))
-           for rr, a in zip(r, th, strict=True)]
+    pts = [
+        (n / 2 + float(rr * math.cos(a)), n / 2 - float(rr * math.sin(a)))
+        for rr, a in zip(r, th, strict=True)
+    ]
     img = Image.new("L", (n, n), 0)
     draw = ImageDraw.Draw(img)
     wid = int(round(0.075 * n))
@@ -61,5 +65,7 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
 
 def write_demo_targets(out_dir: str | os.PathLike[str]) -> list[Path]:
     """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
-    return [save_target(t, Path(out_dir) / f"demo_{name}.png")
-            for name, t in make_demo_targets().items()]
+    return [
+        save_target(t, Path(out_dir) / f"demo_{name}.png")
+        for name, t in make_demo_targets().items()
+    ]

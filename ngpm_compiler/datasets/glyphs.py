@@ -34,8 +34,12 @@ def font_codepoints(font_path: Path) -> list[int]:
             cmap = face.getBestCmap() or {}
     except Exception as err:  # fontTools raises many kinds on a bad file
         raise DatasetError(f"cannot read font {font_path}: {err}") from None
-    return [c for lo, hi in GLYPH_RANGES for c in range(lo, hi + 1)
-            if c in cmap and cmap[c] not in (".notdef", "space")]
+    return [
+        c
+        for lo, hi in GLYPH_RANGES
+        for c in range(lo, hi + 1)
+        if c in cmap and cmap[c] not in (".notdef", "space")
+    ]
 
 
 def render_glyph(font: ImageFont.FreeTypeFont, char: str, size: int) -> np.ndarray:
@@ -53,7 +57,7 @@ def render_glyph(font: ImageFont.FreeTypeFont, char: str, size: int) -> np.ndarr
     mask = np.asarray(img) >= 128
     h, w = mask.shape
     square = np.zeros((w, w), dtype=bool)
-    square[(w - h) // 2:(w - h) // 2 + h] = mask
+    square[(w - h) // 2 : (w - h) // 2 + h] = mask
     return resize_mask(square, size)
 
 
@@ -68,8 +72,9 @@ def glyph_ok(mask: np.ndarray) -> str | None:
     return None
 
 
-def build_glyphs(count: int | None, seed: int, size: int,
-                 font: str | os.PathLike[str] | None = None, **_: object) -> Iterator[Item]:
+def build_glyphs(
+    count: int | None, seed: int, size: int, font: str | os.PathLike[str] | None = None, **_: object
+) -> Iterator[Item]:
     font_path = Path(font) if font is not None else default_font()
     if not font_path.is_file():
         raise DatasetError(f"font file {font_path} does not exist")

@@ -32,8 +32,14 @@ def scribble(rng: np.random.Generator, size: int = 50) -> Target:
 
 def _try_scribble(rng: np.random.Generator, size: int) -> Target | None:
     s = float(size)
-    base_w = rng.choice([rng.uniform(1.8, 2.8), rng.uniform(2.8, 4.5), rng.uniform(4.5, 7.0)],
-                        p=[0.35, 0.4, 0.25]) * s / 50
+    base_w = (
+        rng.choice(
+            [rng.uniform(1.8, 2.8), rng.uniform(2.8, 4.5), rng.uniform(4.5, 7.0)],
+            p=[0.35, 0.4, 0.25],
+        )
+        * s
+        / 50
+    )
     sigma = rng.choice([rng.uniform(0.01, 0.04), rng.uniform(0.05, 0.12)], p=[0.5, 0.5])
     length = rng.uniform(0.9, 2.6) * s * (1.0 if base_w < 4.5 * s / 50 else 0.7)
     if rng.random() < 0.75:  # most strokes begin low and go up, like a plant

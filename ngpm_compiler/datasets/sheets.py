@@ -16,20 +16,42 @@ from ngpm_compiler.datasets.common import DatasetError
 from ngpm_compiler.datasets.glyphs import default_font
 
 
-def draw_start(draw: ImageDraw.ImageDraw, px: float, py: float, dx: float, dy: float,
-               length: float, head: float, width: int, dot: int) -> None:
+def draw_start(
+    draw: ImageDraw.ImageDraw,
+    px: float,
+    py: float,
+    dx: float,
+    dy: float,
+    length: float,
+    head: float,
+    width: int,
+    dot: int,
+) -> None:
     """A start pose: a green dot at (px, py) and a red arrow of `length` along (dx, dy)."""
     ex, ey = px + dx * length, py + dy * length
     draw.line((px, py, ex, ey), fill=(220, 30, 30), width=width)
     ang = math.atan2(dy, dx)
     for side in (2.6, -2.6):
-        draw.line((ex, ey, ex + head * length * math.cos(ang + side),
-                   ey + head * length * math.sin(ang + side)), fill=(220, 30, 30), width=width)
+        draw.line(
+            (
+                ex,
+                ey,
+                ex + head * length * math.cos(ang + side),
+                ey + head * length * math.sin(ang + side),
+            ),
+            fill=(220, 30, 30),
+            width=width,
+        )
     draw.ellipse((px - dot, py - dot, px + dot, py + dot), fill=(20, 170, 40))
 
 
-def contact_sheet(targets: list[Target], path: str | os.PathLike[str],
-                  cols: int | None = None, cell: int = 64, labels: bool = True) -> Path:
+def contact_sheet(
+    targets: list[Target],
+    path: str | os.PathLike[str],
+    cols: int | None = None,
+    cell: int = 64,
+    labels: bool = True,
+) -> Path:
     """Draw targets in a grid (shape dark gray on white), each start as a red arrow from a
     green dot, names below; written atomically as a palette PNG."""
     if not targets:
@@ -39,8 +61,9 @@ def contact_sheet(targets: list[Target], path: str | os.PathLike[str],
     rows = int(math.ceil(n / cols))
     label_h = 12 if labels else 0
     pad = 4
-    sheet = Image.new("RGB", (cols * (cell + pad) + pad, rows * (cell + pad + label_h) + pad),
-                      (235, 235, 235))
+    sheet = Image.new(
+        "RGB", (cols * (cell + pad) + pad, rows * (cell + pad + label_h) + pad), (235, 235, 235)
+    )
     draw = ImageDraw.Draw(sheet)
     font = _label_font()
     for k, t in enumerate(targets):
@@ -56,8 +79,9 @@ def contact_sheet(targets: list[Target], path: str | os.PathLike[str],
             text = t.name if len(t.name) <= cell // 6 else t.name.split("_", 1)[-1]
             draw.text((x0, y0 + cell + 1), text, fill=(0, 0, 0), font=font)
     buf = io.BytesIO()
-    sheet.quantize(colors=32, method=Image.Quantize.MEDIANCUT).save(buf, format="PNG",
-                                                                    optimize=True)
+    sheet.quantize(colors=32, method=Image.Quantize.MEDIANCUT).save(
+        buf, format="PNG", optimize=True
+    )
     path = atomic_write(path, buf.getvalue())
     return path
 

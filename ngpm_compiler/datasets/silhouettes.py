@@ -38,9 +38,12 @@ FIT_MARGIN = 0.1  # silhouettes are cropped and framed with 10% margin on each s
 Part = tuple[Any, ...]  # a primitive of a procedural silhouette (see _shape_parts)
 
 
-def fit_mask(mask: np.ndarray, size: int, margin: float = FIT_MARGIN,
-             start: tuple[float, float, float, float] | None = None,
-             ) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
+def fit_mask(
+    mask: np.ndarray,
+    size: int,
+    margin: float = FIT_MARGIN,
+    start: tuple[float, float, float, float] | None = None,
+) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
     """Crop to the shape's bounding box, frame it in a square with `margin` on each side
     (aspect kept), resize to size x size; a start point moves with the shape."""
     rows, cols = np.nonzero(mask)
@@ -51,7 +54,7 @@ def fit_mask(mask: np.ndarray, size: int, margin: float = FIT_MARGIN,
     side = int(math.ceil(max(crop.shape) / (1 - 2 * margin)))
     oy, ox = (side - crop.shape[0]) // 2, (side - crop.shape[1]) // 2
     square = np.zeros((side, side), dtype=bool)
-    square[oy:oy + crop.shape[0], ox:ox + crop.shape[1]] = crop
+    square[oy : oy + crop.shape[0], ox : ox + crop.shape[1]] = crop
     if start is not None:
         h, w = mask.shape
         x, y, dx, dy = start
@@ -90,6 +93,7 @@ def _shape_parts(kind: str, rng: np.random.Generator) -> list[Part]:
     ("l", [(x, y), ...], width) thick polylines.
 
     Long because it is a table of shape recipes, one branch per kind."""
+
     def j(v: float, amount: float = 0.06) -> float:
         return float(v * (1 + amount * rng.normal()))
 
@@ -189,8 +193,20 @@ def _shape_parts(kind: str, rng: np.random.Generator) -> list[Part]:
     raise DatasetError(f"unknown procedural silhouette {kind!r}")
 
 
-SHAPE_KINDS = ("cat", "rabbit", "bird", "fish", "dog", "turtle", "snail", "tree", "mushroom",
-               "cactus", "duck", "giraffe")
+SHAPE_KINDS = (
+    "cat",
+    "rabbit",
+    "bird",
+    "fish",
+    "dog",
+    "turtle",
+    "snail",
+    "tree",
+    "mushroom",
+    "cactus",
+    "duck",
+    "giraffe",
+)
 
 
 def procedural_silhouette(kind: str, rng: np.random.Generator, size: int = 50) -> Target:
@@ -216,9 +232,14 @@ def procedural_silhouette(kind: str, rng: np.random.Generator, size: int = 50) -
     return Target(fitted, auto_start(fitted), kind)
 
 
-def build_silhouettes(count: int | None, seed: int, size: int,
-                      source_dir: str | os.PathLike[str] | None = None, polarity: str = "auto",
-                      **_: object) -> Iterator[Item]:
+def build_silhouettes(
+    count: int | None,
+    seed: int,
+    size: int,
+    source_dir: str | os.PathLike[str] | None = None,
+    polarity: str = "auto",
+    **_: object,
+) -> Iterator[Item]:
     made = 0
 
     def room() -> bool:

@@ -37,20 +37,40 @@ def _varied_part(rng: np.random.Generator, kind: str, s: float, scale: float) ->
     theta = -math.pi / 2 + rng.normal(0, 0.6) if rng.random() < 0.6 else rng.uniform(-3.1, 3.1)
     if kind == "script":  # thin, long, loopy, like a cursive letter
         w = rng.uniform(MIN_WIDTH_PX, 2.2)
-        pts = pen(rng, s, x, y, theta, w * px, rng.uniform(0.06, 0.16),
-                   rng.uniform(1.5, 3.5) * s * scale)
+        pts = pen(
+            rng, s, x, y, theta, w * px, rng.uniform(0.06, 0.16), rng.uniform(1.5, 3.5) * s * scale
+        )
         return pts, [], w
     if kind == "blob":  # a filled blob, sometimes with a stroke growing out of it
         w = rng.uniform(2.0, MAX_WIDTH_PX)
         r = rng.uniform(0.12, 0.25) * s * math.sqrt(scale)
         polys = [_blob_poly(rng, x, y - r * 0.5, r)]
-        pts = (pen(rng, s, x, y - r * 0.5, theta, w * px, rng.uniform(0.01, 0.06),
-                    rng.uniform(0.4, 1.0) * s * scale) if rng.random() < 0.6 else [])
+        pts = (
+            pen(
+                rng,
+                s,
+                x,
+                y - r * 0.5,
+                theta,
+                w * px,
+                rng.uniform(0.01, 0.06),
+                rng.uniform(0.4, 1.0) * s * scale,
+            )
+            if rng.random() < 0.6
+            else []
+        )
         return pts, polys, w
     w = rng.uniform(MIN_WIDTH_PX, MAX_WIDTH_PX)
-    pts = pen(rng, s, x, y, theta, w * px, rng.choice([rng.uniform(0.01, 0.04),
-                                                         rng.uniform(0.05, 0.12)]),
-               rng.uniform(0.8, 2.4) * s * scale * (1.0 if w < 4 else 0.7))
+    pts = pen(
+        rng,
+        s,
+        x,
+        y,
+        theta,
+        w * px,
+        rng.choice([rng.uniform(0.01, 0.04), rng.uniform(0.05, 0.12)]),
+        rng.uniform(0.8, 2.4) * s * scale * (1.0 if w < 4 else 0.7),
+    )
     return pts, [], w
 
 
@@ -80,8 +100,14 @@ def varied(rng: np.random.Generator, size: int = 50) -> tuple[Target, dict[str, 
     kind = str(rng.choice(VARIED_KINDS, p=VARIED_P))
     for _ in range(200):
         n_parts = int(rng.integers(2, 4)) if kind == "parts" else 1
-        kinds = ([str(rng.choice(("stroke", "script", "blob"), p=(0.5, 0.3, 0.2)))
-                  for _ in range(n_parts)] if kind == "parts" else [kind])
+        kinds = (
+            [
+                str(rng.choice(("stroke", "script", "blob"), p=(0.5, 0.3, 0.2)))
+                for _ in range(n_parts)
+            ]
+            if kind == "parts"
+            else [kind]
+        )
         parts = [_varied_part(rng, k, float(size), 0.6 if n_parts > 1 else 1.0) for k in kinds]
         masks = _draw_parts(parts, size)
         mask = np.logical_or.reduce(masks)
@@ -100,8 +126,7 @@ def varied(rng: np.random.Generator, size: int = 50) -> tuple[Target, dict[str, 
         row, col = min(int(start[1] * size), size - 1), min(int(start[0] * size), size - 1)
         if not masks[0][row, col]:
             continue
-        info = {"kind": kind, "widths": [round(float(p[2]), 3) for p in parts],
-                "parts": n_parts}
+        info = {"kind": kind, "widths": [round(float(p[2]), 3) for p in parts], "parts": n_parts}
         return Target(mask, start, "varied"), info
     raise DatasetError("varied generator failed 200 times in a row")  # pragma: no cover
 

@@ -77,8 +77,9 @@ class Samples:
         return sum(self.limits.values())
 
 
-def forward_samples(program: Program, n: int = 40, budget: float = 2.0,
-                    hard_cap: float = 8.0, seed: int = 0) -> Samples:
+def forward_samples(
+    program: Program, n: int = 40, budget: float = 2.0, hard_cap: float = 8.0, seed: int = 0
+) -> Samples:
     """Up to `n` prior samples in batches of SAMPLE_BATCH, stopping at the first batch that
     ends after `budget` seconds; a batch still running at `hard_cap` seconds is stopped and
     its samples count as stopped by the time cap."""
@@ -93,8 +94,7 @@ def forward_samples(program: Program, n: int = 40, budget: float = 2.0,
         # equal weights (no likelihood) keep the ESS at N: no resampling, independent samples
         options = SMCOptions(seed=(seed + b) % 2**63, ess_threshold=0.5)
         try:
-            res = smc(program, None, size, options=options,
-                      observers=[Deadline(t0 + hard_cap)])
+            res = smc(program, None, size, options=options, observers=[Deadline(t0 + hard_cap)])
         except TimeUp:
             out.limits[RUNAWAY] = out.limits.get(RUNAWAY, 0) + size
             break
@@ -104,8 +104,9 @@ def forward_samples(program: Program, n: int = 40, budget: float = 2.0,
                 out.limits[p.limit] = out.limits.get(p.limit, 0) + 1
             if p.primitives and program.dim == 2:  # a 3D grammar's box is its own header
                 xmin, ymin, xmax, ymax = bbox_of(p.primitives)
-                box = np.array([min(box[0], xmin), max(box[1], xmax),
-                                min(box[2], ymin), max(box[3], ymax)])
+                box = np.array(
+                    [min(box[0], xmin), max(box[1], xmax), min(box[2], ymin), max(box[3], ymax)]
+                )
         if time.perf_counter() - t0 > budget:
             break
     out.seconds = time.perf_counter() - t0
@@ -114,8 +115,9 @@ def forward_samples(program: Program, n: int = 40, budget: float = 2.0,
     return out
 
 
-def propose_viewport(box: tuple[float, float, float, float], pad: float = 0.05
-                     ) -> tuple[float, float, float, float]:
+def propose_viewport(
+    box: tuple[float, float, float, float], pad: float = 0.05
+) -> tuple[float, float, float, float]:
     """A square viewport (targets are square) holding `box` with `pad` of its side on each
     side, its edges rounded outward to a round step (a tenth of the side's power of ten)."""
     xmin, xmax, ymin, ymax = box
@@ -218,8 +220,10 @@ def mean_matrix(checked: Checked) -> tuple[list[str], np.ndarray]:
     m = np.zeros((len(names), len(names)))
     for i, name in enumerate(names):
         for group in checked.productions[name].groups:
-            row = sum((_alt_counts(a, names) * (1.0 if a.prob is None else a.prob)
-                       for a in group.alts), np.zeros(len(names)))
+            row = sum(
+                (_alt_counts(a, names) * (1.0 if a.prob is None else a.prob) for a in group.alts),
+                np.zeros(len(names)),
+            )
             m[i] = np.maximum(m[i], row)
     return names, m
 
@@ -230,7 +234,7 @@ def _loops(m: np.ndarray, start: np.ndarray) -> list[list[int]]:
     n = len(m)
     closure = m > 0
     for k in range(n):  # Warshall: closure[i, j] = j reachable from i in >= 1 step
-        closure |= closure[:, k:k + 1] & closure[k:k + 1, :]
+        closure |= closure[:, k : k + 1] & closure[k : k + 1, :]
     reached = start | closure[start].any(axis=0)
     seen: set[int] = set()
     out = []
@@ -279,8 +283,13 @@ class Diagnosis:
     timing: Timing | None = None
 
 
-def diagnose(compiled: CompiledGrammar, samples: int = 40, seed: int = 0,
-             budget: float = 2.0, time_smc: float = 3.0) -> Diagnosis:
+def diagnose(
+    compiled: CompiledGrammar,
+    samples: int = 40,
+    seed: int = 0,
+    budget: float = 2.0,
+    time_smc: float = 3.0,
+) -> Diagnosis:
     """Branching from the grammar; with `samples` > 0, forward samples (for about `budget`
     seconds), a proposed viewport (when the grammar has none) and, with `time_smc` > 0, the
     time of one 600-particle SMC run (measured for at most `time_smc` seconds)."""
@@ -302,8 +311,10 @@ def diagnose(compiled: CompiledGrammar, samples: int = 40, seed: int = 0,
 def _caps_text(s: Samples, program: Program) -> str:
     if not s.capped:
         return f"none of {s.n}"
-    names = {"max primitives": f"max primitives ({program.max_primitives})",
-             RUNAWAY: "runaway (still running at the time cap)"}
+    names = {
+        "max primitives": f"max primitives ({program.max_primitives})",
+        RUNAWAY: "runaway (still running at the time cap)",
+    }
     parts = [f"{k} at {names.get(cap, cap)}" for cap, k in sorted(s.limits.items())]
     return f"{s.capped} of {s.n} ({100 * s.capped / s.n:.0f}%): " + ", ".join(parts)
 
@@ -316,8 +327,10 @@ def sample_lines(diag: Diagnosis) -> list[str]:
     lines = [f"forward samples: {s.n} in {s.seconds:.1f} s"]
     if s.primitives:
         prims = np.array(s.primitives)
-        lines.append(f"  primitives per sample: median {np.median(prims):.0f}, "
-                     f"p90 {np.percentile(prims, 90):.0f}, max {prims.max()}")
+        lines.append(
+            f"  primitives per sample: median {np.median(prims):.0f}, "
+            f"p90 {np.percentile(prims, 90):.0f}, max {prims.max()}"
+        )
     lines.append(f"  samples stopped by a cap: {_caps_text(s, program)}")
     t = diag.timing
     if t is not None:
@@ -325,16 +338,19 @@ def sample_lines(diag: Diagnosis) -> list[str]:
         if t.lower_bound:
             how, about = f"{run}: still running after {t.steps} steps, stopped", "more than"
         elif t.scaled_to:
-            how = (f"{run}: {t.steps} steps in {t.measured:.1f} s, then stopped; scaled to "
-                   f"{t.scaled_to} steps, as the longest forward sample drew {t.scaled_to} "
-                   "primitives")
+            how = (
+                f"{run}: {t.steps} steps in {t.measured:.1f} s, then stopped; scaled to "
+                f"{t.scaled_to} steps, as the longest forward sample drew {t.scaled_to} "
+                "primitives"
+            )
         else:
             how = f"{run}, measured: {t.steps} steps"
-        lines.append(f"  one {TARGET_N}-particle SMC run: {about} {_duration(t.seconds)} "
-                     f"({how})")
+        lines.append(f"  one {TARGET_N}-particle SMC run: {about} {_duration(t.seconds)} ({how})")
     if diag.viewport is not None:
-        lines.append(f"  no 'viewport:' line: the samples span {_box_text(s.box)}; "
-                     "add this header line (commands that draw into targets need one):")
+        lines.append(
+            f"  no 'viewport:' line: the samples span {_box_text(s.box)}; "
+            "add this header line (commands that draw into targets need one):"
+        )
         lines.append(f"    {viewport_line(diag.viewport)}")
     elif program.viewport is None:
         lines.append("  no 'viewport:' line, and the samples draw nothing to propose one from")
@@ -358,17 +374,25 @@ def warning_lines(diag: Diagnosis) -> list[str]:
     note when there are no samples to tell), or samples at a cap with no such loop."""
     s, out, name = diag.samples, [], printable(diag.filename)
     for b in diag.branching:
-        head = (f"{name}:{b.line}: rule {b.pred} branches supercritically: chains "
-                f"of {', '.join(b.modules)} fork into {b.rate:.2f} per generation on average")
+        head = (
+            f"{name}:{b.line}: rule {b.pred} branches supercritically: chains "
+            f"of {', '.join(b.modules)} fork into {b.rate:.2f} per generation on average"
+        )
         if s is None:
-            out.append(f"note: {head}, so only a condition or the derivation length ends "
-                       "them (without --no-samples, check shows whether samples reach a cap)")
+            out.append(
+                f"note: {head}, so only a condition or the derivation length ends "
+                "them (without --no-samples, check shows whether samples reach a cap)"
+            )
         elif s.capped:
-            out.append(f"warning: {head} (above 1: they grow without end), and {s.capped} of "
-                       f"{s.n} samples ran to a cap; make it fork less often, or end its "
-                       "chains with a condition")
+            out.append(
+                f"warning: {head} (above 1: they grow without end), and {s.capped} of "
+                f"{s.n} samples ran to a cap; make it fork less often, or end its "
+                "chains with a condition"
+            )
     if s is not None and s.capped and not diag.branching:
-        out.append(f"warning: {name}: {s.capped} of {s.n} samples ran to a cap (see "
-                   "above): the grammar does not end by itself; add a 'derivation length:' "
-                   "or a condition that ends it")
+        out.append(
+            f"warning: {name}: {s.capped} of {s.n} samples ran to a cap (see "
+            "above): the grammar does not end by itself; add a 'derivation length:' "
+            "or a condition that ends it"
+        )
     return out

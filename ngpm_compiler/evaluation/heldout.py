@@ -64,13 +64,20 @@ def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Target]]:
     """k targets of each set, spread evenly over the set's sorted files (no mirrors)."""
     from ngpm_runtime.image.targets import load_dataset
 
-    return {name: pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
-            for name, d in sets.items()}
+    return {
+        name: pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
+        for name, d in sets.items()
+    }
 
 
-def heldout_tasks(targets: dict[str, list[Target]], guides: list[str], guided_n: int,
-                  unguided_ns: tuple[int, ...], repeats: int, base_seed: int = 0
-                  ) -> list[RunTask]:
+def heldout_tasks(
+    targets: dict[str, list[Target]],
+    guides: list[str],
+    guided_n: int,
+    unguided_ns: tuple[int, ...],
+    repeats: int,
+    base_seed: int = 0,
+) -> list[RunTask]:
     """Every guide at `guided_n` and unguided SMC at `guided_n` and `unguided_ns`; a run's
     seed depends on (set, target, N, repeat) only, so models share random numbers."""
     tasks = []
@@ -97,29 +104,56 @@ def target_hash(target: Target) -> str:
     return short_hash(shape_start + np.packbits(mask).tobytes())
 
 
-def run_ids(tasks: list[RunTask], targets: dict[str, list[Target]], grammar: str,
-            guides: dict[str, str]) -> dict[RunTask, dict[str, Any]]:
+def run_ids(
+    tasks: list[RunTask], targets: dict[str, list[Target]], grammar: str, guides: dict[str, str]
+) -> dict[RunTask, dict[str, Any]]:
     """Each task's cache identity: the key columns of its row in heldout_runs.csv."""
     grammar_sha = short_hash(Path(grammar).read_bytes())
     guide_sha = {name: short_hash(Path(path).read_bytes()) for name, path in guides.items()}
-    target_sha = {(name, i): target_hash(t) for name, ts in targets.items()
-                  for i, t in enumerate(ts)}
-    return {t: {"model": t.model, "dataset": t.dataset,
-                "target": targets[t.dataset][t.target].name, "n": t.n, "repeat": t.repeat,
-                "seed": t.seed, "guide_sha": guide_sha.get(t.model, ""),
-                "target_sha": target_sha[(t.dataset, t.target)], "grammar_sha": grammar_sha}
-            for t in tasks}
+    target_sha = {
+        (name, i): target_hash(t) for name, ts in targets.items() for i, t in enumerate(ts)
+    }
+    return {
+        t: {
+            "model": t.model,
+            "dataset": t.dataset,
+            "target": targets[t.dataset][t.target].name,
+            "n": t.n,
+            "repeat": t.repeat,
+            "seed": t.seed,
+            "guide_sha": guide_sha.get(t.model, ""),
+            "target_sha": target_sha[(t.dataset, t.target)],
+            "grammar_sha": grammar_sha,
+        }
+        for t in tasks
+    }
 
 
 def _key(row: dict[str, Any]) -> tuple[Any, ...]:
-    return (str(row["model"]), str(row["dataset"]), str(row["target"]), int(row["n"]),
-            int(row["repeat"]), int(row["seed"]), *(str(row[f]) for f in HASH_FIELDS))
+    return (
+        str(row["model"]),
+        str(row["dataset"]),
+        str(row["target"]),
+        int(row["n"]),
+        int(row["repeat"]),
+        int(row["seed"]),
+        *(str(row[f]) for f in HASH_FIELDS),
+    )
 
 
-def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dict[str, str],
-                k: int = 16, repeats: int = 3, guided_n: int = 10,
-                unguided_ns: tuple[int, ...] = (200, 600, 2000), workers: int = 2,
-                seed: int = 0, log: Log = print) -> dict[str, Any]:
+def run_heldout(
+    out: str | Path,
+    grammar: str,
+    sets: dict[str, str],
+    guides: dict[str, str],
+    k: int = 16,
+    repeats: int = 3,
+    guided_n: int = 10,
+    unguided_ns: tuple[int, ...] = (200, 600, 2000),
+    workers: int = 2,
+    seed: int = 0,
+    log: Log = print,
+) -> dict[str, Any]:
     """Run what `heldout_runs.csv` lacks, then write the summary and table."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -133,21 +167,33 @@ def run_heldout(out: str | Path, grammar: str, sets: dict[str, str], guides: dic
     if todo:
         _run_todo(runs_path, grammar, targets, guides, todo, ids, have, workers, seed, log)
     rows = [have[_key(ids[t])] for t in tasks]
-    summary = [s for name in sorted(targets)
-               for s in summarize([r for r in rows if r["dataset"] == name], name)]
+    summary = [
+        s
+        for name in sorted(targets)
+        for s in summarize([r for r in rows if r["dataset"] == name], name)
+    ]
     write_csv(out / "heldout.csv", summary, SUMMARY_FIELDS)
     table = heldout_table(rows, summary, list(guides), guided_n)
     atomic_write(out / "heldout.md", table.encode("utf-8"))
     return {"rows": rows, "summary": summary, "table": table}
 
 
-def _run_todo(runs_path: Path, grammar: str, targets: dict[str, list[Target]],
-              guides: dict[str, str], todo: list[RunTask], ids: dict[RunTask, dict[str, Any]],
-              have: dict[tuple[Any, ...], dict[str, str]], workers: int, seed: int,
-              log: Log) -> None:
+def _run_todo(
+    runs_path: Path,
+    grammar: str,
+    targets: dict[str, list[Target]],
+    guides: dict[str, str],
+    todo: list[RunTask],
+    ids: dict[RunTask, dict[str, Any]],
+    have: dict[tuple[Any, ...], dict[str, str]],
+    workers: int,
+    seed: int,
+    log: Log,
+) -> None:
     """Run `todo`, appending each run to `runs_path` (and to `have`) as it finishes."""
     done = 0
     with open(runs_path, "a", encoding="utf-8", newline="") as fh:
+
         def note(r: RunResult) -> None:
             nonlocal done
             row = append_run(fh, {**r.row(), **ids[r.task]}, HELDOUT_FIELDS)
@@ -156,12 +202,14 @@ def _run_todo(runs_path: Path, grammar: str, targets: dict[str, list[Target]],
             if done % 50 == 0:
                 log(f"held-out: {done}/{len(todo)} runs")
 
-        run_tasks(grammar, targets, guides, todo, workers=workers, shuffle_seed=seed,
-                  on_result=note)
+        run_tasks(
+            grammar, targets, guides, todo, workers=workers, shuffle_seed=seed, on_result=note
+        )
 
 
 def losses(rows: list[dict[str, Any]], model: str, dataset: str, guided_n: int) -> list[str]:
     """Targets where `model`'s median similarity over repeats is below unguided's, same N."""
+
     def medians(m: str) -> dict[str, float]:
         by: dict[str, list[float]] = {}
         for r in rows:
@@ -173,8 +221,9 @@ def losses(rows: list[dict[str, Any]], model: str, dataset: str, guided_n: int) 
     return sorted(t for t in g if t in u and g[t] < u[t])
 
 
-def heldout_table(rows: list[dict[str, Any]], summary: list[dict[str, Any]],
-                  guides: list[str], guided_n: int) -> str:
+def heldout_table(
+    rows: list[dict[str, Any]], summary: list[dict[str, Any]], guides: list[str], guided_n: int
+) -> str:
     """Markdown: per set, each model's mean similarity at each N, the unguided N that
     matches the guide at `guided_n`, and the targets where the guide loses to unguided."""
     lines = []
@@ -182,11 +231,15 @@ def heldout_table(rows: list[dict[str, Any]], summary: list[dict[str, Any]],
         sub = [s for s in summary if s["dataset"] == ds]
         uns = sorted({int(s["n"]) for s in sub if s["model"] == UNGUIDED})
         n_t = max(int(s["targets"]) for s in sub)
-        lines += [f"**{ds}** ({n_t} targets)", "",
-                  "| model | " + " | ".join(f"unguided N={n}" for n in uns)
-                  + f" | guided N={guided_n} | unguided N to match | targets guided < "
-                  f"unguided (N={guided_n}) |",
-                  "|---" * (len(uns) + 4) + "|"]
+        lines += [
+            f"**{ds}** ({n_t} targets)",
+            "",
+            "| model | "
+            + " | ".join(f"unguided N={n}" for n in uns)
+            + f" | guided N={guided_n} | unguided N to match | targets guided < "
+            f"unguided (N={guided_n}) |",
+            "|---" * (len(uns) + 4) + "|",
+        ]
         ung = {int(s["n"]): float(s["mean_similarity"]) for s in sub if s["model"] == UNGUIDED}
         for g in guides:
             row = [s for s in sub if s["model"] == g and int(s["n"]) == guided_n]
@@ -194,10 +247,14 @@ def heldout_table(rows: list[dict[str, Any]], summary: list[dict[str, Any]],
                 continue
             sim = float(row[0]["mean_similarity"])
             match = n_to_match(sub, sim)
-            m = (f">{max(uns)}" if math.isnan(match) else f"{match:.0f}")
+            m = f">{max(uns)}" if math.isnan(match) else f"{match:.0f}"
             lost = losses(rows, g, ds, guided_n)
-            lines.append(f"| {g} | " + " | ".join(f"{ung[n]:.3f}" for n in uns)
-                         + f" | {sim:.3f} | {m} | {len(lost)}"
-                         + (f" ({', '.join(lost)})" if lost else "") + " |")
+            lines.append(
+                f"| {g} | "
+                + " | ".join(f"{ung[n]:.3f}" for n in uns)
+                + f" | {sim:.3f} | {m} | {len(lost)}"
+                + (f" ({', '.join(lost)})" if lost else "")
+                + " |"
+            )
         lines.append("")
     return "\n".join(lines)

@@ -23,8 +23,7 @@ INTS = ("n", "repeat", "seed", "primitives")  # columns that must read as number
 FLOATS = ("similarity", "seconds")
 
 
-def read_runs(path: str | Path, fields: tuple[str, ...], log: Log = print
-              ) -> list[dict[str, str]]:
+def read_runs(path: str | Path, fields: tuple[str, ...], log: Log = print) -> list[dict[str, str]]:
     """The readable rows of `path` (none if it is missing), whose columns must be `fields`,
     after rewriting the file if it holds a torn or bad line."""
     path = Path(path)
@@ -34,7 +33,7 @@ def read_runs(path: str | Path, fields: tuple[str, ...], log: Log = print
     data = path.read_bytes()
     torn = bool(data) and not data.endswith(b"\n")
     if torn:  # a write cut short: everything after the last newline
-        data = data[:data.rfind(b"\n") + 1]
+        data = data[: data.rfind(b"\n") + 1]
     try:
         records = list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
     except (UnicodeDecodeError, csv.Error) as err:
@@ -43,13 +42,16 @@ def read_runs(path: str | Path, fields: tuple[str, ...], log: Log = print
         write_csv(path, [], fields)
         return []
     if tuple(records[0]) != fields:
-        raise NgpmError(f"{path}: not a runs file (its columns are not "
-                        f"{','.join(fields)}); move it away")
+        raise NgpmError(
+            f"{path}: not a runs file (its columns are not {','.join(fields)}); move it away"
+        )
     rows = [r for r in (_row(rec, fields) for rec in records[1:]) if r is not None]
     dropped = len(records) - 1 - len(rows) + torn
     if dropped:
-        log(f"{path}: dropped {dropped} unreadable line(s) (a run cut off by an "
-            "interrupt, or an edit)")
+        log(
+            f"{path}: dropped {dropped} unreadable line(s) (a run cut off by an "
+            "interrupt, or an edit)"
+        )
         write_csv(path, rows, fields)
     return rows
 
@@ -75,7 +77,8 @@ def csv_line(row: dict[str, Any], fields: tuple[str, ...]) -> str:
     """One CSV line of `row` (as write_csv writes it), ending with a newline."""
     buf = io.StringIO()
     csv.DictWriter(buf, fieldnames=list(fields), lineterminator="\n").writerow(
-        {f: row.get(f, "") for f in fields})
+        {f: row.get(f, "") for f in fields}
+    )
     return buf.getvalue()
 
 

@@ -34,10 +34,28 @@ if TYPE_CHECKING:  # targets loads PIL, grow the SMC: only in the workers that r
     from ngpm_runtime.inference.proposals import Proposal
     from ngpm_runtime.program import Program
 
-RUN_FIELDS = ("model", "dataset", "target", "n", "repeat", "seed", "similarity", "seconds",
-              "primitives")
-SUMMARY_FIELDS = ("dataset", "model", "n", "targets", "mean_similarity", "ci_low", "ci_high",
-                  "mean_seconds", "median_seconds")
+RUN_FIELDS = (
+    "model",
+    "dataset",
+    "target",
+    "n",
+    "repeat",
+    "seed",
+    "similarity",
+    "seconds",
+    "primitives",
+)
+SUMMARY_FIELDS = (
+    "dataset",
+    "model",
+    "n",
+    "targets",
+    "mean_similarity",
+    "ci_low",
+    "ci_high",
+    "mean_seconds",
+    "median_seconds",
+)
 UNGUIDED = "unguided"
 
 
@@ -61,19 +79,29 @@ class RunResult:
 
     def row(self) -> dict[str, Any]:
         t = self.task
-        return {"model": t.model, "dataset": t.dataset, "target": self.target_name, "n": t.n,
-                "repeat": t.repeat, "seed": t.seed, "similarity": round(self.similarity, 6),
-                "seconds": round(self.seconds, 6), "primitives": len(self.primitives)}
+        return {
+            "model": t.model,
+            "dataset": t.dataset,
+            "target": self.target_name,
+            "n": t.n,
+            "repeat": t.repeat,
+            "seed": t.seed,
+            "similarity": round(self.similarity, 6),
+            "seconds": round(self.seconds, 6),
+            "primitives": len(self.primitives),
+        }
 
 
 def run_seed(base: int, target: int, n: int, repeat: int) -> int:
     """SMC seed of one run: the same for every model (common random numbers)."""
-    return int(np.random.SeedSequence([int(base), int(target), int(n), int(repeat)])
-               .generate_state(1)[0])
+    return int(
+        np.random.SeedSequence([int(base), int(target), int(n), int(repeat)]).generate_state(1)[0]
+    )
 
 
-def grow_once(program: Program, target: Target, proposal: Proposal | None, n: int, seed: int
-              ) -> tuple[float, float, list[Prim]]:
+def grow_once(
+    program: Program, target: Target, proposal: Proposal | None, n: int, seed: int
+) -> tuple[float, float, list[Prim]]:
     """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
     from ngpm_runtime.grow import grow
 
@@ -83,16 +111,21 @@ def grow_once(program: Program, target: Target, proposal: Proposal | None, n: in
 
 # --------------------------------------------------------------------------- workers
 
-def _worker_setup(grammar: str, text: str, targets: dict[str, list[Target]],
-                  guides: dict[str, str | bytes]) -> dict[str, Any]:
+
+def _worker_setup(
+    grammar: str, text: str, targets: dict[str, list[Target]], guides: dict[str, str | bytes]
+) -> dict[str, Any]:
     """A worker's state: the grammar from its text, the targets, and each guide from its path
     or, for workers that may be on other machines, from its file's bytes."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(grammar, text)
-    return {"program": program, "targets": targets,
-            "guides": {name: backends.load_guide(g, program) for name, g in guides.items()}}
+    return {
+        "program": program,
+        "targets": targets,
+        "guides": {name: backends.load_guide(g, program) for name, g in guides.items()},
+    }
 
 
 def _run(task: RunTask) -> RunResult:
@@ -103,18 +136,26 @@ def _run(task: RunTask) -> RunResult:
     return RunResult(task, target.name, sim, seconds, prims)
 
 
-def run_tasks(grammar: str, targets: dict[str, list[Target]], guides: dict[str, str],
-              tasks: list[RunTask], workers: int = 1, shuffle_seed: int = 0,
-              on_result: Callable[[RunResult], None] | None = None, backend: str = "local",
-              address: str | None = None) -> list[RunResult]:
+def run_tasks(
+    grammar: str,
+    targets: dict[str, list[Target]],
+    guides: dict[str, str],
+    tasks: list[RunTask],
+    workers: int = 1,
+    shuffle_seed: int = 0,
+    on_result: Callable[[RunResult], None] | None = None,
+    backend: str = "local",
+    address: str | None = None,
+) -> list[RunResult]:
     """Run every task (shuffled order, on `backend` with `workers` processes or Ray CPUs, or
     on the Ray cluster at `address`); results in task order."""
     order = np.random.default_rng(shuffle_seed).permutation(len(tasks))
     shuffled = [tasks[i] for i in order]
     ship = {name: backends.ship_file(path, backend) for name, path in guides.items()}
     text = Path(grammar).read_text(encoding="utf-8")
-    jobs = backends.make_backend(backend, workers, _worker_setup,
-                                 (grammar, text, targets, ship), address)
+    jobs = backends.make_backend(
+        backend, workers, _worker_setup, (grammar, text, targets, ship), address
+    )
     out: dict[RunTask, RunResult] = {}
 
     def keep(_: int, r: RunResult) -> None:
@@ -128,8 +169,13 @@ def run_tasks(grammar: str, targets: dict[str, list[Target]], guides: dict[str, 
     return [out[t] for t in tasks]
 
 
-def shape_tasks(models: Iterable[str], datasets: dict[str, int], ns: Iterable[int],
-                repeats: int, base_seed: int = 0) -> list[RunTask]:
+def shape_tasks(
+    models: Iterable[str],
+    datasets: dict[str, int],
+    ns: Iterable[int],
+    repeats: int,
+    base_seed: int = 0,
+) -> list[RunTask]:
     """Every (model, dataset target, N, repeat) combination; `datasets` maps name -> count."""
     tasks: list[RunTask] = []
     offset = 0
@@ -204,23 +250,35 @@ def summarize(rows: list[dict[str, Any]], dataset: str = "all") -> list[dict[str
         groups.setdefault(key, {}).setdefault(f"{r['dataset']}/{r['target']}", []).append(r)
     out = []
     for (model, n), by_target in sorted(groups.items()):
-        med = np.array([np.median([float(x["similarity"]) for x in rs])
-                        for rs in by_target.values()])
+        med = np.array(
+            [np.median([float(x["similarity"]) for x in rs]) for rs in by_target.values()]
+        )
         secs = np.array([float(x["seconds"]) for rs in by_target.values() for x in rs])
         mean, lo, hi = t_interval(med)
-        out.append({"dataset": dataset, "model": model, "n": n, "targets": len(med),
-                    "mean_similarity": round(mean, 6), "ci_low": round(lo, 6),
-                    "ci_high": round(hi, 6), "mean_seconds": round(float(secs.mean()), 6),
-                    "median_seconds": round(float(np.median(secs)), 6)})
+        out.append(
+            {
+                "dataset": dataset,
+                "model": model,
+                "n": n,
+                "targets": len(med),
+                "mean_similarity": round(mean, 6),
+                "ci_low": round(lo, 6),
+                "ci_high": round(hi, 6),
+                "mean_seconds": round(float(secs.mean()), 6),
+                "median_seconds": round(float(np.median(secs)), 6),
+            }
+        )
     return out
 
 
 def curve(summary: list[dict[str, Any]], model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N, mean similarity, mean seconds) of one model, by increasing N."""
     rows = sorted((r for r in summary if r["model"] == model), key=lambda r: r["n"])
-    return (np.array([r["n"] for r in rows], dtype=np.int64),
-            np.array([r["mean_similarity"] for r in rows], dtype=np.float64),
-            np.array([r["mean_seconds"] for r in rows], dtype=np.float64))
+    return (
+        np.array([r["n"] for r in rows], dtype=np.int64),
+        np.array([r["mean_similarity"] for r in rows], dtype=np.float64),
+        np.array([r["mean_seconds"] for r in rows], dtype=np.float64),
+    )
 
 
 def time_to_reach(sims: np.ndarray, secs: np.ndarray, threshold: float) -> float:
@@ -235,16 +293,21 @@ def time_to_reach(sims: np.ndarray, secs: np.ndarray, threshold: float) -> float
             if prev_t is None or best_sim == -math.inf or s <= best_sim:
                 return float(t)
             frac = (threshold - best_sim) / (s - best_sim)
-            lt = math.log(max(prev_t, 1e-9)) + frac * (math.log(max(t, 1e-9))
-                                                        - math.log(max(prev_t, 1e-9)))
+            lt = math.log(max(prev_t, 1e-9)) + frac * (
+                math.log(max(t, 1e-9)) - math.log(max(prev_t, 1e-9))
+            )
             return float(min(math.exp(lt), t))
         if s > best_sim:
             best_sim, prev_t = s, t
     return math.nan
 
 
-def speedups(summary: list[dict[str, Any]], models: list[str], thresholds: Iterable[float],
-             baseline: str = UNGUIDED) -> list[dict[str, Any]]:
+def speedups(
+    summary: list[dict[str, Any]],
+    models: list[str],
+    thresholds: Iterable[float],
+    baseline: str = UNGUIDED,
+) -> list[dict[str, Any]]:
     """Rows (model, threshold, seconds, baseline_seconds, speedup) for Fig. 4b.
 
     Where the baseline never reaches a threshold, `speedup` is the lower bound given by its
@@ -261,9 +324,16 @@ def speedups(summary: list[dict[str, Any]], models: list[str], thresholds: Itera
             if math.isnan(tb) and not math.isnan(tm) and len(bt):
                 tb, bound = float(bt.max()), ">"
             sp = tb / tm if not (math.isnan(tb) or math.isnan(tm)) and tm > 0 else math.nan
-            out.append({"model": model, "threshold": round(float(thr), 4),
-                        "seconds": _r(tm), "baseline_seconds": _r(tb), "speedup": _r(sp),
-                        "bound": bound})
+            out.append(
+                {
+                    "model": model,
+                    "threshold": round(float(thr), 4),
+                    "seconds": _r(tm),
+                    "baseline_seconds": _r(tb),
+                    "speedup": _r(sp),
+                    "bound": bound,
+                }
+            )
     return out
 
 
@@ -271,8 +341,7 @@ def _r(x: float) -> float | str:
     return "" if math.isnan(x) else round(float(x), 6)
 
 
-def n_to_match(summary: list[dict[str, Any]], similarity: float,
-               baseline: str = UNGUIDED) -> float:
+def n_to_match(summary: list[dict[str, Any]], similarity: float, baseline: str = UNGUIDED) -> float:
     """Smallest baseline N (log-interpolated) whose mean similarity reaches `similarity`."""
     ns, s, _ = curve(summary, baseline)
     v = time_to_reach(s, ns.astype(np.float64), similarity)

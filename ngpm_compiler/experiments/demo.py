@@ -59,8 +59,9 @@ def median_run(runs: list[Any]) -> Any:
     return sorted(runs, key=lambda r: r.similarity)[(len(runs) - 1) // 2]
 
 
-def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
-             guide: Any = None, runs: int = 3) -> tuple[list[DemoRow], Any]:
+def run_demo(
+    particles: int = 10, seed: int = 0, program: Any = None, guide: Any = None, runs: int = 3
+) -> tuple[list[DemoRow], Any]:
     """Guided and unguided SMC on every built-in target; returns the rows and the guide.
 
     program and guide default to the bundled vines model and guide."""
@@ -72,8 +73,13 @@ def run_demo(particles: int = 10, seed: int = 0, program: Any = None,
     rows = []
     for target in demo_targets():
         seeds = range(seed, seed + runs)
-        rows.append(DemoRow(target, [grow(program, target, guide, particles, s) for s in seeds],
-                            [grow(program, target, None, particles, s) for s in seeds]))
+        rows.append(
+            DemoRow(
+                target,
+                [grow(program, target, guide, particles, s) for s in seeds],
+                [grow(program, target, None, particles, s) for s in seeds],
+            )
+        )
     return rows, guide
 
 
@@ -86,8 +92,9 @@ def prepare_out_dir(path: str | os.PathLike[str]) -> Path:
         os.close(fd)
         os.unlink(probe)
     except OSError as err:
-        raise DemoError(f"{out}: cannot write the demo output there "
-                        f"({err.strerror or err.__class__.__name__})") from None
+        raise DemoError(
+            f"{out}: cannot write the demo output there ({err.strerror or err.__class__.__name__})"
+        ) from None
     return out
 
 
@@ -109,16 +116,23 @@ def summary_table(rows: list[DemoRow], particles: int, runs: int = 1) -> str:
     body = [(r.target.name, *_stats(r.guided_runs), *_stats(r.unguided_runs)) for r in rows]
     body.append(("mean", *_mean(rows, "guided"), *_mean(rows, "unguided")))
     widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
-    lines = ["  ".join(c.ljust(w) if i == 0 else c.rjust(w)
-                       for i, (c, w) in enumerate(zip(r, widths, strict=True)))
-             for r in [head, *body]]
+    lines = [
+        "  ".join(
+            c.ljust(w) if i == 0 else c.rjust(w)
+            for i, (c, w) in enumerate(zip(r, widths, strict=True))
+        )
+        for r in [head, *body]
+    ]
     lines.insert(1, "-" * len(lines[0]))
-    return (f"similarity (1 = the target exactly, 0 = no better than a blank canvas) and "
-            f"seconds, mean of {runs} run{'s' if runs > 1 else ''}\n" + "\n".join(lines))
+    return (
+        f"similarity (1 = the target exactly, 0 = no better than a blank canvas) and "
+        f"seconds, mean of {runs} run{'s' if runs > 1 else ''}\n" + "\n".join(lines)
+    )
 
 
-def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int,
-                     runs: int = 1) -> str:
+def summary_markdown(
+    rows: list[DemoRow], guide: Any, particles: int, seed: int, runs: int = 1
+) -> str:
     from ngpm_runtime.bundled import guide_summary
 
     program = guide.program
@@ -140,10 +154,14 @@ def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int,
         "|---|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r.target.name} | {' | '.join(_stats(r.guided_runs))} | "
-                     f"{' | '.join(_stats(r.unguided_runs))} |")
-    lines.append(f"| **mean** | {' | '.join(_mean(rows, 'guided'))} | "
-                 f"{' | '.join(_mean(rows, 'unguided'))} |")
+        lines.append(
+            f"| {r.target.name} | {' | '.join(_stats(r.guided_runs))} | "
+            f"{' | '.join(_stats(r.unguided_runs))} |"
+        )
+    lines.append(
+        f"| **mean** | {' | '.join(_mean(rows, 'guided'))} | "
+        f"{' | '.join(_mean(rows, 'unguided'))} |"
+    )
     lines.append("")
     lines.append("Every run (similarity):")
     lines.append("")
@@ -151,8 +169,13 @@ def summary_markdown(rows: list[DemoRow], guide: Any, particles: int, seed: int,
         g = ", ".join(f"{x.similarity:.3f}" for x in r.guided_runs)
         u = ", ".join(f"{x.similarity:.3f}" for x in r.unguided_runs)
         lines.append(f"- {r.target.name}: guided {g}; unguided {u}")
-    lines += ["", "![comparison](demo.png)", "",
-              "Grow a vine into your own picture: `ngpmc grow picture.png -o vine.png`.", ""]
+    lines += [
+        "",
+        "![comparison](demo.png)",
+        "",
+        "Grow a vine into your own picture: `ngpmc grow picture.png -o vine.png`.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -218,16 +241,25 @@ def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.n
     median = f", median of {runs}" if runs > 1 else ""
     heads = ("target", f"guided, N={particles}{median}", f"unguided, N={particles}{median}")
     for c, text in enumerate(heads):
-        draw.text((PAD + c * (CELL + PAD) + CELL / 2, HEADER / 2), text, fill=(0, 0, 0),
-                  font=title, anchor="mm")
+        draw.text(
+            (PAD + c * (CELL + PAD) + CELL / 2, HEADER / 2),
+            text,
+            fill=(0, 0, 0),
+            font=title,
+            anchor="mm",
+        )
     for r, row in enumerate(rows):
         y0 = HEADER + r * (CELL + CAPTION + PAD)
-        pics = [target_picture(row.target, CELL),
-                _render(row.guided.primitives, viewport, row.target.mask, CELL),
-                _render(row.unguided.primitives, viewport, row.target.mask, CELL)]
-        caps = [row.target.name,
-                f"similarity {row.guided.similarity:.3f}, {row.guided.seconds:.2f} s",
-                f"similarity {row.unguided.similarity:.3f}, {row.unguided.seconds:.2f} s"]
+        pics = [
+            target_picture(row.target, CELL),
+            _render(row.guided.primitives, viewport, row.target.mask, CELL),
+            _render(row.unguided.primitives, viewport, row.target.mask, CELL),
+        ]
+        caps = [
+            row.target.name,
+            f"similarity {row.guided.similarity:.3f}, {row.guided.seconds:.2f} s",
+            f"similarity {row.unguided.similarity:.3f}, {row.unguided.seconds:.2f} s",
+        ]
         for c, (pic, cap) in enumerate(zip(pics, caps, strict=True)):
             x0 = PAD + c * (CELL + PAD)
             tile = Image.fromarray(pic)
@@ -235,8 +267,13 @@ def comparison_image(rows: list[DemoRow], particles: int, viewport: Any) -> np.n
                 tile = tile.resize((CELL, CELL), Image.Resampling.LANCZOS)
             sheet.paste(tile, (x0, y0))
             draw.rectangle((x0, y0, x0 + CELL - 1, y0 + CELL - 1), outline=(200, 200, 200))
-            draw.text((x0 + CELL / 2, y0 + CELL + CAPTION / 2), cap, fill=(0, 0, 0),
-                      font=small, anchor="mm")
+            draw.text(
+                (x0 + CELL / 2, y0 + CELL + CAPTION / 2),
+                cap,
+                fill=(0, 0, 0),
+                font=small,
+                anchor="mm",
+            )
     return np.asarray(sheet)
 
 
@@ -250,8 +287,14 @@ def _write_text(path: Path, text: str) -> None:
     atomic_write(path, text)
 
 
-def write_demo(out_dir: str | os.PathLike[str], particles: int = 10, seed: int = 0, runs: int = 3,
-               program: Any = None, guide: Any = None) -> tuple[list[DemoRow], Any, list[Path]]:
+def write_demo(
+    out_dir: str | os.PathLike[str],
+    particles: int = 10,
+    seed: int = 0,
+    runs: int = 3,
+    program: Any = None,
+    guide: Any = None,
+) -> tuple[list[DemoRow], Any, list[Path]]:
     """Run the demo and write its renders, `demo.png` and `summary.md` into `out_dir`.
 
     program, guide: default to the bundled vines model and its guide. Returns (rows, guide,

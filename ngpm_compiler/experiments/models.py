@@ -43,9 +43,13 @@ def subset(data: dict[int, Any], kept_jobs: np.ndarray, n: int | None) -> dict[i
 
 
 def _key(spec: ModelSpec, traces_dir: str, manifest: dict[str, Any]) -> dict[str, Any]:
-    return {"spec": asdict(spec), "traces": str(Path(traces_dir).resolve()),
-            "jobs_done": manifest.get("jobs_done"), "kept": manifest.get("kept"),
-            "grammar_hash": manifest.get("grammar_hash")}
+    return {
+        "spec": asdict(spec),
+        "traces": str(Path(traces_dir).resolve()),
+        "jobs_done": manifest.get("jobs_done"),
+        "kept": manifest.get("kept"),
+        "grammar_hash": manifest.get("grammar_hash"),
+    }
 
 
 def train_one(spec: ModelSpec, traces_dir: str, out_dir: str, seed: int = 0) -> str:
@@ -64,14 +68,25 @@ def train_one(spec: ModelSpec, traces_dir: str, out_dir: str, seed: int = 0) -> 
             return str(out)
     data = subset(ts.data, ts.kept_jobs, spec.traces)
     cfg = TrainConfig(feature_set=spec.features, K=spec.K, epochs=spec.epochs, seed=seed)
-    model = train_guide(ts.sites, ts.layouts, data, cfg,
-                        grammar=ts.manifest["key"]["grammar"],
-                        grammar_hash=ts.manifest["grammar_hash"])
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        data,
+        cfg,
+        grammar=ts.manifest["key"]["grammar"],
+        grammar_hash=ts.manifest["grammar_hash"],
+    )
     write_onnx(model, out)
     s = model.summary
-    info = {"key": key, "traces": s["traces"], "val_traces": s["val_traces"],
-            "best_epoch": s["best_epoch"], "epochs_run": s["epochs_run"],
-            "val_nll": s["val_nll"], "seconds": s["seconds"]}
+    info = {
+        "key": key,
+        "traces": s["traces"],
+        "val_traces": s["val_traces"],
+        "best_epoch": s["best_epoch"],
+        "epochs_run": s["epochs_run"],
+        "val_nll": s["val_nll"],
+        "seconds": s["seconds"],
+    }
     atomic_write(meta_path, (json.dumps(info, indent=1) + "\n").encode("utf-8"))
     return str(out)
 
@@ -84,8 +99,9 @@ def _train_job(args: tuple[ModelSpec, str, str, int]) -> tuple[str, str]:
     return spec.name, train_one(*args)
 
 
-def train_models(specs: list[ModelSpec], traces_dir: str, out_dir: str, workers: int = 1,
-                 seed: int = 0) -> dict[str, str]:
+def train_models(
+    specs: list[ModelSpec], traces_dir: str, out_dir: str, workers: int = 1, seed: int = 0
+) -> dict[str, str]:
     """Train every spec (in `workers` processes); {name: onnx path}."""
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     jobs = [(s, traces_dir, out_dir, seed) for s in specs]
@@ -112,5 +128,10 @@ def model_info(onnx_path: str) -> dict[str, Any]:
     except Exception:  # not an ngpm guide, or no summary: the table shows blanks
         return {}
     spec = {"features": t.get("feature_set", "all"), "K": t.get("K", 4)}
-    return {"key": {"spec": spec}, **{k: t.get(k) for k in (
-        "traces", "val_traces", "best_epoch", "epochs_run", "val_nll", "seconds")}}
+    return {
+        "key": {"spec": spec},
+        **{
+            k: t.get(k)
+            for k in ("traces", "val_traces", "best_epoch", "epochs_run", "val_nll", "seconds")
+        },
+    }

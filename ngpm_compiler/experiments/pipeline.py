@@ -58,8 +58,7 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = print) -> dict[str, 
         result.update(shape.analyze_shape(cfg.shape, rows, kept))
         log(f"shape study done ({len(rows)} runs)")
         if "grids" in cfg.stages:
-            result["grids"] = shape.run_grids(cfg.shape, targets, guides, result["summary"],
-                                              log)
+            result["grids"] = shape.run_grids(cfg.shape, targets, guides, result["summary"], log)
     if "circuit" in cfg.stages:
         result["circuit"] = extra.run_circuit(cfg.circuit, log)
         log("circuit study done")
@@ -74,8 +73,7 @@ def run_eval(cfg: EvalConfig, command: str = "", log: Any = print) -> dict[str, 
     settings["wall_minutes"] = round(sum(stage_min.values()), 1)
     _save_settings(settings_path, settings)
     if "report" in cfg.stages:
-        readme, report = write_reports(
-            out, command if cfg.stages != ("report",) else "")
+        readme, report = write_reports(out, command if cfg.stages != ("report",) else "")
         log(f"wrote {readme} and {report}")
     result["files"] = sorted(p.name for p in out.iterdir() if p.is_file())
     return result

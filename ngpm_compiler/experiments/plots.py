@@ -15,11 +15,22 @@ from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.evaluation.runs import UNGUIDED, curve
 
-COLORS = {UNGUIDED: "#444444", "const": "#1f77b4", "local": "#ff7f0e",
-          "local+target": "#2ca02c", "all": "#d62728", "all_k1": "#9467bd"}
-LABELS = {UNGUIDED: "unguided", "const": "constant params", "local": "+ local state",
-          "local+target": "+ target features", "all": "all features (K=4)",
-          "all_k1": "all features (K=1)"}
+COLORS = {
+    UNGUIDED: "#444444",
+    "const": "#1f77b4",
+    "local": "#ff7f0e",
+    "local+target": "#2ca02c",
+    "all": "#d62728",
+    "all_k1": "#9467bd",
+}
+LABELS = {
+    UNGUIDED: "unguided",
+    "const": "constant params",
+    "local": "+ local state",
+    "local+target": "+ target features",
+    "all": "all features (K=4)",
+    "all_k1": "all features (K=1)",
+}
 
 
 def _plt() -> Any:
@@ -44,8 +55,9 @@ def label(model: str) -> str:
     return LABELS.get(model, model)
 
 
-def plot_similarity_vs_n(summary: list[dict[str, Any]], models: list[str], path: str | Path,
-                         title: str) -> Path:
+def plot_similarity_vs_n(
+    summary: list[dict[str, Any]], models: list[str], path: str | Path, title: str
+) -> Path:
     """Mean (over targets) of the median similarity vs N, with 95% CI bands (Fig. 4a / 5a)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
@@ -69,8 +81,12 @@ def plot_similarity_vs_n(summary: list[dict[str, Any]], models: list[str], path:
     return save_fig(fig, path)
 
 
-def plot_time_vs_similarity(summary: list[dict[str, Any]], speed_rows: list[dict[str, Any]],
-                            models: list[str], path: str | Path) -> Path:
+def plot_time_vs_similarity(
+    summary: list[dict[str, Any]],
+    speed_rows: list[dict[str, Any]],
+    models: list[str],
+    path: str | Path,
+) -> Path:
     """Left: mean wall time vs mean similarity per model (Fig. 4b). Right: speedups."""
     plt = _plt()
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(10.5, 4.0))
@@ -107,8 +123,12 @@ def plot_time_vs_similarity(summary: list[dict[str, Any]], speed_rows: list[dict
     return save_fig(fig, path)
 
 
-def plot_trainset_size(points: list[dict[str, Any]], unguided: dict[str, float] | None,
-                       path: str | Path, n_particles: int) -> Path:
+def plot_trainset_size(
+    points: list[dict[str, Any]],
+    unguided: dict[str, float] | None,
+    path: str | Path,
+    n_particles: int,
+) -> Path:
     """Similarity at N = n_particles vs the number of training traces (Fig. 5b)."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6.0, 4.0))
@@ -117,11 +137,22 @@ def plot_trainset_size(points: list[dict[str, Any]], unguided: dict[str, float] 
     y = np.array([float(r["mean_similarity"]) for r in pts])
     lo = np.array([float(r["ci_low"]) for r in pts])
     hi = np.array([float(r["ci_high"]) for r in pts])
-    ax.errorbar(x, y, yerr=[y - lo, hi - y], fmt="o-", color=COLORS["all"], capsize=3,
-                label=f"all features, N = {n_particles}")
+    ax.errorbar(
+        x,
+        y,
+        yerr=[y - lo, hi - y],
+        fmt="o-",
+        color=COLORS["all"],
+        capsize=3,
+        label=f"all features, N = {n_particles}",
+    )
     if unguided:
-        ax.axhline(unguided["mean_similarity"], color=COLORS[UNGUIDED], ls="--",
-                   label=f"unguided, N = {n_particles}")
+        ax.axhline(
+            unguided["mean_similarity"],
+            color=COLORS[UNGUIDED],
+            ls="--",
+            label=f"unguided, N = {n_particles}",
+        )
     ax.set_xscale("log")
     ax.set_xlabel("training traces")
     ax.set_ylabel("similarity (mean of per-target medians)")
@@ -131,14 +162,19 @@ def plot_trainset_size(points: list[dict[str, Any]], unguided: dict[str, float] 
     return save_fig(fig, path)
 
 
-def image_grid(rows: list[list[dict[str, Any]]], path: str | Path, cell: float = 1.9,
-               header: list[str] | None = None) -> Path:
+def image_grid(
+    rows: list[list[dict[str, Any]]],
+    path: str | Path,
+    cell: float = 1.9,
+    header: list[str] | None = None,
+) -> Path:
     """A grid of RGB images: rows of cells {"image": (h, w, 3) uint8, "caption": str}."""
     plt = _plt()
     n_rows = len(rows)
     n_cols = max(len(r) for r in rows)
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(cell * n_cols, cell * 1.22 * n_rows),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        n_rows, n_cols, figsize=(cell * n_cols, cell * 1.22 * n_rows), squeeze=False
+    )
     for i, row in enumerate(rows):
         for j in range(n_cols):
             ax = axes[i][j]

@@ -49,8 +49,10 @@ def test_targets(cfg: ShapeConfig) -> dict[str, list[Any]]:
     from ngpm_compiler.datasets.build import build_dataset
 
     out = {}
-    for name, given, k in (("glyphs", cfg.glyphs, cfg.n_glyphs),
-                           ("silhouettes", cfg.silhouettes, cfg.n_silhouettes)):
+    for name, given, k in (
+        ("glyphs", cfg.glyphs, cfg.n_glyphs),
+        ("silhouettes", cfg.silhouettes, cfg.n_silhouettes),
+    ):
         if k <= 0:
             continue
         d = Path(given) if given else Path(cfg.work) / name
@@ -71,9 +73,18 @@ def tiny_traces(cfg: ShapeConfig) -> str:
     if not (scr / "index.json").is_file():
         build_dataset("scribbles", scr, count=cfg.tiny_scribbles, seed=cfg.seed, mirror=True)
     out = w / "traces"
-    generate_traces(TraceConfig(grammar=cfg.grammar, targets=str(scr), n=cfg.tiny_traces,
-                                particles=cfg.tiny_particles, seed=cfg.seed, workers=1),
-                    out, progress=False)
+    generate_traces(
+        TraceConfig(
+            grammar=cfg.grammar,
+            targets=str(scr),
+            n=cfg.tiny_traces,
+            particles=cfg.tiny_particles,
+            seed=cfg.seed,
+            workers=1,
+        ),
+        out,
+        progress=False,
+    )
     return str(out)
 
 
@@ -101,12 +112,19 @@ def models_table(guides: dict[str, str], kept: int) -> list[dict[str, Any]]:
     for name, path in sorted(guides.items()):
         info = model_info(path)
         spec = info.get("key", {}).get("spec", {})
-        rows.append({"model": name, "features": spec.get("features", "all"),
-                     "K": spec.get("K", 4), "traces": info.get("traces", kept),
-                     "val_traces": info.get("val_traces", ""),
-                     "best_epoch": info.get("best_epoch", ""),
-                     "val_nll": _round(info.get("val_nll")),
-                     "train_seconds": _round(info.get("seconds")), "path": path})
+        rows.append(
+            {
+                "model": name,
+                "features": spec.get("features", "all"),
+                "K": spec.get("K", 4),
+                "traces": info.get("traces", kept),
+                "val_traces": info.get("val_traces", ""),
+                "best_epoch": info.get("best_epoch", ""),
+                "val_nll": _round(info.get("val_nll")),
+                "train_seconds": _round(info.get("seconds")),
+                "path": path,
+            }
+        )
     return rows
 
 
@@ -114,14 +132,20 @@ def _round(x: Any) -> Any:
     return "" if x is None else round(float(x), 3)
 
 
-def run_shape(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str, str],
-              kept: int, log: Any = print) -> list[dict[str, Any]]:
+def run_shape(
+    cfg: ShapeConfig,
+    targets: dict[str, list[Any]],
+    guides: dict[str, str],
+    kept: int,
+    log: Any = print,
+) -> list[dict[str, Any]]:
     """Every SMC run of the shape study; writes shape_runs.csv and returns its rows."""
     counts = {ds: len(ts) for ds, ts in targets.items()}
     tasks = shape_tasks([UNGUIDED, "all"], counts, cfg.ns, cfg.repeats, cfg.seed)
     ablation = [m for m in SHAPE_MODELS if m != "all"]
-    tasks += shape_tasks(ablation, counts, [n for n in cfg.ns if n <= cfg.ablation_max_n],
-                         cfg.repeats, cfg.seed)
+    tasks += shape_tasks(
+        ablation, counts, [n for n in cfg.ns if n <= cfg.ablation_max_n], cfg.repeats, cfg.seed
+    )
     tasks += shape_tasks([UNGUIDED], counts, cfg.unguided_extra_ns, cfg.repeats, cfg.seed)
     tasks += shape_tasks(["all_k1"], counts, cfg.k1_ns, cfg.repeats, cfg.seed)
     ts_models = [m for m in trainset_models(cfg, kept).values() if m != "all"]
@@ -134,11 +158,23 @@ def run_shape(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str,
         if done[0] % max(1, len(tasks) // 20) == 0 or done[0] == len(tasks):
             log(f"shape runs: {done[0]}/{len(tasks)}")
 
-    where = f"{cfg.workers} worker(s)" if cfg.backend == "local" else \
-        f"Ray ({cfg.ray_address or 'local instance'})"
+    where = (
+        f"{cfg.workers} worker(s)"
+        if cfg.backend == "local"
+        else f"Ray ({cfg.ray_address or 'local instance'})"
+    )
     log(f"shape runs: {len(tasks)} SMC runs, {where}")
-    results = run_tasks(cfg.grammar, targets, guides, tasks, cfg.workers, cfg.seed, progress,
-                        backend=cfg.backend, address=cfg.ray_address)
+    results = run_tasks(
+        cfg.grammar,
+        targets,
+        guides,
+        tasks,
+        cfg.workers,
+        cfg.seed,
+        progress,
+        backend=cfg.backend,
+        address=cfg.ray_address,
+    )
     rows = [r.row() for r in results]
     write_csv(Path(cfg.out) / "shape_runs.csv", rows, RUN_FIELDS)
     return rows
@@ -155,25 +191,47 @@ def analyze_shape(cfg: ShapeConfig, rows: list[dict[str, Any]], kept: int) -> di
     write_csv(out / "shape_summary.csv", summary, SUMMARY_FIELDS)
     overall = [r for r in summary if r["dataset"] == "all"]
     speed = speedups(overall, list(SHAPE_MODELS), cfg.thresholds)
-    write_csv(out / "speedup.csv", speed, ("model", "threshold", "seconds",
-                                          "baseline_seconds", "speedup", "bound"))
+    write_csv(
+        out / "speedup.csv",
+        speed,
+        ("model", "threshold", "seconds", "baseline_seconds", "speedup", "bound"),
+    )
     ts_rows = []
     for n, m in sorted(trainset_models(cfg, kept).items()):
         for r in overall:
             if r["model"] == m and int(r["n"]) == cfg.trainset_n:
-                ts_rows.append({"traces": n, "model": m, "n": cfg.trainset_n,
-                                "mean_similarity": r["mean_similarity"],
-                                "ci_low": r["ci_low"], "ci_high": r["ci_high"]})
-    write_csv(out / "trainset.csv", ts_rows, ("traces", "model", "n", "mean_similarity",
-                                             "ci_low", "ci_high"))
+                ts_rows.append(
+                    {
+                        "traces": n,
+                        "model": m,
+                        "n": cfg.trainset_n,
+                        "mean_similarity": r["mean_similarity"],
+                        "ci_low": r["ci_low"],
+                        "ci_high": r["ci_high"],
+                    }
+                )
+    write_csv(
+        out / "trainset.csv",
+        ts_rows,
+        ("traces", "model", "n", "mean_similarity", "ci_low", "ci_high"),
+    )
     main = [UNGUIDED, *SHAPE_MODELS]
-    plots.plot_similarity_vs_n(overall, main, out / "fig4a_similarity.png",
-                               "Shape matching: similarity vs particles (held-out targets)")
+    plots.plot_similarity_vs_n(
+        overall,
+        main,
+        out / "fig4a_similarity.png",
+        "Shape matching: similarity vs particles (held-out targets)",
+    )
     plots.plot_time_vs_similarity(overall, speed, list(SHAPE_MODELS), out / "fig4b_time.png")
-    plots.plot_similarity_vs_n(overall, [UNGUIDED, "all", "all_k1"], out / "fig5a_mixture.png",
-                               "Mixture components: K = 4 vs K = 1")
-    ung = next((r for r in overall if r["model"] == UNGUIDED
-                and int(r["n"]) == cfg.trainset_n), None)
+    plots.plot_similarity_vs_n(
+        overall,
+        [UNGUIDED, "all", "all_k1"],
+        out / "fig5a_mixture.png",
+        "Mixture components: K = 4 vs K = 1",
+    )
+    ung = next(
+        (r for r in overall if r["model"] == UNGUIDED and int(r["n"]) == cfg.trainset_n), None
+    )
     plots.plot_trainset_size(ts_rows, ung, out / "fig5b_trainset.png", cfg.trainset_n)
     return {"summary": summary, "speedup": speed, "trainset": ts_rows}
 
@@ -184,9 +242,21 @@ def prepare_guides(cfg: ShapeConfig, traces: str, kept: int, log: Any = print) -
     guides = train_models(specs, traces, str(Path(cfg.work) / "models"), cfg.workers, cfg.seed)
     if cfg.guide_all:
         guides["all"] = cfg.guide_all
-    write_csv(Path(cfg.out) / "models.csv", models_table(guides, kept),
-              ("model", "features", "K", "traces", "val_traces", "best_epoch", "val_nll",
-               "train_seconds", "path"))
+    write_csv(
+        Path(cfg.out) / "models.csv",
+        models_table(guides, kept),
+        (
+            "model",
+            "features",
+            "K",
+            "traces",
+            "val_traces",
+            "best_epoch",
+            "val_nll",
+            "train_seconds",
+            "path",
+        ),
+    )
     return guides
 
 
@@ -214,8 +284,16 @@ def equal_time_n(summary: list[dict[str, Any]], seconds: float, n_min: int) -> i
     return max(n_min, int(round(math.exp(ln))))
 
 
-def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int, seed: int,
-                   tries: int = 4, n_max: int = 5000) -> tuple[float, float, list[Prim], int]:
+def equal_time_run(
+    program: Any,
+    target: Any,
+    seconds: float,
+    n: int,
+    n_min: int,
+    seed: int,
+    tries: int = 4,
+    n_max: int = 5000,
+) -> tuple[float, float, list[Prim], int]:
     """Unguided SMC whose wall time is closest to `seconds`: start from the estimate `n`,
     rescale N by the time ratio (at most x4 per try) until within 25%; returns
     (similarity, seconds, primitives, N) of the try closest in time."""
@@ -234,8 +312,13 @@ def equal_time_run(program: Any, target: Any, seconds: float, n: int, n_min: int
     return sim, secs, prims, n
 
 
-def run_grids(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str, str],
-              summary: list[dict[str, Any]], log: Any = print) -> list[dict[str, Any]]:
+def run_grids(
+    cfg: ShapeConfig,
+    targets: dict[str, list[Any]],
+    guides: dict[str, str],
+    summary: list[dict[str, Any]],
+    log: Any = print,
+) -> list[dict[str, Any]]:
     """Target | Reference | Guided | Unguided equal N | Unguided equal time, per test set."""
     from ngpm_runtime.image.render import render_array
     from ngpm_runtime.inference.guide import Guide
@@ -245,8 +328,13 @@ def run_grids(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str,
     program = load_grammar(cfg.grammar)
     guide = Guide.load(guides["all"], program)
     overall = [r for r in summary if r["dataset"] == "all"]
-    header = ["Target", f"Reference (N = {cfg.reference_n})", f"Guided (N = {cfg.guided_n})",
-              f"Unguided (N = {cfg.guided_n})", "Unguided (equal time)"]
+    header = [
+        "Target",
+        f"Reference (N = {cfg.reference_n})",
+        f"Guided (N = {cfg.guided_n})",
+        f"Unguided (N = {cfg.guided_n})",
+        "Unguided (equal time)",
+    ]
     rows_csv = []
     per_set = max(1, cfg.grid_targets // max(1, len(targets)))
     for ds, ts in targets.items():
@@ -256,11 +344,20 @@ def run_grids(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str,
             size = 150
             cells = [{"image": plots.target_image(t.mask, size), "caption": t.name}]
             guided = grow_once(program, t, guide, cfg.guided_n, seed)
-            equal = equal_time_run(program, t, guided[1], equal_time_n(
-                overall, guided[1], cfg.guided_n), cfg.guided_n, seed)
-            runs = [("reference", None, cfg.reference_n), ("guided", guide, cfg.guided_n),
-                    ("unguided_equal_n", None, cfg.guided_n),
-                    ("unguided_equal_time", None, equal[3])]
+            equal = equal_time_run(
+                program,
+                t,
+                guided[1],
+                equal_time_n(overall, guided[1], cfg.guided_n),
+                cfg.guided_n,
+                seed,
+            )
+            runs = [
+                ("reference", None, cfg.reference_n),
+                ("guided", guide, cfg.guided_n),
+                ("unguided_equal_n", None, cfg.guided_n),
+                ("unguided_equal_time", None, equal[3]),
+            ]
             for kind, prop, n in runs:
                 if kind == "guided":
                     sim, secs, prims = guided
@@ -269,17 +366,29 @@ def run_grids(cfg: ShapeConfig, targets: dict[str, list[Any]], guides: dict[str,
                 else:
                     sim, secs, prims = grow_once(program, t, prop, n, seed)
                 img = render_array(prims, program.viewport, size, target_mask=t.mask)
-                cells.append({"image": img,
-                              "caption": f"N = {n}, {plots.fmt_secs(secs)}\nsim {sim:.3f}"})
-                rows_csv.append({"dataset": ds, "target": t.name, "kind": kind, "n": n,
-                                 "seconds": round(secs, 4), "similarity": round(sim, 4),
-                                 "primitives": len(prims)})
+                cells.append(
+                    {"image": img, "caption": f"N = {n}, {plots.fmt_secs(secs)}\nsim {sim:.3f}"}
+                )
+                rows_csv.append(
+                    {
+                        "dataset": ds,
+                        "target": t.name,
+                        "kind": kind,
+                        "n": n,
+                        "seconds": round(secs, 4),
+                        "similarity": round(sim, 4),
+                        "primitives": len(prims),
+                    }
+                )
             grid.append(cells)
         path = Path(cfg.out) / f"grid_{ds}.png"
         plots.image_grid(grid, path, header=header)
         log(f"wrote {path}")
-    write_csv(Path(cfg.out) / "grids.csv", rows_csv,
-              ("dataset", "target", "kind", "n", "seconds", "similarity", "primitives"))
+    write_csv(
+        Path(cfg.out) / "grids.csv",
+        rows_csv,
+        ("dataset", "target", "kind", "n", "seconds", "similarity", "primitives"),
+    )
     return rows_csv
 
 
@@ -287,5 +396,13 @@ def load_rows(cfg: ShapeConfig) -> list[dict[str, Any]]:
     return read_csv(Path(cfg.out) / "shape_runs.csv")
 
 
-__all__ = ["RunTask", "analyze_shape", "load_rows", "prepare_guides", "run_grids", "run_shape",
-           "test_targets", "tiny_traces"]
+__all__ = [
+    "RunTask",
+    "analyze_shape",
+    "load_rows",
+    "prepare_guides",
+    "run_grids",
+    "run_shape",
+    "test_targets",
+    "tiny_traces",
+]

@@ -44,8 +44,9 @@ class Backend(Protocol):
 
     def __enter__(self) -> Backend: ...
 
-    def __exit__(self, kind: type[BaseException] | None, err: BaseException | None,
-                 tb: TracebackType | None) -> None: ...
+    def __exit__(
+        self, kind: type[BaseException] | None, err: BaseException | None, tb: TracebackType | None
+    ) -> None: ...
 
     def submit(self, key: int, fn: Job, arg: Any) -> None:
         """Queue `fn(arg)`; its result comes back from `results` under `key`."""
@@ -100,8 +101,13 @@ class LocalPool:
 
     separate_processes = True
 
-    def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
-                 max_retries: int = pool.MAX_RETRIES) -> None:
+    def __init__(
+        self,
+        workers: int,
+        setup: pool.Setup,
+        setup_args: tuple[Any, ...],
+        max_retries: int = pool.MAX_RETRIES,
+    ) -> None:
         self.workers = workers
         self.capacity = 2 * workers
         self._setup = (setup, setup_args)
@@ -163,8 +169,10 @@ class LocalPool:
         lost = [k for k, _ in jobs if self._tries[k] > self._retries]
         if lost:
             jobs_text = f"job{'s' if len(lost) > 1 else ''} {', '.join(map(str, lost))}"
-            raise NgpmError(f"worker processes died {self._tries[lost[0]]} times while "
-                            f"{jobs_text} ran (killed, or out of memory?)")
+            raise NgpmError(
+                f"worker processes died {self._tries[lost[0]]} times while "
+                f"{jobs_text} ran (killed, or out of memory?)"
+            )
         self._stack.close()
         self._running.clear()
         self._lost = False
@@ -173,8 +181,13 @@ class LocalPool:
             self.submit(key, fn, arg)
 
 
-def make_backend(kind: str, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
-                 address: str | None = None) -> Backend:
+def make_backend(
+    kind: str,
+    workers: int,
+    setup: pool.Setup,
+    setup_args: tuple[Any, ...],
+    address: str | None = None,
+) -> Backend:
     """The backend named `kind` ("local" or "ray"); `address` is a Ray cluster's (None: a
     local Ray instance with `workers` CPUs, or the cluster named by $RAY_ADDRESS)."""
     if kind == "local":

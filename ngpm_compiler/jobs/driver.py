@@ -12,10 +12,14 @@ from ngpm_compiler.jobs.backends import Backend, Job
 POLL_SECONDS = 0.05  # how long one poll waits for a result
 
 
-def drive(jobs: Backend, fn: Job, todo: Iterator[tuple[int, Any]],
-          on_result: Callable[[int, Any], None],
-          room: Callable[[int], bool] = lambda running: True,
-          between: Callable[[], None] | None = None) -> None:
+def drive(
+    jobs: Backend,
+    fn: Job,
+    todo: Iterator[tuple[int, Any]],
+    on_result: Callable[[int, Any], None],
+    room: Callable[[int], bool] = lambda running: True,
+    between: Callable[[], None] | None = None,
+) -> None:
     """Run `fn(arg)` for each (key, arg) of `todo` on `jobs`, keeping up to `jobs.capacity`
     submitted while `room(jobs running)` holds. `on_result(key, result)` gets each key once
     (a retried job's second result is dropped); `between()` runs after every poll. Returns

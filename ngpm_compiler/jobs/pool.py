@@ -84,8 +84,12 @@ def _setup_worker(setup: Setup, *args: Any) -> None:
 
 
 @contextmanager
-def spawn_pool(workers: int, setup: Setup | None = None, args: tuple[Any, ...] = (),
-               grace: float = GRACE_SECONDS) -> Iterator[Pool]:
+def spawn_pool(
+    workers: int,
+    setup: Setup | None = None,
+    args: tuple[Any, ...] = (),
+    grace: float = GRACE_SECONDS,
+) -> Iterator[Pool]:
     """`with spawn_pool(...) as procs:` a pool of `workers` spawned processes, each running
     `setup(*args)` once when given; stopped on the way out without ever hanging."""
     ctx = mp.get_context("spawn")

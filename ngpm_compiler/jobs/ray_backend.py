@@ -46,8 +46,10 @@ def import_ray() -> Any:
     try:
         import ray
     except ImportError:
-        raise NgpmError("--backend ray needs Ray: pip install 'ray>=2.9' (or the cluster "
-                        "extra: pip install -e '.[cluster]')") from None
+        raise NgpmError(
+            "--backend ray needs Ray: pip install 'ray>=2.9' (or the cluster "
+            "extra: pip install -e '.[cluster]')"
+        ) from None
     return ray
 
 
@@ -60,8 +62,10 @@ def check_reachable(address: str, timeout: float = 10.0) -> None:
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
     except OSError as err:
-        raise NgpmError(f"cannot reach the Ray cluster at {address} ({err.strerror or err}); "
-                        "is `ray start --head` running there?") from None
+        raise NgpmError(
+            f"cannot reach the Ray cluster at {address} ({err.strerror or err}); "
+            "is `ray start --head` running there?"
+        ) from None
 
 
 def start_reaper(pids: set[int]) -> subprocess.Popen[bytes] | None:
@@ -69,9 +73,13 @@ def start_reaper(pids: set[int]) -> subprocess.Popen[bytes] | None:
     leave behind once this process has exited, however it ended (None off Linux)."""
     if not sys.platform.startswith("linux") or not pids:
         return None
-    return subprocess.Popen([sys.executable, ray_reaper.__file__, *map(str, sorted(pids))],
-                            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, ray_reaper.__file__, *map(str, sorted(pids))],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
 
 
 def stop_reaper(reaper: subprocess.Popen[bytes] | None) -> None:
@@ -92,10 +100,12 @@ def connect(ray: Any, address: str) -> None:
     try:
         ray.init(address=address, logging_level="ERROR")
     except ConnectionError as err:
-        raise NgpmError(f"cannot connect to the Ray cluster at {address} ({err}); a cluster "
-                        "with token authentication (recent Ray turns it on for `ray start`) "
-                        "needs RAY_AUTH_MODE=token here, and its token in RAY_AUTH_TOKEN or "
-                        "~/.ray/auth_token (docs/cluster.md)") from None
+        raise NgpmError(
+            f"cannot connect to the Ray cluster at {address} ({err}); a cluster "
+            "with token authentication (recent Ray turns it on for `ray start`) "
+            "needs RAY_AUTH_MODE=token here, and its token in RAY_AUTH_TOKEN or "
+            "~/.ray/auth_token (docs/cluster.md)"
+        ) from None
 
 
 class RayBackend:
@@ -103,8 +113,14 @@ class RayBackend:
 
     separate_processes = True
 
-    def __init__(self, workers: int, setup: pool.Setup, setup_args: tuple[Any, ...],
-                 address: str | None = None, max_retries: int = pool.MAX_RETRIES) -> None:
+    def __init__(
+        self,
+        workers: int,
+        setup: pool.Setup,
+        setup_args: tuple[Any, ...],
+        address: str | None = None,
+        max_retries: int = pool.MAX_RETRIES,
+    ) -> None:
         self.ray = import_ray()
         self.workers = max(1, workers)
         self.address = address
@@ -126,8 +142,12 @@ class RayBackend:
             else:
                 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
                 before = ray_reaper.children(os.getpid())
-                ray.init(address="local", num_cpus=self.workers, include_dashboard=False,
-                         logging_level="ERROR")  # "local": not a `ray start` cluster here
+                ray.init(
+                    address="local",
+                    num_cpus=self.workers,
+                    include_dashboard=False,
+                    logging_level="ERROR",
+                )  # "local": not a `ray start` cluster here
                 self._started = True
                 self._reaper = start_reaper(ray_reaper.children(os.getpid()) - before)
         try:

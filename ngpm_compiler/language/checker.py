@@ -40,14 +40,20 @@ PROB_TOLERANCE = 1e-6
 DEFAULT_DERIVATION_LENGTH = 1_000_000
 DEFAULT_MAX_PRIMITIVES = 5000
 # The largest value of each whole-number header (derive.py's ceilings on one sample's work).
-HEADER_CEILINGS = {"derivation length": DEFAULT_DERIVATION_LENGTH,
-                   "max primitives": MAX_PRIMITIVES, "max modules": MAX_WORK}
+HEADER_CEILINGS = {
+    "derivation length": DEFAULT_DERIVATION_LENGTH,
+    "max primitives": MAX_PRIMITIVES,
+    "max modules": MAX_WORK,
+}
 # Python names a generated module defines or uses itself (l, O, I: ruff's E741), Python's
 # keywords and builtins, and the forms of its generated names: a grammar name among them gets
 # a prefix (`safe_name`), so no grammar name can shadow a name the generated code uses.
-RESERVED = ({"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "l", "O",
-             "I"} | set(keyword.kwlist) | set(dir(builtins))
-            | {"copyright", "credits", "exit", "help", "license", "quit"})  # `site` adds these
+RESERVED = (
+    {"math", "ctx", "alt", "Program", "Site", "SITES", "PROGRAM", "axiom", "l", "O", "I"}
+    | set(keyword.kwlist)
+    | set(dir(builtins))
+    | {"copyright", "credits", "exit", "help", "license", "quit"}
+)  # `site` adds these
 GENERATED_NAME = re.compile(r"_|c_|p_|produce_|interpret_|arg\d+$")
 
 
@@ -206,8 +212,9 @@ class Checker:
 
     # ---- expressions -----------------------------------------------------------------------
 
-    def check_expr(self, expr: Expr, params: dict[str, str], what: str, random_ok: bool,
-                   param_error: str = "") -> None:
+    def check_expr(
+        self, expr: Expr, params: dict[str, str], what: str, random_ok: bool, param_error: str = ""
+    ) -> None:
         for node in walk(expr):
             if isinstance(node, Var):
                 if node.name in params:
@@ -230,13 +237,20 @@ class Checker:
         n = len(call.args)
         if n < lo or (hi is not None and n > hi):
             want = str(lo) if lo == hi else (f"at least {lo}" if hi is None else f"{lo} to {hi}")
-            raise self.err(f"{call.name}() takes {want} argument{'s' * (want != '1')}, got {n}",
-                           call)
+            raise self.err(
+                f"{call.name}() takes {want} argument{'s' * (want != '1')}, got {n}", call
+            )
 
     def is_constant(self, expr: Expr) -> bool:
-        return all(not (isinstance(n, Var) and n.name not in self.const_values
-                        and n.name not in BUILTIN_NAMES)
-                   and not (isinstance(n, Call) and n.name in RANDOM_CALLS) for n in walk(expr))
+        return all(
+            not (
+                isinstance(n, Var)
+                and n.name not in self.const_values
+                and n.name not in BUILTIN_NAMES
+            )
+            and not (isinstance(n, Call) and n.name in RANDOM_CALLS)
+            for n in walk(expr)
+        )
 
     def check_prior(self, call: Call) -> None:
         """Reject constant prior arguments no distribution accepts (the run-time rules of
@@ -255,19 +269,25 @@ class Checker:
             lo, hi, _ = TURTLE[name]
             if not lo <= n <= hi:
                 want = str(lo) if lo == hi else f"{lo} to {hi}"
-                raise self.err(f"turtle symbol {name} takes {want} argument"
-                               f"{'s' * (want != '1')}, got {n}", where)
+                raise self.err(
+                    f"turtle symbol {name} takes {want} argument{'s' * (want != '1')}, got {n}",
+                    where,
+                )
             return
         if name not in self.arity:
             self.arity[name] = n
             self.arity_origin[name] = f"line {where.line}"
         elif self.arity[name] != n:
-            raise self.err(f"module {name} takes {self.arity[name]} argument"
-                           f"{'s' * (self.arity[name] != 1)} ({self.arity_origin[name]}), "
-                           f"got {n}", where)
+            raise self.err(
+                f"module {name} takes {self.arity[name]} argument"
+                f"{'s' * (self.arity[name] != 1)} ({self.arity_origin[name]}), "
+                f"got {n}",
+                where,
+            )
 
-    def resolve(self, modules: list[ModuleUse], params: dict[str, str], what: str,
-                known: set[str]) -> list[Resolved]:
+    def resolve(
+        self, modules: list[ModuleUse], params: dict[str, str], what: str, known: set[str]
+    ) -> list[Resolved]:
         out: list[Resolved] = []
         for use in modules:
             for part in self.split(use, known):
@@ -304,8 +324,13 @@ class Checker:
     def split(self, use: ModuleUse, known: set[str]) -> list[ModuleUse]:
         """`FF` is `F F` when it is not a module itself and each letter is a known module."""
         name = use.name
-        if (len(name) > 1 and name.isalpha() and name not in known and name not in TURTLE
-                and all(c in known for c in name)):
+        if (
+            len(name) > 1
+            and name.isalpha()
+            and name not in known
+            and name not in TURTLE
+            and all(c in known for c in name)
+        ):
             parts = [ModuleUse(use.line, use.col + i, c, []) for i, c in enumerate(name)]
             parts[-1].args, parts[-1].explicit_args = use.args, use.explicit_args
             return parts
@@ -315,14 +340,17 @@ class Checker:
         if use.name[:1] == "~" and use.name != "~l":
             raise self.err(f"unsupported symbol '{use.name}': the only surface is ~l (leaf)", use)
         if use.name[:1] == "@" and use.name not in TURTLE:
-            raise self.err(f"unsupported symbol '{use.name}': the @ symbols are @O (disk or "
-                           "sphere), @Tp and @Ts (3D tropism)", use)
+            raise self.err(
+                f"unsupported symbol '{use.name}': the @ symbols are @O (disk or "
+                "sphere), @Tp and @Ts (3D tropism)",
+                use,
+            )
 
     def defaults(self, use: ModuleUse) -> list[Expr]:
         if use.name not in TURTLE:
             return []
         lo, hi, defaults = TURTLE[use.name]
-        fill = defaults[len(use.args) - lo:] if len(use.args) < hi else ()
+        fill = defaults[len(use.args) - lo :] if len(use.args) < hi else ()
         return [Num(use.line, use.col, self.angle if d == "angle" else float(d)) for d in fill]
 
     # ---- headers ---------------------------------------------------------------------------
@@ -339,8 +367,11 @@ class Checker:
         if "viewport" in values:
             vp = values["viewport"]
             if not all(lo < hi for lo, hi in zip(vp[0::2], vp[1::2], strict=True)):
-                raise self.err("viewport needs xmin < xmax and ymin < ymax"
-                               + " and zmin < zmax" * (len(vp) == 6), h["viewport"])
+                raise self.err(
+                    "viewport needs xmin < xmax and ymin < ymax"
+                    + " and zmin < zmax" * (len(vp) == 6),
+                    h["viewport"],
+                )
             self.viewport = tuple(vp)
         self.tropism = None
         if "tropism" in values:
@@ -353,18 +384,20 @@ class Checker:
         if "dimensions" in values:
             self.dims = values["dimensions"][0]
             if self.dims not in (2, 3):
-                raise self.err(f"'dimensions:' must be 2 or 3, got {self.dims:g}",
-                               h["dimensions"].values[0])
+                raise self.err(
+                    f"'dimensions:' must be 2 or 3, got {self.dims:g}", h["dimensions"].values[0]
+                )
         x, y, heading = values.get("start", [0.0, 0.0, 90.0])  # lsys.lark: three values
         self.start = (x, y, heading)
-        self.derivation_length = self.integer(values, "derivation length", 0,
-                                              DEFAULT_DERIVATION_LENGTH)
+        self.derivation_length = self.integer(
+            values, "derivation length", 0, DEFAULT_DERIVATION_LENGTH
+        )
         self.max_primitives = self.integer(values, "max primitives", 1, DEFAULT_MAX_PRIMITIVES)
-        self.max_modules = (self.integer(values, "max modules", 1, 0)
-                            if "max modules" in values else None)
+        self.max_modules = (
+            self.integer(values, "max modules", 1, 0) if "max modules" in values else None
+        )
 
-    def integer(self, values: dict[str, list[float]], kind: str, least: int,
-                default: int) -> int:
+    def integer(self, values: dict[str, list[float]], kind: str, least: int, default: int) -> int:
         """A whole-number header's value, at least `least` and at most its ceiling."""
         if kind not in values:
             return default
@@ -373,8 +406,11 @@ class Checker:
         if v != int(v) or v < least:
             raise self.err(f"'{kind}:' must be an integer >= {least}, got {v:g}", where)
         if v > HEADER_CEILINGS[kind]:
-            raise self.err(f"'{kind}:' must be at most {HEADER_CEILINGS[kind]}, got {v:g} "
-                           "(ngpm's ceiling on the work one sample may do)", where)
+            raise self.err(
+                f"'{kind}:' must be at most {HEADER_CEILINGS[kind]}, got {v:g} "
+                "(ngpm's ceiling on the work one sample may do)",
+                where,
+            )
         return int(v)
 
     # ---- rules -----------------------------------------------------------------------------
@@ -412,14 +448,16 @@ class Checker:
             rs = sets[rule.pred]
             where = f"rule for {rule.pred}"
             if rule.cond is not None:
-                self.check_expr(rule.cond, params, f"the condition of {rule.pred}",
-                                random_ok=False)
+                self.check_expr(rule.cond, params, f"the condition of {rule.pred}", random_ok=False)
             canon = canonical(rule.cond, rule.params) if rule.cond is not None else ""
             group = by_key.get((rule.pred, canon))
             if group is None:
                 if rs.groups and rs.groups[-1].cond is None:
-                    raise self.err(f"this rule never applies: an earlier rule for {rule.pred} "
-                                   "has no condition", rule)
+                    raise self.err(
+                        f"this rule never applies: an earlier rule for {rule.pred} "
+                        "has no condition",
+                        rule,
+                    )
                 prefix = ("interp:" if section == "interpretation" else "") + rule.pred
                 if rule.cond is not None:
                     prefix += f"({compact(rule.cond_text)})"
@@ -428,9 +466,13 @@ class Checker:
                 rs.groups.append(group)
             prob = None
             if rule.prob is not None:
-                self.check_expr(rule.prob, params, f"the probability of {rule.pred}",
-                                random_ok=False,
-                                param_error="a probability must be a constant expression")
+                self.check_expr(
+                    rule.prob,
+                    params,
+                    f"the probability of {rule.pred}",
+                    random_ok=False,
+                    param_error="a probability must be a constant expression",
+                )
                 prob = self.evaluate(rule.prob, "probability")
                 if not 0 <= prob <= 1:
                     raise self.err(f"probability {prob:g} is not in [0, 1]", rule.prob)
@@ -453,19 +495,26 @@ class Checker:
                 if len(alts) > 1 and any(p is None for p in probs):
                     bad = next(a for a in alts if a.prob is None).rule
                     cond = f" with condition {group.rule.cond_text}" if group.cond else ""
-                    raise self.err(f"{rs.pred}{cond} has {len(alts)} alternatives: each needs a "
-                                   "probability (': p')", bad)
+                    raise self.err(
+                        f"{rs.pred}{cond} has {len(alts)} alternatives: each needs a "
+                        "probability (': p')",
+                        bad,
+                    )
                 if any(p is not None for p in probs):
                     total = sum(p for p in probs if p is not None)
                     if abs(total - 1.0) > PROB_TOLERANCE:
-                        raise self.err(f"the probabilities of {group.key} sum to {total:g}, "
-                                       "not 1", alts[0].rule.prob or alts[0].rule)
+                        raise self.err(
+                            f"the probabilities of {group.key} sum to {total:g}, not 1",
+                            alts[0].rule.prob or alts[0].rule,
+                        )
 
     def check_recursion(self, sets: dict[str, RuleSet]) -> None:
         if "derivation length" in self.g.headers:
             return
-        edges = {p: {m.name for g in rs.groups for a in g.alts for m in a.modules
-                     if m.name in sets} for p, rs in sets.items()}
+        edges = {
+            p: {m.name for g in rs.groups for a in g.alts for m in a.modules if m.name in sets}
+            for p, rs in sets.items()
+        }
         state: dict[str, int] = {}
         path: list[str] = []
 
@@ -474,7 +523,7 @@ class Checker:
             path.append(node)
             for nxt in sorted(edges[node]):
                 if state.get(nxt) == 1:
-                    return path[path.index(nxt):] + [nxt]
+                    return path[path.index(nxt) :] + [nxt]
                 if nxt not in state:
                     found = visit(nxt)
                     if found:
@@ -488,8 +537,11 @@ class Checker:
                 cycle = visit(pred)
                 if cycle:
                     first = sets[cycle[0]].groups[0].rule
-                    raise self.err("recursive rules (" + " -> ".join(cycle) + ") need a "
-                                   "'derivation length:' line", first)
+                    raise self.err(
+                        "recursive rules (" + " -> ".join(cycle) + ") need a "
+                        "'derivation length:' line",
+                        first,
+                    )
 
     # ---- sites -----------------------------------------------------------------------------
 
@@ -504,14 +556,27 @@ class Checker:
                         r = group.rule
                         texts = list(dict.fromkeys(a.rule.text for a in group.alts))
                         source = shorten(" ".join(texts[0].split()), len(texts) > 1)
-                        found.append(((r.line, r.col, 0), Site(
-                            index=-1, id=f"{group.key}/choice", kind="categorical",
-                            k=len(group.alts), probs=group.probs(),
-                            name=f"choice of {rs.pred}", module=rs.pred, arity=rs.arity,
-                            line=r.line, col=r.col, source=source), group))
+                        found.append(
+                            (
+                                (r.line, r.col, 0),
+                                Site(
+                                    index=-1,
+                                    id=f"{group.key}/choice",
+                                    kind="categorical",
+                                    k=len(group.alts),
+                                    probs=group.probs(),
+                                    name=f"choice of {rs.pred}",
+                                    module=rs.pred,
+                                    arity=rs.arity,
+                                    line=r.line,
+                                    col=r.col,
+                                    source=source,
+                                ),
+                                group,
+                            )
+                        )
                     for i, alt in enumerate(group.alts):
-                        self.add_calls(found, f"{group.key}/{i}", rs.pred, rs.arity,
-                                       alt.modules)
+                        self.add_calls(found, f"{group.key}/{i}", rs.pred, rs.arity, alt.modules)
         found.sort(key=lambda f: f[0])
         self.sites: list[Site] = []
         self.call_sites: dict[int, int] = {}
@@ -522,8 +587,9 @@ class Checker:
             elif isinstance(owner, Group):
                 owner.site = index
 
-    def add_calls(self, found: list[FoundSite], prefix: str, module: str, arity: int,
-                  mods: list[Resolved]) -> None:
+    def add_calls(
+        self, found: list[FoundSite], prefix: str, module: str, arity: int, mods: list[Resolved]
+    ) -> None:
         counts: dict[str, int] = {}
         for m in mods:
             for arg in m.args:
@@ -533,12 +599,24 @@ class Checker:
                         kind = RANDOM_CALLS[node.name][0]
                         n = counts.get(kind, 0)
                         counts[kind] = n + 1
-                        found.append(((node.line, node.col, 1), Site(
-                            index=-1, id=f"{prefix}/{kind}{n}", kind=kind,
-                            k=len(node.args) if KINDS[kind].weighted else 2,
-                            name=shorten(f"{node.text} in {module}", False), module=module,
-                            arity=arity, line=node.line, col=node.col,
-                            source=shorten(node.text, False)), node))
+                        found.append(
+                            (
+                                (node.line, node.col, 1),
+                                Site(
+                                    index=-1,
+                                    id=f"{prefix}/{kind}{n}",
+                                    kind=kind,
+                                    k=len(node.args) if KINDS[kind].weighted else 2,
+                                    name=shorten(f"{node.text} in {module}", False),
+                                    module=module,
+                                    arity=arity,
+                                    line=node.line,
+                                    col=node.col,
+                                    source=shorten(node.text, False),
+                                ),
+                                node,
+                            )
+                        )
 
     # ---- dimension -------------------------------------------------------------------------
 
@@ -547,8 +625,15 @@ class Checker:
         turtle symbol, a 'tropism:' line or a viewport of 6 numbers; else 2. A 3D grammar's
         viewport is a box (6 numbers)."""
         uses = [m.use for m in axiom if m.name in TURTLE_3D]
-        uses += [m.use for section in sets for rs in section.values() for g in rs.groups
-                 for a in g.alts for m in a.modules if m.name in TURTLE_3D]
+        uses += [
+            m.use
+            for section in sets
+            for rs in section.values()
+            for g in rs.groups
+            for a in g.alts
+            for m in a.modules
+            if m.name in TURTLE_3D
+        ]
         signs: list[tuple[Node, str]] = []
         if uses:
             first = min(uses, key=lambda u: (u.line, u.col))
@@ -560,15 +645,21 @@ class Checker:
             signs.append((h["viewport"], "a viewport of 6 numbers (a 3D box)"))
         if self.dims == 2 and signs:
             node, what = min(signs, key=lambda s: (s[0].line, s[0].col))
-            raise self.err(f"{what} needs a 3D grammar, but 'dimensions: 2' says this one is "
-                           "2D", node)
+            raise self.err(
+                f"{what} needs a 3D grammar, but 'dimensions: 2' says this one is 2D", node
+            )
         dim = 3 if signs or self.dims == 3 else 2
         if dim == 3 and self.viewport is not None and len(self.viewport) != 6:
-            node, what = (min(signs, key=lambda s: (s[0].line, s[0].col)) if signs
-                          else (h["dimensions"], "'dimensions: 3'"))
-            raise self.err(f"this grammar is 3D ({what} at line {node.line}:{node.col}), so its "
-                           "viewport is a box of 6 numbers: xmin xmax ymin ymax zmin zmax",
-                           h["viewport"])
+            node, what = (
+                min(signs, key=lambda s: (s[0].line, s[0].col))
+                if signs
+                else (h["dimensions"], "'dimensions: 3'")
+            )
+            raise self.err(
+                f"this grammar is 3D ({what} at line {node.line}:{node.col}), so its "
+                "viewport is a box of 6 numbers: xmin xmax ymin ymax zmin zmax",
+                h["viewport"],
+            )
         return dim
 
     # ---- all -------------------------------------------------------------------------------
@@ -577,8 +668,7 @@ class Checker:
         self.check_constants()
         self.headers()
         self.declarations()
-        known = ({d.name for d in self.g.decls} | {r.pred for r in self.g.rules}
-                 | REWRITABLE_TURTLE)
+        known = {d.name for d in self.g.decls} | {r.pred for r in self.g.rules} | REWRITABLE_TURTLE
         if self.g.axiom is None:
             raise self.err("the grammar has no 'Axiom:' line", (1, 1))
         axiom = self.resolve(self.g.axiom.modules, {}, "the axiom", known)
@@ -593,11 +683,25 @@ class Checker:
         vp = self.viewport
         viewport = (vp[0], vp[1], vp[2], vp[3]) if vp is not None else None  # x and y ranges
         return Checked(
-            self.g, self.name, self.constants, self.const_names, axiom, productions,
-            interpretation, dict(self.arity), self.sites, self.call_sites,
-            self.derivation_length, self.angle,
-            viewport, self.start, self.max_primitives, max_modules=self.max_modules,
-            dim=dim, box=box, tropism=self.tropism,
+            self.g,
+            self.name,
+            self.constants,
+            self.const_names,
+            axiom,
+            productions,
+            interpretation,
+            dict(self.arity),
+            self.sites,
+            self.call_sites,
+            self.derivation_length,
+            self.angle,
+            viewport,
+            self.start,
+            self.max_primitives,
+            max_modules=self.max_modules,
+            dim=dim,
+            box=box,
+            tropism=self.tropism,
         )
 
 

@@ -57,9 +57,12 @@ class ModuleWriter:
             elif c in ")]":
                 depth -= 1
         if most > MAX_BRACKETS:
-            raise self.sink.error(f"expression nested too deeply for Python ({most} levels of "
-                                  f"parentheses in the generated code, at most {MAX_BRACKETS})",
-                                  expr.line, expr.col)
+            raise self.sink.error(
+                f"expression nested too deeply for Python ({most} levels of "
+                f"parentheses in the generated code, at most {MAX_BRACKETS})",
+                expr.line,
+                expr.col,
+            )
         return text
 
     def docstring(self, texts: list[str], first: int, last: int, indent: str) -> list[str]:
@@ -76,10 +79,15 @@ class ModuleWriter:
         out: list[str] = []
         for row in rows:
             lead = row[: len(row) - len(row.lstrip())]
-            out += textwrap.wrap(row, LIMIT - len(indent) - 3, subsequent_indent=lead + "    ",
-                                 break_long_words=True, break_on_hyphens=False) or [""]
+            out += textwrap.wrap(
+                row,
+                LIMIT - len(indent) - 3,
+                subsequent_indent=lead + "    ",
+                break_long_words=True,
+                break_on_hyphens=False,
+            ) or [""]
         out = [indent + escape(line) for line in out + [where]]
-        out[0] = indent + '"""' + out[0][len(indent):]
+        out[0] = indent + '"""' + out[0][len(indent) :]
         return out + [indent + '"""']
 
     def successor(self, mods: list[Resolved], printer: ExprPrinter, indent: str) -> list[str]:
@@ -90,11 +98,11 @@ class ModuleWriter:
         one = f"{indent}return [{', '.join(items)}]"
         if len(one) <= LIMIT:
             return [one]
-        return ([f"{indent}return ["] + [noqa(f"{indent}    {it},") for it in items]
-                + [f"{indent}]"])
+        return [f"{indent}return ["] + [noqa(f"{indent}    {it},") for it in items] + [f"{indent}]"]
 
-    def group(self, group: Group, names: dict[str, str], rs_params: list[str],
-              indent: str) -> list[str]:
+    def group(
+        self, group: Group, names: dict[str, str], rs_params: list[str], indent: str
+    ) -> list[str]:
         def printer_for(alt: Alt) -> ExprPrinter:
             local = dict(names)
             local.update(zip(alt.rule.params, rs_params, strict=False))
@@ -134,8 +142,14 @@ class ModuleWriter:
         return lines
 
     def site(self, s: Site) -> list[str]:
-        items = [f"index={q(s.index)}", f"id={q(s.id)}", f"kind={q(s.kind)}",
-                 f"name={q(s.name)}", f"module={q(s.module)}", f"arity={q(s.arity)}"]
+        items = [
+            f"index={q(s.index)}",
+            f"id={q(s.id)}",
+            f"kind={q(s.kind)}",
+            f"name={q(s.name)}",
+            f"module={q(s.module)}",
+            f"arity={q(s.arity)}",
+        ]
         if KINDS[s.kind].weighted:  # k: the number of weights
             items.append(f"k={q(s.k)}")
         if s.probs is not None:
@@ -169,8 +183,7 @@ class ModuleWriter:
         c = self.c
         axiom = self.axiom_node()
         items = [f"{q('axiom')}: {q((axiom.line, axiom.col))}"]
-        for kind, section in (("production", c.productions),
-                              ("interpretation", c.interpretation)):
+        for kind, section in (("production", c.productions), ("interpretation", c.interpretation)):
             for pred, rs in section.items():
                 first = min((a.rule.line, a.rule.col) for g in rs.groups for a in g.alts)
                 items.append(f"{q(f'{kind} {pred}')}: {q(first)}")
@@ -182,14 +195,17 @@ class ModuleWriter:
         def mapping(key: str, d: dict[str, str]) -> list[str]:
             if not d:
                 return [f"    {key}={{}},"]
-            return ([f"    {key}={{"] + [f"        {q(k)}: {v}," for k, v in d.items()]
-                    + ["    },"])
+            return [f"    {key}={{"] + [f"        {q(k)}: {v}," for k, v in d.items()] + ["    },"]
 
         vp = q(None if c.viewport is None else tuple(float(v) for v in c.viewport))
-        lines = ["PROGRAM = Program(", f"    name={q(c.name)},",
-                 f"    source={q(self.source_path)},",
-                 f"    grammar_hash={q(self.grammar_hash)},", "    sites=SITES,",
-                 "    axiom=axiom,"]
+        lines = [
+            "PROGRAM = Program(",
+            f"    name={q(c.name)},",
+            f"    source={q(self.source_path)},",
+            f"    grammar_hash={q(self.grammar_hash)},",
+            "    sites=SITES,",
+            "    axiom=axiom,",
+        ]
         lines += mapping("productions", prods) + mapping("interpretation", interps)
         lines += mapping("arity", {k: q(v) for k, v in c.arity.items()})
         lines += [
@@ -219,8 +235,10 @@ class ModuleWriter:
         body += self.successor(c.axiom, ExprPrinter(c.const_names, c.call_sites), "    ")
         prods: dict[str, str] = {}
         interps: dict[str, str] = {}
-        for section, prefix, table in ((c.productions, "produce_", prods),
-                                       (c.interpretation, "interpret_", interps)):
+        for section, prefix, table in (
+            (c.productions, "produce_", prods),
+            (c.interpretation, "interpret_", interps),
+        ):
             for pred, rs in section.items():
                 table[pred] = prefix + pred
                 body += ["", ""] + self.function(prefix + pred, rs)

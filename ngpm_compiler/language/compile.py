@@ -33,8 +33,11 @@ class CompiledGrammar:
     checked: Checked
 
     def sites_json(self) -> dict[str, Any]:
-        return {"grammar": self.name, "grammar_hash": self.grammar_hash,
-                "sites": [s.to_json() for s in self.sites]}
+        return {
+            "grammar": self.name,
+            "grammar_hash": self.grammar_hash,
+            "sites": [s.to_json() for s in self.sites],
+        }
 
     def program(self) -> Program:
         """Execute the generated module and return its PROGRAM."""
@@ -46,16 +49,19 @@ def grammar_name(filename: str) -> str:
     return "".join(c if c.isalnum() or c == "_" else "_" for c in stem) or "grammar"
 
 
-def compile_grammar(path_or_text: str | os.PathLike[str], filename: str | None = None
-                    ) -> CompiledGrammar:
+def compile_grammar(
+    path_or_text: str | os.PathLike[str], filename: str | None = None
+) -> CompiledGrammar:
     """Compile a grammar given as a path or as its text; raise GrammarError if malformed.
 
     A str without a newline that ends in `.lsys` or names an existing file is a path."""
     _check_argument(path_or_text)
     text: str
     if isinstance(path_or_text, os.PathLike) or (
-            isinstance(path_or_text, str) and "\n" not in path_or_text
-            and (path_or_text.endswith(".lsys") or os.path.isfile(path_or_text))):
+        isinstance(path_or_text, str)
+        and "\n" not in path_or_text
+        and (path_or_text.endswith(".lsys") or os.path.isfile(path_or_text))
+    ):
         path = Path(path_or_text)
         if path.is_dir():
             raise GrammarError("is a folder, not a grammar file", str(path))
@@ -89,30 +95,45 @@ def _python_compiles(code: str, name: str, filename: str) -> None:
     try:
         compile(code, f"{name}_sampler.py", "exec")
     except SyntaxError as err:
-        raise GrammarError(f"the generated Python does not compile ({err.msg}, line "
-                           f"{err.lineno} of {name}_sampler.py): an ngpmc bug, please report "
-                           "it with this grammar", filename) from None
+        raise GrammarError(
+            f"the generated Python does not compile ({err.msg}, line "
+            f"{err.lineno} of {name}_sampler.py): an ngpmc bug, please report "
+            "it with this grammar",
+            filename,
+        ) from None
     except (RecursionError, MemoryError) as err:
-        raise GrammarError(f"the generated Python is too large for Python to compile "
-                           f"({type(err).__name__})", filename) from None
+        raise GrammarError(
+            f"the generated Python is too large for Python to compile ({type(err).__name__})",
+            filename,
+        ) from None
 
 
 def _check_argument(path_or_text: object) -> None:
     """TypeError (or GrammarError, for a folder) unless compile_grammar can take it."""
     if isinstance(path_or_text, bytes | bytearray):
-        raise TypeError("compile_grammar wants a path or the grammar's text as str, got "
-                        "bytes: decode them first, e.g. data.decode('utf-8')")
+        raise TypeError(
+            "compile_grammar wants a path or the grammar's text as str, got "
+            "bytes: decode them first, e.g. data.decode('utf-8')"
+        )
     if not isinstance(path_or_text, str | os.PathLike):
-        raise TypeError("compile_grammar wants a path (str or os.PathLike) or the grammar's "
-                        f"text (str), got {type(path_or_text).__name__}")
-    if isinstance(path_or_text, str) and "\n" not in path_or_text \
-            and path_or_text.strip() and os.path.isdir(path_or_text):
+        raise TypeError(
+            "compile_grammar wants a path (str or os.PathLike) or the grammar's "
+            f"text (str), got {type(path_or_text).__name__}"
+        )
+    if (
+        isinstance(path_or_text, str)
+        and "\n" not in path_or_text
+        and path_or_text.strip()
+        and os.path.isdir(path_or_text)
+    ):
         raise GrammarError("is a folder, not a grammar file", path_or_text)
 
 
 def _too_large(size: int) -> str:
-    return (f"the grammar is {size / 1024:.0f} KiB; ngpm reads grammars of up to "
-            f"{MAX_GRAMMAR_BYTES // 1024} KiB")
+    return (
+        f"the grammar is {size / 1024:.0f} KiB; ngpm reads grammars of up to "
+        f"{MAX_GRAMMAR_BYTES // 1024} KiB"
+    )
 
 
 def write_compiled(compiled: CompiledGrammar, out_dir: str | os.PathLike[str]) -> tuple[Path, Path]:

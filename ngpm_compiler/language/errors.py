@@ -10,8 +10,14 @@ class GrammarError(NgpmError):
 
     exit_code = 2
 
-    def __init__(self, message: str, filename: str = "<grammar>", line: int = 1, col: int = 1,
-                 source: str = "") -> None:
+    def __init__(
+        self,
+        message: str,
+        filename: str = "<grammar>",
+        line: int = 1,
+        col: int = 1,
+        source: str = "",
+    ) -> None:
         self.message = message
         self.filename = filename
         self.line = max(1, line)

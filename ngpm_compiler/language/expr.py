@@ -54,7 +54,8 @@ def q(value: Literal) -> str:
 
 def is_bool(expr: Expr) -> bool:
     return (isinstance(expr, Binary) and expr.op in BOOL_OPS) or (
-        isinstance(expr, Unary) and expr.op == "not")
+        isinstance(expr, Unary) and expr.op == "not"
+    )
 
 
 class ExprPrinter:

@@ -28,45 +28,98 @@ from ngpm_compiler.language.nodes import (
 
 # How an expected terminal reads in an error message.
 TERMINAL_NAMES = {
-    "NAME": "a name", "NUMBER": "a number", "ARROW": "'-->'", "_NL": "end of line",
-    "$END": "end of file", "COLON": "':'", "LPAR": "'('", "RPAR": "')'", "COMMA": "','",
-    "EQUAL": "'='", "STAR": "'*'", "ALT": "'|'", "ALT_NL": "'|'", "SPECIAL": "'~l' or '@O'",
-    "OR": "'or'", "AND": "'and'", "NOT": "'not'", "CMP": "a comparison", "ADD": "'+' or '-'",
-    "MUL": "'*', '/' or '%'", "POW": "'^'", "MINUS": "'-'", "PLUS": "'+'", "LSQB": "'['",
-    "RSQB": "']'", "BANG": "'!'", "LBRACE": "'{'", "DOT": "'.'", "RBRACE": "'}'",
-    "PERCENT": "'%'", "MODULE": "'module'", "ENDLSYSTEM": "'endlsystem'",
-    "HASH_DEFINE": "'#define'", "DEFINE": "'define:'", "AXIOM": "'Axiom:'",
-    "DERIVATION_LENGTH": "'derivation length:'", "PRODUCTION": "'production:'",
-    "INTERPRETATION": "'interpretation:'", "VIEWPORT": "'viewport:'", "ANGLE": "'angle:'",
-    "START": "'start:'", "MAX_PRIMITIVES": "'max primitives:'",
-    "MAX_MODULES": "'max modules:'", "TROPISM": "'tropism:'", "DIMENSIONS": "'dimensions:'",
-    "AMPERSAND": "'&'", "CIRCUMFLEX": "'^'", "BACKSLASH": "'\\'", "SLASH": "'/'",
-    "DOLLAR": "'$'", "SEMICOLON": "';'",
+    "NAME": "a name",
+    "NUMBER": "a number",
+    "ARROW": "'-->'",
+    "_NL": "end of line",
+    "$END": "end of file",
+    "COLON": "':'",
+    "LPAR": "'('",
+    "RPAR": "')'",
+    "COMMA": "','",
+    "EQUAL": "'='",
+    "STAR": "'*'",
+    "ALT": "'|'",
+    "ALT_NL": "'|'",
+    "SPECIAL": "'~l' or '@O'",
+    "OR": "'or'",
+    "AND": "'and'",
+    "NOT": "'not'",
+    "CMP": "a comparison",
+    "ADD": "'+' or '-'",
+    "MUL": "'*', '/' or '%'",
+    "POW": "'^'",
+    "MINUS": "'-'",
+    "PLUS": "'+'",
+    "LSQB": "'['",
+    "RSQB": "']'",
+    "BANG": "'!'",
+    "LBRACE": "'{'",
+    "DOT": "'.'",
+    "RBRACE": "'}'",
+    "PERCENT": "'%'",
+    "MODULE": "'module'",
+    "ENDLSYSTEM": "'endlsystem'",
+    "HASH_DEFINE": "'#define'",
+    "DEFINE": "'define:'",
+    "AXIOM": "'Axiom:'",
+    "DERIVATION_LENGTH": "'derivation length:'",
+    "PRODUCTION": "'production:'",
+    "INTERPRETATION": "'interpretation:'",
+    "VIEWPORT": "'viewport:'",
+    "ANGLE": "'angle:'",
+    "START": "'start:'",
+    "MAX_PRIMITIVES": "'max primitives:'",
+    "MAX_MODULES": "'max modules:'",
+    "TROPISM": "'tropism:'",
+    "DIMENSIONS": "'dimensions:'",
+    "AMPERSAND": "'&'",
+    "CIRCUMFLEX": "'^'",
+    "BACKSLASH": "'\\'",
+    "SLASH": "'/'",
+    "DOLLAR": "'$'",
+    "SEMICOLON": "';'",
 }
 # Terminals of the 3D language and its headers, left out of a syntax error's list of what
 # was expected, so the messages read as they did before 3D (lists are cut at six anyway).
-UNLISTED = {"TROPISM", "DIMENSIONS", "AMPERSAND", "CIRCUMFLEX", "BACKSLASH", "SLASH", "DOLLAR",
-            "SEMICOLON"}
+UNLISTED = {
+    "TROPISM",
+    "DIMENSIONS",
+    "AMPERSAND",
+    "CIRCUMFLEX",
+    "BACKSLASH",
+    "SLASH",
+    "DOLLAR",
+    "SEMICOLON",
+}
 # A viewport line cut short (5 numbers, say): the message says what it takes.
 VIEWPORT_LINE = re.compile(r"\s*viewport\s*:", re.I)
-VIEWPORT_COUNT = ("'viewport:' takes 4 numbers (xmin xmax ymin ymax), or 6 for a 3D grammar "
-                  "(xmin xmax ymin ymax zmin zmax)")
+VIEWPORT_COUNT = (
+    "'viewport:' takes 4 numbers (xmin xmax ymin ymax), or 6 for a 3D grammar "
+    "(xmin xmax ymin ymax zmin zmax)"
+)
 # Deepest expression (nodes from the top, each operator and call one level): deeper ones are
 # an error, so the recursive passes over expressions stay within Python's recursion limit.
 MAX_EXPR_DEPTH = 100
 # Section names the module-level statements use.
 HEADER_KINDS = {
-    "derivation_length": "derivation length", "viewport": "viewport", "angle": "angle",
-    "start_pose": "start", "max_primitives": "max primitives", "max_modules": "max modules",
-    "tropism": "tropism", "dimensions": "dimensions",
+    "derivation_length": "derivation length",
+    "viewport": "viewport",
+    "angle": "angle",
+    "start_pose": "start",
+    "max_primitives": "max primitives",
+    "max_modules": "max modules",
+    "tropism": "tropism",
+    "dimensions": "dimensions",
 }
 
 
 @lru_cache(maxsize=1)
 def lark_parser() -> Lark:
     text = (Path(__file__).with_name("lsys.lark")).read_text()
-    return Lark(text, parser="lalr", lexer="contextual", propagate_positions=True,
-                maybe_placeholders=False)
+    return Lark(
+        text, parser="lalr", lexer="contextual", propagate_positions=True, maybe_placeholders=False
+    )
 
 
 def parse(source: str, filename: str = "<grammar>") -> Grammar:
@@ -81,8 +134,9 @@ def parse(source: str, filename: str = "<grammar>") -> Grammar:
 
 def _expected(names: set[str]) -> str:
     hidden = UNLISTED | ({"COMMA"} if "LSQB" in names else set())  # `,` in a successor
-    words = sorted({TERMINAL_NAMES.get(n, n) for n in names
-                    if not n.startswith("__") and n not in hidden})
+    words = sorted(
+        {TERMINAL_NAMES.get(n, n) for n in names if not n.startswith("__") and n not in hidden}
+    )
     if not words:
         return ""
     if len(words) > 6:
@@ -101,8 +155,9 @@ def syntax_error(err: UnexpectedInput, sink: ErrorSink, source: str) -> GrammarE
         expected = set(err.expected)
         if err.token.type == "$END":
             lines = source.splitlines() or [""]
-            return sink.error(f"unexpected end of file, {_expected(expected)}",
-                              len(lines), len(lines[-1]) + 1)
+            return sink.error(
+                f"unexpected end of file, {_expected(expected)}", len(lines), len(lines[-1]) + 1
+            )
         if err.token.type in ("_NL", "ALT_NL"):
             if VIEWPORT_LINE.match(source.splitlines()[line - 1]):
                 return sink.error(VIEWPORT_COUNT, line, col)
@@ -131,7 +186,7 @@ class Builder:
     def text(self, tree: Tree[Token] | Token) -> str:
         if isinstance(tree, Token):
             return str(tree)
-        return self.source[tree.meta.start_pos:tree.meta.end_pos]
+        return self.source[tree.meta.start_pos : tree.meta.end_pos]
 
     def grammar(self, tree: Tree[Token]) -> Grammar:
         g = Grammar(self.sink.filename, self.source)
@@ -151,8 +206,9 @@ class Builder:
     def stmt_define(self, g: Grammar, t: Tree[Token]) -> None:
         kids = t.children[1:]
         for name, expr in zip(kids[0::2], kids[1::2], strict=True):
-            g.defines.append(Define(*pos(name), str(name), self.expr(expr),
-                                    f"{name} = {self.text(expr)}"))
+            g.defines.append(
+                Define(*pos(name), str(name), self.expr(expr), f"{name} = {self.text(expr)}")
+            )
 
     def stmt_module_decl(self, g: Grammar, t: Tree[Token]) -> None:
         for decl in t.children:
@@ -178,8 +234,11 @@ class Builder:
         kind = HEADER_KINDS[t.data]
         if kind in g.headers:
             raise self.sink.error(f"a second '{kind}:' line", *pos(t))
-        values = [self.expr(c) for c in t.children[1:] if isinstance(c, Tree | Token)
-                  and not (isinstance(c, Token) and c.type in ("COMMA",))]
+        values = [
+            self.expr(c)
+            for c in t.children[1:]
+            if isinstance(c, Tree | Token) and not (isinstance(c, Token) and c.type in ("COMMA",))
+        ]
         g.headers[kind] = Header(*pos(t), kind, values)
 
     stmt_derivation_length = stmt_viewport = stmt_angle = _header
@@ -191,24 +250,33 @@ class Builder:
         pred_tree, alts_tree = subtree(kids[0]), subtree(kids[-1])
         cond_tree = kids[1] if len(kids) == 4 else None
         name = pred_tree.children[0]
-        params = (self.params(subtree(pred_tree.children[1])) if len(pred_tree.children) > 1
-                  else [])
+        params = self.params(subtree(pred_tree.children[1])) if len(pred_tree.children) > 1 else []
         cond = self.expr(cond_tree) if cond_tree is not None else None
         cond_text = self.text(cond_tree) if cond_tree is not None else ""
         pairs: list[tuple[Tree[Token] | Token, Tree[Token] | Token | None]]
         if alts_tree.data == "plain":
             pairs = [(alts_tree.children[0], None)]
         else:
-            pairs = [(w.children[0], w.children[1]) for w in alts_tree.children
-                     if isinstance(w, Tree)]
+            pairs = [
+                (w.children[0], w.children[1]) for w in alts_tree.children if isinstance(w, Tree)
+            ]
         rule_text = self.text(t)
         for succ, prob in pairs:
-            g.rules.append(Rule(
-                *pos(name), str(name), [p for p, _ in params],
-                [q for _, q in params], cond, cond_text, self.successor(subtree(succ)),
-                self.expr(prob) if prob is not None else None, self.section,
-                rule_text, t.meta.end_line,
-            ))
+            g.rules.append(
+                Rule(
+                    *pos(name),
+                    str(name),
+                    [p for p, _ in params],
+                    [q for _, q in params],
+                    cond,
+                    cond_text,
+                    self.successor(subtree(succ)),
+                    self.expr(prob) if prob is not None else None,
+                    self.section,
+                    rule_text,
+                    t.meta.end_line,
+                )
+            )
 
     # ---- parts ---------------------------------------------------------------------------
 
@@ -226,11 +294,14 @@ class Builder:
             if isinstance(head, Tree):  # a turtle symbol
                 head = head.children[0]
             args = subtree(item.children[1]) if len(item.children) > 1 else None
-            mods.append(ModuleUse(
-                *pos(head), str(head),
-                [self.expr(a) for a in args.children] if args is not None else [],
-                args is not None,
-            ))
+            mods.append(
+                ModuleUse(
+                    *pos(head),
+                    str(head),
+                    [self.expr(a) for a in args.children] if args is not None else [],
+                    args is not None,
+                )
+            )
         return Successor(line, col, mods, self.text(t) if t.children else "")
 
     def expr(self, t: Tree[Token] | Token, depth: int = 0) -> Expr:
@@ -238,8 +309,12 @@ class Builder:
         MAX_EXPR_DEPTH, which keeps every recursive pass over expressions in bounds)."""
         line, col = pos(t)
         if depth > MAX_EXPR_DEPTH:
-            raise self.sink.error(f"expression nested too deeply: more than {MAX_EXPR_DEPTH} "
-                                  "levels (each operator and call is a level)", line, col)
+            raise self.sink.error(
+                f"expression nested too deeply: more than {MAX_EXPR_DEPTH} "
+                "levels (each operator and call is a level)",
+                line,
+                col,
+            )
         if isinstance(t, Token):  # a lone token (only NUMBER / NAME reach here)
             return self.expr(Tree("number" if t.type == "NUMBER" else "var", [t]), depth)
         kind, kids = t.data, t.children

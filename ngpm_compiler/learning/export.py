@@ -73,10 +73,12 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
         with torch.no_grad():
             row = _f32(net(torch.zeros(1, s.n_f)))
         shape = g.op("Shape", [x], p + "shape")
-        n = g.op("Slice", [shape, g.const(p + "s0", np.array([0])),
-                           g.const(p + "s1", np.array([1]))], p + "n")
-        target = g.op("Concat", [n, g.const(p + "nout", np.array([s.n_out]))], p + "target",
-                      axis=0)
+        n = g.op(
+            "Slice",
+            [shape, g.const(p + "s0", np.array([0])), g.const(p + "s1", np.array([1]))],
+            p + "n",
+        )
+        target = g.op("Concat", [n, g.const(p + "nout", np.array([s.n_out]))], p + "target", axis=0)
         return g.op("Expand", [g.const(p + "row", row), target], out)
     w1 = _f64(net.l1.weight) * _f64(net.scale)[None, :]
     b1 = _f64(net.l1.bias) - w1 @ _f64(net.shift)
@@ -84,15 +86,27 @@ def _site_graph(g: _Graph, index: int, net: SiteNet) -> str:
     inv_b = 1.0 / bounds
     w2 = _f64(net.l2.weight) * inv_b[:, None]
     b2 = _f64(net.l2.bias) * inv_b
-    sel = g.op("Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))],
-               p + "sel", axis=1)
-    h = g.op("Gemm", [sel, g.const(p + "w1", w1.astype(np.float32)),
-                      g.const(p + "b1", b1.astype(np.float32))], p + "h", transB=1)
+    sel = g.op(
+        "Gather", [x, g.const(p + "cols", np.array(s.cols, dtype=np.int64))], p + "sel", axis=1
+    )
+    h = g.op(
+        "Gemm",
+        [sel, g.const(p + "w1", w1.astype(np.float32)), g.const(p + "b1", b1.astype(np.float32))],
+        p + "h",
+        transB=1,
+    )
     h = g.op("Tanh", [h], p + "hidden")
-    raw = g.op("Gemm", [h, g.const(p + "w2", w2.astype(np.float32)),
-                        g.const(p + "b2", b2.astype(np.float32))], p + "raw", transB=1)
-    bounded = g.op("Mul", [g.op("Tanh", [raw], p + "tanh"),
-                           g.const(p + "bounds", bounds.astype(np.float32))], p + "bounded")
+    raw = g.op(
+        "Gemm",
+        [h, g.const(p + "w2", w2.astype(np.float32)), g.const(p + "b2", b2.astype(np.float32))],
+        p + "raw",
+        transB=1,
+    )
+    bounded = g.op(
+        "Mul",
+        [g.op("Tanh", [raw], p + "tanh"), g.const(p + "bounds", bounds.astype(np.float32))],
+        p + "bounded",
+    )
     head = s.site_kind.head
     if head == MIXTURE:
         K = s.K
@@ -113,25 +127,48 @@ def build_onnx(model: GuideModel) -> onnx.ModelProto:
     inputs, outputs = [], []
     for index in sorted(model.nets):
         net = model.nets[index]
-        inputs.append(helper.make_tensor_value_info(
-            input_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_f]))
+        inputs.append(
+            helper.make_tensor_value_info(
+                input_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_f]
+            )
+        )
         _site_graph(g, index, net)
-        outputs.append(helper.make_tensor_value_info(
-            output_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_out]))
+        outputs.append(
+            helper.make_tensor_value_info(
+                output_name(index), TensorProto.FLOAT, [f"n_{index}", net.spec.n_out]
+            )
+        )
     graph = helper.make_graph(g.nodes, f"ngpm_guide_{model.grammar}", inputs, outputs, g.inits)
-    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                              producer_name="ngpmc export")
+    proto = helper.make_model(
+        graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="ngpmc export"
+    )
     proto.ir_version = IR_VERSION
-    nets = {str(i): {"kind": n.spec.kind, "n_f": n.spec.n_f, "n_out": n.spec.n_out,
-                     "K": n.spec.K, "k": n.spec.k, "hidden": n.spec.hidden}
-            for i, n in sorted(model.nets.items())}
-    features = {"feature_set": model.feature_set,
-                "layouts": {str(i): v for i, v in sorted(model.layouts.items())},
-                "columns": {str(i): n.spec.cols for i, n in sorted(model.nets.items())}}
-    meta = {"ngpm_format": ONNX_FORMAT, "grammar": model.grammar,
-            "grammar_hash": model.grammar_hash, "sites": json.dumps(model.sites),
-            "features": json.dumps(features), "nets": json.dumps(nets), "K": str(model.K),
-            "training": json.dumps(model.summary)}
+    nets = {
+        str(i): {
+            "kind": n.spec.kind,
+            "n_f": n.spec.n_f,
+            "n_out": n.spec.n_out,
+            "K": n.spec.K,
+            "k": n.spec.k,
+            "hidden": n.spec.hidden,
+        }
+        for i, n in sorted(model.nets.items())
+    }
+    features = {
+        "feature_set": model.feature_set,
+        "layouts": {str(i): v for i, v in sorted(model.layouts.items())},
+        "columns": {str(i): n.spec.cols for i, n in sorted(model.nets.items())},
+    }
+    meta = {
+        "ngpm_format": ONNX_FORMAT,
+        "grammar": model.grammar,
+        "grammar_hash": model.grammar_hash,
+        "sites": json.dumps(model.sites),
+        "features": json.dumps(features),
+        "nets": json.dumps(nets),
+        "K": str(model.K),
+        "training": json.dumps(model.summary),
+    }
     helper.set_model_props(proto, meta)
     onnx.checker.check_model(proto, full_check=True)
     return proto

@@ -84,8 +84,9 @@ BOUNDS = {"logw": LOGIT_BOUND, "mean": MEAN_BOUND, "logsd": LOGSD_BOUND, "prob":
 
 def output_bounds(spec: NetSpec) -> np.ndarray:
     """Per output column, the bound b of its bounding transform (`SiteNet.heads`)."""
-    return np.concatenate([np.full(width, BOUNDS[role])
-                           for role, width in spec.site_kind.columns(spec.K, spec.k)])
+    return np.concatenate(
+        [np.full(width, BOUNDS[role]) for role, width in spec.site_kind.columns(spec.K, spec.k)]
+    )
 
 
 def _bound(x: torch.Tensor, b: float) -> torch.Tensor:
@@ -106,9 +107,14 @@ class SiteNet(nn.Module):
     l2: nn.Linear | None
     const: nn.Parameter | None
 
-    def __init__(self, spec: NetSpec, mean: np.ndarray | None = None,
-                 std: np.ndarray | None = None, prior_probs: tuple[float, ...] | None = None,
-                 seed: int = 0) -> None:
+    def __init__(
+        self,
+        spec: NetSpec,
+        mean: np.ndarray | None = None,
+        std: np.ndarray | None = None,
+        prior_probs: tuple[float, ...] | None = None,
+        seed: int = 0,
+    ) -> None:
         super().__init__()
         self.spec = spec
         n_in = len(spec.cols)
@@ -126,8 +132,9 @@ class SiteNet(nn.Module):
             with torch.no_grad():
                 for layer, gain in ((self.l1, 1.0), (self.l2, 0.1)):
                     bound = gain / math.sqrt(layer.in_features)
-                    layer.weight.copy_(torch.empty_like(layer.weight).uniform_(
-                        -bound, bound, generator=gen))
+                    layer.weight.copy_(
+                        torch.empty_like(layer.weight).uniform_(-bound, bound, generator=gen)
+                    )
                     layer.bias.zero_()
                 self.l2.bias.copy_(bias)
             self.const = None
@@ -169,7 +176,7 @@ class SiteNet(nn.Module):
         if s.site_kind.head == MIXTURE:
             K = s.K
             logw = torch.log_softmax(_bound(raw[:, :K], LOGIT_BOUND), dim=1)
-            return logw, _bound(raw[:, K:2 * K], MEAN_BOUND), _bound(raw[:, 2 * K:], LOGSD_BOUND)
+            return logw, _bound(raw[:, K : 2 * K], MEAN_BOUND), _bound(raw[:, 2 * K :], LOGSD_BOUND)
         return (_bound(raw, LOGIT_BOUND),)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -189,19 +196,22 @@ class SiteNet(nn.Module):
         if head == MIXTURE:
             logw, mean, logsd = out
             z = target.unsqueeze(1)
-            comp = -0.5 * ((z - mean) * torch.exp(-logsd)) ** 2 - logsd \
-                - 0.5 * math.log(2 * math.pi)
+            comp = (
+                -0.5 * ((z - mean) * torch.exp(-logsd)) ** 2 - logsd - 0.5 * math.log(2 * math.pi)
+            )
             return torch.logsumexp(logw + comp, dim=1)
         logits = out[0]
         if head == SIGMOID:
             t = target.to(logits.dtype)
             return -nn.functional.binary_cross_entropy_with_logits(
-                logits[:, 0], t, reduction="none")
+                logits[:, 0], t, reduction="none"
+            )
         return torch.log_softmax(logits, dim=1).gather(1, target.long().unsqueeze(1))[:, 0]
 
 
-def continuous_z(kind: str, values: np.ndarray,
-                 prior_args: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def continuous_z(
+    kind: str, values: np.ndarray, prior_args: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Map site values to the networks' target space and return (target, log Jacobian).
 
     normal (mu, sigma): z = (x - mu) / sigma, log q(x) = log q(z) - log sigma.
@@ -234,12 +244,21 @@ class GuideModel:
         The tensors are copies: a state kept as the best epoch's must not change when
         training goes on."""
         return {
-            "format": GUIDE_FORMAT, "grammar": self.grammar, "grammar_hash": self.grammar_hash,
-            "sites": self.sites, "feature_set": self.feature_set, "K": self.K,
-            "layouts": {str(i): v for i, v in self.layouts.items()}, "summary": self.summary,
-            "nets": {str(i): {"spec": net.spec.to_json(),
-                              "state": {k: v.detach().clone() for k, v in net.state_dict().items()}}
-                     for i, net in self.nets.items()},
+            "format": GUIDE_FORMAT,
+            "grammar": self.grammar,
+            "grammar_hash": self.grammar_hash,
+            "sites": self.sites,
+            "feature_set": self.feature_set,
+            "K": self.K,
+            "layouts": {str(i): v for i, v in self.layouts.items()},
+            "summary": self.summary,
+            "nets": {
+                str(i): {
+                    "spec": net.spec.to_json(),
+                    "state": {k: v.detach().clone() for k, v in net.state_dict().items()},
+                }
+                for i, net in self.nets.items()
+            },
         }
 
     @classmethod
@@ -251,7 +270,13 @@ class GuideModel:
             net = SiteNet(NetSpec.from_json(item["spec"]))
             net.load_state_dict(item["state"])
             nets[int(key)] = net
-        return cls(grammar=d["grammar"], grammar_hash=d["grammar_hash"], sites=d["sites"],
-                   feature_set=d["feature_set"], K=int(d["K"]), nets=nets,
-                   layouts={int(k): v for k, v in d["layouts"].items()},
-                   summary=d.get("summary", {}))
+        return cls(
+            grammar=d["grammar"],
+            grammar_hash=d["grammar_hash"],
+            sites=d["sites"],
+            feature_set=d["feature_set"],
+            K=int(d["K"]),
+            nets=nets,
+            layouts={int(k): v for k, v in d["layouts"].items()},
+            summary=d.get("summary", {}),
+        )

@@ -33,7 +33,7 @@ from ngpm_compiler.learning.trace_data import SiteData, TraceSet
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.progress import Log
 
-JOB_STRIDE = 10 ** 8  # job ids of the k-th merged traces directory are offset by k * this
+JOB_STRIDE = 10**8  # job ids of the k-th merged traces directory are offset by k * this
 
 
 @dataclass
@@ -74,14 +74,20 @@ def merge_traces(sets: list[TraceSet]) -> TraceSet:
         for site, d in ts.data.items():
             part = SiteData(d.features, d.values, d.prior_args, d.jobs + k * JOB_STRIDE)
             old = data.get(site)
-            data[site] = part if old is None else SiteData(
-                np.concatenate([old.features, part.features]),
-                np.concatenate([old.values, part.values]),
-                np.concatenate([old.prior_args, part.prior_args]),
-                np.concatenate([old.jobs, part.jobs]))
+            data[site] = (
+                part
+                if old is None
+                else SiteData(
+                    np.concatenate([old.features, part.features]),
+                    np.concatenate([old.values, part.values]),
+                    np.concatenate([old.prior_args, part.prior_args]),
+                    np.concatenate([old.jobs, part.jobs]),
+                )
+            )
     kept = np.concatenate([ts.kept_jobs + k * JOB_STRIDE for k, ts in enumerate(sets)])
-    return TraceSet(first.manifest, first.sites, first.layouts, data, kept,
-                    sum(ts.dropped for ts in sets))
+    return TraceSet(
+        first.manifest, first.sites, first.layouts, data, kept, sum(ts.dropped for ts in sets)
+    )
 
 
 def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Log) -> list[str]:
@@ -89,19 +95,28 @@ def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Log) -> list
     dirs = []
     for i, targets in enumerate(cfg.targets):
         out = Path(cfg.out) / f"round_{r}" / f"traces_{i}"
-        tc = TraceConfig(grammar=cfg.grammar, targets=targets, n=cfg.n,
-                         particles=cfg.particles if guide else cfg.unguided_particles,
-                         seed=cfg.seed + 1000 * r + i, workers=cfg.workers, mirror=cfg.mirror,
-                         guide=guide)
+        tc = TraceConfig(
+            grammar=cfg.grammar,
+            targets=targets,
+            n=cfg.n,
+            particles=cfg.particles if guide else cfg.unguided_particles,
+            seed=cfg.seed + 1000 * r + i,
+            workers=cfg.workers,
+            mirror=cfg.mirror,
+            guide=guide,
+        )
         m = generate_traces(tc, out, progress=False)
-        log(f"round {r}: {out}: {m['kept']} traces ({m['dropped']} dropped), "
-            f"{m['seconds']:.0f} s, {'guided by ' + guide if guide else 'unguided'}")
+        log(
+            f"round {r}: {out}: {m['kept']} traces ({m['dropped']} dropped), "
+            f"{m['seconds']:.0f} s, {'guided by ' + guide if guide else 'unguided'}"
+        )
         dirs.append(str(out))
     return dirs
 
 
-def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str],
-                log: Log) -> tuple[str, dict[str, Any]]:
+def train_round(
+    cfg: RoundsConfig, r: int, trace_dirs: list[str], log: Log
+) -> tuple[str, dict[str, Any]]:
     """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.trace_data import load_traces
@@ -113,20 +128,24 @@ def train_round(cfg: RoundsConfig, r: int, trace_dirs: list[str],
     done, onnx = folder / "model.pt", folder / "guide.onnx"
     if done.is_file() and onnx.is_file():  # a finished round on the same traces: reuse
         old = load_model(done)
-        if (old.summary.get("traces") == len(ts.kept_jobs)
-                and old.feature_set == cfg.feature_set):
+        if old.summary.get("traces") == len(ts.kept_jobs) and old.feature_set == cfg.feature_set:
             log(f"round {r}: reusing {onnx} ({len(ts.kept_jobs)} traces)")
             return str(onnx), old.summary
-    model = train_guide(ts.sites, ts.layouts, ts.data,
-                        TrainConfig(feature_set=cfg.feature_set, K=cfg.K, epochs=cfg.epochs,
-                                    seed=cfg.seed),
-                        grammar=ts.manifest["key"]["grammar"],
-                        grammar_hash=ts.manifest["grammar_hash"])
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        ts.data,
+        TrainConfig(feature_set=cfg.feature_set, K=cfg.K, epochs=cfg.epochs, seed=cfg.seed),
+        grammar=ts.manifest["key"]["grammar"],
+        grammar_hash=ts.manifest["grammar_hash"],
+    )
     save_model(model, folder / "model.pt")
     path = write_onnx(model, folder / "guide.onnx")
     s = model.summary
-    log(f"round {r}: trained on {s['traces']} traces, validation NLL {s['val_nll']:.2f}, "
-        f"{s['seconds']:.0f} s")
+    log(
+        f"round {r}: trained on {s['traces']} traces, validation NLL {s['val_nll']:.2f}, "
+        f"{s['seconds']:.0f} s"
+    )
     return str(path), s
 
 
@@ -134,11 +153,24 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
     """Mean over validation targets of the median similarity at N = val_n."""
     from ngpm_compiler.evaluation.heldout import run_heldout
 
-    res = run_heldout(Path(cfg.out) / "validation", cfg.grammar, cfg.validation, {name: guide},
-                      k=cfg.val_targets, repeats=cfg.val_repeats, guided_n=cfg.val_n,
-                      unguided_ns=(), workers=cfg.workers, seed=cfg.seed, log=lambda _m: None)
-    sims = [float(s["mean_similarity"]) for s in res["summary"]
-            if s["model"] == name and int(s["n"]) == cfg.val_n]
+    res = run_heldout(
+        Path(cfg.out) / "validation",
+        cfg.grammar,
+        cfg.validation,
+        {name: guide},
+        k=cfg.val_targets,
+        repeats=cfg.val_repeats,
+        guided_n=cfg.val_n,
+        unguided_ns=(),
+        workers=cfg.workers,
+        seed=cfg.seed,
+        log=lambda _m: None,
+    )
+    sims = [
+        float(s["mean_similarity"])
+        for s in res["summary"]
+        if s["model"] == name and int(s["n"]) == cfg.val_n
+    ]
     score = float(np.mean(sims))
     log(f"{name}: validation similarity {score:.3f} at N = {cfg.val_n}")
     return score
@@ -153,9 +185,11 @@ def untuned(guide: str, settings: ProposalSettings, folder: Path, log: Log) -> s
     if settings == ProposalSettings():
         return guide
     copy = with_settings(guide, folder / "untuned.onnx", ProposalSettings())
-    log(f"round 0: {guide} proposes with {settings.label()} (ngpmc tune); scored with the "
+    log(
+        f"round 0: {guide} proposes with {settings.label()} (ngpmc tune); scored with the "
         f"default settings ({copy}), as the new rounds are, so that rounds compare under "
-        "equal settings")
+        "equal settings"
+    )
     return str(copy)
 
 
@@ -176,9 +210,18 @@ def expert_iteration(cfg: RoundsConfig, log: Log = print) -> list[dict[str, Any]
     if cfg.init_guide:
         scored = untuned(cfg.init_guide, settings, out / "round_0", log)
         score = validate(cfg, "round_0", scored, log)
-        rows.append({"round": 0, "teacher": "initial guide" if scored == cfg.init_guide
-                     else "initial guide (scored untuned)", "traces": "", "val_nll": "",
-                     "validation": round(score, 4), "guide": cfg.init_guide})
+        rows.append(
+            {
+                "round": 0,
+                "teacher": "initial guide"
+                if scored == cfg.init_guide
+                else "initial guide (scored untuned)",
+                "traces": "",
+                "val_nll": "",
+                "validation": round(score, 4),
+                "guide": cfg.init_guide,
+            }
+        )
         best = (score, cfg.init_guide)
     trace_dirs = list(cfg.init_traces)
     for r in range(1, cfg.rounds + 1):
@@ -186,17 +229,26 @@ def expert_iteration(cfg: RoundsConfig, log: Log = print) -> list[dict[str, Any]
         trace_dirs += record_round(cfg, r, teacher, log)
         path, summary = train_round(cfg, r, trace_dirs, log)
         score = validate(cfg, f"round_{r}", path, log)
-        rows.append({"round": r, "teacher": f"guided N={cfg.particles}" if teacher else
-                     f"unguided N={cfg.unguided_particles}", "traces": summary["traces"],
-                     "val_nll": round(float(summary["val_nll"]), 3),
-                     "validation": round(score, 4), "guide": path})
+        rows.append(
+            {
+                "round": r,
+                "teacher": f"guided N={cfg.particles}"
+                if teacher
+                else f"unguided N={cfg.unguided_particles}",
+                "traces": summary["traces"],
+                "val_nll": round(float(summary["val_nll"]), 3),
+                "validation": round(score, 4),
+                "guide": path,
+            }
+        )
         if score > best[0]:
             best = (score, path)
     if best[1] is not None:
         atomic_write(out / "best.onnx", Path(best[1]).read_bytes())
     from ngpm_compiler.evaluation.runs import write_csv
 
-    write_csv(out / "rounds.csv", rows, ("round", "teacher", "traces", "val_nll", "validation",
-                                         "guide"))
+    write_csv(
+        out / "rounds.csv", rows, ("round", "teacher", "traces", "val_nll", "validation", "guide")
+    )
     log(f"best: {best[1]} (validation {best[0]:.3f}) -> {out / 'best.onnx'}")
     return rows

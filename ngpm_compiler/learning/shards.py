@@ -22,17 +22,29 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.image.features import FEATURE_GROUPS
 from ngpm_runtime.program import SITE_KINDS
 
-JOB_ARRAYS = {"jobs": np.int64, "kept": np.bool_, "n_prims": np.int64, "target": np.int64,
-              "seed": np.uint64}
+JOB_ARRAYS = {
+    "jobs": np.int64,
+    "kept": np.bool_,
+    "n_prims": np.int64,
+    "target": np.int64,
+    "seed": np.uint64,
+}
 SITE_ARRAYS = {"f": (np.float32, 2), "v": (np.float64, 1), "j": (np.int64, 1)}
 SITE_KEY = re.compile(r"([fvj])_(0|[1-9][0-9]{0,8})")
 
 # manifest.json: required fields, then optional ones, with their JSON types
-MANIFEST_FIELDS = {"format": str, "key": dict, "grammar_hash": str, "sites": list,
-                   "layouts": dict}
-MANIFEST_OPTIONAL = {"config": dict, "requested": int, "kept": int, "dropped": int,
-                     "failed": int, "jobs_done": int, "seconds": float, "job_seconds": list,
-                     "shards": list}
+MANIFEST_FIELDS = {"format": str, "key": dict, "grammar_hash": str, "sites": list, "layouts": dict}
+MANIFEST_OPTIONAL = {
+    "config": dict,
+    "requested": int,
+    "kept": int,
+    "dropped": int,
+    "failed": int,
+    "jobs_done": int,
+    "seconds": float,
+    "job_seconds": list,
+    "shards": list,
+}
 LAYOUT_GROUPS = FEATURE_GROUPS["all+context"]  # the column groups traces record, every set's
 
 
@@ -62,13 +74,13 @@ def read_npz(path: Path) -> dict[str, np.ndarray]:
             try:
                 out[key] = z[key]
             except Exception as err:
-                raise ShardError(path, f"array {key!r} cannot be read "
-                                       f"({type(err).__name__})") from None
+                raise ShardError(
+                    path, f"array {key!r} cannot be read ({type(err).__name__})"
+                ) from None
     return out
 
 
-def check_shard(path: Path, a: dict[str, np.ndarray],
-                widths: dict[int, int] | None = None) -> None:
+def check_shard(path: Path, a: dict[str, np.ndarray], widths: dict[int, int] | None = None) -> None:
     """ShardError unless `a` is a well-formed shard (the module's docstring); with `widths`
     (site index -> feature columns), its sites and feature widths must be those."""
     _check_jobs(path, a)
@@ -100,8 +112,12 @@ def _check_jobs(path: Path, a: dict[str, np.ndarray]) -> None:
         _check_array(path, key, a[key], dtype, 1)
     lengths = {key: len(a[key]) for key in JOB_ARRAYS}
     if len(set(lengths.values())) != 1:
-        raise ShardError(path, "the per-job arrays differ in length (" + ", ".join(
-            f"{k} {n}" for k, n in lengths.items()) + ")")
+        raise ShardError(
+            path,
+            "the per-job arrays differ in length ("
+            + ", ".join(f"{k} {n}" for k, n in lengths.items())
+            + ")",
+        )
     jobs = a["jobs"]
     if len(jobs) == 0:
         raise ShardError(path, "'jobs' is empty")
@@ -111,8 +127,9 @@ def _check_jobs(path: Path, a: dict[str, np.ndarray]) -> None:
         raise ShardError(path, "'n_prims' or 'target' holds a negative value")
 
 
-def _check_site(path: Path, a: dict[str, np.ndarray], site: int, kept: set[int],
-                widths: dict[int, int] | None) -> None:
+def _check_site(
+    path: Path, a: dict[str, np.ndarray], site: int, kept: set[int], widths: dict[int, int] | None
+) -> None:
     for prefix, (dtype, ndim) in SITE_ARRAYS.items():
         key = f"{prefix}_{site}"
         if key not in a:
@@ -120,17 +137,20 @@ def _check_site(path: Path, a: dict[str, np.ndarray], site: int, kept: set[int],
         _check_array(path, key, a[key], dtype, ndim)
     f, v, j = (a[f"{p}_{site}"] for p in SITE_ARRAYS)
     if not len(f) == len(v) == len(j):
-        raise ShardError(path, f"the arrays of site {site} differ in length (f_{site} "
-                               f"{len(f)}, v_{site} {len(v)}, j_{site} {len(j)})")
+        raise ShardError(
+            path,
+            f"the arrays of site {site} differ in length (f_{site} "
+            f"{len(f)}, v_{site} {len(v)}, j_{site} {len(j)})",
+        )
     if widths is not None and site not in widths:
         raise ShardError(path, f"'f_{site}': the grammar has no site {site}")
     if widths is not None and f.shape[1] != widths[site]:
-        raise ShardError(path, f"'f_{site}' has {f.shape[1]} feature columns; site {site} "
-                               f"has {widths[site]}")
+        raise ShardError(
+            path, f"'f_{site}' has {f.shape[1]} feature columns; site {site} has {widths[site]}"
+        )
     stray = set(np.unique(j).tolist()) - kept
     if stray:
-        raise ShardError(path, f"'j_{site}' names job {min(stray)}, not a kept job of "
-                               "this file")
+        raise ShardError(path, f"'j_{site}' names job {min(stray)}, not a kept job of this file")
 
 
 # --------------------------------------------------------------------------- manifest
@@ -152,13 +172,17 @@ def check_manifest(path: Path, m: Any) -> None:
     bad = [x for x in m.get("job_seconds", []) if not _is(x, float)]
     bad += [x for x in m.get("shards", []) if not isinstance(x, str)]
     if bad:
-        raise TraceError(f"{path}: corrupt manifest: 'job_seconds' or 'shards' holds "
-                         f"{bad[0]!r}")
+        raise TraceError(f"{path}: corrupt manifest: 'job_seconds' or 'shards' holds {bad[0]!r}")
     _check_sites(path, m["sites"], m["layouts"])
 
 
-_KIND_WORDS = {str: "a string", dict: "an object", list: "a list",
-               int: "a whole number >= 0", float: "a finite number >= 0"}
+_KIND_WORDS = {
+    str: "a string",
+    dict: "an object",
+    list: "a list",
+    int: "a whole number >= 0",
+    float: "a finite number >= 0",
+}
 
 
 def _is(value: Any, kind: type) -> bool:
@@ -174,22 +198,37 @@ def _check_sites(path: Path, sites: list[Any], layouts: dict[str, Any]) -> None:
     ranges with every group of LAYOUT_GROUPS; no layout belongs to no site."""
     indices = []
     for n, s in enumerate(sites):
-        if not (isinstance(s, dict) and _is(s.get("index"), int)
-                and isinstance(s.get("id"), str) and s.get("kind") in SITE_KINDS):
-            raise TraceError(f"{path}: corrupt manifest: 'sites' entry {n} needs an index, "
-                             f"an id and a kind ({', '.join(SITE_KINDS)})")
+        if not (
+            isinstance(s, dict)
+            and _is(s.get("index"), int)
+            and isinstance(s.get("id"), str)
+            and s.get("kind") in SITE_KINDS
+        ):
+            raise TraceError(
+                f"{path}: corrupt manifest: 'sites' entry {n} needs an index, "
+                f"an id and a kind ({', '.join(SITE_KINDS)})"
+            )
         indices.append(str(s["index"]))
     if sorted(indices) != sorted(layouts):
-        raise TraceError(f"{path}: corrupt manifest: 'layouts' has sites "
-                         f"{sorted(layouts)}, 'sites' has {sorted(indices)}")
+        raise TraceError(
+            f"{path}: corrupt manifest: 'layouts' has sites "
+            f"{sorted(layouts)}, 'sites' has {sorted(indices)}"
+        )
     for i, lay in layouts.items():
-        ok = isinstance(lay, dict) and all(g in lay for g in LAYOUT_GROUPS) and all(
-            isinstance(r, list) and len(r) == 2 and all(_is(x, int) for x in r)
-            and r[0] <= r[1] for r in lay.values())
+        ok = (
+            isinstance(lay, dict)
+            and all(g in lay for g in LAYOUT_GROUPS)
+            and all(
+                isinstance(r, list) and len(r) == 2 and all(_is(x, int) for x in r) and r[0] <= r[1]
+                for r in lay.values()
+            )
+        )
         if not ok:
-            raise TraceError(f"{path}: corrupt manifest: 'layouts' entry {i!r} is not a set "
-                             f"of [start, stop] column ranges of the groups "
-                             f"{', '.join(LAYOUT_GROUPS)}")
+            raise TraceError(
+                f"{path}: corrupt manifest: 'layouts' entry {i!r} is not a set "
+                f"of [start, stop] column ranges of the groups "
+                f"{', '.join(LAYOUT_GROUPS)}"
+            )
 
 
 def layout_widths(layouts: dict[int, dict[str, slice]]) -> dict[int, int]:

@@ -46,11 +46,14 @@ def load_traces(directory: str | Path, allow_missing: bool = False) -> TraceSet:
     store = TraceStore(directory)
     manifest = store.manifest()
     if manifest is None or manifest.get("format") != TRACE_FORMAT:
-        raise TraceError(f"{store.dir}: not a traces directory (no manifest.json from "
-                         "`ngpmc traces`)")
+        raise TraceError(
+            f"{store.dir}: not a traces directory (no manifest.json from `ngpmc traces`)"
+        )
     sites = [Site.from_json(s) for s in manifest["sites"]]
-    layouts = {int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
-               for i, lay in manifest["layouts"].items()}
+    layouts = {
+        int(i): {g: slice(a, b) for g, (a, b) in lay.items()}
+        for i, lay in manifest["layouts"].items()
+    }
     store.widths = layout_widths(layouts)
     unreadable: list[str] = []
     done = store.finished(unreadable)
@@ -64,12 +67,18 @@ def load_traces(directory: str | Path, allow_missing: bool = False) -> TraceSet:
         v, j = done[f"v_{site.index}"], done[f"j_{site.index}"]
         args = f[:, prior_arg_columns(site, layouts[site.index])].astype(np.float64)
         data[site.index] = SiteData(f, v, args, j)
-    return TraceSet(manifest, sites, layouts, data, kept_jobs,
-                    int(len(done["jobs"]) - len(kept_jobs)))
+    return TraceSet(
+        manifest, sites, layouts, data, kept_jobs, int(len(done["jobs"]) - len(kept_jobs))
+    )
 
 
-def _check_complete(store: TraceStore, manifest: dict[str, Any], unreadable: list[str],
-                    kept: int, allow_missing: bool) -> None:
+def _check_complete(
+    store: TraceStore,
+    manifest: dict[str, Any],
+    unreadable: list[str],
+    kept: int,
+    allow_missing: bool,
+) -> None:
     """TraceError naming the shards the manifest lists that are gone or unreadable (and the
     kept traces that are missing), unless `allow_missing`; then only a warning on stderr."""
     present = {p.name for p in store.shard_paths()}
@@ -82,11 +91,15 @@ def _check_complete(store: TraceStore, manifest: dict[str, Any], unreadable: lis
         problems.append(f"missing {', '.join(gone)}")
     if unreadable:
         problems.append(f"unreadable {', '.join(unreadable)}")
-    text = (f"{store.dir}: {'; '.join(problems) or 'files missing'}: {kept} of the "
-            f"{kept + lost} kept traces are there")
+    text = (
+        f"{store.dir}: {'; '.join(problems) or 'files missing'}: {kept} of the "
+        f"{kept + lost} kept traces are there"
+    )
     if allow_missing:
         print(f"ngpmc: warning: {text}; training on those (--allow-missing)", file=sys.stderr)
         return
-    raise TraceError(f"{text}; restore the files, run `ngpmc traces` again with the same "
-                     "options to redo the lost jobs (after removing unreadable shards), or "
-                     "pass --allow-missing to train on what is there")
+    raise TraceError(
+        f"{text}; restore the files, run `ngpmc traces` again with the same "
+        "options to redo the lost jobs (after removing unreadable shards), or "
+        "pass --allow-missing to train on what is there"
+    )

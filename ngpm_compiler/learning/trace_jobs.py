@@ -29,9 +29,11 @@ def viewport(program: Program, where: str | None = None) -> Viewport:
     """The grammar's viewport; TraceError without one (traces draw into target images).
     `where` names the grammar in the error (its file), else its name."""
     if program.viewport is None:
-        raise TraceError(f"{where or 'grammar ' + program.name}: the grammar has no "
-                         "'viewport:' line; traces draw into target images, so add one "
-                         "(e.g. 'viewport: -12 12 -22 2'; `ngpmc check` proposes one)")
+        raise TraceError(
+            f"{where or 'grammar ' + program.name}: the grammar has no "
+            "'viewport:' line; traces draw into target images, so add one "
+            "(e.g. 'viewport: -12 12 -22 2'; `ngpmc check` proposes one)"
+        )
     return program.viewport
 
 
@@ -42,8 +44,11 @@ def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Target]
     targets = list(load_dataset(directory, size=size))
     if mirror:
         names = {t.name for t in targets}
-        extra = [t.mirrored() for t in targets
-                 if not t.name.endswith("_m") and t.name + "_m" not in names]
+        extra = [
+            t.mirrored()
+            for t in targets
+            if not t.name.endswith("_m") and t.name + "_m" not in names
+        ]
         targets.extend(extra)
     return targets
 
@@ -54,8 +59,14 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     return int(a) % n_targets, int(b)
 
 
-def run_job(program: Program, target: Target, seed: int, particles: int,
-            guide: Proposal | None = None, max_modules: int | None = None) -> tuple[Trace, int]:
+def run_job(
+    program: Program,
+    target: Target,
+    seed: int,
+    particles: int,
+    guide: Proposal | None = None,
+    max_modules: int | None = None,
+) -> tuple[Trace, int]:
     """SMC (guided by `guide`, else unguided) on one target; the best particle's trace and
     primitive count.
 
@@ -66,14 +77,29 @@ def run_job(program: Program, target: Target, seed: int, particles: int,
     from ngpm_runtime.inference.smc import TraceRecording, replay
 
     start = target.start_pose(viewport(program))
-    best = grow(program, target, guide, particles, seed, trace=TraceRecording.VALUES,
-                max_modules=max_modules).smc.best
+    best = grow(
+        program,
+        target,
+        guide,
+        particles,
+        seed,
+        trace=TraceRecording.VALUES,
+        max_modules=max_modules,
+    ).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
-    again = replay(program, values, start=start, canvas_size=target.size,
-                   target_mask=target.mask, max_modules=max_modules)
+    again = replay(
+        program,
+        values,
+        start=start,
+        canvas_size=target.size,
+        target_mask=target.mask,
+        max_modules=max_modules,
+    )
     if again.primitives != best.primitives:
-        raise ProgramError(f"program {program.name}: replaying the best particle's values "
-                           "drew other primitives (generated code is not pure)")
+        raise ProgramError(
+            f"program {program.name}: replaying the best particle's values "
+            "drew other primitives (generated code is not pure)"
+        )
     trace: Trace = []
     for site, feats, value in again.trace or []:
         assert feats is not None  # a replay records every visit's features
@@ -89,12 +115,17 @@ def site_layouts(program: Program, target_mask: np.ndarray | None) -> dict[int, 
     return {s.index: fm.layout(s) for s in program.sites}
 
 
-def job_arrays(job: int, target: int, seed: int, trace: Trace, n_prims: int,
-               kept: bool) -> dict[str, np.ndarray]:
+def job_arrays(
+    job: int, target: int, seed: int, trace: Trace, n_prims: int, kept: bool
+) -> dict[str, np.ndarray]:
     """The npz arrays of one finished job (a dropped job records no site visits)."""
-    out = {"jobs": np.array([job], np.int64), "kept": np.array([kept]),
-           "n_prims": np.array([n_prims], np.int64), "target": np.array([target], np.int64),
-           "seed": np.array([seed], np.uint64)}
+    out = {
+        "jobs": np.array([job], np.int64),
+        "kept": np.array([kept]),
+        "n_prims": np.array([n_prims], np.int64),
+        "target": np.array([target], np.int64),
+        "seed": np.array([seed], np.uint64),
+    }
     if kept:
         by_site: dict[int, list[tuple[np.ndarray, float]]] = {}
         for site, feats, value in trace:

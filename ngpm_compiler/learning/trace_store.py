@@ -76,8 +76,7 @@ class TraceStore:
         return manifest
 
     def write_manifest(self, manifest: dict[str, Any]) -> None:
-        atomic_write(self.dir / "manifest.json",
-                      json.dumps(manifest, indent=1).encode("utf-8"))
+        atomic_write(self.dir / "manifest.json", json.dumps(manifest, indent=1).encode("utf-8"))
 
     def write_pending(self, arrays: dict[str, np.ndarray]) -> None:
         self.pending.mkdir(parents=True, exist_ok=True)
@@ -99,8 +98,10 @@ class TraceStore:
                 continue
             for j in part["jobs"].tolist():
                 if j in where:
-                    raise TraceError(f"{self.dir}: job {j} is in two shards, {where[j]} and "
-                                     f"{path.name}; remove one of them")
+                    raise TraceError(
+                        f"{self.dir}: job {j} is in two shards, {where[j]} and "
+                        f"{path.name}; remove one of them"
+                    )
                 where[j] = path.name
             parts.append(part)
         for path in self.pending_paths():
@@ -123,16 +124,18 @@ class TraceStore:
             job = int(p.stem.partition("_")[2])
             groups.setdefault(job // block if done is not None else 0, []).append(p)
         if done is not None:
-            groups = {b: ps for b, ps in groups.items()
-                      if all(j in done for j in range(b * block, (b + 1) * block))}
+            groups = {
+                b: ps
+                for b, ps in groups.items()
+                if all(j in done for j in range(b * block, (b + 1) * block))
+            }
         if not groups:
             return
         in_shards: set[int] = set()
         for p in self.shard_paths():
             in_shards.update(int(j) for j in load_npz(p)["jobs"])
         for paths in groups.values():
-            parts = [a for a in (load_npz(p) for p in paths)
-                     if int(a["jobs"][0]) not in in_shards]
+            parts = [a for a in (load_npz(p) for p in paths) if int(a["jobs"][0]) not in in_shards]
             if parts:
                 merged = merge_arrays(parts)
                 save_npz(self.dir / f"shard_{int(merged['jobs'].min()):08d}.npz", merged)

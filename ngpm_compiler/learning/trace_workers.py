@@ -18,8 +18,9 @@ if TYPE_CHECKING:
 JobArgs = tuple[int, int, int, int, int | None]  # job, base seed, particles, min prims, cap
 
 
-def worker_setup(grammar: str, text: str, targets: list[Target],
-                 guide: str | bytes | None = None) -> dict[str, Any]:
+def worker_setup(
+    grammar: str, text: str, targets: list[Target], guide: str | bytes | None = None
+) -> dict[str, Any]:
     """A worker's state from the grammar file's name and text, the targets and the guide
     (its path, or its file's bytes for workers on other machines), so a worker on another
     machine reads no file."""
@@ -40,8 +41,14 @@ def do_job(args: JobArgs) -> tuple[dict[str, np.ndarray], float]:
     targets = pool.state()["targets"]
     ti, seed = job_spec(base_seed, job, len(targets))
     try:
-        trace, n_prims = run_job(pool.state()["program"], targets[ti], seed, particles,
-                                 guide=pool.state().get("guide"), max_modules=max_modules)
+        trace, n_prims = run_job(
+            pool.state()["program"],
+            targets[ti],
+            seed,
+            particles,
+            guide=pool.state().get("guide"),
+            max_modules=max_modules,
+        )
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1
     kept = n_prims >= min_prims

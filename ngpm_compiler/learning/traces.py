@@ -83,11 +83,18 @@ class TraceConfig:
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> dict[str, Any]:
     """What a traces directory's jobs depend on; a rerun with another key is refused."""
-    return {"grammar_hash": program.grammar_hash, "grammar": program.name,
-            "targets": [t.name for t in targets], "particles": cfg.particles,
-            "seed": cfg.seed, "mirror": cfg.mirror, "size": cfg.size,
-            "min_primitives": cfg.min_primitives, "max_modules": cfg.max_modules,
-            "guide": _file_hash(cfg.guide)}
+    return {
+        "grammar_hash": program.grammar_hash,
+        "grammar": program.name,
+        "targets": [t.name for t in targets],
+        "particles": cfg.particles,
+        "seed": cfg.seed,
+        "mirror": cfg.mirror,
+        "size": cfg.size,
+        "min_primitives": cfg.min_primitives,
+        "max_modules": cfg.max_modules,
+        "guide": _file_hash(cfg.guide),
+    }
 
 
 def _file_hash(path: str | None) -> str | None:
@@ -129,19 +136,28 @@ def _check_module_cap(cfg: TraceConfig, program: Program, target: Target) -> Non
     run stops at once with the reason instead of after MAX_DROPPED_IN_A_ROW slow jobs."""
     from ngpm_runtime.inference.smc import forward, module_cap
 
-    sample = forward(program, seed=cfg.seed, start=target.start_pose(viewport(program)),
-                     max_modules=cfg.max_modules)
+    sample = forward(
+        program,
+        seed=cfg.seed,
+        start=target.start_pose(viewport(program)),
+        max_modules=cfg.max_modules,
+    )
     if sample.limit == "max modules" and len(sample.primitives) < cfg.min_primitives:
         raise TraceError(
             f"{cfg.grammar}: jobs are dropped because samples stop at the 'max modules' cap "
             f"({module_cap(program, cfg.max_modules)} modules expanded in one step without "
             f"drawing) with {len(sample.primitives)} primitives; the grammar expands without "
             "drawing (e.g. `A --> A A`): make it draw, lower its 'derivation length:', or "
-            "raise the cap (--max-modules)")
+            "raise the cap (--max-modules)"
+        )
 
 
-def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True,
-                    on_job: Callable[[int], None] | None = None) -> dict[str, Any]:
+def generate_traces(
+    cfg: TraceConfig,
+    out_dir: str | Path,
+    progress: bool = True,
+    on_job: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """Run trace jobs until `cfg.n` traces are kept (resuming); returns the manifest.
 
     Long because one try/finally around the backend's driver loop writes the finished
@@ -162,21 +178,29 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     old = store.manifest()
     if old is not None and old.get("key") != key:
         theirs = old.get("key", {})
-        diff = sorted(k for k in {*key, *theirs}  # a key missing on one side differs too
-                      if (k in key, key.get(k)) != (k in theirs, theirs.get(k)))
-        raise TraceError(f"{store.dir}: holds traces of another configuration "
-                         f"(differs in {', '.join(diff)}); use a new directory")
+        diff = sorted(
+            k
+            for k in {*key, *theirs}  # a key missing on one side differs too
+            if (k in key, key.get(k)) != (k in theirs, theirs.get(k))
+        )
+        raise TraceError(
+            f"{store.dir}: holds traces of another configuration "
+            f"(differs in {', '.join(diff)}); use a new directory"
+        )
     done = store.finished()
     done_ids = set(int(j) for j in done["jobs"])
     store.consolidate(done_ids, cfg.shard_size)
     kept = int(done["kept"].sum())
     dropped = len(done_ids) - kept
     manifest: dict[str, Any] = {
-        "format": TRACE_FORMAT, "key": key, "config": asdict(cfg),
+        "format": TRACE_FORMAT,
+        "key": key,
+        "config": asdict(cfg),
         "grammar_hash": program.grammar_hash,
         "sites": [s.to_json() for s in program.sites],
-        "layouts": {str(i): {g: [sl.start, sl.stop] for g, sl in lay.items()}
-                    for i, lay in layouts.items()},
+        "layouts": {
+            str(i): {g: [sl.start, sl.stop] for g, sl in lay.items()} for i, lay in layouts.items()
+        },
         "requested": cfg.n,
     }
     seconds_before = float(old.get("seconds", 0.0)) if old else 0.0
@@ -189,9 +213,15 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     in_a_row = 0  # jobs dropped since the last kept one (this run)
 
     def save() -> None:
-        manifest.update(seconds=seconds_before + time.perf_counter() - t0,
-                        job_seconds=job_seconds, kept=kept, dropped=dropped, failed=failed,
-                        jobs_done=len(done_ids), shards=[p.name for p in store.shard_paths()])
+        manifest.update(
+            seconds=seconds_before + time.perf_counter() - t0,
+            job_seconds=job_seconds,
+            kept=kept,
+            dropped=dropped,
+            failed=failed,
+            jobs_done=len(done_ids),
+            shards=[p.name for p in store.shard_paths()],
+        )
         store.write_manifest(manifest)
 
     save()
@@ -219,7 +249,8 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
                     f"their best particles drew fewer than {cfg.min_primitives} primitives "
                     "(or none survived); make the grammar draw more (a longer axiom or "
                     "derivation; try `ngpmc sample`) or raise its 'max modules:' cap if "
-                    "`ngpmc sample` reports that limit")
+                    "`ngpmc sample` reports that limit"
+                )
         first = job - job % cfg.shard_size
         if all(j in done_ids for j in range(first, first + cfg.shard_size)):
             store.consolidate(done_ids, cfg.shard_size)  # its block is complete
@@ -236,15 +267,22 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
 
     text = Path(cfg.grammar).read_text(encoding="utf-8")
     guide = backends.ship_file(cfg.guide, cfg.backend)
-    jobs = backends.make_backend(cfg.backend, cfg.workers, worker_setup,
-                                 (cfg.grammar, text, targets, guide), cfg.ray_address)
+    jobs = backends.make_backend(
+        cfg.backend, cfg.workers, worker_setup, (cfg.grammar, text, targets, guide), cfg.ray_address
+    )
     complete = False
     try:
         with jobs if kept < cfg.n else contextlib.nullcontext():
             if jobs.separate_processes:
                 _exit_on_sigterm()  # after the backend started (ray.init sets its own)
-            drive(jobs, do_job, todo(), lambda _, result: finish(*result),
-                  room=lambda running: kept + running < cfg.n, between=_exit_if_stopped)
+            drive(
+                jobs,
+                do_job,
+                todo(),
+                lambda _, result: finish(*result),
+                room=lambda running: kept + running < cfg.n,
+                between=_exit_if_stopped,
+            )
             complete = True
     finally:
         bar.close()
@@ -252,8 +290,9 @@ def generate_traces(cfg: TraceConfig, out_dir: str | Path, progress: bool = True
     return manifest
 
 
-def _close_run(store: TraceStore, done: set[int], block: int, complete: bool,
-               save: Callable[[], None]) -> None:
+def _close_run(
+    store: TraceStore, done: set[int], block: int, complete: bool, save: Callable[[], None]
+) -> None:
     """Gather the finished blocks (all pending jobs when the run is `complete`) into shards,
     then `save` the manifest; also when a shard cannot be written (disk full): the manifest
     then lists the shards that are there, and the other jobs stay pending for a rerun."""

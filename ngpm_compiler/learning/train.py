@@ -92,10 +92,15 @@ def fingerprint(data: dict[int, SiteData]) -> str:
     return h.hexdigest()[:16]
 
 
-def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
-                data: dict[int, SiteData], config: TrainConfig, grammar: str,
-                grammar_hash: str, train_rows: dict[int, np.ndarray] | None = None
-                ) -> GuideModel:
+def build_model(
+    sites: list[Site],
+    layouts: dict[int, dict[str, slice]],
+    data: dict[int, SiteData],
+    config: TrainConfig,
+    grammar: str,
+    grammar_hash: str,
+    train_rows: dict[int, np.ndarray] | None = None,
+) -> GuideModel:
     """Untrained networks for every site with data; inputs standardized on training rows."""
     if config.feature_set not in FEATURE_SETS:
         raise ValueError(f"unknown feature set {config.feature_set!r}")
@@ -113,36 +118,61 @@ def build_model(sites: list[Site], layouts: dict[int, dict[str, slice]],
         # context columns for those alone
         last = "context" if "context" in FEATURE_GROUPS[config.feature_set] else "partial"
         n_f = layouts[site.index][last].stop
-        spec = NetSpec(site_index=site.index, kind=site.kind, n_f=n_f,
-                       cols=cols, K=config.K, k=site.k, hidden=config.hidden)
-        nets[site.index] = SiteNet(spec, sel.mean(0), sel.std(0), prior_probs=site.probs,
-                                   seed=config.seed + site.index)
-    json_layouts = {i: {g: [s.start, s.stop] for g, s in lay.items()}
-                    for i, lay in layouts.items()}
-    return GuideModel(grammar=grammar, grammar_hash=grammar_hash,
-                      sites=[s.to_json() for s in sites], feature_set=config.feature_set,
-                      K=config.K, nets=nets, layouts=json_layouts)
+        spec = NetSpec(
+            site_index=site.index,
+            kind=site.kind,
+            n_f=n_f,
+            cols=cols,
+            K=config.K,
+            k=site.k,
+            hidden=config.hidden,
+        )
+        nets[site.index] = SiteNet(
+            spec, sel.mean(0), sel.std(0), prior_probs=site.probs, seed=config.seed + site.index
+        )
+    json_layouts = {i: {g: [s.start, s.stop] for g, s in lay.items()} for i, lay in layouts.items()}
+    return GuideModel(
+        grammar=grammar,
+        grammar_hash=grammar_hash,
+        sites=[s.to_json() for s in sites],
+        feature_set=config.feature_set,
+        K=config.K,
+        nets=nets,
+        layouts=json_layouts,
+    )
 
 
 def _splits(site: Site, d: SiteData, rows: np.ndarray) -> _Split:
     target, jac = continuous_z(site.kind, d.values[rows], d.prior_args[rows])
-    return _Split(torch.from_numpy(np.ascontiguousarray(d.features[rows], dtype=np.float32)),
-                  torch.from_numpy(target.astype(np.float32)), float(jac.sum()))
+    return _Split(
+        torch.from_numpy(np.ascontiguousarray(d.features[rows], dtype=np.float32)),
+        torch.from_numpy(target.astype(np.float32)),
+        float(jac.sum()),
+    )
 
 
 def _nll(net: SiteNet, split: _Split, chunk: int = 8192) -> float:
     """Total negative log q of a split, in value units."""
     with torch.no_grad():
-        total = sum(float(net.log_prob(split.x[i:i + chunk], split.target[i:i + chunk]).sum())
-                    for i in range(0, len(split.target), chunk))
+        total = sum(
+            float(net.log_prob(split.x[i : i + chunk], split.target[i : i + chunk]).sum())
+            for i in range(0, len(split.target), chunk)
+        )
     return -(total + split.jac)
 
 
-def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
-                data: dict[int, SiteData], config: TrainConfig, *, grammar: str = "",
-                grammar_hash: str = "", checkpoint: str | Path | None = None,
-                progress: bool = False,
-                on_epoch: Callable[[dict[str, Any]], None] | None = None) -> GuideModel:
+def train_guide(
+    sites: list[Site],
+    layouts: dict[int, dict[str, slice]],
+    data: dict[int, SiteData],
+    config: TrainConfig,
+    *,
+    grammar: str = "",
+    grammar_hash: str = "",
+    checkpoint: str | Path | None = None,
+    progress: bool = False,
+    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+) -> GuideModel:
     """Fit one network per visited site; returns the best epoch's model with a summary.
 
     Long because the epoch loop, early stopping and checkpoint resumption share the
@@ -163,15 +193,18 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
     optims = {i: torch.optim.Adam(net.parameters(), lr=config.lr) for i, net in model.nets.items()}
     history: list[dict[str, Any]] = []
     best: dict[str, Any] | None = None
-    key = {"config": {k: v for k, v in asdict(config).items() if k != "epochs"},
-           "data": fingerprint(data)}
+    key = {
+        "config": {k: v for k, v in asdict(config).items() if k != "epochs"},
+        "data": fingerprint(data),
+    }
     first_epoch, bad = 0, 0
     if checkpoint and Path(checkpoint).is_file():
         ck = torch.load(checkpoint, map_location="cpu", weights_only=True)
         if ck.get("format") == CHECKPOINT_FORMAT and ck.get("key") == key:
             model = GuideModel.from_state(ck["model"])
-            optims = {i: torch.optim.Adam(net.parameters(), lr=config.lr)
-                      for i, net in model.nets.items()}
+            optims = {
+                i: torch.optim.Adam(net.parameters(), lr=config.lr) for i, net in model.nets.items()
+            }
             for i, opt in optims.items():
                 opt.load_state_dict(ck["optims"][str(i)])
             history, best, bad = ck["history"], ck["best"], ck["bad"]
@@ -187,16 +220,23 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
             m = len(split.target)
             order = np.random.default_rng([config.seed, epoch, i]).permutation(m)
             for b in range(0, m, config.batch_size):
-                idx = torch.from_numpy(order[b:b + config.batch_size])
+                idx = torch.from_numpy(order[b : b + config.batch_size])
                 loss = -net.log_prob(split.x[idx], split.target[idx]).mean()
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
         train_nll = sum(_nll(net, train[i]) for i, net in model.nets.items()) / n_train_jobs
-        val_nll = (sum(_nll(net, val[i]) for i, net in model.nets.items()) / n_val_jobs
-                   if n_val_jobs else train_nll)
-        row = {"epoch": epoch + 1, "train_nll": train_nll, "val_nll": val_nll,
-               "seconds": round(time.perf_counter() - start, 3)}
+        val_nll = (
+            sum(_nll(net, val[i]) for i, net in model.nets.items()) / n_val_jobs
+            if n_val_jobs
+            else train_nll
+        )
+        row = {
+            "epoch": epoch + 1,
+            "train_nll": train_nll,
+            "val_nll": val_nll,
+            "seconds": round(time.perf_counter() - start, 3),
+        }
         history.append(row)
         if best is None or val_nll < best["val_nll"] - 1e-6 * abs(best["val_nll"]):
             best, bad = {"val_nll": val_nll, "epoch": epoch + 1, "model": model.state()}, 0
@@ -207,19 +247,33 @@ def train_guide(sites: list[Site], layouts: dict[int, dict[str, slice]],
         if on_epoch:
             on_epoch(row)
         if checkpoint:
-            atomic_torch_save({"format": CHECKPOINT_FORMAT, "key": key, "model": model.state(),
-                               "optims": {str(i): o.state_dict() for i, o in optims.items()},
-                               "history": history, "best": best, "bad": bad}, checkpoint)
+            atomic_torch_save(
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "key": key,
+                    "model": model.state(),
+                    "optims": {str(i): o.state_dict() for i, o in optims.items()},
+                    "history": history,
+                    "best": best,
+                    "bad": bad,
+                },
+                checkpoint,
+            )
     bar.close()
     if best is not None:
         model = GuideModel.from_state(best["model"])
     model.summary = {
-        "traces": n_jobs, "val_traces": n_val_jobs, "feature_set": config.feature_set,
-        "K": config.K, "rows": {str(i): int(len(d.values)) for i, d in sorted(data.items())},
-        "sites_trained": sorted(model.nets), "epochs_run": len(history),
+        "traces": n_jobs,
+        "val_traces": n_val_jobs,
+        "feature_set": config.feature_set,
+        "K": config.K,
+        "rows": {str(i): int(len(d.values)) for i, d in sorted(data.items())},
+        "sites_trained": sorted(model.nets),
+        "epochs_run": len(history),
         "best_epoch": best["epoch"] if best else 0,
         "val_nll": best["val_nll"] if best else None,
-        "history": history, "seconds": round(time.perf_counter() - start, 3),
+        "history": history,
+        "seconds": round(time.perf_counter() - start, 3),
         "config": asdict(config),
     }
     return model
@@ -235,5 +289,6 @@ def load_model_file(path: str) -> GuideModel:
     try:
         return load_model(path)
     except Exception as err:  # torch raises many types for foreign files
-        raise GuideFileError(f"{path}: not a model written by `ngpmc train` "
-                             f"({err.__class__.__name__})") from None
+        raise GuideFileError(
+            f"{path}: not a model written by `ngpmc train` ({err.__class__.__name__})"
+        ) from None

@@ -67,8 +67,11 @@ def create_app(config: WebConfig, hosts: tuple[str, ...] = HOSTS) -> Starlette:
     app = Starlette(
         routes=routes,
         middleware=[Middleware(TrustedHostMiddleware, allowed_hosts=list(hosts))],
-        exception_handlers={ApiError: api_error, HTTPException: http_error,
-                            Exception: server_error},
+        exception_handlers={
+            ApiError: api_error,
+            HTTPException: http_error,
+            Exception: server_error,
+        },
     )
     app.state.config = config
     app.state.slots = slots
@@ -116,10 +119,14 @@ def make_server(config: WebConfig, sock: socket.socket, log_level: str = "warnin
     host, port = sock.getsockname()[:2]
     hosts = tuple(sorted(set(HOSTS) | {host}))
     limits = config.limits
-    uconfig = uvicorn.Config(create_app(config, hosts), log_level=log_level,
-                             access_log=False, timeout_graceful_shutdown=2,
-                             http=deadline_protocol(limits.request_timeout_s),
-                             limit_concurrency=limits.max_connections)
+    uconfig = uvicorn.Config(
+        create_app(config, hosts),
+        log_level=log_level,
+        access_log=False,
+        timeout_graceful_shutdown=2,
+        http=deadline_protocol(limits.request_timeout_s),
+        limit_concurrency=limits.max_connections,
+    )
     return uvicorn.Server(uconfig)
 
 

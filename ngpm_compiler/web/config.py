@@ -66,8 +66,9 @@ def _load_grammar(path: str) -> Program:
     return load_grammar(path)
 
 
-def load_config(grammar: str | None = None, guide: str | None = None,
-                limits: Limits | None = None) -> WebConfig:
+def load_config(
+    grammar: str | None = None, guide: str | None = None, limits: Limits | None = None
+) -> WebConfig:
     """The bundled vines model and guide, plus the grammar and guide of the command line
     (`--guide` alone is a guide for the bundled vines; `--guide none`: offer no guide)."""
     from ngpm_runtime import bundled
@@ -75,26 +76,34 @@ def load_config(grammar: str | None = None, guide: str | None = None,
 
     vines = GrammarChoice("vines", "vines", "bundled", bundled.bundled_program())
     try:
-        vines.guides.append(GuideChoice("bundled", "bundled vines guide",
-                                        bundled.bundled_guide(vines.program)))
+        vines.guides.append(
+            GuideChoice("bundled", "bundled vines guide", bundled.bundled_guide(vines.program))
+        )
     except GuideError as err:  # a checkout without the guide file: unguided only
         log.warning("%s", err)
     choices = [vines]
     no_guide = guide is not None and guide.lower() == "none"
     if grammar is None:
         if guide is not None and not no_guide:
-            vines.guides.insert(0, GuideChoice("cli", Path(guide).name,
-                                               Guide.load(guide, vines.program)))
+            vines.guides.insert(
+                0, GuideChoice("cli", Path(guide).name, Guide.load(guide, vines.program))
+            )
         elif no_guide:
             vines.guides.clear()
         return WebConfig(choices, limits or Limits())
     program = _load_grammar(grammar)
     if program.dim != 2:
-        raise NgpmError(f"{grammar} is a 3D grammar: the page grows 2D grammars into pictures; "
-                        f"see a 3D grammar with `ngpmc sample {grammar} -o tree.glb --png "
-                        "tree.png`")
-    mine = GrammarChoice("cli", f"{program.name or Path(grammar).stem} ({Path(grammar).name})",
-                         "command line", program)
+        raise NgpmError(
+            f"{grammar} is a 3D grammar: the page grows 2D grammars into pictures; "
+            f"see a 3D grammar with `ngpmc sample {grammar} -o tree.glb --png "
+            "tree.png`"
+        )
+    mine = GrammarChoice(
+        "cli",
+        f"{program.name or Path(grammar).stem} ({Path(grammar).name})",
+        "command line",
+        program,
+    )
     if program.viewport is None:
         raise NgpmError(f"grammar {grammar} has no viewport: cannot grow into a picture")
     if guide is not None and not no_guide:

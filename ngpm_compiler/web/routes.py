@@ -57,10 +57,15 @@ async def api_error(request: Request, exc: Exception) -> Response:
 
 async def http_error(request: Request, exc: Exception) -> Response:
     assert isinstance(exc, HTTPException)
-    messages = {404: f"no such page: {request.url.path}",
-                405: f"{request.method} is not allowed on {request.url.path}"}
-    return error_json(exc.status_code, messages.get(exc.status_code, str(exc.detail)),
-                  dict(exc.headers) if exc.headers else None)
+    messages = {
+        404: f"no such page: {request.url.path}",
+        405: f"{request.method} is not allowed on {request.url.path}",
+    }
+    return error_json(
+        exc.status_code,
+        messages.get(exc.status_code, str(exc.detail)),
+        dict(exc.headers) if exc.headers else None,
+    )
 
 
 async def server_error(request: Request, exc: Exception) -> Response:
@@ -77,17 +82,28 @@ async def options(request: Request) -> Response:
     limits = config.limits
     from ngpm_runtime import bundled
 
-    return JSONResponse({
-        "grammars": [{"id": g.id, "name": g.name, "source": g.source,
-                      "guides": [{"id": c.id, "name": c.name} for c in g.guides]}
-                     for g in config.grammars],
-        "examples": list(bundled.DEMO_TARGETS),
-        "limits": {"max_particles": limits.max_particles,
-                   "default_particles": limits.default_particles,
-                   "max_image_bytes": limits.max_image_bytes,
-                   "max_side": limits.max_side, "timeout_s": limits.timeout_s,
-                   "target_size": limits.target_size},
-    })
+    return JSONResponse(
+        {
+            "grammars": [
+                {
+                    "id": g.id,
+                    "name": g.name,
+                    "source": g.source,
+                    "guides": [{"id": c.id, "name": c.name} for c in g.guides],
+                }
+                for g in config.grammars
+            ],
+            "examples": list(bundled.DEMO_TARGETS),
+            "limits": {
+                "max_particles": limits.max_particles,
+                "default_particles": limits.default_particles,
+                "max_image_bytes": limits.max_image_bytes,
+                "max_side": limits.max_side,
+                "timeout_s": limits.timeout_s,
+                "target_size": limits.target_size,
+            },
+        }
+    )
 
 
 async def grow_route(request: Request) -> Response:
@@ -113,8 +129,12 @@ async def grow_route(request: Request) -> Response:
             if event in ("done", "error"):
                 return
 
-    worker = threading.Thread(target=run_job, args=(job, run, slots, emit),
-                              name=f"ngpm-run-{run.client[:12]}", daemon=True)
+    worker = threading.Thread(
+        target=run_job,
+        args=(job, run, slots, emit),
+        name=f"ngpm-run-{run.client[:12]}",
+        daemon=True,
+    )
     try:
         worker.start()
     except RuntimeError:
@@ -128,11 +148,9 @@ async def shape_route(request: Request) -> Response:
     body = await read_json(request, limits.max_body_bytes)
     unknown = sorted(set(body) - {"image", "polarity"})
     if unknown:
-        raise ApiError(400, f"unknown field(s): {', '.join(unknown)} (expected image, "
-                            "polarity)")
+        raise ApiError(400, f"unknown field(s): {', '.join(unknown)} (expected image, polarity)")
     polarity = parse_polarity(body)
-    return JSONResponse(await in_decode_slot(request, _shape, body.get("image"), polarity,
-                                             limits))
+    return JSONResponse(await in_decode_slot(request, _shape, body.get("image"), polarity, limits))
 
 
 async def examples(request: Request) -> Response:
@@ -147,15 +165,18 @@ async def example(request: Request) -> Response:
 
     name = request.path_params["name"]
     if name not in bundled.DEMO_TARGETS:
-        raise ApiError(404, f"no example {name!r}; choose from "
-                            f"{', '.join(bundled.DEMO_TARGETS)}")
+        raise ApiError(404, f"no example {name!r}; choose from {', '.join(bundled.DEMO_TARGETS)}")
     try:
         t = await asyncio.to_thread(load_target, bundled.demo_target_path(name), None)
     except TargetError as err:
         raise ApiError(500, str(err)) from None
-    return JSONResponse({"name": name,
-                         "mask": mask_data_url(shape_mask(t.mask), (0, 0, 0, 255)),
-                         "start": [round(v, 5) for v in t.start]})
+    return JSONResponse(
+        {
+            "name": name,
+            "mask": mask_data_url(shape_mask(t.mask), (0, 0, 0, 255)),
+            "start": [round(v, 5) for v in t.start],
+        }
+    )
 
 
 def shape_mask(mask: np.ndarray, size: int = SHAPE_SIZE) -> np.ndarray:
@@ -184,5 +205,3 @@ def _shape(value: Any, polarity: str, limits: Limits) -> dict[str, Any]:
     except TargetError as err:
         raise ApiError(422, target_message(err)) from None
     return {"mask": mask_data_url(mask, (0, 0, 0, 255)), "size": list(mask.shape)}
-
-

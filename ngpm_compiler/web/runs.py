@@ -39,8 +39,10 @@ class Run:
         if self.cancel.is_set():
             raise RunStopped("the run was stopped")
         if time.monotonic() - self.started > self.timeout_s:
-            raise RunStopped(f"the run took longer than the {self.timeout_s:g} s time limit and "
-                             "was stopped; try fewer particles")
+            raise RunStopped(
+                f"the run took longer than the {self.timeout_s:g} s time limit and "
+                "was stopped; try fewer particles"
+            )
 
 
 class RunSlots:
@@ -55,11 +57,17 @@ class RunSlots:
     def acquire(self, client: str) -> Run:
         with self._lock:
             if client in self._active:
-                raise ApiError(409, f"a run from your address ({client}) is still going: wait "
-                                    "for it to finish or stop it first")
+                raise ApiError(
+                    409,
+                    f"a run from your address ({client}) is still going: wait "
+                    "for it to finish or stop it first",
+                )
             if len(self._active) >= self.max_runs:
-                raise ApiError(503, f"the server is busy with {len(self._active)} runs; try "
-                                    "again in a moment", {"Retry-After": "2"})
+                raise ApiError(
+                    503,
+                    f"the server is busy with {len(self._active)} runs; try again in a moment",
+                    {"Retry-After": "2"},
+                )
             run = Run(client, self.timeout_s)
             self._active[client] = run
             return run
@@ -87,8 +95,11 @@ async def in_decode_slot(request: Request, work: Callable[..., Any], *args: Any)
     abandoned meanwhile."""
     slots: threading.BoundedSemaphore = request.app.state.decode_slots
     if not slots.acquire(blocking=False):
-        raise ApiError(503, "the server is busy reading other pictures; try again in a "
-                            "moment", {"Retry-After": "2"})
+        raise ApiError(
+            503,
+            "the server is busy reading other pictures; try again in a moment",
+            {"Retry-After": "2"},
+        )
 
     def held() -> Any:
         try:
@@ -114,8 +125,15 @@ def grow_job(job: Job, observers: Sequence[SMCObserver] = ()) -> GrowResult:
     """The one call of the runtime's grow() for a job."""
     from ngpm_runtime import grow
 
-    return grow(job.grammar.program, job.target, job.guide.guide if job.guide else None,
-                job.particles, job.seed, "shape", observers=observers)
+    return grow(
+        job.grammar.program,
+        job.target,
+        job.guide.guide if job.guide else None,
+        job.particles,
+        job.seed,
+        "shape",
+        observers=observers,
+    )
 
 
 def run_job(job: Job, run: Run, slots: RunSlots, emit: Emit) -> None:
@@ -132,10 +150,10 @@ def run_job(job: Job, run: Run, slots: RunSlots, emit: Emit) -> None:
         final = ("error", {"error": str(err)})
     except Exception as err:  # never kill the server; the log has the traceback
         log.exception("run failed")
-        final = ("error", {"error": f"internal error ({type(err).__name__}); the server log "
-                                    "has details"})
+        final = (
+            "error",
+            {"error": f"internal error ({type(err).__name__}); the server log has details"},
+        )
     finally:
         slots.release(run)
     emit(*final)
-
-

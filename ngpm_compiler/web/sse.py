@@ -71,9 +71,15 @@ class FrameStream(SMCObserver):
             return
         mode = "append" if cur is self.sent else "reset"
         self.sent = node
-        self.emit("frame", {"step": self.steps, "mode": mode,
-                            "seconds": round(time.perf_counter() - self.t0, 3),
-                            "prims": [prim_json(p) for p in reversed(new)]})
+        self.emit(
+            "frame",
+            {
+                "step": self.steps,
+                "mode": mode,
+                "seconds": round(time.perf_counter() - self.t0, 3),
+                "prims": [prim_json(p) for p in reversed(new)],
+            },
+        )
 
 
 def png_data_url(rgb: np.ndarray) -> str:
@@ -92,12 +98,16 @@ def mask_data_url(mask: np.ndarray, rgba: tuple[int, int, int, int]) -> str:
 def target_event(job: Job) -> dict[str, Any]:
     viewport = job.grammar.program.viewport
     assert viewport is not None  # load_config refuses a grammar without one
-    return {"viewport": [float(v) for v in viewport],
-            "start": [round(v, 5) for v in job.target.start],
-            "mask": mask_data_url(job.target.mask, MASK_RGBA),
-            "size": list(job.target.size), "grammar": job.grammar.name,
-            "guide": job.guide.name if job.guide else None,
-            "particles": job.particles, "seed": job.seed}
+    return {
+        "viewport": [float(v) for v in viewport],
+        "start": [round(v, 5) for v in job.target.start],
+        "mask": mask_data_url(job.target.mask, MASK_RGBA),
+        "size": list(job.target.size),
+        "grammar": job.grammar.name,
+        "guide": job.guide.name if job.guide else None,
+        "particles": job.particles,
+        "seed": job.seed,
+    }
 
 
 def done_event(job: Job, res: GrowResult, steps: int) -> dict[str, Any]:
@@ -109,12 +119,16 @@ def done_event(job: Job, res: GrowResult, steps: int) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="ngpm-serve-") as tmp:
         path = save_render(res.primitives, Path(tmp) / "vine.svg", vp, RENDER_SIZE, mask)
         svg = path.read_bytes()
-    return {"similarity": round(float(res.similarity), 4), "seconds": round(res.seconds, 3),
-            "particles": res.particles, "guided": job.guide is not None,
-            "steps": int(getattr(res.smc, "steps", steps)),
-            "primitives": [prim_json(p) for p in res.primitives],
-            "png": png,
-            "svg": "data:image/svg+xml;base64," + base64.b64encode(svg).decode("ascii")}
+    return {
+        "similarity": round(float(res.similarity), 4),
+        "seconds": round(res.seconds, 3),
+        "particles": res.particles,
+        "guided": job.guide is not None,
+        "steps": int(getattr(res.smc, "steps", steps)),
+        "primitives": [prim_json(p) for p in res.primitives],
+        "png": png,
+        "svg": "data:image/svg+xml;base64," + base64.b64encode(svg).decode("ascii"),
+    }
 
 
 def sse(event: str, data: dict[str, Any]) -> bytes:
@@ -126,8 +140,11 @@ class RunStream(StreamingResponse):
     gone), so the worker stops at its next SMC step."""
 
     def __init__(self, content: Any, on_close: Callable[[], None]) -> None:
-        super().__init__(content, media_type="text/event-stream",
-                         headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        super().__init__(
+            content,
+            media_type="text/event-stream",
+            headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"},
+        )
         self.on_close = on_close
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
@@ -135,5 +152,3 @@ class RunStream(StreamingResponse):
             await super().__call__(scope, receive, send)
         finally:
             self.on_close()
-
-

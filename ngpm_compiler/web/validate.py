@@ -40,8 +40,6 @@ class ApiError(Exception):
         self.headers = headers
 
 
-
-
 async def read_json(request: Request, limit: int) -> dict[str, Any]:
     """The request's JSON object, read with a cap on its size, depth and count of values."""
     ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
@@ -75,8 +73,9 @@ def check_json_shape(body: bytes) -> None:
     small values take far more memory than their bytes. A few passes at C speed: escapes
     dropped, strings cut out, then the brackets counted (at most 2 * MAX_JSON_VALUES + 1)."""
     plain = body.replace(b"\\\\", b"").replace(b'\\"', b"")  # now every quote is a delimiter
-    too_many = ApiError(400, f"the request body holds too many values (more than "
-                             f"{MAX_JSON_VALUES})")
+    too_many = ApiError(
+        400, f"the request body holds too many values (more than {MAX_JSON_VALUES})"
+    )
     if plain.count(b'"') > 2 * MAX_JSON_VALUES:
         raise too_many
     outside = b"".join(plain.split(b'"')[::2])  # the text outside strings
@@ -86,8 +85,11 @@ def check_json_shape(body: bytes) -> None:
     for byte in outside.translate(None, NOT_BRACKETS):
         depth += 1 if byte in b"[{" else -1
         if depth > MAX_JSON_DEPTH:
-            raise ApiError(400, f"the request body is nested too deeply (more than "
-                                f"{MAX_JSON_DEPTH} levels of [ ] and {{ }})")
+            raise ApiError(
+                400,
+                f"the request body is nested too deeply (more than "
+                f"{MAX_JSON_DEPTH} levels of [ ] and {{ }})",
+            )
         if depth < 0:  # unbalanced: the parser will say it is not JSON
             return
 
@@ -107,13 +109,12 @@ def decode_image(value: Any, limits: Limits) -> Image.Image:
     )
 
     if not isinstance(value, str) or not value:
-        raise ApiError(400, "'image' must be an image as a data URL "
-                            "(data:image/png;base64,...)")
+        raise ApiError(400, "'image' must be an image as a data URL (data:image/png;base64,...)")
     m = DATA_URL_RE.match(value)
     if value.startswith("data:"):
         if m is None or not m.group(3):
             raise ApiError(400, "'image' must be a base64 data URL (data:image/png;base64,...)")
-        value = value[m.end():]
+        value = value[m.end() :]
     if len(value) * 3 // 4 > limits.max_image_bytes + 3:
         raise ApiError(413, f"the image file is larger than {_mib(limits.max_image_bytes)}")
     try:
@@ -121,8 +122,9 @@ def decode_image(value: Any, limits: Limits) -> Image.Image:
     except (binascii.Error, ValueError):
         raise ApiError(400, "'image' is not valid base64") from None
     try:
-        return read_image(io.BytesIO(raw), "the picture", max_side=limits.max_side,
-                          max_pixels=limits.max_side ** 2)
+        return read_image(
+            io.BytesIO(raw), "the picture", max_side=limits.max_side, max_pixels=limits.max_side**2
+        )
     except ImageFormatError as err:
         raise ApiError(415, str(err)) from None
     except ImageSizeError as err:
@@ -154,8 +156,11 @@ def parse_start(value: Any) -> tuple[float, float, float, float] | None:
         if unknown or len(value) != 4:
             raise ApiError(400, "'start' must be null or {x, y, dx, dy}")
         value = [value["x"], value["y"], value["dx"], value["dy"]]
-    if not isinstance(value, list | tuple) or len(value) != 4 or any(
-            isinstance(v, bool) or not isinstance(v, int | float) for v in value):
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 4
+        or any(isinstance(v, bool) or not isinstance(v, int | float) for v in value)
+    ):
         raise ApiError(400, "'start' must be null or {x, y, dx, dy} (four numbers)")
     x, y, dx, dy = (float(v) for v in value)
     if not all(math.isfinite(v) for v in (x, y, dx, dy)):
@@ -190,15 +195,17 @@ def parse_grow(body: dict[str, Any], config: WebConfig) -> Job:
 
     unknown = sorted(set(body) - set(GROW_KEYS))
     if unknown:
-        raise ApiError(400, f"unknown field(s): {', '.join(unknown)} "
-                            f"(expected {', '.join(GROW_KEYS)})")
+        raise ApiError(
+            400, f"unknown field(s): {', '.join(unknown)} (expected {', '.join(GROW_KEYS)})"
+        )
     if "image" not in body:
         raise ApiError(400, "'image' is missing: draw a shape or upload a picture")
     gid = body.get("grammar", config.grammars[0].id)
     grammar = config.grammar(gid) if isinstance(gid, str) else None
     if grammar is None:
-        raise ApiError(400, f"unknown grammar {gid!r}; choose from "
-                            f"{', '.join(g.id for g in config.grammars)}")
+        raise ApiError(
+            400, f"unknown grammar {gid!r}; choose from {', '.join(g.id for g in config.grammars)}"
+        )
     guide = None
     if "guide" not in body:
         guide = grammar.guides[0] if grammar.guides else None
@@ -206,8 +213,10 @@ def parse_grow(body: dict[str, Any], config: WebConfig) -> Job:
         guide = next((c for c in grammar.guides if c.id == body["guide"]), None)
         if guide is None:
             offer = ", ".join([c.id for c in grammar.guides] + ["null (unguided)"])
-            raise ApiError(400, f"unknown guide {body['guide']!r} for grammar {grammar.id}; "
-                                f"choose from {offer}")
+            raise ApiError(
+                400,
+                f"unknown guide {body['guide']!r} for grammar {grammar.id}; choose from {offer}",
+            )
     lim = config.limits
     particles = _int(body, "particles", lim.default_particles, 1, lim.max_particles)
     seed = _int(body, "seed", 0, 0, 2**32 - 1)
@@ -227,4 +236,3 @@ def target_message(err: TargetError) -> str:
     if "flat" in text or "no shape" in text:
         return "the picture holds no shape: draw one (or upload a picture) first"
     return "the " + text if text.startswith("picture: ") else text
-

@@ -48,8 +48,9 @@ def guide_path() -> Path:
 def demo_target_path(name: str) -> Path:
     """The PNG of a built-in demo target (`glyph`, `horse`, `heart`, `spiral`)."""
     if name not in DEMO_TARGETS:
-        raise TargetError(f"no built-in demo target {name!r}; choose from "
-                          f"{', '.join(DEMO_TARGETS)}")
+        raise TargetError(
+            f"no built-in demo target {name!r}; choose from {', '.join(DEMO_TARGETS)}"
+        )
     return data_path(f"demo_{name}.png")
 
 
@@ -62,9 +63,11 @@ def bundled_program() -> Program:
     """The vines Program from the generated sampler shipped with the package."""
     path = sampler_path()
     if not path.is_file():
-        raise ProgramError(f"{path}: the bundled vines sampler is missing "
-                           "(regenerate: ngpmc compile grammars/vines.lsys "
-                           "-o runtime/ngpm_runtime/data)")
+        raise ProgramError(
+            f"{path}: the bundled vines sampler is missing "
+            "(regenerate: ngpmc compile grammars/vines.lsys "
+            "-o runtime/ngpm_runtime/data)"
+        )
     return _cached_program(str(path), path.stat().st_mtime)
 
 
@@ -78,9 +81,11 @@ def bundled_guide(program: Program | None = None) -> Guide:
 
     path = guide_path()
     if not path.is_file():
-        raise GuideError(f"{path}: the bundled vines guide is missing "
-                         f"(regenerate it with `{REGENERATE}` and copy "
-                         f"work/vines/{GUIDE_FILE} there)")
+        raise GuideError(
+            f"{path}: the bundled vines guide is missing "
+            f"(regenerate it with `{REGENERATE}` and copy "
+            f"work/vines/{GUIDE_FILE} there)"
+        )
     return Guide.load(path, bundled_program() if program is None else program)
 
 
@@ -116,8 +121,7 @@ def demo_targets(size: int = 50) -> list[Target]:
 def guide_summary(guide: Guide) -> str:
     """One line on how a guide was trained, from its ONNX metadata."""
     t = guide.training or {}
-    parts = [f"{len(guide.nets)} site networks", f"features {guide.feature_set}",
-             f"K {guide.K}"]
+    parts = [f"{len(guide.nets)} site networks", f"features {guide.feature_set}", f"K {guide.K}"]
     if t.get("traces") is not None:
         parts.append(f"{t['traces']} traces ({t.get('val_traces', 0)} held out)")
     if t.get("best_epoch") is not None:

@@ -4,8 +4,11 @@
 def printable(text: str) -> str:
     """`text` for a one-line message: characters that are not printable (a newline in a
     file name, say) are shown as escapes such as `\\n`."""
-    return text if text.isprintable() else "".join(
-        c if c.isprintable() else ascii(c)[1:-1] for c in text)
+    return (
+        text
+        if text.isprintable()
+        else "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+    )
 
 
 class NgpmError(Exception):

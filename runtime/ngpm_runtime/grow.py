@@ -55,9 +55,11 @@ def _viewport(program: Program) -> Viewport:
     require_2d(program, "growing into a picture")
     if program.viewport is None:
         name = printable(program.source or program.name)
-        raise NgpmError(f"grammar {name} has no viewport: cannot grow into a target; add a "
-                        "'viewport: XMIN XMAX YMIN YMAX' line (`ngpmc check GRAMMAR` "
-                        "proposes one from forward samples)")
+        raise NgpmError(
+            f"grammar {name} has no viewport: cannot grow into a target; add a "
+            "'viewport: XMIN XMAX YMIN YMAX' line (`ngpmc check GRAMMAR` "
+            "proposes one from forward samples)"
+        )
     return program.viewport
 
 
@@ -73,12 +75,20 @@ def make_likelihood(kind: str, program: Program, target: Target | None = None) -
     raise NgpmError(f"unknown likelihood {kind!r}; choose {' or '.join(LIKELIHOODS)}")
 
 
-def grow(program: Program, target: Target | None = None, guide: Proposal | None = None,
-         n_particles: int = 10, seed: int = 0, likelihood: str = "shape", *,
-         observers: Sequence[SMCObserver] = (), trace: TraceRecording = TraceRecording.NONE,
-         start: tuple[float, float, float] | None = None,
-         canvas_size: tuple[int, int] | None = None,
-         max_modules: int | None = None) -> GrowResult:
+def grow(
+    program: Program,
+    target: Target | None = None,
+    guide: Proposal | None = None,
+    n_particles: int = 10,
+    seed: int = 0,
+    likelihood: str = "shape",
+    *,
+    observers: Sequence[SMCObserver] = (),
+    trace: TraceRecording = TraceRecording.NONE,
+    start: tuple[float, float, float] | None = None,
+    canvas_size: tuple[int, int] | None = None,
+    max_modules: int | None = None,
+) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
     target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
@@ -98,8 +108,15 @@ def grow(program: Program, target: Target | None = None, guide: Proposal | None 
     if start is None and target is not None:
         start = target.start_pose(viewport)
     t0 = time.perf_counter()
-    options = SMCOptions(seed=seed, ess_from_proposal=True, trace=trace, start=start,
-                         canvas_size=canvas_size, target_mask=mask, max_modules=max_modules)
+    options = SMCOptions(
+        seed=seed,
+        ess_from_proposal=True,
+        trace=trace,
+        start=start,
+        canvas_size=canvas_size,
+        target_mask=mask,
+        max_modules=max_modules,
+    )
     result = smc(program, like, n_particles, guide, options, observers)
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)

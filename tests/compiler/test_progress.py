@@ -32,8 +32,11 @@ def test_a_line_per_interval():
     bar.update()
     bar.update()
     bar.close()
-    assert [line.split(" epochs")[0] for line in out.getvalue().splitlines()] == \
-        ["train: 2/3", "train: 3/3", "train: 3/3"]
+    assert [line.split(" epochs")[0] for line in out.getvalue().splitlines()] == [
+        "train: 2/3",
+        "train: 3/3",
+        "train: 3/3",
+    ]
 
 
 def test_disabled_prints_nothing():

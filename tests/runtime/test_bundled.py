@@ -43,7 +43,8 @@ def test_bundled_sampler_is_up_to_date_with_vines_lsys() -> None:
     assert program.name == "vines"
     assert program.grammar_hash == vines_hash(), (
         "runtime/ngpm_runtime/data/vines_sampler.py is stale: run "
-        "`ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`")
+        "`ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`"
+    )
 
 
 def test_bundled_sites_match_a_fresh_compile() -> None:
@@ -55,8 +56,7 @@ def test_bundled_sites_match_a_fresh_compile() -> None:
     assert shipped == compiled.sites_json()
     program, fresh = bundled.bundled_program(), compiled.program()
     assert [s.to_json() for s in program.sites] == [s.to_json() for s in fresh.sites]
-    for field in ("viewport", "start", "derivation_length", "angle", "max_primitives",
-                  "arity"):
+    for field in ("viewport", "start", "derivation_length", "angle", "max_primitives", "arity"):
         assert getattr(program, field) == getattr(fresh, field), field
     assert sorted(program.productions) == sorted(fresh.productions)
 
@@ -190,19 +190,41 @@ def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> 
     vp = program.viewport
 
     def run():
-        return smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
-                   options=SMCOptions(ess_from_proposal=True, seed=3, start=target.start_pose(vp),
-                                      canvas_size=target.size, target_mask=target.mask,
-                                      trace=TraceRecording.FULL, max_steps=12))
+        return smc(
+            program,
+            ShapeLikelihood(target.mask, vp),
+            10,
+            guide,
+            options=SMCOptions(
+                ess_from_proposal=True,
+                seed=3,
+                start=target.start_pose(vp),
+                canvas_size=target.size,
+                target_mask=target.mask,
+                trace=TraceRecording.FULL,
+                max_steps=12,
+            ),
+        )
 
     a, b = run(), run()
     np.testing.assert_array_equal(a.log_weights, b.log_weights)
     assert [p.primitives for p in a.particles] == [p.primitives for p in b.particles]
     # no resampling (ESS never below 1e-9 N): check every weight site by site
-    one = smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
-              options=SMCOptions(seed=3, start=target.start_pose(vp), canvas_size=target.size,
-                                 target_mask=target.mask, trace=TraceRecording.FULL,
-                                 max_steps=4, ess_threshold=1e-9))
+    one = smc(
+        program,
+        ShapeLikelihood(target.mask, vp),
+        10,
+        guide,
+        options=SMCOptions(
+            seed=3,
+            start=target.start_pose(vp),
+            canvas_size=target.size,
+            target_mask=target.mask,
+            trace=TraceRecording.FULL,
+            max_steps=4,
+            ess_threshold=1e-9,
+        ),
+    )
     assert one.info["resamples"] == 0
     for p in one.particles:
         log_q = 0.0
@@ -212,7 +234,7 @@ def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> 
             # the prior arguments are the feature row's last local columns (float32 holds
             # vines' normal arguments exactly; categorical ones only give the shape)
             lo = 7 + site.arity
-            args = feats[None, lo:lo + site.n_args()].astype(np.float64)
+            args = feats[None, lo : lo + site.n_args()].astype(np.float64)
             log_q += float(proposal_logpdf(site, args, params, np.array([value]))[0])
         want = p.log_prior + p.log_likelihood - log_q
         assert p.log_weight == pytest.approx(want, abs=1e-4)
@@ -232,16 +254,28 @@ def test_guided_run_with_remembered_feature_rows_equals_fresh_rows(monkeypatch) 
     vp = program.viewport
 
     def run():
-        return smc(program, ShapeLikelihood(target.mask, vp), 10, guide,
-                   options=SMCOptions(ess_from_proposal=True, seed=5, start=target.start_pose(vp),
-                                      canvas_size=target.size, target_mask=target.mask,
-                                      trace=TraceRecording.FULL, max_steps=15))
+        return smc(
+            program,
+            ShapeLikelihood(target.mask, vp),
+            10,
+            guide,
+            options=SMCOptions(
+                ess_from_proposal=True,
+                seed=5,
+                start=target.start_pose(vp),
+                canvas_size=target.size,
+                target_mask=target.mask,
+                trace=TraceRecording.FULL,
+                max_steps=15,
+            ),
+        )
 
     cached = run()
 
     def fresh(self, sites, canvas, idx, turtles, depths, params, prior_args):
-        return self.features_round(sites, canvas, np.array(idx), np.array(turtles),
-                                   np.array(depths), params, prior_args)
+        return self.features_round(
+            sites, canvas, np.array(idx), np.array(turtles), np.array(depths), params, prior_args
+        )
 
     monkeypatch.setattr(FeatureMaker, "features_cached", fresh)
     plain = run()

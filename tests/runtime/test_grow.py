@@ -15,6 +15,9 @@ def test_make_likelihood_without_viewport_says_so(kind: str) -> None:
     prog = make_program({"A": lambda ctx: [("F", 1.0)]})
     assert prog.viewport is None
     target = Target(np.ones((8, 8), dtype=bool), (0.0, 0.0, 1.0, 0.0))
-    with pytest.raises(NgpmError, match="has no viewport.*add a 'viewport: XMIN XMAX YMIN YMAX' "
-                                        r"line \(`ngpmc check GRAMMAR` proposes one"):
+    with pytest.raises(
+        NgpmError,
+        match="has no viewport.*add a 'viewport: XMIN XMAX YMIN YMAX' "
+        r"line \(`ngpmc check GRAMMAR` proposes one",
+    ):
         make_likelihood(kind, prog, target)

@@ -7,8 +7,17 @@ from pathlib import Path
 from blocked_imports import run_blocked
 from repo_paths import VINES_SAMPLER
 
-BLOCKED = ("torch", "lark", "ngpm_compiler", "scipy", "skimage", "matplotlib", "tqdm",
-           "trimesh", "pygltflib")
+BLOCKED = (
+    "torch",
+    "lark",
+    "ngpm_compiler",
+    "scipy",
+    "skimage",
+    "matplotlib",
+    "tqdm",
+    "trimesh",
+    "pygltflib",
+)
 
 SCRIPT = textwrap.dedent(
     """
@@ -42,14 +51,15 @@ def test_runtime_imports_without_torch_lark_or_compiler(tmp_path: Path) -> None:
 
 
 def test_blocker_really_blocks(tmp_path: Path) -> None:
-    proc = run_blocked(SCRIPT + "import lark\n", tmp_path, str(VINES_SAMPLER), blocked=BLOCKED,
-                       timeout=120)
+    proc = run_blocked(
+        SCRIPT + "import lark\n", tmp_path, str(VINES_SAMPLER), blocked=BLOCKED, timeout=120
+    )
     assert proc.returncode != 0 and "blocked: lark" in proc.stderr
 
 
 def test_package_grow_is_the_function_not_the_module() -> None:
     import ngpm_runtime
-    import ngpm_runtime.grow  # noqa: F401  (importing the submodule must not rebind the name)
+    import ngpm_runtime.grow
     from ngpm_runtime import grow
 
     assert callable(grow) and grow is ngpm_runtime.grow and grow.__module__ == "ngpm_runtime.grow"

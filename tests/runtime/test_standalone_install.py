@@ -52,18 +52,29 @@ def test_runtime_installs_and_grows_alone(tmp_path: Path) -> None:
     venv.EnvBuilder(with_pip=True, system_site_packages=False).create(env_dir)
     python = env_dir / ("Scripts" if os.name == "nt" else "bin") / "python"
     src = tmp_path / "runtime"  # a copy, so the build leaves no files in the repository
-    shutil.copytree(REPO / "runtime", src,
-                    ignore=shutil.ignore_patterns("__pycache__", "*.egg-info", "build"))
+    shutil.copytree(
+        REPO / "runtime", src, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info", "build")
+    )
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
-    pip = subprocess.run([str(python), "-m", "pip", "install", "-q",
-                          "--disable-pip-version-check", str(src)],
-                         capture_output=True, text=True, env=env, timeout=900)
+    pip = subprocess.run(
+        [str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check", str(src)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=900,
+    )
     assert pip.returncode == 0, pip.stdout[-2000:] + pip.stderr[-3000:]
     from ngpm_compiler.language.compile import compile_grammar, write_compiled
 
     sampler, _ = write_compiled(compile_grammar(REPO / "grammars" / "plant3d.lsys"), tmp_path)
-    run = subprocess.run([str(python), "-c", SCRIPT, str(sampler)], capture_output=True,
-                         text=True, env=env, cwd=tmp_path, timeout=300)
+    run = subprocess.run(
+        [str(python), "-c", SCRIPT, str(sampler)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     assert run.stdout.startswith("grown horse"), run.stdout
     assert sys.executable != str(python)

@@ -55,7 +55,7 @@ Args = tuple[float, ...]  # a site's prior arguments
 Outcome = Any
 
 
-class NeedSite(BaseException):  # noqa: N818 - a request, not an error
+class NeedSite(BaseException):
     """Raised by the replay context when a production asks for a value not chosen yet.
     A BaseException so that no `except Exception` in generated code can swallow it."""
 
@@ -106,8 +106,22 @@ class Particle:
     """One particle's plain state. Shared parts are immutable, so `copy` is shallow."""
 
     __slots__ = (
-        "stack", "turtle", "tstack", "poly", "prims", "n_prims", "trace",
-        "values", "sites", "cont", "need", "in_interp", "last", "status", "limit", "work",
+        "stack",
+        "turtle",
+        "tstack",
+        "poly",
+        "prims",
+        "n_prims",
+        "trace",
+        "values",
+        "sites",
+        "cont",
+        "need",
+        "in_interp",
+        "last",
+        "status",
+        "limit",
+        "work",
     )
 
     def __init__(self, stack: Node | None, turtle: Turtle | Turtle3) -> None:
@@ -185,8 +199,9 @@ class Deriver:
     depends only on the module and the values replayed; outcomes are memoized while those
     values are all discrete."""
 
-    def __init__(self, program: Program, max_modules: int = DEFAULT_MAX_MODULES,
-                 max_work: int | None = None) -> None:
+    def __init__(
+        self, program: Program, max_modules: int = DEFAULT_MAX_MODULES, max_work: int | None = None
+    ) -> None:
         self.program = program
         self.base = str(program.source or "").replace("\\", "/").rsplit("/", 1)[-1]
         self.max_work = MAX_WORK if max_work is None else max_work
@@ -198,8 +213,9 @@ class Deriver:
         self.angle = float(program.angle)
         self.max_modules = max_modules
         if program.dim not in (2, 3):
-            raise ProgramError(f"program {printable(program.name)}: dim must be 2 or 3, got "
-                               f"{program.dim!r}")
+            raise ProgramError(
+                f"program {printable(program.name)}: dim must be 2 or 3, got {program.dim!r}"
+            )
         # the turtle: 2D (turtle.py) or 3D (turtle3d.py), the same calling convention
         self.dim = program.dim
         self.interpret = interpret3d if self.dim == 3 else interpret
@@ -215,8 +231,7 @@ class Deriver:
         program's turtle starts at that pose in the XY plane (`turtle3d.start3d`)."""
         if self.dim == 3:
             x, y, h, w = turtle
-            return Particle(((AXIOM,), -1, 0, None),
-                            start3d(x, y, h, w, self.program.tropism))
+            return Particle(((AXIOM,), -1, 0, None), start3d(x, y, h, w, self.program.tropism))
         return Particle(((AXIOM,), -1, 0, None), turtle)
 
     def _call(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module) -> Outcome:
@@ -242,34 +257,47 @@ class Deriver:
             return None
         if type(succ) is not list:
             if not isinstance(succ, list | tuple):
-                raise ProgramError(f"{self._where(fn, kind, mod)}: returned "
-                                   f"{type(succ).__name__}, not a list of modules")
+                raise ProgramError(
+                    f"{self._where(fn, kind, mod)}: returned "
+                    f"{type(succ).__name__}, not a list of modules"
+                )
             succ = list(succ)
         for m in succ:
             if type(m) is not tuple or not m or type(m[0]) is not str:
-                raise ProgramError(f"{self._where(fn, kind, mod)}: successor {m!r} is not a "
-                                   "module tuple")
+                raise ProgramError(
+                    f"{self._where(fn, kind, mod)}: successor {m!r} is not a module tuple"
+                )
         return succ
 
     def _where(self, fn: Callable[..., Any], kind: str, mod: Module) -> str:
         return _where(self.program, self.base, kind, mod)
 
-    def _check_prior(self, need: NeedSite, fn: Callable[..., Any], kind: str,
-                     mod: Module) -> None:
+    def _check_prior(self, need: NeedSite, fn: Callable[..., Any], kind: str, mod: Module) -> None:
         """ProgramError when a production asks for a value with prior arguments its site's
         distribution does not accept (`prior_problem`): no argument is repaired silently."""
         sites = self.program.sites
         if not (isinstance(need.site, int) and 0 <= need.site < len(sites)):
-            raise ProgramError(f"{self._where(fn, kind, mod)}: asks for site {need.site!r}, "
-                               f"not one of the program's {len(sites)} sites")
+            raise ProgramError(
+                f"{self._where(fn, kind, mod)}: asks for site {need.site!r}, "
+                f"not one of the program's {len(sites)} sites"
+            )
         site = sites[need.site]
         bad = prior_problem(site.kind, need.args)
         if bad:
-            raise ProgramError(f"{self._where(fn, kind, mod)}: {site.source or site.id} "
-                               f"(line {site.line}:{site.col}): {bad}")
+            raise ProgramError(
+                f"{self._where(fn, kind, mod)}: {site.source or site.id} "
+                f"(line {site.line}:{site.col}): {bad}"
+            )
 
-    def _memo(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module,
-              cache: dict[object, Outcome], key: object) -> Outcome:
+    def _memo(
+        self,
+        p: Particle,
+        fn: Callable[..., Any],
+        kind: str,
+        mod: Module,
+        cache: dict[object, Outcome],
+        key: object,
+    ) -> Outcome:
         res = self._call(p, fn, kind, mod)
         if key is not None:
             if len(cache) >= MAX_CACHE:
@@ -305,8 +333,9 @@ class Deriver:
                 ops += 1
                 if ops > max_ops:
                     if p.work + ops > self.max_work:
-                        raise self._runaway(f"expanded or interpreted more than "
-                                            f"{self.max_work} modules")
+                        raise self._runaway(
+                            f"expanded or interpreted more than {self.max_work} modules"
+                        )
                     p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
                     return DRAWN if drew else LIMIT
                 mod, depth, ilevel, rest = stack
@@ -395,9 +424,11 @@ class Deriver:
 
     def _runaway(self, what: str) -> ProgramError:
         name = printable(self.base or self.program.name)
-        return ProgramError(f"{name}: one sample {what}, the most any sample may do: the "
-                            "grammar's work has no end in sight (lower its 'derivation "
-                            "length:' or 'max primitives:')")
+        return ProgramError(
+            f"{name}: one sample {what}, the most any sample may do: the "
+            "grammar's work has no end in sight (lower its 'derivation "
+            "length:' or 'max primitives:')"
+        )
 
     def _code(self, name: str) -> int:
         """How `advance` treats a module name first (memoized in `dispatch`)."""

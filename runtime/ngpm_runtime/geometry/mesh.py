@@ -55,8 +55,13 @@ SPHERE_LON, SPHERE_LAT = 12, 6
 class Mesh(MeshData):
     """A `MeshData` that saves (`save`) and draws itself (`render`)."""
 
-    def save(self, path: str | Path, size: int | None = None,
-             view: tuple[float, float] | None = None, frames: int | None = None) -> Path:
+    def save(
+        self,
+        path: str | Path,
+        size: int | None = None,
+        view: tuple[float, float] | None = None,
+        frames: int | None = None,
+    ) -> Path:
         """Write .glb, .obj (+ .mtl), .ply, a .png picture or a turntable .gif, by the
         suffix (`size`, `view` and `frames` are for the pictures; mesh_files.save_mesh)."""
         return save_mesh(self, path, size=size, view=view, frames=frames)
@@ -140,8 +145,9 @@ def _link(p0: np.ndarray, p1: np.ndarray, d: np.ndarray) -> np.ndarray:
     return succ
 
 
-def _project(ring: np.ndarray, center: np.ndarray, along: np.ndarray,
-             normal: np.ndarray) -> np.ndarray:
+def _project(
+    ring: np.ndarray, center: np.ndarray, along: np.ndarray, normal: np.ndarray
+) -> np.ndarray:
     """Move ring points (m, S, 3) along `along` (m, 3) onto the plane through `center`
     with `normal` (m, 3)."""
     dist = np.einsum("msk,mk->ms", ring - center[:, None], normal)
@@ -150,18 +156,20 @@ def _project(ring: np.ndarray, center: np.ndarray, along: np.ndarray,
     return out
 
 
-def _ring(center: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray,
-          sides: int) -> np.ndarray:
+def _ring(
+    center: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray, sides: int
+) -> np.ndarray:
     a = 2 * np.pi * np.arange(sides) / sides
     out: np.ndarray = center[:, None] + r[:, None, None] * (
-        np.cos(a)[None, :, None] * u[:, None] + np.sin(a)[None, :, None] * v[:, None])
+        np.cos(a)[None, :, None] * u[:, None] + np.sin(a)[None, :, None] * v[:, None]
+    )
     return out
 
 
 def _fan(ring: np.ndarray, reverse: bool) -> np.ndarray:
     """Triangles (m, S-2, 3) closing rings of vertex indices (m, S)."""
     s = ring.shape[1]
-    a, b = ring[:, 1:s - 1], ring[:, 2:]
+    a, b = ring[:, 1 : s - 1], ring[:, 2:]
     first = np.broadcast_to(ring[:, :1], a.shape)
     out: np.ndarray = np.stack([first, b, a] if reverse else [first, a, b], axis=-1)
     return out
@@ -189,11 +197,14 @@ class _Builder:
 
     def mesh(self) -> Mesh:
         if not self.faces:
-            return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64),
-                        np.zeros(0, dtype=np.int64))
-        return Mesh(np.concatenate(self.vertices, dtype=np.float64),
-                    np.concatenate(self.faces, dtype=np.int64),
-                    np.concatenate(self.materials, dtype=np.int64))
+            return Mesh(
+                np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64)
+            )
+        return Mesh(
+            np.concatenate(self.vertices, dtype=np.float64),
+            np.concatenate(self.faces, dtype=np.int64),
+            np.concatenate(self.materials, dtype=np.int64),
+        )
 
 
 def _segments(b: _Builder, segs: list[Prim]) -> None:
@@ -225,20 +236,30 @@ def _segments(b: _Builder, segs: list[Prim]) -> None:
     start_base = np.zeros(n, dtype=np.int64)
     for s in SIDES:
         idx = np.nonzero(sides == s)[0]
-        ring = _project(_ring(p0[idx], u[idx], v[idx], r[idx], s), p0[idx], d[idx],
-                        n_start[idx])
+        ring = _project(_ring(p0[idx], u[idx], v[idx], r[idx], s), p0[idx], d[idx], n_start[idx])
         start_base[idx] = b.reserve(ring) + s * np.arange(len(idx))
     for s in SIDES:
         idx = np.nonzero(sides == s)[0]
         if len(idx):
-            _cylinder_faces(b, s, idx, start_base, succ, shared, pred, p1, d, u, v, r, n_end,
-                            mat)
+            _cylinder_faces(b, s, idx, start_base, succ, shared, pred, p1, d, u, v, r, n_end, mat)
 
 
-def _cylinder_faces(b: _Builder, s: int, idx: np.ndarray, start_base: np.ndarray,
-                    succ: np.ndarray, shared: np.ndarray, pred: np.ndarray, p1: np.ndarray,
-                    d: np.ndarray, u: np.ndarray, v: np.ndarray, r: np.ndarray,
-                    n_end: np.ndarray, mat: np.ndarray) -> None:
+def _cylinder_faces(
+    b: _Builder,
+    s: int,
+    idx: np.ndarray,
+    start_base: np.ndarray,
+    succ: np.ndarray,
+    shared: np.ndarray,
+    pred: np.ndarray,
+    p1: np.ndarray,
+    d: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    r: np.ndarray,
+    n_end: np.ndarray,
+    mat: np.ndarray,
+) -> None:
     """Sides and caps of the cylinders `idx`, all of `s` sides."""
     k = np.arange(s)
     start = start_base[idx][:, None] + k  # (m, s)
@@ -255,8 +276,10 @@ def _cylinder_faces(b: _Builder, s: int, idx: np.ndarray, start_base: np.ndarray
     off = np.round(phi * s / (2 * np.pi)).astype(np.int64)
     end[sh] = start_base[j][:, None] + (k + off[:, None]) % s
     nxt = np.roll(start, -1, axis=1), np.roll(end, -1, axis=1)
-    sides = np.stack([np.stack([start, nxt[0], nxt[1]], axis=-1),
-                      np.stack([start, nxt[1], end], axis=-1)], axis=2)
+    sides = np.stack(
+        [np.stack([start, nxt[0], nxt[1]], axis=-1), np.stack([start, nxt[1], end], axis=-1)],
+        axis=2,
+    )
     b.add_faces(sides, mat[idx][:, None, None])
     capped = pred[idx] < 0
     capped |= ~shared[np.maximum(pred[idx], 0)]
@@ -278,8 +301,11 @@ def _leaves(b: _Builder, leaves: list[Prim]) -> None:
         return
     center = base + h * a[:, None]
     t = 2 * np.pi * np.arange(LEAF_POINTS) / LEAF_POINTS
-    outline = (center[:, None] + (a[:, None] * np.cos(t))[:, :, None] * h[:, None]
-               + (w[:, None] * np.sin(t))[:, :, None] * lat[:, None])
+    outline = (
+        center[:, None]
+        + (a[:, None] * np.cos(t))[:, :, None] * h[:, None]
+        + (w[:, None] * np.sin(t))[:, :, None] * lat[:, None]
+    )
     first = b.reserve(np.concatenate([center[:, None], outline], axis=1))
     c = first + (LEAF_POINTS + 1) * np.arange(m)[:, None]  # (m, 1) centre index
     ring = c + 1 + np.arange(LEAF_POINTS)
@@ -295,8 +321,9 @@ def _sphere_template() -> tuple[np.ndarray, np.ndarray]:
     lon = 2 * np.pi * np.arange(SPHERE_LON) / SPHERE_LON
     y = np.repeat(np.cos(lat), SPHERE_LON)
     rad = np.repeat(np.sin(lat), SPHERE_LON)
-    ring = np.stack([rad * np.sin(np.tile(lon, len(lat))), y,
-                     rad * np.cos(np.tile(lon, len(lat)))], axis=1)
+    ring = np.stack(
+        [rad * np.sin(np.tile(lon, len(lat))), y, rad * np.cos(np.tile(lon, len(lat)))], axis=1
+    )
     verts = np.concatenate([[[0.0, 1.0, 0.0]], ring, [[0.0, -1.0, 0.0]]])
     bottom = len(verts) - 1
     faces = []
@@ -373,8 +400,10 @@ def _ear_clip(pts: np.ndarray, normal: np.ndarray) -> np.ndarray:
     tris: list[tuple[int, int, int]] = []
 
     def cross(o: int, a: int, c: int) -> float:
-        return float((xy[a, 0] - xy[o, 0]) * (xy[c, 1] - xy[o, 1])
-                     - (xy[a, 1] - xy[o, 1]) * (xy[c, 0] - xy[o, 0]))
+        return float(
+            (xy[a, 0] - xy[o, 0]) * (xy[c, 1] - xy[o, 1])
+            - (xy[a, 1] - xy[o, 1]) * (xy[c, 0] - xy[o, 0])
+        )
 
     guard = 0
     while len(live) > 3 and guard < 4 * len(pts) ** 2:
@@ -383,8 +412,11 @@ def _ear_clip(pts: np.ndarray, normal: np.ndarray) -> np.ndarray:
             a, o, c = live[n - 1], live[n], live[(n + 1) % len(live)]
             if cross(a, o, c) <= 0:
                 continue
-            inside = any(cross(a, o, q) >= 0 and cross(o, c, q) >= 0 and cross(c, a, q) >= 0
-                         for q in live if q not in (a, o, c))
+            inside = any(
+                cross(a, o, q) >= 0 and cross(o, c, q) >= 0 and cross(c, a, q) >= 0
+                for q in live
+                if q not in (a, o, c)
+            )
             if not inside:
                 tris.append((a, o, c))
                 live.pop(n)
@@ -402,8 +434,7 @@ def mesh_from_primitives(prims: Iterable[Prim]) -> Mesh:
         group = kinds.get(p[0]) if isinstance(p, tuple) and p else None
         if group is None:
             kind = p[0] if isinstance(p, tuple) and p else p
-            raise MeshError(f"mesh output is for 3D grammars: cannot mesh a {kind!r} "
-                            "primitive")
+            raise MeshError(f"mesh output is for 3D grammars: cannot mesh a {kind!r} primitive")
         group.append(p)
     b = _Builder()
     if kinds["seg3"]:
@@ -415,4 +446,3 @@ def mesh_from_primitives(prims: Iterable[Prim]) -> Mesh:
     if kinds["sphere"]:
         _spheres(b, kinds["sphere"])
     return b.mesh()
-

@@ -31,6 +31,7 @@ PALETTE: tuple[Material, ...] = (
     Material("blossom", (236, 138, 178)),
 )
 
+
 @dataclass(frozen=True)
 class MeshData:
     """Triangles with one material per face. `vertices` (V, 3) float64, `faces` (F, 3)

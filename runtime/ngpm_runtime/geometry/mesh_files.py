@@ -46,8 +46,11 @@ def by_material(mesh: MeshData) -> tuple[np.ndarray, np.ndarray, list[Group]]:
     fcount = np.bincount(fmat, minlength=len(mesh.materials))
     vstart = np.concatenate([[0], np.cumsum(vcount)[:-1]])
     fstart = np.concatenate([[0], np.cumsum(fcount)[:-1]])
-    groups = [(m, int(vstart[m]), int(vcount[m]), int(fstart[m]), int(fcount[m]))
-              for m in range(len(mesh.materials)) if fcount[m]]
+    groups = [
+        (m, int(vstart[m]), int(vcount[m]), int(fstart[m]), int(fcount[m]))
+        for m in range(len(mesh.materials))
+        if fcount[m]
+    ]
     faces = faces - np.repeat(vstart[[g[0] for g in groups]], [g[4] for g in groups])[:, None]
     return mesh.vertices[vorder], faces, groups
 
@@ -67,29 +70,59 @@ def glb_bytes(mesh: MeshData) -> bytes:
     primitives = []
     materials = []
     for k, (m, v0, vn, f0, fn) in enumerate(groups):
-        block = pos[v0:v0 + vn]
-        accessors.append({"bufferView": 0, "byteOffset": v0 * 12, "componentType": 5126,
-                          "count": vn, "type": "VEC3",
-                          "min": [float(x) for x in block.min(axis=0)],
-                          "max": [float(x) for x in block.max(axis=0)]})
-        accessors.append({"bufferView": 1, "byteOffset": f0 * 12, "componentType": 5125,
-                          "count": fn * 3, "type": "SCALAR"})
-        primitives.append({"attributes": {"POSITION": 2 * k}, "indices": 2 * k + 1,
-                           "material": k, "mode": 4})
+        block = pos[v0 : v0 + vn]
+        accessors.append(
+            {
+                "bufferView": 0,
+                "byteOffset": v0 * 12,
+                "componentType": 5126,
+                "count": vn,
+                "type": "VEC3",
+                "min": [float(x) for x in block.min(axis=0)],
+                "max": [float(x) for x in block.max(axis=0)],
+            }
+        )
+        accessors.append(
+            {
+                "bufferView": 1,
+                "byteOffset": f0 * 12,
+                "componentType": 5125,
+                "count": fn * 3,
+                "type": "SCALAR",
+            }
+        )
+        primitives.append(
+            {"attributes": {"POSITION": 2 * k}, "indices": 2 * k + 1, "material": k, "mode": 4}
+        )
         mat = mesh.materials[m]
-        materials.append({"name": mat.name, "doubleSided": True,
-                          "pbrMetallicRoughness": {"baseColorFactor": [*_linear(mat.rgb), 1.0],
-                                                   "metallicFactor": 0.0,
-                                                   "roughnessFactor": 0.9}})
+        materials.append(
+            {
+                "name": mat.name,
+                "doubleSided": True,
+                "pbrMetallicRoughness": {
+                    "baseColorFactor": [*_linear(mat.rgb), 1.0],
+                    "metallicFactor": 0.0,
+                    "roughnessFactor": 0.9,
+                },
+            }
+        )
     gltf: dict[str, Any] = {
         "asset": {"version": "2.0", "generator": "ngpm"},
-        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "name": "plant"}],
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "name": "plant"}],
         "meshes": [{"name": "plant", "primitives": primitives}],
-        "materials": materials, "accessors": accessors,
+        "materials": materials,
+        "accessors": accessors,
         "bufferViews": [
             {"buffer": 0, "byteOffset": 0, "byteLength": len(pos_bytes), "target": 34962},
-            {"buffer": 0, "byteOffset": len(pos_bytes), "byteLength": len(idx_bytes),
-             "target": 34963}],
+            {
+                "buffer": 0,
+                "byteOffset": len(pos_bytes),
+                "byteLength": len(idx_bytes),
+                "target": 34963,
+            },
+        ],
         "buffers": [{"byteLength": len(pos_bytes) + len(idx_bytes)}],
     }
     if not groups:  # glTF allows no mesh without primitives
@@ -107,26 +140,30 @@ def glb_bytes(mesh: MeshData) -> bytes:
 def obj_text(mesh: MeshData, mtl_name: str) -> tuple[str, str]:
     """(.obj text, .mtl text): faces grouped by `usemtl`, 1-based indices."""
     verts, faces, groups = by_material(mesh)
-    out = [f"# ngpm plant: {len(verts)} vertices, {len(faces)} triangles, Y up, metres\n",
-           f"mtllib {mtl_name}\n"]
+    out = [
+        f"# ngpm plant: {len(verts)} vertices, {len(faces)} triangles, Y up, metres\n",
+        f"mtllib {mtl_name}\n",
+    ]
     out.append(("v %.6g %.6g %.6g\n" * len(verts)) % tuple(verts.ravel()))
     mtl = ["# ngpm materials\n"]
     for m, v0, _, f0, fn in groups:
         mat = mesh.materials[m]
         out.append(f"o {mat.name}\nusemtl {mat.name}\n")
-        block = faces[f0:f0 + fn] + v0 + 1
+        block = faces[f0 : f0 + fn] + v0 + 1
         out.append(("f %d %d %d\n" * fn) % tuple(block.ravel()))
         r, g, b = (c / 255 for c in mat.rgb)
-        mtl.append(f"newmtl {mat.name}\nKd {r:.4f} {g:.4f} {b:.4f}\nKa 0 0 0\n"
-                   "Ks 0 0 0\nd 1\nillum 1\n")
+        mtl.append(
+            f"newmtl {mat.name}\nKd {r:.4f} {g:.4f} {b:.4f}\nKa 0 0 0\nKs 0 0 0\nd 1\nillum 1\n"
+        )
     return "".join(out), "".join(mtl)
 
 
 def ply_bytes(mesh: MeshData) -> bytes:
     """Binary little-endian PLY: float xyz and uchar rgb per vertex, int faces."""
     colors = np.array([m.rgb for m in mesh.materials], dtype=np.uint8)
-    vdt = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                    ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    vdt = np.dtype(
+        [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    )
     vert = np.empty(len(mesh.vertices), dtype=vdt)
     for k, name in enumerate("xyz"):
         vert[name] = mesh.vertices[:, k]
@@ -137,16 +174,23 @@ def ply_bytes(mesh: MeshData) -> bytes:
     face = np.empty(len(mesh.faces), dtype=fdt)
     face["n"] = 3
     face["i"] = mesh.faces
-    header = ("ply\nformat binary_little_endian 1.0\ncomment ngpm plant, Y up, metres\n"
-              f"element vertex {len(vert)}\nproperty float x\nproperty float y\n"
-              "property float z\nproperty uchar red\nproperty uchar green\n"
-              f"property uchar blue\nelement face {len(face)}\n"
-              "property list uchar int vertex_indices\nend_header\n")
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment ngpm plant, Y up, metres\n"
+        f"element vertex {len(vert)}\nproperty float x\nproperty float y\n"
+        "property float z\nproperty uchar red\nproperty uchar green\n"
+        f"property uchar blue\nelement face {len(face)}\n"
+        "property list uchar int vertex_indices\nend_header\n"
+    )
     return header.encode("ascii") + vert.tobytes() + face.tobytes()
 
 
-def save_mesh(mesh: MeshData, path: str | Path, size: int | None = None,
-              view: tuple[float, float] | None = None, frames: int | None = None) -> Path:
+def save_mesh(
+    mesh: MeshData,
+    path: str | Path,
+    size: int | None = None,
+    view: tuple[float, float] | None = None,
+    frames: int | None = None,
+) -> Path:
     """Write the mesh by the suffix: .glb, .obj (and a .mtl beside it), .ply, or a
     picture: .png (`size` default 512) or a turntable .gif (`frames` default 24, `size`
     default 256); `view` (azimuth, elevation in degrees) for both (image.render3d)."""
@@ -167,8 +211,10 @@ def save_mesh(mesh: MeshData, path: str | Path, size: int | None = None,
 
             save_picture(mesh, path, size, view, *([] if frames is None else [frames]))
         else:
-            raise MeshError(f"{path}: unknown mesh format {suffix or '(none)'!r}; use "
-                            + ", ".join(MESH_SUFFIXES + PICTURE_SUFFIXES))
+            raise MeshError(
+                f"{path}: unknown mesh format {suffix or '(none)'!r}; use "
+                + ", ".join(MESH_SUFFIXES + PICTURE_SUFFIXES)
+            )
     except OSError as err:
         raise MeshError(f"{path}: cannot write: {err.strerror or err}") from None
     return path

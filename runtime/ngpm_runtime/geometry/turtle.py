@@ -61,7 +61,9 @@ def interpret(
         step = mod[1] if len(mod) > 1 else 1.0
         return (
             (x + step * math.cos(h * _RAD), y + step * math.sin(h * _RAD), h, w),
-            tstack, poly, None,
+            tstack,
+            poly,
+            None,
         )
     if name == "~l":
         length = float(mod[1]) if len(mod) > 1 else 1.0
@@ -135,8 +137,12 @@ def prim_bboxes(kind: str, prims: list[Prim]) -> tuple[np.ndarray, np.ndarray | 
     if kind == "seg":
         x0, y0, x1, y1, w = P.T
         r = np.abs(w) / 2.0
-        box = [np.minimum(x0, x1) - r, np.minimum(y0, y1) - r,
-               np.maximum(x0, x1) + r, np.maximum(y0, y1) + r]
+        box = [
+            np.minimum(x0, x1) - r,
+            np.minimum(y0, y1) - r,
+            np.maximum(x0, x1) + r,
+            np.maximum(y0, y1) + r,
+        ]
     elif kind == "disk":
         x, y, r = P.T
         r = np.abs(r)

@@ -33,8 +33,32 @@ Tropism = tuple[float, float, float, float]  # (tx, ty, tz) unit, elasticity e
 Turtle3 = tuple[Any, ...]  # (x, y, z, H, L, U as 9 floats, width, color, tropism | None)
 
 # Symbols the 3D turtle acts on; every other module is ignored by it.
-TURTLE3D_SYMBOLS = frozenset(["F", "f", "+", "-", "&", "^", "\\", "/", "|", "$", "[", "]", "!",
-                              "~l", "@O", "{", ".", "}", ";", ",", "@Tp", "@Ts"])
+TURTLE3D_SYMBOLS = frozenset(
+    [
+        "F",
+        "f",
+        "+",
+        "-",
+        "&",
+        "^",
+        "\\",
+        "/",
+        "|",
+        "$",
+        "[",
+        "]",
+        "!",
+        "~l",
+        "@O",
+        "{",
+        ".",
+        "}",
+        ";",
+        ",",
+        "@Tp",
+        "@Ts",
+    ]
+)
 GRAVITY = (0.0, -1.0, 0.0)  # the tropism direction `@Ts` uses when none was set
 _RAD = math.pi / 180.0
 _EPS = 1e-12
@@ -48,12 +72,12 @@ def _cos_sin(degrees: float) -> tuple[float, float]:
     return math.cos(degrees * _RAD), math.sin(degrees * _RAD)
 
 
-def start3d(x: float, y: float, heading: float, width: float = 1.0,
-            tropism: Tropism | None = None) -> Turtle3:
+def start3d(
+    x: float, y: float, heading: float, width: float = 1.0, tropism: Tropism | None = None
+) -> Turtle3:
     """The 3D turtle at the 2D start pose (x, y, heading degrees), z = 0, colour 0."""
     c, s = _cos_sin(float(heading))
-    return (float(x), float(y), 0.0, c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0, float(width), 0,
-            tropism)
+    return (float(x), float(y), 0.0, c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0, float(width), 0, tropism)
 
 
 def interpret3d(
@@ -78,13 +102,18 @@ def interpret3d(
     if name == "f":
         step = mod[1] if len(mod) > 1 else 1.0
         t = turtle
-        return ((t[0] + step * t[3], t[1] + step * t[4], t[2] + step * t[5]) + t[3:],
-                tstack, poly, None)
+        return (
+            (t[0] + step * t[3], t[1] + step * t[4], t[2] + step * t[5]) + t[3:],
+            tstack,
+            poly,
+            None,
+        )
     return _other(mod, turtle, tstack, poly)
 
 
-def _forward(mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None
-             ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+def _forward(
+    mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None
+) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
     """`F`: a segment from the turtle along H; then tropism bends the frame (ABOP p.58)."""
     step = mod[1] if len(mod) > 1 else 1.0
     x, y, z = t[0], t[1], t[2]
@@ -97,8 +126,14 @@ def _forward(mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None
 
 
 # rotation symbol -> (axis, sign): the frame vectors it turns and the sense
-_AXES = {"+": ("U", 1.0), "-": ("U", -1.0), "&": ("L", 1.0), "^": ("L", -1.0),
-         "/": ("H", 1.0), "\\": ("H", -1.0)}
+_AXES = {
+    "+": ("U", 1.0),
+    "-": ("U", -1.0),
+    "&": ("L", 1.0),
+    "^": ("L", -1.0),
+    "/": ("H", 1.0),
+    "\\": ("H", -1.0),
+}
 
 
 def _rotate(t: Turtle3, name: str, a: float) -> Turtle3:
@@ -117,15 +152,19 @@ def _rotate(t: Turtle3, name: str, a: float) -> Turtle3:
     return t[:3] + h + lv + u + t[12:]
 
 
-def _turn(p: tuple[float, ...], q: tuple[float, ...], c: float, s: float
-          ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+def _turn(
+    p: tuple[float, ...], q: tuple[float, ...], c: float, s: float
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """(p cos + q sin, q cos - p sin): p and q turned in their plane."""
-    return ((p[0] * c + q[0] * s, p[1] * c + q[1] * s, p[2] * c + q[2] * s),
-            (q[0] * c - p[0] * s, q[1] * c - p[1] * s, q[2] * c - p[2] * s))
+    return (
+        (p[0] * c + q[0] * s, p[1] * c + q[1] * s, p[2] * c + q[2] * s),
+        (q[0] * c - p[0] * s, q[1] * c - p[1] * s, q[2] * c - p[2] * s),
+    )
 
 
-def _other(mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None
-           ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+def _other(
+    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None
+) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
     """The symbols other than moves, turns and brackets."""
     name = mod[0]
     t = turtle
@@ -174,8 +213,9 @@ def _direction(x: Any, y: Any, z: Any) -> tuple[float, float, float]:
     return (x / n, y / n, z / n)
 
 
-def _polygon(name: str, t: Turtle3, tstack: Cons | None, poly: Cons | None
-             ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
+def _polygon(
+    name: str, t: Turtle3, tstack: Cons | None, poly: Cons | None
+) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
     """`{` opens a polygon, `.` records the turtle's position, `}` closes it (a planar face
     of >= 3 vertices, in the turtle's colour)."""
     if name == "{":
@@ -220,9 +260,11 @@ def bend(t: Turtle3, trop: Tropism) -> Turtle3:
     def rot(vx: float, vy: float, vz: float) -> tuple[float, float, float]:
         # Rodrigues: v cos + (a x v) sin + a (a . v)(1 - cos)
         d = (ax * vx + ay * vy + az * vz) * (1.0 - c)
-        return (vx * c + (ay * vz - az * vy) * sn + ax * d,
-                vy * c + (az * vx - ax * vz) * sn + ay * d,
-                vz * c + (ax * vy - ay * vx) * sn + az * d)
+        return (
+            vx * c + (ay * vz - az * vy) * sn + ax * d,
+            vy * c + (az * vx - ax * vz) * sn + ay * d,
+            vz * c + (ax * vy - ay * vx) * sn + az * d,
+        )
 
     h = _unit(*rot(hx, hy, hz))
     lx, ly, lz = rot(t[6], t[7], t[8])
@@ -245,8 +287,14 @@ def prim3_bounds(prim: Prim) -> tuple[float, float, float, float, float, float]:
     if kind == "seg3":
         _, x0, y0, z0, x1, y1, z1, w, _ = prim
         r = abs(w) / 2.0
-        return (min(x0, x1) - r, min(y0, y1) - r, min(z0, z1) - r,
-                max(x0, x1) + r, max(y0, y1) + r, max(z0, z1) + r)
+        return (
+            min(x0, x1) - r,
+            min(y0, y1) - r,
+            min(z0, z1) - r,
+            max(x0, x1) + r,
+            max(y0, y1) + r,
+            max(z0, z1) + r,
+        )
     if kind == "sphere":
         _, x, y, z, r, _ = prim
         r = abs(r)
@@ -255,8 +303,9 @@ def prim3_bounds(prim: Prim) -> tuple[float, float, float, float, float, float]:
         _, x, y, z, hx, hy, hz, lx, ly, lz, length, width, _ = prim
         a, b = length / 2.0, abs(width) / 2.0
         centre = (x + a * hx, y + a * hy, z + a * hz)
-        ext = [math.sqrt((a * hv) ** 2 + (b * lv) ** 2) for hv, lv in
-               ((hx, lx), (hy, ly), (hz, lz))]
+        ext = [
+            math.sqrt((a * hv) ** 2 + (b * lv) ** 2) for hv, lv in ((hx, lx), (hy, ly), (hz, lz))
+        ]
         lo = tuple(c - e for c, e in zip(centre, ext, strict=True))
         hi = tuple(c + e for c, e in zip(centre, ext, strict=True))
         return lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
@@ -292,10 +341,19 @@ def project_xy(prims: list[Prim], points: int = 16) -> list[Prim]:
         elif kind == "leaf3":
             _, x, y, _, hx, hy, _, lx, ly, _, length, width, _ = p
             a, b = length / 2.0, width / 2.0
-            ring = [(math.cos(2 * math.pi * k / points), math.sin(2 * math.pi * k / points))
-                    for k in range(points)]
-            out.append(("poly", tuple((x + a * hx + a * c * hx + b * s * lx,
-                                       y + a * hy + a * c * hy + b * s * ly) for c, s in ring)))
+            ring = [
+                (math.cos(2 * math.pi * k / points), math.sin(2 * math.pi * k / points))
+                for k in range(points)
+            ]
+            out.append(
+                (
+                    "poly",
+                    tuple(
+                        (x + a * hx + a * c * hx + b * s * lx, y + a * hy + a * c * hy + b * s * ly)
+                        for c, s in ring
+                    ),
+                )
+            )
         else:
             raise ValueError(f"unknown 3D primitive {kind!r}")
     return out

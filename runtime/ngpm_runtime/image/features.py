@@ -34,8 +34,9 @@ from ngpm_runtime.image.raster import (
 from ngpm_runtime.program import Program, Site
 
 # _context_geometry's answer (its docstring names the parts)
-ContextGeometry = tuple[np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray,
-                        np.ndarray, float]
+ContextGeometry = tuple[
+    np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, np.ndarray, float
+]
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
@@ -85,15 +86,21 @@ def _unit(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
-    def __init__(self, program: Program, viewport: Viewport,
-                 target_mask: np.ndarray | None, context: bool = False) -> None:
+    def __init__(
+        self,
+        program: Program,
+        viewport: Viewport,
+        target_mask: np.ndarray | None,
+        context: bool = False,
+    ) -> None:
         self.program = program
         self.context = bool(context)
         self.n_common = N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if context else 0)
         self.viewport = as_viewport(viewport)
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
-        self.target_levels = (None if target_mask is None
-                              else pyramid(np.asarray(target_mask, dtype=bool)))
+        self.target_levels = (
+            None if target_mask is None else pyramid(np.asarray(target_mask, dtype=bool))
+        )
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._context_geom: dict[tuple[int, int], ContextGeometry] = {}
@@ -106,10 +113,14 @@ class FeatureMaker:
 
     def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
         if canvas is not None:
-            if (self.target_levels is not None
-                    and self.target_levels[0].shape != canvas.image.shape[1:]):
-                raise TargetError(f"canvas {canvas.image.shape[1:]} and target "
-                                  f"{self.target_levels[0].shape} differ in size")
+            if (
+                self.target_levels is not None
+                and self.target_levels[0].shape != canvas.image.shape[1:]
+            ):
+                raise TargetError(
+                    f"canvas {canvas.image.shape[1:]} and target "
+                    f"{self.target_levels[0].shape} differ in size"
+                )
             return canvas.height, canvas.width
         if self.target_levels is not None:
             return self.target_levels[0].shape
@@ -122,8 +133,11 @@ class FeatureMaker:
     def layout(self, site: Site) -> dict[str, slice]:
         """Column ranges of the feature groups for a site."""
         nl = self.n_local(site)
-        out = {"local": slice(0, nl), "target": slice(nl, nl + N_WINDOW),
-               "partial": slice(nl + N_WINDOW, nl + 2 * N_WINDOW)}
+        out = {
+            "local": slice(0, nl),
+            "target": slice(nl, nl + N_WINDOW),
+            "partial": slice(nl + N_WINDOW, nl + 2 * N_WINDOW),
+        }
         if self.context:
             out["context"] = slice(nl + 2 * N_WINDOW, nl + 2 * N_WINDOW + N_CONTEXT)
         return out
@@ -140,13 +154,13 @@ class FeatureMaker:
         key = (h, w)
         if key not in self._geom:
             hp, wp, starts = padded_layout(h, w)
-            size = np.array([[h >> lv for lv in range(N_LEVELS)],
-                             [w >> lv for lv in range(N_LEVELS)]], dtype=np.float64)
+            size = np.array(
+                [[h >> lv for lv in range(N_LEVELS)], [w >> lv for lv in range(N_LEVELS)]],
+                dtype=np.float64,
+            )
             mult = np.stack([wp.astype(np.float64), np.ones(N_LEVELS)])
-            offs = (_DR[None, :] * wp[:, None] + _DC[None, :]
-                    + (starts + PAD * wp + PAD)[:, None])
-            self._geom[key] = (size, np.full_like(size, -2.0), size + 1, mult,
-                               offs.astype(np.intp))
+            offs = _DR[None, :] * wp[:, None] + _DC[None, :] + (starts + PAD * wp + PAD)[:, None]
+            self._geom[key] = (size, np.full_like(size, -2.0), size + 1, mult, offs.astype(np.intp))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
@@ -155,24 +169,42 @@ class FeatureMaker:
             self._target_flat = padded_pyramid(list(self.target_levels or []))
         return self._target_flat
 
-    def features(self, site: Site, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
-                 depth: np.ndarray, params: np.ndarray, prior_args: np.ndarray) -> np.ndarray:
+    def features(
+        self,
+        site: Site,
+        canvas: Canvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        params: np.ndarray,
+        prior_args: np.ndarray,
+    ) -> np.ndarray:
         """Feature rows `(n, n_features(site))` float32 of n particles at one site."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
-        return self.features_round([site], canvas, idx, turtle, depth, [params],
-                                   [prior_args])[0]
+        return self.features_round([site], canvas, idx, turtle, depth, [params], [prior_args])[0]
 
-    def features_round(self, sites: list[Site], canvas: Canvas | None, idx: np.ndarray,
-                       turtle: np.ndarray, depth: np.ndarray, params: list[np.ndarray],
-                       prior_args: list[np.ndarray]) -> list[np.ndarray]:
+    def features_round(
+        self,
+        sites: list[Site],
+        canvas: Canvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        params: list[np.ndarray],
+        prior_args: list[np.ndarray],
+    ) -> list[np.ndarray]:
         """Feature rows for several sites at once: `idx`, `turtle` (n, 4) and `depth` (n,)
         list the particles of every site one after the other (`len(params[j])` of them at
         `sites[j]`); returns one array per site. The turtle and window columns are computed
         for all n rows in one pass; each row is the one `features` gives alone."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
-        common = self._common(canvas, idx, np.asarray(turtle, dtype=np.float64).reshape(n, 4),
-                              np.asarray(depth, dtype=np.float64).reshape(n))
+        common = self._common(
+            canvas,
+            idx,
+            np.asarray(turtle, dtype=np.float64).reshape(n, 4),
+            np.asarray(depth, dtype=np.float64).reshape(n),
+        )
         return self._site_rows(sites, common, params, prior_args)
 
     def forget(self) -> None:
@@ -180,9 +212,16 @@ class FeatureMaker:
         particle indices or the target change: SMC calls it at the start of every step)."""
         self._rows.clear()
 
-    def features_cached(self, sites: list[Site], canvas: Canvas | None, idx: list[int],
-                        turtles: list[Turtle], depths: list[float], params: list[np.ndarray],
-                        prior_args: list[np.ndarray]) -> list[np.ndarray]:
+    def features_cached(
+        self,
+        sites: list[Site],
+        canvas: Canvas | None,
+        idx: list[int],
+        turtles: list[Turtle],
+        depths: list[float],
+        params: list[np.ndarray],
+        prior_args: list[np.ndarray],
+    ) -> list[np.ndarray]:
         """`features_round` with the site-independent columns remembered per particle: a
         particle asked again at the same turtle state (and, until `forget`, the same canvas
         row) reuses its turtle and window columns (only its depth column is written anew);
@@ -190,25 +229,36 @@ class FeatureMaker:
         gives (tests/runtime/image/test_features.py)."""
         known = self._rows  # particle -> the turtle state its row in `_block` is for
         n = len(idx)
-        miss = [j for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True))
-                if known.get(i) != turtle]
+        miss = [
+            j
+            for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True))
+            if known.get(i) != turtle
+        ]
         ia = np.array(idx, dtype=np.intp)
         top = max(idx) + 1
         if self._block.shape[0] < top:
-            grown = np.empty((max(top, 2 * self._block.shape[0]), self._block.shape[1]),
-                             dtype=np.float32)
-            grown[:self._block.shape[0]] = self._block
+            grown = np.empty(
+                (max(top, 2 * self._block.shape[0]), self._block.shape[1]), dtype=np.float32
+            )
+            grown[: self._block.shape[0]] = self._block
             self._block = grown
         if len(miss) == n:
-            common = self._common(canvas, ia, np.array(turtles, dtype=np.float64).reshape(n, 4),
-                                  np.array(depths, dtype=np.float64))
+            common = self._common(
+                canvas,
+                ia,
+                np.array(turtles, dtype=np.float64).reshape(n, 4),
+                np.array(depths, dtype=np.float64),
+            )
             self._block[ia] = common
         else:
             if miss:
                 sel = ia[miss]
                 self._block[sel] = self._common(
-                    canvas, sel, np.array([turtles[j] for j in miss], dtype=np.float64
-                                          ).reshape(-1, 4), np.zeros(len(miss)))
+                    canvas,
+                    sel,
+                    np.array([turtles[j] for j in miss], dtype=np.float64).reshape(-1, 4),
+                    np.zeros(len(miss)),
+                )
             common = self._block[ia]
             # the depth column differs between a particle's sites at one turtle state
             common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
@@ -216,8 +266,13 @@ class FeatureMaker:
             known[idx[j]] = turtles[j]
         return self._site_rows(sites, common, params, prior_args)
 
-    def _site_rows(self, sites: list[Site], common: np.ndarray, params: list[np.ndarray],
-                   prior_args: list[np.ndarray]) -> list[np.ndarray]:
+    def _site_rows(
+        self,
+        sites: list[Site],
+        common: np.ndarray,
+        params: list[np.ndarray],
+        prior_args: list[np.ndarray],
+    ) -> list[np.ndarray]:
         """Each site's rows: the common columns with its module parameters and prior
         arguments put in after the first N_LOCAL_BASE."""
         n = len(common)
@@ -226,18 +281,26 @@ class FeatureMaker:
         for site, par, args in zip(sites, params, prior_args, strict=True):
             m = len(args)
             a, k = int(site.arity), int(site.n_args())
-            block = common[pos:pos + m]
-            rows = np.concatenate((block[:, :N_LOCAL_BASE], _fit_columns(par, m, a),
-                                   _fit_columns(args, m, k), block[:, N_LOCAL_BASE:]),
-                                  axis=1, dtype=np.float32)
+            block = common[pos : pos + m]
+            rows = np.concatenate(
+                (
+                    block[:, :N_LOCAL_BASE],
+                    _fit_columns(par, m, a),
+                    _fit_columns(args, m, k),
+                    block[:, N_LOCAL_BASE:],
+                ),
+                axis=1,
+                dtype=np.float32,
+            )
             out.append(rows)
             pos += m
         if pos != n:
             raise ValueError(f"features: {n} particles, {pos} rows of arguments")
         return out
 
-    def _common(self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray,
-                depth: np.ndarray) -> np.ndarray:
+    def _common(
+        self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray, depth: np.ndarray
+    ) -> np.ndarray:
         """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
         target and partial windows, context) of every particle, in few numpy calls (SMC's
         batches are small)."""
@@ -254,11 +317,11 @@ class FeatureMaker:
         out[:, 5] = turtle[:, 3]
         out[:, 6] = depth / self.derivation_length
         nl = N_LOCAL_BASE
-        target = out[:, nl:nl + N_WINDOW]
-        partial = out[:, nl + N_WINDOW:nl + 2 * N_WINDOW]
+        target = out[:, nl : nl + N_WINDOW]
+        partial = out[:, nl + N_WINDOW : nl + 2 * N_WINDOW]
         h, w = self._shape(canvas)
         if self.context:
-            out[:, nl + 2 * N_WINDOW:] = 0.0
+            out[:, nl + 2 * N_WINDOW :] = 0.0
         if h == 0 or w == 0:
             target[:] = 0.0 if self.target_levels is None else -1.0
             partial[:] = 0.0 if canvas is None else -1.0
@@ -282,7 +345,7 @@ class FeatureMaker:
         else:
             partial[:] = canvas.padded[idx[:, None], at]
         if self.context and self.target_levels is not None and canvas is not None:
-            self._context(out[:, nl + 2 * N_WINDOW:], canvas, idx, uv, heading, h, w)
+            self._context(out[:, nl + 2 * N_WINDOW :], canvas, idx, uv, heading, h, w)
         return out
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
@@ -293,20 +356,42 @@ class FeatureMaker:
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
             lv = _FILL_LEVEL
-            cells = (starts[lv] + (np.arange(h >> lv)[:, None] + PAD) * wp[lv]
-                     + np.arange(w >> lv)[None, :] + PAD).reshape(-1)
+            cells = (
+                starts[lv]
+                + (np.arange(h >> lv)[:, None] + PAD) * wp[lv]
+                + np.arange(w >> lv)[None, :]
+                + PAD
+            ).reshape(-1)
             t = self._padded_target()[cells]
             lv = _RAY_LEVEL
             base = int(starts[lv] + PAD * wp[lv] + PAD)
             angles = np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST))
             dist = np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES))
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            self._context_geom[key] = (cells, t, max(float(t.sum()), 1e-6), base, int(wp[lv]),
-                                       h >> lv, w >> lv, angles, dist, aspect)
+            self._context_geom[key] = (
+                cells,
+                t,
+                max(float(t.sum()), 1e-6),
+                base,
+                int(wp[lv]),
+                h >> lv,
+                w >> lv,
+                angles,
+                dist,
+                aspect,
+            )
         return self._context_geom[key]
 
-    def _context(self, out: np.ndarray, canvas: Canvas, idx: np.ndarray, uv: np.ndarray,
-                 heading: np.ndarray, h: int, w: int) -> None:
+    def _context(
+        self,
+        out: np.ndarray,
+        canvas: Canvas,
+        idx: np.ndarray,
+        uv: np.ndarray,
+        heading: np.ndarray,
+        h: int,
+        w: int,
+    ) -> None:
         """The context group (module docstring) of n particles into `out` (n, N_CONTEXT)."""
         cells, t, total, base, wp, hl, wl, angles, dist, aspect = self._context_geometry(h, w)
         d = t - canvas.padded[idx[:, None], cells]

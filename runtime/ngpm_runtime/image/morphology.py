@@ -38,8 +38,16 @@ def otsu_threshold(image: np.ndarray) -> int:
 def neighbor_count(mask: np.ndarray) -> np.ndarray:
     """Number of set 8-neighbors of every pixel (outside the image counts as unset)."""
     p = np.pad(np.asarray(mask).astype(np.int32), 1)
-    return (p[:-2, :-2] + p[:-2, 1:-1] + p[:-2, 2:] + p[1:-1, :-2] + p[1:-1, 2:]
-            + p[2:, :-2] + p[2:, 1:-1] + p[2:, 2:])
+    return (
+        p[:-2, :-2]
+        + p[:-2, 1:-1]
+        + p[:-2, 2:]
+        + p[1:-1, :-2]
+        + p[1:-1, 2:]
+        + p[2:, :-2]
+        + p[2:, 1:-1]
+        + p[2:, 2:]
+    )
 
 
 def label(mask: np.ndarray) -> np.ndarray:
@@ -113,7 +121,7 @@ def max_edt(mask: np.ndarray) -> float:
     best = 0
     step = max(1, 2_000_000 // (w * w))
     for r0 in range(0, h, step):
-        block = g2[r0:r0 + step]  # (b, w)
+        block = g2[r0 : r0 + step]  # (b, w)
         d2 = (block[:, None, :] + dx2[None, :, :]).min(axis=2)  # (b, w)
         best = max(best, int(d2.max()))
     return math.sqrt(float(best))
@@ -124,11 +132,18 @@ def max_edt(mask: np.ndarray) -> float:
 # 3 both). Fitted to scikit-image's skeletonize (coordinate search over the 256 entries on
 # thousands of random images until every output matched) and checked against it by
 # tests/runtime/image/test_morphology.py.
-_ZS_TABLE = np.array([int(c) for c in (
-    "0001001300111013000000002020303300000000300000000000000020003022"
-    "0000000000000000000000000000000020000000200020003000000030003020"
-    "0031001300000001000000000000000131000000000000002000000000000000"
-    "2313001300000001000000000000000023010001000000003301000022002000")], dtype=np.uint8)
+_ZS_TABLE = np.array(
+    [
+        int(c)
+        for c in (
+            "0001001300111013000000002020303300000000300000000000000020003022"
+            "0000000000000000000000000000000020000000200020003000000030003020"
+            "0031001300000001000000000000000131000000000000002000000000000000"
+            "2313001300000001000000000000000023010001000000003301000022002000"
+        )
+    ],
+    dtype=np.uint8,
+)
 
 
 def skeletonize(mask: np.ndarray) -> np.ndarray:
@@ -140,9 +155,16 @@ def skeletonize(mask: np.ndarray) -> np.ndarray:
     while removed:
         removed = False
         for sub in (1, 2):
-            code = (s[:-2, :-2] + 2 * s[:-2, 1:-1] + 4 * s[:-2, 2:] + 8 * s[1:-1, 2:]
-                    + 16 * s[2:, 2:] + 32 * s[2:, 1:-1] + 64 * s[2:, :-2]
-                    + 128 * s[1:-1, :-2])
+            code = (
+                s[:-2, :-2]
+                + 2 * s[:-2, 1:-1]
+                + 4 * s[:-2, 2:]
+                + 8 * s[1:-1, 2:]
+                + 16 * s[2:, 2:]
+                + 32 * s[2:, 1:-1]
+                + 64 * s[2:, :-2]
+                + 128 * s[1:-1, :-2]
+            )
             v = table[code]
             kill = (core == 1) & ((v == 3) | (v == sub))
             if kill.any():

@@ -80,9 +80,10 @@ def padded_pyramid(levels: list[np.ndarray]) -> np.ndarray:
     rows = []
     for lev in levels:
         lead = lev.shape[:-2]
-        p = np.full(lead + (lev.shape[-2] + 2 * PAD, lev.shape[-1] + 2 * PAD), -1.0,
-                    dtype=np.float32)
-        p[..., PAD:PAD + lev.shape[-2], PAD:PAD + lev.shape[-1]] = lev
+        p = np.full(
+            lead + (lev.shape[-2] + 2 * PAD, lev.shape[-1] + 2 * PAD), -1.0, dtype=np.float32
+        )
+        p[..., PAD : PAD + lev.shape[-2], PAD : PAD + lev.shape[-1]] = lev
         rows.append(p.reshape(lead + (-1,)))
     return np.concatenate(rows, axis=-1)
 
@@ -95,8 +96,12 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
     for _ in range(1, N_LEVELS):
         h, w = cur.shape[-2] // 2, cur.shape[-1] // 2
         cur = cur[..., : 2 * h, : 2 * w]
-        cur = 0.25 * (cur[..., 0::2, 0::2] + cur[..., 1::2, 0::2]
-                      + cur[..., 0::2, 1::2] + cur[..., 1::2, 1::2])
+        cur = 0.25 * (
+            cur[..., 0::2, 0::2]
+            + cur[..., 1::2, 0::2]
+            + cur[..., 0::2, 1::2]
+            + cur[..., 1::2, 1::2]
+        )
         out.append(cur.astype(np.float32))
     return out
 
@@ -104,14 +109,16 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 # ---------------------------------------------------------------- geometry per kind
 
 
-def _cover(kind: str, P: np.ndarray | None, prims: list[Prim],
-           px: np.ndarray, py: np.ndarray) -> np.ndarray:
+def _cover(
+    kind: str, P: np.ndarray | None, prims: list[Prim], px: np.ndarray, py: np.ndarray
+) -> np.ndarray:
     """Coverage (g, ky, kx) of pixel centers px (g, kx), py (g, ky) by g primitives."""
     if kind == "poly":
         out = np.zeros((len(prims), py.shape[1], px.shape[1]), dtype=bool)
         for k, p in enumerate(prims):
-            out[k] = _poly_inside(np.asarray(p[1], dtype=np.float64).reshape(-1, 2),
-                                  px[k][None, :], py[k][:, None])
+            out[k] = _poly_inside(
+                np.asarray(p[1], dtype=np.float64).reshape(-1, 2), px[k][None, :], py[k][:, None]
+            )
         return out
     assert P is not None  # every kind but "poly" has a parameter array
     # Work in (ky, kx, g) layout: the primitive axis is last, so numpy's inner loops run
@@ -217,7 +224,7 @@ class _Grid:
         size = hi - lo + 1
         if empty.any():
             size = size[~empty]
-        kx, ky = (size.max(axis=0).tolist() if len(size) else (1, 1))
+        kx, ky = size.max(axis=0).tolist() if len(size) else (1, 1)
         kx, ky = min(max(1, kx), w), min(max(1, ky), h)
         org = np.minimum(lo, (w - kx, h - ky))
         org[empty] = 0
@@ -257,8 +264,13 @@ class _Grid:
             with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
                 for s in range(0, len(pos), step):  # non-finite geometry: window is empty
                     e = s + step
-                    sub[s:e] = _cover(kind, None if P is None else P[s:e],
-                                      [prims[k] for k in pos[s:e]], px[s:e], py[s:e])
+                    sub[s:e] = _cover(
+                        kind,
+                        None if P is None else P[s:e],
+                        [prims[k] for k in pos[s:e]],
+                        px[s:e],
+                        py[s:e],
+                    )
             if not whole:
                 cov[pa] = sub
         if empty.any():
@@ -266,8 +278,9 @@ class _Grid:
         return y0, x0, cov, bbox
 
 
-def prim_mask(prim: Prim, viewport: Viewport, height: int, width: int
-              ) -> tuple[int, int, np.ndarray]:
+def prim_mask(
+    prim: Prim, viewport: Viewport, height: int, width: int
+) -> tuple[int, int, np.ndarray]:
     """One primitive's full coverage: (y0, x0, mask (ky, kx) bool) on an H x W image."""
     y0, x0, cov, _ = _Grid(viewport, height, width).cover([prim])
     return int(y0[0]), int(x0[0]), cov[0]
@@ -280,7 +293,7 @@ def rasterize(prims: list[Prim], viewport: Viewport, height: int, width: int) ->
     for p in prims:
         y0, x0, cov, _ = grid.cover([p])
         ky, kx = cov.shape[1:]
-        img[y0[0]:y0[0] + ky, x0[0]:x0[0] + kx] |= cov[0]
+        img[y0[0] : y0[0] + ky, x0[0] : x0[0] + kx] |= cov[0]
     return img
 
 
@@ -297,8 +310,9 @@ class Canvas:
     (N, 0) and `levels` is `[image]`.
     """
 
-    def __init__(self, n: int, height: int, width: int, viewport: Viewport,
-                 pyramid: bool = True) -> None:
+    def __init__(
+        self, n: int, height: int, width: int, viewport: Viewport, pyramid: bool = True
+    ) -> None:
         self.n, self.height, self.width = int(n), int(height), int(width)
         self.viewport = as_viewport(viewport)
         self._grid = _Grid(self.viewport, self.height, self.width)
@@ -308,11 +322,15 @@ class Canvas:
         # draw(): levels 1.., their (heights, widths), each level's first cell in a padded
         # row (start + padding) and its weight per pixel (1 / 4^level, float32)
         lv = np.arange(1, N_LEVELS, dtype=np.intp)
-        self._up = (lv, np.stack([self.height >> lv, self.width >> lv]),
-                    self._starts[1:] + PAD * self._wp[1:] + PAD,
-                    (1.0 / 4.0 ** lv).astype(np.float32))
-        blank = padded_pyramid([np.zeros(s, dtype=np.float32)
-                                for s in level_shapes(self.height, self.width)])
+        self._up = (
+            lv,
+            np.stack([self.height >> lv, self.width >> lv]),
+            self._starts[1:] + PAD * self._wp[1:] + PAD,
+            (1.0 / 4.0**lv).astype(np.float32),
+        )
+        blank = padded_pyramid(
+            [np.zeros(s, dtype=np.float32) for s in level_shapes(self.height, self.width)]
+        )
         self.padded = np.repeat(blank[None, :] if pyramid else blank[None, :0], self.n, axis=0)
         self._spare: list[np.ndarray] | None = None  # take()'s second buffers
         self._row_off = np.arange(self.height)[:, None] * self.width  # (H, 1) flat offsets
@@ -324,8 +342,8 @@ class Canvas:
         for lv, (h, w) in enumerate(level_shapes(self.height, self.width)):
             if lv and self.pyramid:
                 hp, wp, st = int(self._hp[lv]), int(self._wp[lv]), int(self._starts[lv])
-                block = self.padded[:, st:st + hp * wp].reshape(self.n, hp, wp)
-                out.append(block[:, PAD:PAD + h, PAD:PAD + w])
+                block = self.padded[:, st : st + hp * wp].reshape(self.n, hp, wp)
+                out.append(block[:, PAD : PAD + h, PAD : PAD + w])
         return out
 
     def draw(self, idx: np.ndarray, prims: list[Prim]) -> DrawBatch:
@@ -414,5 +432,14 @@ def viewport_of(prims: list[Prim], margin: float = 0.05) -> Viewport:
     return (cx - half, cx + half, cy - half, cy + half)
 
 
-__all__ = ["Canvas", "DrawBatch", "bbox_of", "pyramid", "level_shapes", "prim_mask", "rasterize",
-           "viewport_of", "N_LEVELS"]
+__all__ = [
+    "Canvas",
+    "DrawBatch",
+    "bbox_of",
+    "pyramid",
+    "level_shapes",
+    "prim_mask",
+    "rasterize",
+    "viewport_of",
+    "N_LEVELS",
+]

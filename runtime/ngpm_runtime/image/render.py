@@ -44,8 +44,9 @@ def prim_color(prim: Prim, max_width: float) -> tuple[int, int, int]:
     kind = prim[0]
     if kind == "seg":
         t = min(1.0, abs(prim[5]) / max_width) if max_width > 0 else 1.0
-        red, green, blue = (int(round(a + (b - a) * t))
-                            for a, b in zip(BRANCH_THIN, BRANCH_THICK, strict=True))
+        red, green, blue = (
+            int(round(a + (b - a) * t)) for a, b in zip(BRANCH_THIN, BRANCH_THICK, strict=True)
+        )
         return red, green, blue
     return {"leaf": LEAF, "disk": FLOWER, "poly": POLY}.get(kind, POLY)
 
@@ -68,15 +69,25 @@ def _resize_nearest(mask: np.ndarray, h: int, w: int) -> np.ndarray:
     return out
 
 
-def render_array(prims: list[Prim], viewport: Viewport | None = None, size: int = 256,
-                 target_mask: np.ndarray | None = None, supersample: int = 3) -> np.ndarray:
+def render_array(
+    prims: list[Prim],
+    viewport: Viewport | None = None,
+    size: int = 256,
+    target_mask: np.ndarray | None = None,
+    supersample: int = 3,
+) -> np.ndarray:
     """RGB uint8 image (h, w, 3) of the primitives; the longer side is `size` pixels."""
     return next(render_frames(prims, [len(prims)], viewport, size, target_mask, supersample))
 
 
-def render_frames(prims: list[Prim], counts: list[int], viewport: Viewport | None = None,
-                  size: int = 256, target_mask: np.ndarray | None = None,
-                  supersample: int = 3) -> Iterator[np.ndarray]:
+def render_frames(
+    prims: list[Prim],
+    counts: list[int],
+    viewport: Viewport | None = None,
+    size: int = 256,
+    target_mask: np.ndarray | None = None,
+    supersample: int = 3,
+) -> Iterator[np.ndarray]:
     """render_array(prims[:k]) for each k of the increasing `counts`, drawing each primitive
     once (later primitives paint over earlier ones, so the frames are the same)."""
     vp = viewport_of(prims) if viewport is None else as_viewport(viewport)
@@ -94,7 +105,7 @@ def render_frames(prims: list[Prim], counts: list[int], viewport: Viewport | Non
             y0, x0, m = prim_mask(p, vp, big_h, big_w)
             if m.any():
                 ky, kx = m.shape
-                img[y0:y0 + ky, x0:x0 + kx][m] = prim_color(p, wmax)
+                img[y0 : y0 + ky, x0 : x0 + kx][m] = prim_color(p, wmax)
         drawn = max(drawn, k)
         yield _downsample(img, h, w, s)
 
@@ -117,40 +128,45 @@ def _png_bytes(rgb: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _svg_text(prims: list[Prim], vp: Viewport, size: int,
-              target_mask: np.ndarray | None) -> str:
+def _svg_text(prims: list[Prim], vp: Viewport, size: int, target_mask: np.ndarray | None) -> str:
     xmin, xmax, ymin, ymax = vp
     h, w = _image_size(vp, size)
     k = w / (xmax - xmin)
-    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
-           f'viewBox="0 0 {w} {h}">',
-           f'<rect width="{w}" height="{h}" fill="rgb{BACKGROUND}"/>']
+    out = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}">',
+        f'<rect width="{w}" height="{h}" fill="rgb{BACKGROUND}"/>',
+    ]
     if target_mask is not None:
         mask = np.asarray(target_mask, dtype=bool)
         rgb = np.empty(mask.shape + (3,), dtype=np.uint8)
         rgb[:] = BACKGROUND
         rgb[mask] = TARGET
         data = base64.b64encode(_png_bytes(rgb)).decode("ascii")
-        out.append(f'<image width="{w}" height="{h}" preserveAspectRatio="none" '
-                   f'style="image-rendering:pixelated" href="data:image/png;base64,{data}"/>')
-    out.append(f'<g transform="translate({-xmin * k:.6g} {ymax * k:.6g}) '
-               f'scale({k:.6g} {-k:.6g})">')
+        out.append(
+            f'<image width="{w}" height="{h}" preserveAspectRatio="none" '
+            f'style="image-rendering:pixelated" href="data:image/png;base64,{data}"/>'
+        )
+    out.append(f'<g transform="translate({-xmin * k:.6g} {ymax * k:.6g}) scale({k:.6g} {-k:.6g})">')
     wmax = _widths(prims)
     for p in prims:
         col = "rgb({},{},{})".format(*prim_color(p, wmax))
         kind = p[0]
         if kind == "seg":
             _, x0, y0, x1, y1, width = p
-            out.append(f'<line x1="{x0:.6g}" y1="{y0:.6g}" x2="{x1:.6g}" y2="{y1:.6g}" '
-                       f'stroke="{col}" stroke-width="{abs(width):.6g}" '
-                       'stroke-linecap="round"/>')
+            out.append(
+                f'<line x1="{x0:.6g}" y1="{y0:.6g}" x2="{x1:.6g}" y2="{y1:.6g}" '
+                f'stroke="{col}" stroke-width="{abs(width):.6g}" '
+                'stroke-linecap="round"/>'
+            )
         elif kind == "leaf":
             _, x, y, hd, length, width = p
             cx = x + length / 2 * math.cos(math.radians(hd))
             cy = y + length / 2 * math.sin(math.radians(hd))
-            out.append(f'<ellipse cx="{cx:.6g}" cy="{cy:.6g}" rx="{abs(length) / 2:.6g}" '
-                       f'ry="{abs(width) / 2:.6g}" transform="rotate({hd:.6g} {cx:.6g} '
-                       f'{cy:.6g})" fill="{col}"/>')
+            out.append(
+                f'<ellipse cx="{cx:.6g}" cy="{cy:.6g}" rx="{abs(length) / 2:.6g}" '
+                f'ry="{abs(width) / 2:.6g}" transform="rotate({hd:.6g} {cx:.6g} '
+                f'{cy:.6g})" fill="{col}"/>'
+            )
         elif kind == "disk":
             _, x, y, r = p
             out.append(f'<circle cx="{x:.6g}" cy="{y:.6g}" r="{abs(r):.6g}" fill="{col}"/>')
@@ -162,8 +178,13 @@ def _svg_text(prims: list[Prim], vp: Viewport, size: int,
     return "\n".join(out) + "\n"
 
 
-def save_render(prims: list[Prim], path: str | Path, viewport: Viewport | None = None,
-                size: int = 512, target_mask: np.ndarray | None = None) -> Path:
+def save_render(
+    prims: list[Prim],
+    path: str | Path,
+    viewport: Viewport | None = None,
+    size: int = 512,
+    target_mask: np.ndarray | None = None,
+) -> Path:
     """Write a render as PNG or SVG (chosen by the suffix); returns the path."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -173,8 +194,7 @@ def save_render(prims: list[Prim], path: str | Path, viewport: Viewport | None =
     elif suffix == ".svg":
         data = _svg_text(prims, vp, int(size), target_mask).encode("utf-8")
     else:
-        raise RenderError(f"{path}: unknown render format {suffix or '(none)'!r}; "
-                          "use .png or .svg")
+        raise RenderError(f"{path}: unknown render format {suffix or '(none)'!r}; use .png or .svg")
     try:
         atomic_write(path, data)
     except OSError as err:
@@ -182,17 +202,21 @@ def save_render(prims: list[Prim], path: str | Path, viewport: Viewport | None =
     return path
 
 
-def save_steps_gif(prims: list[Prim], path: str | Path, viewport: Viewport,
-                   target_mask: np.ndarray | None = None, size: int = 256,
-                   max_frames: int = 60) -> Path:
+def save_steps_gif(
+    prims: list[Prim],
+    path: str | Path,
+    viewport: Viewport,
+    target_mask: np.ndarray | None = None,
+    size: int = 256,
+    max_frames: int = 60,
+) -> Path:
     """An animated GIF of the growth: the primitives in drawing order, a few per frame."""
     from PIL import Image
 
     path = Path(path)
     n = len(prims)
     ks = sorted({int(k) for k in np.linspace(0, n, min(n, max_frames - 1) + 1).round()})
-    frames = [Image.fromarray(rgb)
-              for rgb in render_frames(prims, ks, viewport, size, target_mask)]
+    frames = [Image.fromarray(rgb) for rgb in render_frames(prims, ks, viewport, size, target_mask)]
     # one palette, from the finished picture, for every frame (per-frame palettes cost
     # most of the time)
     palette = frames[-1].quantize(colors=256, method=Image.Quantize.MEDIANCUT)
@@ -200,7 +224,8 @@ def save_steps_gif(prims: list[Prim], path: str | Path, viewport: Viewport,
     durations = [80] * len(frames)
     durations[-1] = 2000
     buf = io.BytesIO()
-    frames[0].save(buf, format="GIF", save_all=True, append_images=frames[1:],
-                   duration=durations, loop=0)
+    frames[0].save(
+        buf, format="GIF", save_all=True, append_images=frames[1:], duration=durations, loop=0
+    )
     atomic_write(path, buf.getvalue())
     return path

@@ -57,8 +57,7 @@ def _fit(projected: list[np.ndarray], size: int) -> tuple[float, np.ndarray]:
     return scale, (lo + hi) / 2
 
 
-def _fit_turning(mesh: MeshData, views: list[np.ndarray],
-                 size: int) -> tuple[float, np.ndarray]:
+def _fit_turning(mesh: MeshData, views: list[np.ndarray], size: int) -> tuple[float, np.ndarray]:
     """Scale that fits the mesh in every view, and the box's middle (world), on which every
     view is centred (so a turning plant stays in place)."""
     if len(mesh.vertices) == 0:
@@ -85,8 +84,9 @@ def _prepare(mesh: MeshData) -> _Faces:
     length = np.linalg.norm(normal, axis=1)
     keep = length > 0
     rgb = np.array([m.rgb for m in mesh.materials], dtype=np.float64).reshape(-1, 3)
-    return _Faces(mesh.faces[keep], normal[keep] / length[keep, None],
-                  rgb[mesh.face_material[keep]])
+    return _Faces(
+        mesh.faces[keep], normal[keep] / length[keep, None], rgb[mesh.face_material[keep]]
+    )
 
 
 def _shades(faces: _Faces, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,8 +94,7 @@ def _shades(faces: _Faces, axes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     visible = np.nonzero(_dot(faces.normals, axes[2]) > 0)[0]
     light = axes[2] * 0.8 + axes[1] * 0.5 - axes[0] * 0.35
     light /= np.linalg.norm(light)
-    lambert = AMBIENT + (1 - AMBIENT) * np.clip(_dot(faces.normals[visible], light),
-                                                 0.0, 1.0)
+    lambert = AMBIENT + (1 - AMBIENT) * np.clip(_dot(faces.normals[visible], light), 0.0, 1.0)
     return visible, faces.rgb[visible] * lambert[:, None]
 
 
@@ -128,8 +127,9 @@ def _units(x: np.ndarray, y: np.ndarray, h: int, w: int) -> Units:
         y1 = np.concatenate([y1[~big], np.minimum(np.repeat(y1[big], rep), ty + TILE - 1)])
         x0, y0 = np.concatenate([x0[~big], tx]), np.concatenate([y0[~big], ty])
     # boxes rounded up to powers of two, wide and high apart (thin strips stay thin)
-    key = (np.ceil(np.log2(x1 - x0 + 1)).astype(np.int64) * 8
-           + np.ceil(np.log2(y1 - y0 + 1)).astype(np.int64))
+    key = np.ceil(np.log2(x1 - x0 + 1)).astype(np.int64) * 8 + np.ceil(np.log2(y1 - y0 + 1)).astype(
+        np.int64
+    )
     out: Units = {}
     for k in np.unique(key):
         sel = key == k
@@ -137,29 +137,37 @@ def _units(x: np.ndarray, y: np.ndarray, h: int, w: int) -> Units:
     return out
 
 
-def _candidates(x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int,
-                units: Units) -> tuple[np.ndarray, ...]:
+def _candidates(
+    x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int, units: Units
+) -> tuple[np.ndarray, ...]:
     """Pixels inside triangles: (pixel index, depth, triangle), over all units."""
-    area = ((x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0])
-            - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0]))
+    area = (x[:, 1] - x[:, 0]) * (y[:, 2] - y[:, 0]) - (x[:, 2] - x[:, 0]) * (y[:, 1] - y[:, 0])
     out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for (sw, sh), (tri, ux0, uy0, ux1, uy1) in units.items():
         step = max(1, CHUNK // (sw * sh))
         dx, dy = np.arange(sw * sh) % sw, np.arange(sw * sh) // sw
         for c in range(0, len(tri), step):
-            t = tri[c:c + step]
-            px = ux0[c:c + step, None] + dx
-            py = uy0[c:c + step, None] + dy
+            t = tri[c : c + step]
+            px = ux0[c : c + step, None] + dx
+            py = uy0[c : c + step, None] + dy
             fx, fy = px + 0.5, py + 0.5
             ax, ay = x[t], y[t]
             inv = 1.0 / np.where(area[t] != 0, area[t], np.inf)[:, None]
-            w0 = ((ax[:, 1:2] - fx) * (ay[:, 2:3] - fy)
-                  - (ax[:, 2:3] - fx) * (ay[:, 1:2] - fy)) * inv
-            w1 = ((ax[:, 2:3] - fx) * (ay[:, 0:1] - fy)
-                  - (ax[:, 0:1] - fx) * (ay[:, 2:3] - fy)) * inv
+            w0 = (
+                (ax[:, 1:2] - fx) * (ay[:, 2:3] - fy) - (ax[:, 2:3] - fx) * (ay[:, 1:2] - fy)
+            ) * inv
+            w1 = (
+                (ax[:, 2:3] - fx) * (ay[:, 0:1] - fy) - (ax[:, 0:1] - fx) * (ay[:, 2:3] - fy)
+            ) * inv
             w2 = 1.0 - w0 - w1
-            inside = ((w0 >= 0) & (w1 >= 0) & (w2 >= 0) & (inv != 0)
-                      & (px <= ux1[c:c + step, None]) & (py <= uy1[c:c + step, None]))
+            inside = (
+                (w0 >= 0)
+                & (w1 >= 0)
+                & (w2 >= 0)
+                & (inv != 0)
+                & (px <= ux1[c : c + step, None])
+                & (py <= uy1[c : c + step, None])
+            )
             depth = w0 * z[t, 0:1] + w1 * z[t, 1:2] + w2 * z[t, 2:3]
             rows, cols = np.nonzero(inside)
             out.append(((py[rows, cols] * w + px[rows, cols]), depth[rows, cols], t[rows]))
@@ -168,8 +176,15 @@ def _candidates(x: np.ndarray, y: np.ndarray, z: np.ndarray, w: int,
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
 
-def _draw(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float,
-          centre: np.ndarray, h: int, w: int) -> np.ndarray:
+def _draw(
+    vertices: np.ndarray,
+    faces: _Faces,
+    axes: np.ndarray,
+    scale: float,
+    centre: np.ndarray,
+    h: int,
+    w: int,
+) -> np.ndarray:
     """RGB float picture (h, w, 3) of the faces seen along `axes`."""
     img = np.empty((h * w, 3), dtype=np.float32)
     img[:] = BACKGROUND
@@ -188,8 +203,15 @@ def _draw(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float,
     return img.reshape(h, w, 3)
 
 
-def _picture(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float,
-             centre: np.ndarray, size: int, s: int) -> np.ndarray:
+def _picture(
+    vertices: np.ndarray,
+    faces: _Faces,
+    axes: np.ndarray,
+    scale: float,
+    centre: np.ndarray,
+    size: int,
+    s: int,
+) -> np.ndarray:
     """_draw at s times the size, averaged down to uint8 (size, size, 3)."""
     img = _draw(vertices, faces, axes, scale * s, centre, size * s, size * s)
     blocks = img.reshape(size, s, size, s, 3)
@@ -199,27 +221,37 @@ def _picture(vertices: np.ndarray, faces: _Faces, axes: np.ndarray, scale: float
     return out
 
 
-def render_mesh(mesh: MeshData, size: int = 512, view: tuple[float, float] | None = None,
-                supersample: int = 2) -> np.ndarray:
+def render_mesh(
+    mesh: MeshData, size: int = 512, view: tuple[float, float] | None = None, supersample: int = 2
+) -> np.ndarray:
     """RGB uint8 (size, size, 3): the mesh from `view` (azimuth, elevation in degrees;
     default DEFAULT_VIEW), scaled to fit."""
     axes = view_axes(*(DEFAULT_VIEW if view is None else view))
     xy = np.stack([_dot(mesh.vertices, axes[0]), _dot(mesh.vertices, axes[1])], axis=1)
     scale, centre = _fit([xy], int(size))
-    return _picture(mesh.vertices, _prepare(mesh), axes, scale, centre, int(size),
-                    max(1, int(supersample)))
+    return _picture(
+        mesh.vertices, _prepare(mesh), axes, scale, centre, int(size), max(1, int(supersample))
+    )
 
 
-def turntable(mesh: MeshData, frames: int = GIF_FRAMES, size: int = GIF_SIZE,
-              view: tuple[float, float] | None = None, supersample: int = 2
-              ) -> list[np.ndarray]:
+def turntable(
+    mesh: MeshData,
+    frames: int = GIF_FRAMES,
+    size: int = GIF_SIZE,
+    view: tuple[float, float] | None = None,
+    supersample: int = 2,
+) -> list[np.ndarray]:
     """Pictures of the mesh turning once about the vertical axis, one scale for all."""
     az, el = DEFAULT_VIEW if view is None else view
     views = [view_axes(az + 360.0 * k / frames, el) for k in range(frames)]
     scale, mid = _fit_turning(mesh, views, int(size))
     faces = _prepare(mesh)
-    return [_picture(mesh.vertices, faces, axes, scale, axes[:2] @ mid, int(size),
-                     max(1, int(supersample))) for axes in views]
+    return [
+        _picture(
+            mesh.vertices, faces, axes, scale, axes[:2] @ mid, int(size), max(1, int(supersample))
+        )
+        for axes in views
+    ]
 
 
 def _png(rgb: np.ndarray) -> bytes:
@@ -241,8 +273,13 @@ def _gif(frames: list[np.ndarray], ms: int = 80) -> bytes:
     return buf.getvalue()
 
 
-def save_picture(mesh: MeshData, path: str | Path, size: int | None = None,
-                 view: tuple[float, float] | None = None, frames: int = GIF_FRAMES) -> Path:
+def save_picture(
+    mesh: MeshData,
+    path: str | Path,
+    size: int | None = None,
+    view: tuple[float, float] | None = None,
+    frames: int = GIF_FRAMES,
+) -> Path:
     """A .png picture (default 512 pixels) or a turntable .gif (`frames` pictures, default
     256 pixels) of the mesh, by the suffix."""
     path = Path(path)

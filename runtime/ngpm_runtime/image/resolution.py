@@ -26,8 +26,9 @@ def shape_kept(square: np.ndarray, small: np.ndarray) -> float:
     return float((square & covered).sum()) / total
 
 
-def suggest_size(square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndarray],
-                 current: int) -> int | None:
+def suggest_size(
+    square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndarray], current: int
+) -> int | None:
     """The smallest size in SIZES above `current` that keeps KEEP_GOOD of the shape, where
     `resize(square, size)` is the loader's reduction; None when none does (or the picture
     is smaller than those sizes)."""
@@ -40,20 +41,25 @@ def suggest_size(square: np.ndarray, resize: Callable[[np.ndarray, int], np.ndar
 
 def fit_note(kept: float, suggested: int | None, size: int) -> str:
     """What to tell a user whose picture lost shape at `size` x `size`."""
-    return (f"only {kept:.0%} of the picture's shape is kept at {size} x {size} pixels "
-            f"(thin strokes vanish when it is reduced): {fit_fix(suggested)}")
+    return (
+        f"only {kept:.0%} of the picture's shape is kept at {size} x {size} pixels "
+        f"(thin strokes vanish when it is reduced): {fit_fix(suggested)}"
+    )
 
 
 def fit_fix(suggested: int | None) -> str:
     """What to do about a picture that loses its shape at the working size."""
     if suggested:
-        return (f"draw thicker strokes, or grow at --size {suggested} (guides trained at "
-                "50 x 50 guide less well there)")
+        return (
+            f"draw thicker strokes, or grow at --size {suggested} (guides trained at "
+            "50 x 50 guide less well there)"
+        )
     return "draw thicker strokes (or a bigger shape)"
 
 
-def check_fit(square: np.ndarray, small: np.ndarray,
-              resize: Callable[[np.ndarray, int], np.ndarray]) -> tuple[float, int | None]:
+def check_fit(
+    square: np.ndarray, small: np.ndarray, resize: Callable[[np.ndarray, int], np.ndarray]
+) -> tuple[float, int | None]:
     """(share kept, a better size or None) of reducing `square` to `small`; the size is
     looked for only when less than KEEP_WARNING is kept."""
     kept = shape_kept(square, small)

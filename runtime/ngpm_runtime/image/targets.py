@@ -99,8 +99,13 @@ class Target:
     def mirrored(self) -> Target:
         """Horizontally mirrored copy: x -> 1 - x, dx -> -dx; name gets suffix `_m`."""
         x, y, dx, dy = self.start
-        return Target(self.mask[:, ::-1].copy(), (1.0 - x, y, -dx, dy), self.name + "_m",
-                      self.kept, self.better_size)
+        return Target(
+            self.mask[:, ::-1].copy(),
+            (1.0 - x, y, -dx, dy),
+            self.name + "_m",
+            self.kept,
+            self.better_size,
+        )
 
     def fit_note(self) -> str | None:
         """A warning when the working size lost much of the picture's shape, else None."""
@@ -159,8 +164,13 @@ def _check_start(start: Sequence[float], where: str) -> Start:
 # --- images -> masks ---------------------------------------------------------------------
 
 
-def read_image(source: str | os.PathLike[str] | BinaryIO, name: str | None = None, *,
-               max_side: int = MAX_SIDE, max_pixels: int = MAX_PIXELS) -> Image.Image:
+def read_image(
+    source: str | os.PathLike[str] | BinaryIO,
+    name: str | None = None,
+    *,
+    max_side: int = MAX_SIDE,
+    max_pixels: int = MAX_PIXELS,
+) -> Image.Image:
     """Open and decode an image: a path, or a binary file object that `name` describes
     (default: "target image PATH"). The one loader of the command line, the server and
     `targets build --from`.
@@ -211,16 +221,19 @@ def _open_image(source: str | os.PathLike[str] | BinaryIO, name: str) -> Image.I
 def _check_image(img: Image.Image, name: str, max_side: int, max_pixels: int) -> None:
     """Refuse a format that is not accepted and a size over the limits (from the header)."""
     if img.format not in IMAGE_FORMATS:
-        raise ImageFormatError(f"cannot read {name}: {img.format or 'unknown'} images are not "
-                               f"accepted ({FORMAT_NAMES})")
+        raise ImageFormatError(
+            f"cannot read {name}: {img.format or 'unknown'} images are not "
+            f"accepted ({FORMAT_NAMES})"
+        )
     w, h = img.size
     if max(w, h) > max_side or w * h > max_pixels:
-        raise ImageSizeError(f"cannot read {name}: the image is {w} x {h} px; the limit is "
-                             f"{max_side} px a side and {max_pixels:,} px in all")
+        raise ImageSizeError(
+            f"cannot read {name}: the image is {w} x {h} px; the limit is "
+            f"{max_side} px a side and {max_pixels:,} px in all"
+        )
 
 
-def _first_shape_frame(img: Image.Image, name: str, max_side: int,
-                       max_pixels: int) -> Image.Image:
+def _first_shape_frame(img: Image.Image, name: str, max_side: int, max_pixels: int) -> Image.Image:
     """The first frame of an animation (or page of a TIFF) that holds a shape (not one flat
     color), among the first MAX_FRAMES; its index is kept in `info["ngpm_frame"]`. An
     animation often starts blank (a growth GIF does). Each frame's size is checked before
@@ -238,13 +251,16 @@ def _first_shape_frame(img: Image.Image, name: str, max_side: int,
         frame = plain_mode(img.copy(), name)
         alpha = _alpha(frame)
         gray = _gray(frame)
-        if (alpha is not None and int(alpha.max()) - int(alpha.min()) > 32) or \
-                int(gray.max()) - int(gray.min()) > 16:
+        if (alpha is not None and int(alpha.max()) - int(alpha.min()) > 32) or int(
+            gray.max()
+        ) - int(gray.min()) > 16:
             frame.info = {**info, "ngpm_frame": k}
             return frame
     first = "first " if count == MAX_FRAMES else ""
-    raise TargetError(f"{name}: none of the animation's {first}{count} frames holds a shape "
-                      "(every frame is one flat color)")
+    raise TargetError(
+        f"{name}: none of the animation's {first}{count} frames holds a shape "
+        "(every frame is one flat color)"
+    )
 
 
 def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image") -> np.ndarray:
@@ -260,8 +276,10 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
         raise TargetError(f"{name}: polarity must be one of {', '.join(POLARITIES)}")
     img = plain_mode(img, name)
     if min(img.size) < MIN_SIDE:
-        raise TargetError(f"{name}: image is tiny ({img.width} x {img.height} px, "
-                          f"need at least {MIN_SIDE} x {MIN_SIDE})")
+        raise TargetError(
+            f"{name}: image is tiny ({img.width} x {img.height} px, "
+            f"need at least {MIN_SIDE} x {MIN_SIDE})"
+        )
     if polarity == "auto" and img.info.get(POLARITY_KEY) in ("dark", "light"):
         polarity = img.info[POLARITY_KEY]
     alpha = _alpha(img)
@@ -292,8 +310,21 @@ def image_to_mask(img: Image.Image, polarity: str = "auto", name: str = "image")
 
 # modes PIL cannot take gray levels (or alpha) from directly, and the mode to convert to
 _PLAIN_VIA = {"LAB": "RGB", "La": "LA", "RGBa": "RGBA"}
-_READABLE_MODES = ("1", "L", "LA", "P", "PA", "RGB", "RGBA", "RGBX", "CMYK", "YCbCr", "HSV",
-                   "I", "F")
+_READABLE_MODES = (
+    "1",
+    "L",
+    "LA",
+    "P",
+    "PA",
+    "RGB",
+    "RGBA",
+    "RGBX",
+    "CMYK",
+    "YCbCr",
+    "HSV",
+    "I",
+    "F",
+)
 
 
 def plain_mode(img: Image.Image, name: str = "image") -> Image.Image:
@@ -320,9 +351,9 @@ def _gray(img: Image.Image) -> np.ndarray:
     scale = 255.0 / (hi - lo) if hi > lo else 0.0
     out = np.empty(values.shape, dtype=np.uint8)
     for r in range(0, values.shape[0], 256):
-        block = values[r:r + 256].astype(np.float64)
+        block = values[r : r + 256].astype(np.float64)
         block[~np.isfinite(block)] = lo
-        out[r:r + 256] = np.round((block - lo) * scale)
+        out[r : r + 256] = np.round((block - lo) * scale)
     return out
 
 
@@ -333,8 +364,10 @@ def _finite_range(values: np.ndarray) -> tuple[float, float]:
     finite = np.isfinite(values)
     if not finite.any():
         return 0.0, 0.0
-    return (float(np.min(values, where=finite, initial=np.inf)),
-            float(np.max(values, where=finite, initial=-np.inf)))
+    return (
+        float(np.min(values, where=finite, initial=np.inf)),
+        float(np.max(values, where=finite, initial=-np.inf)),
+    )
 
 
 def _alpha(img: Image.Image) -> np.ndarray | None:
@@ -351,7 +384,7 @@ def pad_to_square(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     side = max(h, w)
     oy, ox = (side - h) // 2, (side - w) // 2
     out = np.zeros((side, side), dtype=bool)
-    out[oy:oy + h, ox:ox + w] = mask
+    out[oy : oy + h, ox : ox + w] = mask
     return out, oy, ox
 
 
@@ -365,25 +398,34 @@ def resize_mask(mask: np.ndarray, size: int) -> np.ndarray:
     return small >= 128
 
 
-def mask_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
-                    polarity: str = "auto", name: str = "image",
-                    start: Start | None = None) -> tuple[np.ndarray, Start | None]:
+def mask_from_image(
+    img: Image.Image,
+    size: int | None = DEFAULT_SIZE,
+    polarity: str = "auto",
+    name: str = "image",
+    start: Start | None = None,
+) -> tuple[np.ndarray, Start | None]:
     """Mask at the working resolution and the start mapped through the square padding."""
     square, start, _kept, _better = _reduce(img, size, polarity, name, start)
     return square, start
 
 
-def target_from_image(img: Image.Image, size: int | None = DEFAULT_SIZE,
-                      polarity: str = "auto", name: str = "image",
-                      start: Start | None = None) -> Target:
+def target_from_image(
+    img: Image.Image,
+    size: int | None = DEFAULT_SIZE,
+    polarity: str = "auto",
+    name: str = "image",
+    start: Start | None = None,
+) -> Target:
     """The Target of a picture at the working size: its start mapped through the square
     padding (found by `auto_start` when None) and how much of its shape the size keeps."""
     square, start, kept, better = _reduce(img, size, polarity, name, start)
     return Target(square, auto_start(square) if start is None else start, name, kept, better)
 
 
-def _reduce(img: Image.Image, size: int | None, polarity: str, name: str,
-            start: Start | None) -> tuple[np.ndarray, Start | None, float, int | None]:
+def _reduce(
+    img: Image.Image, size: int | None, polarity: str, name: str, start: Start | None
+) -> tuple[np.ndarray, Start | None, float, int | None]:
     """(mask at the working size, mapped start, share of the shape kept, a better size)."""
     mask = image_to_mask(img, polarity, name)
     h, w = mask.shape
@@ -396,8 +438,7 @@ def _reduce(img: Image.Image, size: int | None, polarity: str, name: str,
         square = resize_mask(full, int(size))
         kept, better = check_fit(full, square, resize_mask)
         if not square.any() and full.any():
-            raise TargetError(f"{name}: no shape left at {size} x {size} px; "
-                              + fit_fix(better))
+            raise TargetError(f"{name}: no shape left at {size} x {size} px; " + fit_fix(better))
     check_mask(square, name)
     if start is not None:
         x, y, dx, dy = start
@@ -410,21 +451,26 @@ def check_mask(mask: np.ndarray, name: str) -> None:
     frac = float(mask.mean()) if mask.size else 0.0
     count = int(mask.sum())
     if count == 0:
-        raise TargetError(f"{name}: no shape at {mask.shape[1]} x {mask.shape[0]} px "
-                          "(empty image, or strokes too thin for this size)")
+        raise TargetError(
+            f"{name}: no shape at {mask.shape[1]} x {mask.shape[0]} px "
+            "(empty image, or strokes too thin for this size)"
+        )
     if frac < MIN_FOREGROUND or count < 4:
-        raise TargetError(f"{name}: shape is too small ({count} px of "
-                          f"{mask.shape[1]} x {mask.shape[0]})")
+        raise TargetError(
+            f"{name}: shape is too small ({count} px of {mask.shape[1]} x {mask.shape[0]})"
+        )
     if frac > MAX_FOREGROUND:
-        raise TargetError(f"{name}: image is almost all foreground ({frac:.0%}); "
-                          "try another polarity")
+        raise TargetError(
+            f"{name}: image is almost all foreground ({frac:.0%}); try another polarity"
+        )
 
 
 # --- loading and saving ------------------------------------------------------------------
 
 
-def load_target(path: str | os.PathLike[str], size: int | None = DEFAULT_SIZE,
-                polarity: str = "auto") -> Target:
+def load_target(
+    path: str | os.PathLike[str], size: int | None = DEFAULT_SIZE, polarity: str = "auto"
+) -> Target:
     """Load an image as a Target at size x size (None: keep the padded square's size).
 
     The start comes from the sidecar `<stem>.txt` when there is one, else from
@@ -453,8 +499,9 @@ def save_target(target: Target, path: str | os.PathLike[str]) -> Path:
     return path
 
 
-def load_dataset(directory: str | os.PathLike[str], size: int | None = None,
-                 polarity: str = "auto") -> list[Target]:
+def load_dataset(
+    directory: str | os.PathLike[str], size: int | None = None, polarity: str = "auto"
+) -> list[Target]:
     """Load every target of a dataset directory, in the order of its index.json.
 
     Without index.json, the images with a sidecar are loaded in name order; when no image
@@ -473,15 +520,20 @@ def load_dataset(directory: str | os.PathLike[str], size: int | None = None,
         except (OSError, ValueError, KeyError, TypeError):
             raise TargetError(f"bad dataset index {index}: expected JSON with 'files'") from None
         if meta.get("complete") is False:
-            raise TargetError(f"dataset {directory} is incomplete (interrupted build); "
-                              "run the same build command again")
+            raise TargetError(
+                f"dataset {directory} is incomplete (interrupted build); "
+                "run the same build command again"
+            )
     else:
-        images = sorted(p for p in directory.iterdir()
-                        if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+        images = sorted(
+            p for p in directory.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
+        )
         files = [p for p in images if sidecar_path(p).is_file()] or images
     if not files:
-        raise TargetError(f"dataset directory {directory} holds no targets (no index.json "
-                          f"and no images: {', '.join(sorted(IMAGE_SUFFIXES))})")
+        raise TargetError(
+            f"dataset directory {directory} holds no targets (no index.json "
+            f"and no images: {', '.join(sorted(IMAGE_SUFFIXES))})"
+        )
     return [load_target(f, size=size, polarity=polarity) for f in files]
 
 
@@ -552,8 +604,11 @@ def _prune(skel: np.ndarray, times: int) -> np.ndarray:
 def _branch_direction(skel: np.ndarray, r0: int, c0: int, reach: int) -> tuple[float, float]:
     """Unit (dx, dy) along the most upward skeleton branch leaving (r0, c0)."""
     h, w = skel.shape
-    first = [(r0 + dr, c0 + dc) for dr, dc in _RING
-             if 0 <= r0 + dr < h and 0 <= c0 + dc < w and skel[r0 + dr, c0 + dc]]
+    first = [
+        (r0 + dr, c0 + dc)
+        for dr, dc in _RING
+        if 0 <= r0 + dr < h and 0 <= c0 + dc < w and skel[r0 + dr, c0 + dc]
+    ]
     if not first:
         return 0.0, -1.0
     # neighbors that touch each other start the same branch

@@ -16,8 +16,17 @@ from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.inference.sitekinds import KINDS, LOG_2PI, SiteKind
 from ngpm_runtime.program import Site
 
-__all__ = ["LOG_2PI", "kind_of", "prior_draw", "prior_logpdf", "prior_sample",
-           "proposal_draw", "proposal_logpdf", "proposal_sample", "temper"]
+__all__ = [
+    "LOG_2PI",
+    "kind_of",
+    "prior_draw",
+    "prior_logpdf",
+    "prior_sample",
+    "proposal_draw",
+    "proposal_logpdf",
+    "proposal_sample",
+    "temper",
+]
 
 
 def kind_of(site: Site) -> SiteKind:
@@ -35,9 +44,7 @@ def _check_args(site: Site, args: np.ndarray) -> tuple[SiteKind, np.ndarray]:
         raise ValueError(f"prior args for site {site.id} must be 2-D, got shape {args.shape}")
     kind = kind_of(site)
     if kind.finite_args and not np.all(np.isfinite(args)):
-        raise ProgramError(
-            f"site {site.id} (line {site.line}): non-finite {site.kind} arguments"
-        )
+        raise ProgramError(f"site {site.id} (line {site.line}): non-finite {site.kind} arguments")
     return kind, args
 
 
@@ -60,8 +67,9 @@ def prior_logpdf(site: Site, args: np.ndarray, values: np.ndarray) -> np.ndarray
     return kind.prior_logpdf(site, args, np.asarray(values, dtype=np.float64))
 
 
-def temper(kind: str, params: np.ndarray, temperature: float = 1.0,
-           choice_temperature: float = 1.0) -> np.ndarray:
+def temper(
+    kind: str, params: np.ndarray, temperature: float = 1.0, choice_temperature: float = 1.0
+) -> np.ndarray:
     """Guide outputs of a sharper (< 1) or flatter (> 1) proposal, in the same layout.
 
     Choices (bernoulli, categorical): probabilities `p ** (1 / choice_temperature)`,

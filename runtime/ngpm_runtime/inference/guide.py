@@ -112,8 +112,14 @@ def _file_settings(path: str, text: str) -> ProposalSettings:
 class Guide:
     """Proposal that runs the per-site networks of one ONNX file."""
 
-    def __init__(self, session: ort.InferenceSession, program: Program, path: str,
-                 meta: dict[str, Any], settings: ProposalSettings | None = None) -> None:
+    def __init__(
+        self,
+        session: ort.InferenceSession,
+        program: Program,
+        path: str,
+        meta: dict[str, Any],
+        settings: ProposalSettings | None = None,
+    ) -> None:
         self.session = session
         self.settings = settings or ProposalSettings()
         self._kinds = {s.index: s.kind for s in program.sites}
@@ -126,10 +132,12 @@ class Guide:
         self.feature_context = "context" in self.feature_set.split("+")
         self.K = int(meta["K"])
         self.training: dict[str, Any] = meta["training"]
-        self.fallback_sites: list[int] = [s.index for s in program.sites
-                                          if s.index not in self.nets]
-        self._empty = {input_name(i): np.zeros((0, n["n_f"]), dtype=np.float32)
-                       for i, n in self.nets.items()}
+        self.fallback_sites: list[int] = [
+            s.index for s in program.sites if s.index not in self.nets
+        ]
+        self._empty = {
+            input_name(i): np.zeros((0, n["n_f"]), dtype=np.float32) for i, n in self.nets.items()
+        }
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
         # the same nets evaluated in numpy (every net that reads features, with `onnx`);
@@ -137,8 +145,9 @@ class Guide:
         self.numpy_nets: dict[int, NumpyNet] = {}
 
     @classmethod
-    def load(cls, path: str | Path, program: Program,
-             settings: ProposalSettings | None = None) -> Guide:
+    def load(
+        cls, path: str | Path, program: Program, settings: ProposalSettings | None = None
+    ) -> Guide:
         """The guide in `path` for `program`, proposing with `settings` (default: the
         file's own, else ProposalSettings()). A damaged, hostile or foreign file raises
         GuideError naming the file and the cause (guide_checks: metadata, parameters and
@@ -153,8 +162,9 @@ class Guide:
             session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
             props = session.get_modelmeta().custom_metadata_map
         except Exception:  # onnxruntime raises several types for unreadable files
-            raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
-                from None
+            raise GuideError(
+                f"{path}: not a readable ONNX guide (corrupt or truncated file)"
+            ) from None
         if props.get("ngpm_format") != ONNX_FORMAT:
             raise GuideError(format_message(path, props.get("ngpm_format")))
         meta = checks.read_meta(path, props)
@@ -193,12 +203,14 @@ class Guide:
         quiet = ort.RunOptions()
         quiet.log_severity_level = 4  # the error is reported once, below
         try:
-            outs = self.session.run([output_name(i) for i in rows],
-                                    {input_name(i): x for i, x in rows.items()}, quiet)
+            outs = self.session.run(
+                [output_name(i) for i in rows], {input_name(i): x for i, x in rows.items()}, quiet
+            )
         except Exception as err:  # onnxruntime's errors for a graph that cannot run
             why = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
-            raise GuideError(f"{self.path}: the guide's networks fail on test rows "
-                             f"(damaged file?): {why}") from None
+            raise GuideError(
+                f"{self.path}: the guide's networks fail on test rows (damaged file?): {why}"
+            ) from None
         return dict(zip(rows, outs, strict=True))
 
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
@@ -230,16 +242,18 @@ class Guide:
                 raise GuideError(f"{self.path}: site {site} needs features")
             return np.zeros((n, net["n_f"]), dtype=np.float32)
         x = np.ascontiguousarray(features, dtype=np.float32)
-        if (x.ndim == 2 and not self.feature_context
-                and x.shape[1] == net["n_f"] + N_CONTEXT):
-            x = x[:, :net["n_f"]]  # a recorded trace's row: its context columns are not read
+        if x.ndim == 2 and not self.feature_context and x.shape[1] == net["n_f"] + N_CONTEXT:
+            x = x[:, : net["n_f"]]  # a recorded trace's row: its context columns are not read
         if x.ndim != 2 or x.shape[1] != net["n_f"]:
-            raise GuideError(f"{self.path}: site {site} expects {net['n_f']} features per row, "
-                             f"got shape {x.shape} (features changed since training?)")
+            raise GuideError(
+                f"{self.path}: site {site} expects {net['n_f']} features per row, "
+                f"got shape {x.shape} (features changed since training?)"
+            )
         return x
 
-    def params_round(self, sites: list[int], features: list[np.ndarray | None],
-                     ns: list[int]) -> list[np.ndarray]:
+    def params_round(
+        self, sites: list[int], features: list[np.ndarray | None], ns: list[int]
+    ) -> list[np.ndarray]:
         """`params` of several site networks (distinct sites): one call per site's own
         session (onnxruntime's cost is per graph node, so one run of the whole file, which
         also runs every other net on an empty batch, costs more: benchmarks/smc.py --nets),
@@ -252,17 +266,20 @@ class Guide:
         outs = self.session.run([output_name(s) for s in sites], feeds)
         return [self._temper(s, o.astype(np.float64)) for s, o in zip(sites, outs, strict=True)]
 
-    def propose_round(self, sites: list[Site], prior_args: list[np.ndarray],
-                      features: list[np.ndarray] | None, rng: np.random.Generator
-                      ) -> list[tuple[np.ndarray, np.ndarray]]:
+    def propose_round(
+        self,
+        sites: list[Site],
+        prior_args: list[np.ndarray],
+        features: list[np.ndarray] | None,
+        rng: np.random.Generator,
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
         """`propose` for every site waiting in an SMC round (proposals.RoundProposal): one
         network call for all of them, one draw per group of like sites."""
         if len(sites) == 1:  # the usual round (the same calls as below, less bookkeeping)
             site, args = sites[0], prior_args[0]
             if site.index not in self.nets:
                 return [self.propose(site, args, None, rng)]
-            params = self.params(site.index, None if features is None else features[0],
-                                 len(args))
+            params = self.params(site.index, None if features is None else features[0], len(args))
             return [dist.proposal_draw(site, args, params, rng)]
         out: list[Any] = [None] * len(sites)
         net = [j for j, site in enumerate(sites) if site.index in self.nets]
@@ -271,10 +288,11 @@ class Guide:
                 out[j] = self.propose(site, prior_args[j], None, rng)
         if not net:
             return out
-        site_params = self.params_round([sites[j].index for j in net],
-                                        [None if features is None else features[j]
-                                         for j in net],
-                                        [len(prior_args[j]) for j in net])
+        site_params = self.params_round(
+            [sites[j].index for j in net],
+            [None if features is None else features[j] for j in net],
+            [len(prior_args[j]) for j in net],
+        )
         groups: dict[tuple[str, int, int], list[int]] = {}
         for j, p in zip(net, site_params, strict=True):
             key = (sites[j].kind, p.shape[1], prior_args[j].shape[1])
@@ -286,18 +304,25 @@ class Guide:
                 a = np.concatenate(group_args)
                 if np.isfinite(a).all():  # else per site, for the error naming its site
                     values, log_q = dist.proposal_draw(
-                        sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng)
+                        sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng
+                    )
                     cut = np.cumsum([len(x) for x in group_args])[:-1]
-                    for j, v, q in zip(js, np.split(values, cut), np.split(log_q, cut),
-                                       strict=True):
+                    for j, v, q in zip(
+                        js, np.split(values, cut), np.split(log_q, cut), strict=True
+                    ):
                         out[j] = (v, q)
                     continue
             for j in js:
                 out[j] = dist.proposal_draw(sites[j], prior_args[j], by_site[j], rng)
         return out
 
-    def propose(self, site: Site, prior_args: np.ndarray, features: np.ndarray | None,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def propose(
+        self,
+        site: Site,
+        prior_args: np.ndarray,
+        features: np.ndarray | None,
+        rng: np.random.Generator,
+    ) -> tuple[np.ndarray, np.ndarray]:
         if site.index not in self.nets:
             values = dist.prior_sample(site, prior_args, rng)
             return values, dist.prior_logpdf(site, prior_args, values)
@@ -314,30 +339,37 @@ def _onnx_model(path: str, data: bytes) -> Any:
     try:
         return onnx.load_from_string(data)
     except Exception:  # protobuf's DecodeError and others: the file is damaged
-        raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") \
-            from None
+        raise GuideError(f"{path}: not a readable ONNX guide (corrupt or truncated file)") from None
 
 
-def _site_sessions(path: str, model: Any, sites: list[int], opts: ort.SessionOptions
-                   ) -> dict[int, ort.InferenceSession]:
+def _site_sessions(
+    path: str, model: Any, sites: list[int], opts: ort.SessionOptions
+) -> dict[int, ort.InferenceSession]:
     """One onnxruntime session per site net, cut from the file's graph `model` (a call then
     runs only that net); GuideError naming the cause if the graph cannot be cut."""
     import onnx.utils
 
     try:
         extractor = onnx.utils.Extractor(model)
-        return {s: ort.InferenceSession(
-                    extractor.extract_model([input_name(s)], [output_name(s)])
-                    .SerializeToString(), opts, providers=["CPUExecutionProvider"])
-                for s in sites}
+        return {
+            s: ort.InferenceSession(
+                extractor.extract_model([input_name(s)], [output_name(s)]).SerializeToString(),
+                opts,
+                providers=["CPUExecutionProvider"],
+            )
+            for s in sites
+        }
     except Exception as err:  # onnx's and onnxruntime's errors, several types
         why = (str(err).strip().splitlines() or [type(err).__name__])[0][:200]
-        raise GuideError(f"{path}: cannot cut the guide into its site networks: {why}") \
-            from None
+        raise GuideError(f"{path}: cannot cut the guide into its site networks: {why}") from None
 
 
-def _numpy_nets(guide: Guide, consts: dict[str, np.ndarray], rows: dict[int, np.ndarray],
-                probe: dict[int, np.ndarray]) -> dict[int, NumpyNet]:
+def _numpy_nets(
+    guide: Guide,
+    consts: dict[str, np.ndarray],
+    rows: dict[int, np.ndarray],
+    probe: dict[int, np.ndarray],
+) -> dict[int, NumpyNet]:
     """A NumpyNet for every site net that reads features, from the parameters `consts` by
     name; GuideError if one is missing or misshapen, or if a net does not give
     onnxruntime's outputs `probe` on the probe `rows`."""
@@ -348,14 +380,17 @@ def _numpy_nets(guide: Guide, consts: dict[str, np.ndarray], rows: dict[int, np.
             continue
         site = guide.program.sites[s]
         where = f"{guide.path}: site {s} ({site.id}) network"
-        net = NumpyNet.from_params(where, s, consts, dist.kind_of(site).head, guide.K,
-                                   meta["n_f"], meta["n_out"])
+        net = NumpyNet.from_params(
+            where, s, consts, dist.kind_of(site).head, guide.K, meta["n_f"], meta["n_out"]
+        )
         got, want = net(rows[s]), probe[s].astype(np.float64)
         if not np.allclose(got, want, rtol=1e-4, atol=1e-5):
             worst = float(np.max(np.abs(got - want)))
-            raise GuideError(f"{where}: its graph does not compute what `ngpmc export` "
-                             f"writes (the numpy engine and onnxruntime differ by "
-                             f"{worst:.3g} on test rows; edited file?)")
+            raise GuideError(
+                f"{where}: its graph does not compute what `ngpmc export` "
+                f"writes (the numpy engine and onnxruntime differ by "
+                f"{worst:.3g} on test rows; edited file?)"
+            )
         out[s] = net
     return out
 
@@ -373,8 +408,18 @@ class NumpyNet:
     of how many particles share its round. Guide.load checks it against onnxruntime on the
     probe rows; tests/runtime/inference/test_guide.py on many more, to 1e-5."""
 
-    def __init__(self, n_f: int, cols: np.ndarray, w1: np.ndarray, b1: np.ndarray,
-                 w2: np.ndarray, b2: np.ndarray, bounds: np.ndarray, head: str, k: int) -> None:
+    def __init__(
+        self,
+        n_f: int,
+        cols: np.ndarray,
+        w1: np.ndarray,
+        b1: np.ndarray,
+        w2: np.ndarray,
+        b2: np.ndarray,
+        bounds: np.ndarray,
+        head: str,
+        k: int,
+    ) -> None:
         cols = cols.astype(np.intp)
         # every column in order (the usual case): no gather
         self.cols = None if np.array_equal(cols, np.arange(n_f)) else cols
@@ -387,28 +432,45 @@ class NumpyNet:
         self.k = k
 
     @classmethod
-    def from_params(cls, where: str, site: int, consts: dict[str, np.ndarray], head: str,
-                    K: int, n_f: int, n_out: int) -> NumpyNet:
+    def from_params(
+        cls,
+        where: str,
+        site: int,
+        consts: dict[str, np.ndarray],
+        head: str,
+        K: int,
+        n_f: int,
+        n_out: int,
+    ) -> NumpyNet:
         """Site `site`'s network from the file's parameters `consts` (name -> array), for a
         kind with `head`; GuideError (starting with `where`) for a parameter missing under
         its name or of another shape than the export writes."""
         names = [param_name(site, role) for role in NET_PARAMS]
         missing = [name for name in names if name not in consts]
         if missing:
-            raise GuideError(f"{where} has no parameter {missing[0]} (renamed or damaged "
-                             "file?)")
+            raise GuideError(f"{where} has no parameter {missing[0]} (renamed or damaged file?)")
         cols, w1, b1, w2, b2, bounds = (consts[name] for name in names)
         hidden = w1.shape[0] if w1.ndim == 2 else -1
-        want = {names[0]: (len(cols),), names[1]: (hidden, len(cols)), names[2]: (hidden,),
-                names[3]: (n_out, hidden), names[4]: (n_out,), names[5]: (n_out,)}
+        want = {
+            names[0]: (len(cols),),
+            names[1]: (hidden, len(cols)),
+            names[2]: (hidden,),
+            names[3]: (n_out, hidden),
+            names[4]: (n_out,),
+            names[5]: (n_out,),
+        }
         for name, a in zip(names, (cols, w1, b1, w2, b2, bounds), strict=True):
             dtype = np.int64 if name == names[0] else np.float32
             if a.shape != want[name] or a.dtype != dtype or hidden < 1:
-                raise GuideError(f"{where}: parameter {name} is {a.dtype} of shape "
-                                 f"{list(a.shape)}, not the export's (damaged file?)")
+                raise GuideError(
+                    f"{where}: parameter {name} is {a.dtype} of shape "
+                    f"{list(a.shape)}, not the export's (damaged file?)"
+                )
         if cols.min(initial=0) < 0 or cols.max(initial=0) >= n_f:
-            raise GuideError(f"{where}: parameter {names[0]} reads columns outside the "
-                             f"{n_f} features (damaged file?)")
+            raise GuideError(
+                f"{where}: parameter {names[0]} reads columns outside the "
+                f"{n_f} features (damaged file?)"
+            )
         return cls(n_f, cols, w1, b1, w2, b2, bounds, head, K if head == MIXTURE else 0)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
@@ -421,7 +483,7 @@ class NumpyNet:
         np.tanh(o, out=o)
         o *= self.bounds
         if self.head == MIXTURE:
-            lw = o[:, :self.k]
+            lw = o[:, : self.k]
             d = lw - lw.max(axis=1, keepdims=True)
             lw[:] = d - np.log(np.exp(d).sum(axis=1, keepdims=True))
         elif self.head == SIGMOID:
@@ -435,14 +497,18 @@ class NumpyNet:
 def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:
     """GuideError unless the guide was trained for this grammar."""
     if program.grammar_hash and meta["grammar_hash"] != program.grammar_hash:
-        raise GuideError(f"{path}: guide was trained for grammar {meta['grammar']!r} "
-                         f"({meta['grammar_hash'][:19]}), not {program.name!r} "
-                         f"({program.grammar_hash[:19]})")
+        raise GuideError(
+            f"{path}: guide was trained for grammar {meta['grammar']!r} "
+            f"({meta['grammar_hash'][:19]}), not {program.name!r} "
+            f"({program.grammar_hash[:19]})"
+        )
     theirs = [tuple(s.get(k) for k in SITE_KEYS) for s in meta["sites"]]
     ours = [tuple(getattr(s, k) for k in SITE_KEYS) for s in program.sites]
     if theirs != ours:
-        raise GuideError(f"{path}: guide's site table does not match grammar "
-                         f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)")
+        raise GuideError(
+            f"{path}: guide's site table does not match grammar "
+            f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)"
+        )
 
 
 def format_message(path: str, fmt: object) -> str:
@@ -451,14 +517,17 @@ def format_message(path: str, fmt: object) -> str:
     ours_name, _, ours = ONNX_FORMAT.rpartition("/")
     if fmt and name == ours_name:
         newer = version.isdigit() and int(version) > int(ours)
-        return (f"{path}: guide format {fmt} {'is newer than' if newer else 'differs from'} "
-                f"the {ONNX_FORMAT} this ngpm reads"
-                + (" (upgrade ngpm to use it)" if newer else " (export it again)"))
+        return (
+            f"{path}: guide format {fmt} {'is newer than' if newer else 'differs from'} "
+            f"the {ONNX_FORMAT} this ngpm reads"
+            + (" (upgrade ngpm to use it)" if newer else " (export it again)")
+        )
     return f"{path}: not an ngpm guide (written by `ngpmc export`?)"
 
 
-def validate_guide_graph(path: str, session: ort.InferenceSession, meta: dict[str, Any],
-                         program: Program) -> None:
+def validate_guide_graph(
+    path: str, session: ort.InferenceSession, meta: dict[str, Any], program: Program
+) -> None:
     """GuideError unless the ONNX graph has, for every site net the metadata lists, the
     input `f_<i>` of shape (n, n_f) and the output `p_<i>` of shape (n, n_out) that the
     metadata and the site's kind call for; so a broken file fails at load, not in a run.
@@ -469,23 +538,35 @@ def validate_guide_graph(path: str, session: ort.InferenceSession, meta: dict[st
     outputs = {o.name: o.shape for o in session.get_outputs()}
     for i, net in sorted(nets.items()):
         if not 0 <= i < len(program.sites):
-            raise GuideError(f"{path}: guide has a network for site {i}, but grammar "
-                             f"{program.name!r} has {len(program.sites)} sites")
+            raise GuideError(
+                f"{path}: guide has a network for site {i}, but grammar "
+                f"{program.name!r} has {len(program.sites)} sites"
+            )
         site = program.sites[i]
         if net["kind"] != site.kind:
-            raise GuideError(f"{path}: site {i} ({site.id}) network is for a {net['kind']!r} "
-                             f"site; the grammar's is {site.kind!r}")
+            raise GuideError(
+                f"{path}: site {i} ({site.id}) network is for a {net['kind']!r} "
+                f"site; the grammar's is {site.kind!r}"
+            )
         n_f, n_out = net["n_f"], net["n_out"]
         want = checks.expected_outputs(site, K)
         if n_out != want:
-            raise GuideError(f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
-                             f"a {site.kind} site needs {want}")
-        for kind, name, have, width in (("input", input_name(i), inputs, n_f),
-                                        ("output", output_name(i), outputs, n_out)):
+            raise GuideError(
+                f"{path}: site {i} ({site.id}) network gives {n_out} outputs; "
+                f"a {site.kind} site needs {want}"
+            )
+        for kind, name, have, width in (
+            ("input", input_name(i), inputs, n_f),
+            ("output", output_name(i), outputs, n_out),
+        ):
             shape = have.get(name)
             if shape is None:
-                raise GuideError(f"{path}: the ONNX graph has no {kind} {name} for site {i} "
-                                 f"({site.id}) that its metadata lists (damaged file?)")
+                raise GuideError(
+                    f"{path}: the ONNX graph has no {kind} {name} for site {i} "
+                    f"({site.id}) that its metadata lists (damaged file?)"
+                )
             if len(shape) != 2 or (isinstance(shape[1], int) and shape[1] != width):
-                raise GuideError(f"{path}: ONNX {kind} {name} has shape {list(shape)}, "
-                                 f"the metadata says (n, {width})")
+                raise GuideError(
+                    f"{path}: ONNX {kind} {name} has shape {list(shape)}, "
+                    f"the metadata says (n, {width})"
+                )

@@ -34,8 +34,21 @@ MAX_INT = 1_000_000  # |integer constant|: column indices and widths
 JSON_KEYS = ("sites", "features", "nets", "training")
 GROUPS = ("local", "target", "partial", "context")
 # the operators `ngpmc export` writes; all cost linear time
-GUIDE_OPS = frozenset({"Gather", "Gemm", "Tanh", "Mul", "Slice", "LogSoftmax", "Softmax",
-                       "Sigmoid", "Concat", "Shape", "Expand"})
+GUIDE_OPS = frozenset(
+    {
+        "Gather",
+        "Gemm",
+        "Tanh",
+        "Mul",
+        "Slice",
+        "LogSoftmax",
+        "Softmax",
+        "Sigmoid",
+        "Concat",
+        "Shape",
+        "Expand",
+    }
+)
 PROBE_ROWS = 5
 TOL = 1e-3  # on the sums of probabilities and of mixture weights
 
@@ -58,8 +71,10 @@ def read_guide(path: str) -> bytes:
     try:
         size = p.stat().st_size
         if size > MAX_GUIDE_BYTES:
-            raise GuideError(f"{path}: guide file is {size / 2**20:.0f} MB; ngpm reads guides "
-                             f"of up to {MAX_GUIDE_BYTES // 2**20} MB")
+            raise GuideError(
+                f"{path}: guide file is {size / 2**20:.0f} MB; ngpm reads guides "
+                f"of up to {MAX_GUIDE_BYTES // 2**20} MB"
+            )
         return p.read_bytes()
     except OSError as err:
         raise GuideError(f"{path}: cannot read the guide ({err.strerror or err})") from None
@@ -68,13 +83,16 @@ def read_guide(path: str) -> bytes:
 def parse_json(path: str, key: str, text: str) -> Any:
     """Metadata value `key` as JSON (GuideError if too long or not JSON)."""
     if len(text) > MAX_META_CHARS:
-        raise GuideError(f"{path}: guide metadata {key!r} is {len(text) / 2**20:.1f} MB; "
-                         f"at most {MAX_META_CHARS // 2**20} MB")
+        raise GuideError(
+            f"{path}: guide metadata {key!r} is {len(text) / 2**20:.1f} MB; "
+            f"at most {MAX_META_CHARS // 2**20} MB"
+        )
     try:
         return json.loads(text)
     except (ValueError, RecursionError):
-        raise GuideError(f"{path}: guide metadata {key!r} is not valid JSON "
-                         "(corrupt file?)") from None
+        raise GuideError(
+            f"{path}: guide metadata {key!r} is not valid JSON (corrupt file?)"
+        ) from None
 
 
 def read_meta(path: str, props: dict[str, str]) -> dict[str, Any]:
@@ -86,8 +104,10 @@ def read_meta(path: str, props: dict[str, str]) -> dict[str, Any]:
         meta[key] = parse_json(path, key, props[key]) if key in JSON_KEYS else props[key]
     for key in ("grammar", "grammar_hash"):
         if len(meta[key]) > MAX_NAME:
-            raise GuideError(f"{path}: guide metadata {key!r} is {len(meta[key])} characters "
-                             f"long; at most {MAX_NAME}")
+            raise GuideError(
+                f"{path}: guide metadata {key!r} is {len(meta[key])} characters "
+                f"long; at most {MAX_NAME}"
+            )
     k = meta["K"]
     if not (k.isascii() and k.isdigit() and len(k) < 6 and 1 <= int(k) <= MAX_K):
         raise _bad(path, "'K'", f"a whole number from 1 to {MAX_K}", k)
@@ -106,9 +126,12 @@ def _check_sites(path: str, sites: Any) -> None:
     if not isinstance(sites, list) or len(sites) > MAX_WIDTH:
         raise _bad(path, "'sites'", "a list of sites", sites)
     for j, s in enumerate(sites):
-        if not (isinstance(s, dict) and isinstance(s.get("id"), str)
-                and isinstance(s.get("kind"), str)
-                and (s.get("k") is None or _is_int(s.get("k")))):
+        if not (
+            isinstance(s, dict)
+            and isinstance(s.get("id"), str)
+            and isinstance(s.get("kind"), str)
+            and (s.get("k") is None or _is_int(s.get("k")))
+        ):
             raise _bad(path, f"'sites'[{j}]", "a site (id, kind, k)", s)
 
 
@@ -120,14 +143,17 @@ def _check_nets(path: str, nets: Any, n_sites: int) -> None:
         if not (key.isascii() and key.isdigit() and len(key) <= 6):
             raise _bad(path, "'nets' keys", "site indices", key)
         if int(key) >= n_sites:
-            raise GuideError(f"{path}: guide has a network for site {key}, but its site table "
-                             f"has {n_sites} sites")
+            raise GuideError(
+                f"{path}: guide has a network for site {key}, but its site table "
+                f"has {n_sites} sites"
+            )
         if not isinstance(net, dict):
             raise _bad(path, where, "a network's sizes", net)
         for field in ("n_f", "n_out", "K", "hidden"):
             if not _is_int(net.get(field), 1 if field in ("n_f", "n_out") else 0):
-                raise _bad(path, f"{where}[{field!r}]", f"a whole number up to {MAX_WIDTH}",
-                           net.get(field))
+                raise _bad(
+                    path, f"{where}[{field!r}]", f"a whole number up to {MAX_WIDTH}", net.get(field)
+                )
         if not isinstance(net.get("kind"), str):
             raise _bad(path, f"{where}['kind']", "a site kind", net.get("kind"))
         if net.get("k") is not None and not _is_int(net.get("k")):
@@ -150,15 +176,25 @@ def _check_features(path: str, features: Any, nets: dict[str, Any]) -> None:
         last = "context" if "context" in FEATURE_GROUPS[fs] else "partial"
         missing = [g for g in (*FEATURE_GROUPS[fs], last) if g not in layout]
         if missing:
-            raise _bad(path, f"'features'['layouts'][{key!r}]",
-                       f"a layout with the {missing[0]!r} columns of feature set {fs!r}", layout)
+            raise _bad(
+                path,
+                f"'features'['layouts'][{key!r}]",
+                f"a layout with the {missing[0]!r} columns of feature set {fs!r}",
+                layout,
+            )
         if layout[last][1] != net["n_f"]:
-            raise GuideError(f"{path}: site {key} network reads {net['n_f']} features, but its "
-                             f"layout has {layout[last][1]} up to the {last!r} group")
+            raise GuideError(
+                f"{path}: site {key} network reads {net['n_f']} features, but its "
+                f"layout has {layout[last][1]} up to the {last!r} group"
+            )
         want = [c for g in FEATURE_GROUPS[fs] for c in range(*layout[g])]
         if columns.get(key) != want:
-            raise _bad(path, f"'features'['columns'][{key!r}]",
-                       f"the columns of feature set {fs!r} in its layout", columns.get(key))
+            raise _bad(
+                path,
+                f"'features'['columns'][{key!r}]",
+                f"the columns of feature set {fs!r} in its layout",
+                columns.get(key),
+            )
 
 
 def _site_table(path: str, features: dict[str, Any], name: str) -> dict[str, Any]:
@@ -176,8 +212,12 @@ def _check_layout(path: str, key: str, layout: Any) -> dict[str, list[int]]:
         raise _bad(path, where, f"column ranges of groups {', '.join(GROUPS)}", layout)
     stop = 0
     for group, span in layout.items():
-        if not (isinstance(span, list) and len(span) == 2 and _is_int(span[0], stop, stop)
-                and _is_int(span[1], stop)):
+        if not (
+            isinstance(span, list)
+            and len(span) == 2
+            and _is_int(span[0], stop, stop)
+            and _is_int(span[1], stop)
+        ):
             raise _bad(path, f"{where}[{group!r}]", f"[{stop}, stop] with stop >= {stop}", span)
         stop = span[1]
     return layout
@@ -189,7 +229,7 @@ def _check_training(path: str, training: Any) -> None:
         raise _bad(path, "'training'", "an object (the training summary)", training)
     for key in ("traces", "val_traces", "best_epoch", "epochs_run", "val_nll"):
         v = training.get(key)
-        number = (type(v) in (int, float) if key == "val_nll" else _is_int(v, 0, 2**62))
+        number = type(v) in (int, float) if key == "val_nll" else _is_int(v, 0, 2**62)
         if v is not None and not number:
             raise _bad(path, f"'training'[{key!r}]", "a number", v)
 
@@ -203,16 +243,22 @@ def check_model(path: str, model: Any, meta: dict[str, Any]) -> dict[str, np.nda
     graph = model.graph
     for node in graph.node:
         if node.op_type not in GUIDE_OPS or node.domain not in ("", "ai.onnx"):
-            raise GuideError(f"{path}: the guide's graph uses operator {node.op_type!r} "
-                             f"({node.name}), which ngpm guides do not use")
+            raise GuideError(
+                f"{path}: the guide's graph uses operator {node.op_type!r} "
+                f"({node.name}), which ngpm guides do not use"
+            )
     if len(graph.sparse_initializer) or len(model.functions):
-        raise GuideError(f"{path}: the guide's graph holds sparse tensors or functions, "
-                         "which ngpm guides do not use")
+        raise GuideError(
+            f"{path}: the guide's graph holds sparse tensors or functions, "
+            "which ngpm guides do not use"
+        )
     consts = {}
     for t in graph.initializer:
         if t.data_location == t.EXTERNAL:
-            raise GuideError(f"{path}: parameter {t.name} keeps its data in another file; "
-                             "ngpm guides hold all of theirs")
+            raise GuideError(
+                f"{path}: parameter {t.name} keeps its data in another file; "
+                "ngpm guides hold all of theirs"
+            )
         a = consts[t.name] = numpy_helper.to_array(t)
         _check_values(path, t.name, a)
     _check_columns(path, graph, consts, meta)
@@ -222,22 +268,29 @@ def check_model(path: str, model: Any, meta: dict[str, Any]) -> dict[str, np.nda
 def _check_values(path: str, name: str, a: np.ndarray) -> None:
     if a.dtype == np.float32:
         if not np.isfinite(a).all():
-            raise GuideError(f"{path}: parameter {name} is not finite (NaN or inf): "
-                             "damaged weights")
+            raise GuideError(
+                f"{path}: parameter {name} is not finite (NaN or inf): damaged weights"
+            )
         if a.size and np.abs(a).max() > MAX_WEIGHT:
-            raise GuideError(f"{path}: parameter {name} holds {np.abs(a).max():.3g}; "
-                             f"guide weights are at most {MAX_WEIGHT:g} in size")
+            raise GuideError(
+                f"{path}: parameter {name} holds {np.abs(a).max():.3g}; "
+                f"guide weights are at most {MAX_WEIGHT:g} in size"
+            )
     elif a.dtype == np.int64:
         if a.size and np.abs(a).max() > MAX_INT:
-            raise GuideError(f"{path}: parameter {name} holds {np.abs(a).max()}; the guide's "
-                             f"integer constants are at most {MAX_INT}")
+            raise GuideError(
+                f"{path}: parameter {name} holds {np.abs(a).max()}; the guide's "
+                f"integer constants are at most {MAX_INT}"
+            )
     else:
-        raise GuideError(f"{path}: parameter {name} is {a.dtype}; ngpm guides hold float32 "
-                         "and int64 tensors")
+        raise GuideError(
+            f"{path}: parameter {name} is {a.dtype}; ngpm guides hold float32 and int64 tensors"
+        )
 
 
-def _check_columns(path: str, graph: Any, consts: dict[str, np.ndarray],
-                   meta: dict[str, Any]) -> None:
+def _check_columns(
+    path: str, graph: Any, consts: dict[str, np.ndarray], meta: dict[str, Any]
+) -> None:
     """Each site network reads its input through one Gather of the metadata's columns (a
     const network only through Shape)."""
     columns = meta["features"]["columns"]
@@ -245,12 +298,19 @@ def _check_columns(path: str, graph: Any, consts: dict[str, np.ndarray],
         name = input_name(int(key))
         readers = [n for n in graph.node if name in n.input]
         cols = columns[key]
-        ok = (all(n.op_type == "Shape" for n in readers) if not cols else
-              len(readers) == 1 and readers[0].op_type == "Gather" and readers[0].input[0]
-              == name and consts.get(readers[0].input[1], np.empty(0)).tolist() == cols)
+        ok = (
+            all(n.op_type == "Shape" for n in readers)
+            if not cols
+            else len(readers) == 1
+            and readers[0].op_type == "Gather"
+            and readers[0].input[0] == name
+            and consts.get(readers[0].input[1], np.empty(0)).tolist() == cols
+        )
         if not ok:
-            raise GuideError(f"{path}: site {key} network does not read the feature columns "
-                             "its metadata lists (damaged file?)")
+            raise GuideError(
+                f"{path}: site {key} network does not read the feature columns "
+                "its metadata lists (damaged file?)"
+            )
 
 
 def probe_rows(nets: dict[int, dict[str, Any]]) -> dict[int, np.ndarray]:
@@ -259,8 +319,9 @@ def probe_rows(nets: dict[int, dict[str, Any]]) -> dict[int, np.ndarray]:
     for i, net in nets.items():
         n_f = net["n_f"]
         ramp = np.linspace(-1.0, 1.0, n_f)
-        rows[i] = np.stack([np.zeros(n_f), ramp, -2 * ramp, np.cos(np.arange(n_f)),
-                            3 * np.sin(np.arange(n_f))]).astype(np.float32)
+        rows[i] = np.stack(
+            [np.zeros(n_f), ramp, -2 * ramp, np.cos(np.arange(n_f)), 3 * np.sin(np.arange(n_f))]
+        ).astype(np.float32)
     return rows
 
 
@@ -276,8 +337,10 @@ def check_outputs(path: str, outputs: dict[int, np.ndarray], program: Program, K
         site = program.sites[i]
         why = _invalid(site, np.asarray(out, dtype=np.float64), K)
         if why:
-            raise GuideError(f"{path}: site {i} ({site.id}) network gives {why} on test "
-                             "rows (damaged weights or graph?)")
+            raise GuideError(
+                f"{path}: site {i} ({site.id}) network gives {why} on test "
+                "rows (damaged weights or graph?)"
+            )
 
 
 def _invalid(site: Site, out: np.ndarray, K: int) -> str:

@@ -86,19 +86,20 @@ def bounds_penalty(bbox: np.ndarray, viewport: Viewport) -> np.ndarray:
     b = np.asarray(bbox, dtype=np.float64)
     xmin, xmax, ymin, ymax = viewport
     with np.errstate(invalid="ignore"):
-        ex = (np.maximum(xmin - b[..., 0], 0.0) + np.maximum(b[..., 2] - xmax, 0.0))
-        ey = (np.maximum(ymin - b[..., 1], 0.0) + np.maximum(b[..., 3] - ymax, 0.0))
+        ex = np.maximum(xmin - b[..., 0], 0.0) + np.maximum(b[..., 2] - xmax, 0.0)
+        ey = np.maximum(ymin - b[..., 1], 0.0) + np.maximum(b[..., 3] - ymax, 0.0)
     empty = ~(b[..., 0] <= b[..., 2])
     ex = np.where(empty, 0.0, ex) / (xmax - xmin)
     ey = np.where(empty, 0.0, ey) / (ymax - ymin)
     return -((ex / BOUNDS_SCALE) ** 2) - (ey / BOUNDS_SCALE) ** 2
 
 
-def shape_loglik(image: np.ndarray, target_mask: np.ndarray, bbox: np.ndarray,
-                 viewport: Viewport) -> float:
+def shape_loglik(
+    image: np.ndarray, target_mask: np.ndarray, bbox: np.ndarray, viewport: Viewport
+) -> float:
     """Equation 1 from scratch: -(simNorm - 1)^2 / 0.02^2 + bounds terms."""
     s = similarity(image, target_mask)
-    return float(-((s - 1.0) / SHAPE_SIGMA) ** 2 + bounds_penalty(bbox, viewport))
+    return float(-(((s - 1.0) / SHAPE_SIGMA) ** 2) + bounds_penalty(bbox, viewport))
 
 
 def circuit_loglik(image: np.ndarray, bbox: np.ndarray, viewport: Viewport) -> float:
@@ -106,8 +107,9 @@ def circuit_loglik(image: np.ndarray, bbox: np.ndarray, viewport: Viewport) -> f
     img = np.asarray(image, dtype=np.float64)
     edge = float(sobel(img).mean())
     fill = float(img.mean())
-    return float(_circuit_value(np.float64(edge), np.float64(fill))
-                 + bounds_penalty(bbox, viewport))
+    return float(
+        _circuit_value(np.float64(edge), np.float64(fill)) + bounds_penalty(bbox, viewport)
+    )
 
 
 def _circuit_value(edge: np.ndarray | np.float64, fill: np.ndarray | np.float64) -> np.ndarray:
@@ -118,8 +120,9 @@ def _circuit_value(edge: np.ndarray | np.float64, fill: np.ndarray | np.float64)
 
 def union_bbox(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Union of boxes (..., 4) in (xmin, ymin, xmax, ymax) order."""
-    return np.concatenate([np.minimum(a[..., :2], b[..., :2]),
-                           np.maximum(a[..., 2:], b[..., 2:])], axis=-1)
+    return np.concatenate(
+        [np.minimum(a[..., :2], b[..., :2]), np.maximum(a[..., 2:], b[..., 2:])], axis=-1
+    )
 
 
 def empty_bbox(n: int) -> np.ndarray:
@@ -157,15 +160,13 @@ class Likelihood(Protocol):
     def start(self, n: int) -> dict[str, np.ndarray]: ...
 
     # Any: a Canvas and a DrawBatch with `needs_canvas`, else None and a PrimBatch
-    def increment(self, state: dict[str, np.ndarray], canvas: Any, batch: Any) -> np.ndarray:
-        ...
+    def increment(self, state: dict[str, np.ndarray], canvas: Any, batch: Any) -> np.ndarray: ...
 
     def blank_loglik(self, height: int, width: int) -> float | None:
         return None
 
 
-def _blank_value(full: Callable[[np.ndarray, np.ndarray], float], height: int,
-                 width: int) -> float:
+def _blank_value(full: Callable[[np.ndarray, np.ndarray], float], height: int, width: int) -> float:
     """`full` of an empty image with an empty box; NaN reads as zero likelihood."""
     blank = np.zeros((height, width), dtype=np.uint8)
     value = float(full(blank, np.array([np.inf, np.inf, -np.inf, -np.inf])))
@@ -192,11 +193,13 @@ class ShapeLikelihood(Likelihood):
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {"sim": np.zeros(n), "bbox": empty_bbox(n), "ll": np.zeros(n)}
 
-    def increment(self, state: dict[str, np.ndarray], canvas: Canvas,
-                  draw: DrawBatch) -> np.ndarray:
+    def increment(
+        self, state: dict[str, np.ndarray], canvas: Canvas, draw: DrawBatch
+    ) -> np.ndarray:
         if canvas.image.shape[1:] != self.target.shape:
-            raise TargetError(f"canvas {canvas.image.shape[1:]} and target {self.target.shape} "
-                              "differ in size")
+            raise TargetError(
+                f"canvas {canvas.image.shape[1:]} and target {self.target.shape} differ in size"
+            )
         idx = draw.idx
         k, pix = draw.hits(self.target.shape[1])
         dsim = np.bincount(k, weights=self.gain_flat[pix], minlength=len(idx))
@@ -233,8 +236,9 @@ def _edge_sum_codes(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray,
-                 new: np.ndarray) -> np.ndarray:
+def _edge_change(
+    image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, new: np.ndarray
+) -> np.ndarray:
     """Change of each canvas's Sobel magnitude sum caused by its `new` pixels (already drawn).
 
     Only the window plus a 1-pixel ring can change; that needs a 2-pixel margin of input.
@@ -245,12 +249,13 @@ def _edge_change(image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndar
     cols = x0[:, None] + np.arange(-2, kx + 2)
     rin = (rows >= 0) & (rows < h)
     cin = (cols >= 0) & (cols < w)
-    flat = ((idx[:, None] * h + np.clip(rows, 0, h - 1))[:, :, None] * w
-            + np.clip(cols, 0, w - 1)[:, None, :])
+    flat = (idx[:, None] * h + np.clip(rows, 0, h - 1))[:, :, None] * w + np.clip(cols, 0, w - 1)[
+        :, None, :
+    ]
     after = image.reshape(-1)[flat].astype(np.int16)
     after *= rin[:, :, None] & cin[:, None, :]
     before = after.copy()
-    before[:, 2:2 + ky, 2:2 + kx] -= new
+    before[:, 2 : 2 + ky, 2 : 2 + kx] -= new
     inner = rin[:, 1:-1, None] & cin[:, None, 1:-1]
     diff = _MAG_LUT[_edge_sum_codes(after)] - _MAG_LUT[_edge_sum_codes(before)]
     out: np.ndarray = (diff * inner).sum(axis=(1, 2))
@@ -266,18 +271,24 @@ class CircuitLikelihood(Likelihood):
         self.viewport = as_viewport(viewport)
 
     def start(self, n: int) -> dict[str, np.ndarray]:
-        return {"edge_sum": np.zeros(n), "filled": np.zeros(n), "bbox": empty_bbox(n),
-                "ll": np.zeros(n)}
+        return {
+            "edge_sum": np.zeros(n),
+            "filled": np.zeros(n),
+            "bbox": empty_bbox(n),
+            "ll": np.zeros(n),
+        }
 
-    def increment(self, state: dict[str, np.ndarray], canvas: Canvas,
-                  draw: DrawBatch) -> np.ndarray:
+    def increment(
+        self, state: dict[str, np.ndarray], canvas: Canvas, draw: DrawBatch
+    ) -> np.ndarray:
         idx = draw.idx
         h, w = canvas.height, canvas.width
         d_edge = np.zeros(len(idx))
         changed = np.flatnonzero(draw.new.any(axis=(1, 2)))
         if changed.size:
-            d_edge[changed] = _edge_change(canvas.image, idx[changed], draw.y0[changed],
-                                           draw.x0[changed], draw.new[changed])
+            d_edge[changed] = _edge_change(
+                canvas.image, idx[changed], draw.y0[changed], draw.x0[changed], draw.new[changed]
+            )
         edge_sum = state["edge_sum"][idx] + d_edge
         filled = state["filled"][idx] + draw.new.sum(axis=(1, 2))
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
@@ -306,8 +317,9 @@ class NullLikelihood(Likelihood):
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {}
 
-    def increment(self, state: dict[str, np.ndarray], canvas: Canvas,
-                  draw: DrawBatch) -> np.ndarray:
+    def increment(
+        self, state: dict[str, np.ndarray], canvas: Canvas, draw: DrawBatch
+    ) -> np.ndarray:
         return np.zeros(len(draw.idx))
 
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:

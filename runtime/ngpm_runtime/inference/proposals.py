@@ -75,8 +75,7 @@ class FixedProposal:
     uses_features = False
 
     def __init__(self, params: Mapping[int | str, np.ndarray | list[float]]) -> None:
-        self.params = {k: np.asarray(v, dtype=np.float64).reshape(1, -1) for k, v in
-                       params.items()}
+        self.params = {k: np.asarray(v, dtype=np.float64).reshape(1, -1) for k, v in params.items()}
 
     def _row(self, site: Site) -> np.ndarray | None:
         row = self.params.get(site.index)
@@ -117,12 +116,16 @@ class ReplayProposal:
         if prior_args.shape[0] != 1:
             raise ProgramError(f"replay runs one particle, got {prior_args.shape[0]}")
         if self.pos >= len(self.values):
-            raise ProgramError(f"replay: site {site.id} asked for a value after the "
-                               f"{len(self.values)} recorded ones")
+            raise ProgramError(
+                f"replay: site {site.id} asked for a value after the "
+                f"{len(self.values)} recorded ones"
+            )
         s, v = self.values[self.pos]
         if s != site.index:
-            raise ProgramError(f"replay: recorded site {s} at choice {self.pos}, "
-                               f"the program asked for site {site.index} ({site.id})")
+            raise ProgramError(
+                f"replay: recorded site {s} at choice {self.pos}, "
+                f"the program asked for site {site.index} ({site.id})"
+            )
         self.pos += 1
         values = np.array([float(v)])
         return values, prior_logpdf(site, prior_args, values)

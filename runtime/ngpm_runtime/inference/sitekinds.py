@@ -78,8 +78,9 @@ class SiteKind:
         """What is wrong with finite prior arguments of the right number ("" if nothing)."""
         raise NotImplementedError
 
-    def prior_draw(self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def prior_draw(
+        self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """One value per row of `args` from the prior, and its log prior."""
         raise NotImplementedError
 
@@ -87,24 +88,26 @@ class SiteKind:
         """Log prior density (or mass) of values `x`, shape `(n,)`."""
         raise NotImplementedError
 
-    def proposal_sample(self, args: np.ndarray, params: np.ndarray,
-                        rng: np.random.Generator) -> np.ndarray:
+    def proposal_sample(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         """One value per row from the proposal that `params` (guide outputs) describe."""
         raise NotImplementedError
 
-    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray,
-                        x: np.ndarray) -> np.ndarray:
+    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Log density of values `x` under the proposal that `params` describe."""
         raise NotImplementedError
 
-    def proposal_draw(self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def proposal_draw(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         """`proposal_sample` and the drawn values' `proposal_logpdf` in one pass."""
         v = self.proposal_sample(args, params, rng)
         return v, self.proposal_logpdf(args, params, v)
 
-    def temper(self, params: np.ndarray, temperature: float,
-               choice_temperature: float) -> np.ndarray:
+    def temper(
+        self, params: np.ndarray, temperature: float, choice_temperature: float
+    ) -> np.ndarray:
         """Guide outputs of a sharper (< 1) or flatter (> 1) proposal, same layout."""
         raise NotImplementedError
 
@@ -112,8 +115,9 @@ class SiteKind:
         """Why finite network outputs `out` are not proposal parameters ("" if they are)."""
         raise NotImplementedError
 
-    def to_z(self, values: np.ndarray, args: np.ndarray, eps: float
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def to_z(
+        self, values: np.ndarray, args: np.ndarray, eps: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Values in the networks' target space, and log |dz/dx| (discrete: the index, 0);
         uniform values are kept `eps` inside their bounds."""
         return np.rint(values), np.zeros(len(values))
@@ -129,8 +133,9 @@ class _Mixture(SiteKind):
     def columns(self, K: int, k: int) -> tuple[tuple[str, int], ...]:
         return (("logw", K), ("mean", K), ("logsd", K))
 
-    def temper(self, params: np.ndarray, temperature: float,
-               choice_temperature: float) -> np.ndarray:
+    def temper(
+        self, params: np.ndarray, temperature: float, choice_temperature: float
+    ) -> np.ndarray:
         """Log weights `/ temperature`, sds `* sqrt(temperature)` (each component's
         density to the power `1 / temperature`)."""
         if temperature == 1.0:
@@ -138,7 +143,7 @@ class _Mixture(SiteKind):
         out = np.array(params, dtype=np.float64)
         k = out.shape[1] // 3
         out[:, :k] /= temperature
-        out[:, 2 * k:] += 0.5 * math.log(temperature)
+        out[:, 2 * k :] += 0.5 * math.log(temperature)
         return out
 
     def output_problem(self, out: np.ndarray, K: int, tol: float) -> str:
@@ -153,12 +158,12 @@ class Normal(_Mixture):
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
         if vals[1] < 0 or (constant and vals[1] == 0):
-            return (f"the standard deviation must be {'>' if constant else '>='} 0, "
-                    f"got {vals[1]:g}")
+            return f"the standard deviation must be {'>' if constant else '>='} 0, got {vals[1]:g}"
         return ""
 
-    def prior_draw(self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def prior_draw(
+        self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         z = rng.standard_normal(args.shape[0])
         sd = np.abs(args[:, 1])
         if (sd > 0).all():
@@ -169,16 +174,17 @@ class Normal(_Mixture):
     def prior_logpdf(self, site: SiteRef, args: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _normal_logpdf(x, args[:, 0], np.abs(args[:, 1]))
 
-    def proposal_sample(self, args: np.ndarray, params: np.ndarray,
-                        rng: np.random.Generator) -> np.ndarray:
+    def proposal_sample(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         return _mixture_sample(*_normal_mixture(args, params), rng)
 
-    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray,
-                        x: np.ndarray) -> np.ndarray:
+    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _mixture_logpdf(x, *_normal_mixture(args, params))
 
-    def proposal_draw(self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def proposal_draw(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         if args.shape[0] <= _SMALL_NORMAL:
             out = _small_normal_draw(args, params, rng)
         else:
@@ -189,8 +195,9 @@ class Normal(_Mixture):
         v = _mixture_sample(logw, mean, sd, rng)
         return v, _mixture_logpdf(v, logw, mean, sd)
 
-    def to_z(self, values: np.ndarray, args: np.ndarray, eps: float
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def to_z(
+        self, values: np.ndarray, args: np.ndarray, eps: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """z = (x - mu) / sigma; log q(x) = log q(z) - log sigma."""
         mu, sigma = args[:, 0], args[:, 1]
         return (values - mu) / sigma, -np.log(sigma)
@@ -205,12 +212,12 @@ class Uniform(_Mixture):
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
         if vals[0] > vals[1] or (constant and vals[0] == vals[1]):
-            return (f"needs a {'<' if constant else '<='} b, got a = {vals[0]:g}, "
-                    f"b = {vals[1]:g}")
+            return f"needs a {'<' if constant else '<='} b, got a = {vals[0]:g}, b = {vals[1]:g}"
         return ""
 
-    def prior_draw(self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def prior_draw(
+        self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         a, b = _uniform_bounds(args)
         width = b - a
         v = a + width * rng.random(args.shape[0])
@@ -225,16 +232,16 @@ class Uniform(_Mixture):
         out: np.ndarray = np.where(inside & point_ok, dens, -np.inf)
         return out
 
-    def proposal_sample(self, args: np.ndarray, params: np.ndarray,
-                        rng: np.random.Generator) -> np.ndarray:
+    def proposal_sample(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         logw, m, s = _mixture(params)
         z = _mixture_sample(logw, m, np.exp(s), rng)
         a, b = _uniform_bounds(args)
         out: np.ndarray = a + (b - a) / (1.0 + np.exp(-z))
         return out
 
-    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray,
-                        x: np.ndarray) -> np.ndarray:
+    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         logw, m, s = _mixture(params)
         a, b = _uniform_bounds(args)
         width = b - a
@@ -249,8 +256,9 @@ class Uniform(_Mixture):
         result: np.ndarray = np.where(ok & ~np.isnan(out), out, -np.inf)
         return result
 
-    def to_z(self, values: np.ndarray, args: np.ndarray, eps: float
-             ) -> tuple[np.ndarray, np.ndarray]:
+    def to_z(
+        self, values: np.ndarray, args: np.ndarray, eps: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """z = logit((x - a) / (b - a)); log q(x) = log q(z) - log((b - a) u (1 - u))."""
         a, b = args[:, 0], args[:, 1]
         u = np.clip((values - a) / (b - a), eps, 1 - eps)
@@ -270,8 +278,9 @@ class _Choice(SiteKind):
             return "probabilities that do not sum to 1"
         return ""
 
-    def temper(self, params: np.ndarray, temperature: float,
-               choice_temperature: float) -> np.ndarray:
+    def temper(
+        self, params: np.ndarray, temperature: float, choice_temperature: float
+    ) -> np.ndarray:
         """Probabilities `p ** (1 / choice_temperature)`, renormalized."""
         if choice_temperature == 1.0:
             return params
@@ -299,8 +308,9 @@ class Bernoulli(_Choice):
     def args_problem(self, vals: list[float], constant: bool) -> str:
         return "" if 0 <= vals[0] <= 1 else f"the probability must be in [0, 1], got {vals[0]:g}"
 
-    def prior_draw(self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def prior_draw(
+        self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         p = np.clip(args[:, 0], 0.0, 1.0)
         v = (rng.random(args.shape[0]) < p).astype(np.float64)
         return v, _log(np.where(v == 1.0, p, 1.0 - p))
@@ -308,18 +318,19 @@ class Bernoulli(_Choice):
     def prior_logpdf(self, site: SiteRef, args: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _bernoulli_logpmf(args[:, 0], x)
 
-    def proposal_sample(self, args: np.ndarray, params: np.ndarray,
-                        rng: np.random.Generator) -> np.ndarray:
+    def proposal_sample(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
         out: np.ndarray = (rng.random(args.shape[0]) < p).astype(np.float64)
         return out
 
-    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray,
-                        x: np.ndarray) -> np.ndarray:
+    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _bernoulli_logpmf(np.asarray(params, dtype=np.float64)[:, 0], x)
 
-    def proposal_draw(self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def proposal_draw(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
         v = (rng.random(args.shape[0]) < p).astype(np.float64)
         return v, _log(np.where(v == 1.0, p, 1.0 - p))
@@ -337,8 +348,9 @@ class Categorical(_Choice):
             return f"weights must be >= 0 with a positive sum, got {numbers_text(vals)}"
         return ""
 
-    def prior_draw(self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def prior_draw(
+        self, site: SiteRef, args: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = args.shape[0]
         if n > 1 and (args == args[0]).all():  # one distribution for all rows (groups)
             w = args[0].tolist()
@@ -346,8 +358,7 @@ class Categorical(_Choice):
             if not (total > 0 and all(0.0 <= x < math.inf for x in w)):
                 _categorical_probs(site, args[:1])  # raises the error
             cum = np.array(list(accumulate(w)))
-            k = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"),
-                           len(w) - 1)
+            k = np.minimum(np.searchsorted(cum, rng.random(n) * cum[-1], side="right"), len(w) - 1)
             return k.astype(np.float64), _log(np.array(w) / total)[k]
         p = _categorical_probs(site, args)
         v = _categorical_sample(p, rng)
@@ -355,20 +366,22 @@ class Categorical(_Choice):
 
     def prior_logpdf(self, site: SiteRef, args: np.ndarray, x: np.ndarray) -> np.ndarray:
         if args.shape[0] > 1 and (args == args[0]).all():  # one distribution for all rows
-            return _categorical_logpmf(_categorical_probs(site, args[:1]),
-                                       x, rows=np.zeros(len(x), dtype=np.intp))
+            return _categorical_logpmf(
+                _categorical_probs(site, args[:1]), x, rows=np.zeros(len(x), dtype=np.intp)
+            )
         return _categorical_logpmf(_categorical_probs(site, args), x)
 
-    def proposal_sample(self, args: np.ndarray, params: np.ndarray,
-                        rng: np.random.Generator) -> np.ndarray:
+    def proposal_sample(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
         return _categorical_sample(_probs(params), rng)
 
-    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray,
-                        x: np.ndarray) -> np.ndarray:
+    def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _categorical_logpmf(_probs(params), x)
 
-    def proposal_draw(self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-                      ) -> tuple[np.ndarray, np.ndarray]:
+    def proposal_draw(
+        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = args.shape[0]
         p = np.asarray(params, dtype=np.float64)
         if n <= _SMALL and p.shape[1] < 8:
@@ -389,8 +402,7 @@ class Categorical(_Choice):
         return v, _log(probs[np.arange(n), v.astype(np.intp)])
 
 
-KINDS: dict[str, SiteKind] = {k.name: k for k in (Normal(), Uniform(), Bernoulli(),
-                                                  Categorical())}
+KINDS: dict[str, SiteKind] = {k.name: k for k in (Normal(), Uniform(), Bernoulli(), Categorical())}
 SITE_KINDS = tuple(KINDS)
 
 
@@ -454,8 +466,9 @@ def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def _categorical_logpmf(p: np.ndarray, values: np.ndarray,
-                        rows: np.ndarray | None = None) -> np.ndarray:
+def _categorical_logpmf(
+    p: np.ndarray, values: np.ndarray, rows: np.ndarray | None = None
+) -> np.ndarray:
     """log p[row, value] per value; `rows` picks the row of `p` for each value
     (default: row i for value i)."""
     v = np.asarray(values)
@@ -507,8 +520,9 @@ def _mixture_logpdf(
     return _logsumexp_rows(comp)
 
 
-def _normal_mixture(args: np.ndarray, params: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _normal_mixture(
+    args: np.ndarray, params: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     logw, m, s = _mixture(params)
     mu = args[:, 0:1]
     sigma = np.abs(args[:, 1:2])
@@ -568,13 +582,13 @@ def _lean_normal_draw(
         return None
     n, k = p.shape[0], p.shape[1] // 3
     sigma = np.abs(args[:, 1:2])
-    sd = sigma * np.exp(p[:, 2 * k:])
+    sd = sigma * np.exp(p[:, 2 * k :])
     if not sd.min() > 0.0:
         return None
     lw = p[:, :k]
     top = lw.max(axis=1, keepdims=True)
     logw = lw - (top + np.log(np.exp(lw - top).sum(axis=1, keepdims=True)))
-    mean = args[:, 0:1] + sigma * p[:, k:2 * k]
+    mean = args[:, 0:1] + sigma * p[:, k : 2 * k]
     cum = np.cumsum(np.exp(logw), axis=1)
     u = rng.random(n) * cum[:, -1]
     at = np.minimum((cum <= u[:, None]).sum(axis=1), k - 1) + np.arange(n) * k
@@ -608,8 +622,8 @@ def _small_normal_draw(
             return None
         lse = top + log(sum(exp(x - top) for x in lw))
         lw = [x - lse for x in lw]
-        means = [mu + sigma * m for m in row[k:2 * k]]
-        sds = [sigma * exp(x) for x in row[2 * k:]]
+        means = [mu + sigma * m for m in row[k : 2 * k]]
+        sds = [sigma * exp(x) for x in row[2 * k :]]
         if min(sds) <= 0.0 or not all(math.isfinite(x) for x in sds + means):
             return None
         mixes.append((lw, means, sds))
@@ -622,8 +636,10 @@ def _small_normal_draw(
         x = u * cum[-1]
         c = min(sum(1 for y in cum if y <= x), k - 1)
         v = means[c] + sds[c] * z
-        comp = [w - 0.5 * ((v - m) / sd) ** 2 - log(sd) - 0.5 * LOG_2PI
-                for w, m, sd in zip(lw, means, sds, strict=True)]
+        comp = [
+            w - 0.5 * ((v - m) / sd) ** 2 - log(sd) - 0.5 * LOG_2PI
+            for w, m, sd in zip(lw, means, sds, strict=True)
+        ]
         top = max(comp)
         if top == -math.inf:
             log_q.append(-math.inf)

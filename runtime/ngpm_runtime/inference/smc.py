@@ -102,8 +102,10 @@ class SMCState:
         """Keep `array` (one entry per particle) as `arrays[name]`, resampled with the
         particles; returns it."""
         if len(array) != self.n:
-            raise SMCOptionError(f"per-particle array {name!r} has {len(array)} entries, "
-                                 f"not one per particle ({self.n})")
+            raise SMCOptionError(
+                f"per-particle array {name!r} has {len(array)} entries, "
+                f"not one per particle ({self.n})"
+            )
         self.arrays[name] = array
         return array
 
@@ -182,7 +184,9 @@ def _ess(log_w: np.ndarray) -> float:
 
 
 def forward(
-    program: Program, seed: int = 0, start: tuple[float, float, float] | None = None,
+    program: Program,
+    seed: int = 0,
+    start: tuple[float, float, float] | None = None,
     max_modules: int | None = None,
 ) -> FinalParticle:
     """One prior sample of the program: SMC with one particle and no likelihood."""
@@ -226,8 +230,9 @@ def _check_options(n: int, proposal: Proposal | None, options: SMCOptions) -> fl
     if n < 1:
         raise SMCOptionError(f"need at least one particle, got {n}")
     if options.resample not in SCHEMES:
-        raise SMCOptionError(f"unknown resampling scheme {options.resample!r} "
-                             f"(choose from {', '.join(SCHEMES)})")
+        raise SMCOptionError(
+            f"unknown resampling scheme {options.resample!r} (choose from {', '.join(SCHEMES)})"
+        )
     if not isinstance(options.trace, TraceRecording):
         raise SMCOptionError(f"trace must be a TraceRecording, got {options.trace!r}")
     ess = options.ess_threshold
@@ -235,13 +240,15 @@ def _check_options(n: int, proposal: Proposal | None, options: SMCOptions) -> fl
         if ess is not None:
             raise SMCOptionError("give ess_threshold or ess_from_proposal, not both")
         ess = proposal_ess(proposal)
-    if ess is not None and (isinstance(ess, bool) or not isinstance(ess, int | float)
-                            or not 0.0 < ess <= 1.0):
+    if ess is not None and (
+        isinstance(ess, bool) or not isinstance(ess, int | float) or not 0.0 < ess <= 1.0
+    ):
         raise SMCOptionError(f"ess_threshold must be in (0, 1] or None, got {ess!r}")
     mask, size = options.target_mask, options.canvas_size
     if mask is not None and tuple(np.shape(mask)) != tuple(size):
-        raise SMCOptionError(f"target mask {tuple(np.shape(mask))} and canvas size "
-                             f"{tuple(size)} differ")
+        raise SMCOptionError(
+            f"target mask {tuple(np.shape(mask))} and canvas size {tuple(size)} differ"
+        )
     return ess
 
 
@@ -282,9 +289,15 @@ class Population:
 class _Run:
     """One SMC run's state: population, canvas, features, proposal, observers, counters."""
 
-    def __init__(self, program: Program, likelihood: Likelihood | None, n: int,
-                 proposal: Proposal | None, options: SMCOptions,
-                 observers: tuple[SMCObserver, ...]) -> None:
+    def __init__(
+        self,
+        program: Program,
+        likelihood: Likelihood | None,
+        n: int,
+        proposal: Proposal | None,
+        options: SMCOptions,
+        observers: tuple[SMCObserver, ...],
+    ) -> None:
         self.program = program
         self.n = n
         self.resample = options.resample
@@ -302,8 +315,11 @@ class _Run:
         self.use_features = bool(self.proposal.uses_features)
         self._make_canvas(options)
         self.like_state = likelihood.start(n) if likelihood is not None else {}
-        self.blank_ll = (likelihood.blank_loglik(self.canvas.height, self.canvas.width)
-                         if likelihood is not None and self.canvas is not None else None)
+        self.blank_ll = (
+            likelihood.blank_loglik(self.canvas.height, self.canvas.width)
+            if likelihood is not None and self.canvas is not None
+            else None
+        )
         x0, y0, h0 = program.start if options.start is None else options.start
         self.deriver = Deriver(program, max_modules=module_cap(program, options.max_modules))
         turtle = (float(x0), float(y0), float(h0), 1.0)
@@ -330,13 +346,16 @@ class _Run:
         self.canvas = None
         if need_features or (likelihood is not None and likelihood.needs_canvas):
             if program.viewport is None:
-                raise ProgramError(f"program {program.name} has no viewport: "
-                                   "cannot rasterize for the likelihood or features")
+                raise ProgramError(
+                    f"program {program.name} has no viewport: "
+                    "cannot rasterize for the likelihood or features"
+                )
             from ngpm_runtime.image.raster import Canvas
 
             height, width = options.canvas_size
-            self.canvas = Canvas(self.n, int(height), int(width), program.viewport,
-                                 pyramid=need_features)
+            self.canvas = Canvas(
+                self.n, int(height), int(width), program.viewport, pyramid=need_features
+            )
         self.fmaker = None
         self.trim = 0  # context columns to cut from the rows the proposal is given
         if need_features:
@@ -363,12 +382,16 @@ class _Run:
         if self.observers:
             self._step_done(drawn)
         if (pop.log_w == np.inf).any():
-            raise SMCFailed(f"a weight became +inf at step {self.steps} (program "
-                            f"{self.program.name}): a proposal gave zero density to its own "
-                            "value or a likelihood returned +inf")
+            raise SMCFailed(
+                f"a weight became +inf at step {self.steps} (program "
+                f"{self.program.name}): a proposal gave zero density to its own "
+                "value or a likelihood returned +inf"
+            )
         if not np.isfinite(pop.log_w).any():
-            raise SMCFailed(f"every particle's weight is zero after step {self.steps} "
-                            f"({self.n} particles, program {self.program.name})")
+            raise SMCFailed(
+                f"every particle's weight is zero after step {self.steps} "
+                f"({self.n} particles, program {self.program.name})"
+            )
         pop.update_live()
         ess = _ess(pop.log_w)
         self.ess_history.append(ess)
@@ -453,28 +476,49 @@ class _Run:
             rows = [parts[i].need[1] for i in idx]  # type: ignore[index]  # waiting: set
             args = _prior_args(site, rows)
             if not kind_of(site).weighted and args.shape[1] != site.n_args():
-                raise ProgramError(f"site {site.id} (line {site.line}): {site.kind} takes "
-                                   f"{site.n_args()} arguments, got {args.shape[1]}")
+                raise ProgramError(
+                    f"site {site.id} (line {site.line}): {site.kind} takes "
+                    f"{site.n_args()} arguments, got {args.shape[1]}"
+                )
             objs.append(site)
             rows_list.append(rows)
             args_list.append(args)
         feats = self._features(objs, groups, args_list) if self.fmaker is not None else None
         given = feats if self.use_features else None
         if given is not None and self.trim:  # recorded with context, the guide reads less
-            given = [f[:, :f.shape[1] - self.trim] for f in given]
+            given = [f[:, : f.shape[1] - self.trim] for f in given]
         if self.batched:
             # self.batched: a RoundProposal (checked once, not per round)
             answers = self.proposal.propose_round(  # type: ignore[attr-defined]
-                objs, args_list, given, self.rng)
+                objs, args_list, given, self.rng
+            )
         else:
-            answers = [self.proposal.propose(objs[0], args_list[0],
-                                             None if given is None else given[0], self.rng)]
+            answers = [
+                self.proposal.propose(
+                    objs[0], args_list[0], None if given is None else given[0], self.rng
+                )
+            ]
         for j, (values, log_q) in enumerate(answers):
-            self._weigh_site(objs[j], groups[j], rows_list[j], args_list[j], values, log_q,
-                             None if feats is None else feats[j])
+            self._weigh_site(
+                objs[j],
+                groups[j],
+                rows_list[j],
+                args_list[j],
+                values,
+                log_q,
+                None if feats is None else feats[j],
+            )
 
-    def _weigh_site(self, site: Site, idx: list[int], rows: list[Args], args: np.ndarray,
-                    values: np.ndarray, log_q: np.ndarray, feats: np.ndarray | None) -> None:
+    def _weigh_site(
+        self,
+        site: Site,
+        idx: list[int],
+        rows: list[Args],
+        args: np.ndarray,
+        values: np.ndarray,
+        log_q: np.ndarray,
+        feats: np.ndarray | None,
+    ) -> None:
         """Weights (log prior - log q), trace and replay values of one served site. The
         weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
         ia = np.asarray(idx, dtype=np.intp)
@@ -502,19 +546,18 @@ class _Run:
             return
         pop = self.pop
         ia = np.concatenate([x[0] for x in pending]) if len(pending) > 1 else pending[0][0]
-        log_p = (np.concatenate([x[2] for x in pending]) if len(pending) > 1
-                 else pending[0][2])
+        log_p = np.concatenate([x[2] for x in pending]) if len(pending) > 1 else pending[0][2]
         if not self.is_prior:
-            log_q = (np.concatenate([x[1] for x in pending]) if len(pending) > 1
-                     else pending[0][1])
+            log_q = np.concatenate([x[1] for x in pending]) if len(pending) > 1 else pending[0][1]
             with np.errstate(invalid="ignore"):
                 delta = log_p - log_q
             np.add.at(pop.log_w, ia, np.where(np.isnan(delta), -np.inf, delta))
         np.add.at(pop.log_prior, ia, log_p)
         pending.clear()
 
-    def _features(self, sites: list[Site], groups: list[list[int]],
-                  args_list: list[np.ndarray]) -> list[np.ndarray]:
+    def _features(
+        self, sites: list[Site], groups: list[list[int]], args_list: list[np.ndarray]
+    ) -> list[np.ndarray]:
         """Feature rows of the waiting particles, one array per site, in one pass."""
         parts = self.pop.parts
         idx = [i for g in groups for i in g]
@@ -526,14 +569,15 @@ class _Run:
         params_list = []
         pos = 0
         for site, g in zip(sites, groups, strict=True):
-            params = _rows([t[0][1:] for t in tops[pos:pos + len(g)]])  # type: ignore[index]  # same
+            params = _rows([t[0][1:] for t in tops[pos : pos + len(g)]])  # type: ignore[index]  # same
             if params is None:
                 raise ProgramError(f"site {site.id}: modules of different arity share it")
             params_list.append(params)
             pos += len(g)
         assert self.fmaker is not None
-        return self.fmaker.features_cached(sites, self.canvas, idx, turtles, depths,
-                                           params_list, args_list)
+        return self.fmaker.features_cached(
+            sites, self.canvas, idx, turtles, depths, params_list, args_list
+        )
 
     def _observe(self, drawn: list[int], empty: list[int]) -> None:
         """Rasterize the new primitives and apply the likelihood increments (and the blank
@@ -552,8 +596,9 @@ class _Run:
             else:
                 batch = PrimBatch(idx, np.array([prim_bbox(q) for q in prims]), prims)
             if self.likelihood is not None:
-                inc = np.asarray(self.likelihood.increment(self.like_state, self.canvas,
-                                                           batch), dtype=np.float64)
+                inc = np.asarray(
+                    self.likelihood.increment(self.like_state, self.canvas, batch), dtype=np.float64
+                )
                 pop.add_loglik(idx, np.where(np.isnan(inc), -np.inf, inc))
             cap = self.cap
             for i in drawn:
@@ -606,13 +651,23 @@ class _Run:
             ess_history=self.ess_history,
             steps=self.steps,
             seconds=seconds,
-            info={"particle_steps": self.particle_steps, "resamples": self.n_resample,
-                  "status": status, "limits": _limit_counts(finals)},
+            info={
+                "particle_steps": self.particle_steps,
+                "resamples": self.n_resample,
+                "status": status,
+                "limits": _limit_counts(finals),
+            },
         )
 
 
-def _record(parts: list[Particle], site: Site, idx: list[int], vals: list[float],
-            feats: np.ndarray | None, trace: TraceRecording) -> None:
+def _record(
+    parts: list[Particle],
+    site: Site,
+    idx: list[int],
+    vals: list[float],
+    feats: np.ndarray | None,
+    trace: TraceRecording,
+) -> None:
     """Append the drawn values to the particles' replay values (and traces)."""
     s = site.index
     st = (s,)
@@ -700,16 +755,26 @@ def replay(
     from ngpm_runtime.inference.proposals import ReplayProposal
 
     proposal = ReplayProposal(values)
-    options = SMCOptions(trace=TraceRecording.FULL, start=start, canvas_size=canvas_size,
-                         target_mask=target_mask, max_primitives=max_primitives,
-                         max_modules=max_modules)
+    options = SMCOptions(
+        trace=TraceRecording.FULL,
+        start=start,
+        canvas_size=canvas_size,
+        target_mask=target_mask,
+        max_primitives=max_primitives,
+        max_modules=max_modules,
+    )
     res = smc(program, None, 1, proposal, options)
     proposal.check_used()
     return res.particles[0]
 
 
-def _weights_logp(site: Site, rows: list[Args], args: np.ndarray, vals: list[float],
-                  tables: dict[tuple[int, Args], list[float]]) -> np.ndarray | None:
+def _weights_logp(
+    site: Site,
+    rows: list[Args],
+    args: np.ndarray,
+    vals: list[float],
+    tables: dict[tuple[int, Args], list[float]],
+) -> np.ndarray | None:
     """prior_logpdf of the values of a weighted site (categorical) whose rows share one
     weight tuple, from a table
     made by prior_logpdf itself (the same numbers); None when it does not apply."""
@@ -721,8 +786,9 @@ def _weights_logp(site: Site, rows: list[Args], args: np.ndarray, vals: list[flo
     table = tables.get(key)
     if table is None:
         k = len(first)
-        table = prior_logpdf(site, np.repeat(args[:1], k, axis=0),
-                             np.arange(k, dtype=np.float64)).tolist()
+        table = prior_logpdf(
+            site, np.repeat(args[:1], k, axis=0), np.arange(k, dtype=np.float64)
+        ).tolist()
         if len(tables) >= 4096:
             tables.clear()
         tables[key] = table
@@ -773,8 +839,9 @@ def _rows(rows: list[Args]) -> np.ndarray | None:
 def _prior_args(site: Site, rows: list[Args]) -> np.ndarray:
     args = _rows(rows)
     if args is None:
-        raise ProgramError(f"site {site.id} (line {site.line}): prior arguments are not "
-                           "numbers of one length")
+        raise ProgramError(
+            f"site {site.id} (line {site.line}): prior arguments are not numbers of one length"
+        )
     return args
 
 
@@ -796,8 +863,11 @@ def check_run_options(n_particles: object, seed: object, max_modules: object) ->
         raise SMCOptionError(f"the particle count must be an integer, got {n_particles!r}")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise SMCOptionError(f"the seed must be a non-negative integer, got {seed!r}")
-    if max_modules is not None and (not isinstance(max_modules, int | np.integer)
-                                    or isinstance(max_modules, bool) or max_modules < 1):
+    if max_modules is not None and (
+        not isinstance(max_modules, int | np.integer)
+        or isinstance(max_modules, bool)
+        or max_modules < 1
+    ):
         raise SMCOptionError(f"max_modules must be an integer >= 1, got {max_modules!r}")
 
 

@@ -44,9 +44,12 @@ def test_demo_command_as_in_readme(demo_run) -> None:
     with Image.open(out / "demo.png") as img:
         img.load()
         assert img.mode == "RGB"
-        assert img.size == (cmd_demo.PAD + 3 * (cmd_demo.CELL + cmd_demo.PAD),
-                            cmd_demo.HEADER + len(names) * (cmd_demo.CELL + cmd_demo.CAPTION
-                                                            + cmd_demo.PAD) + cmd_demo.PAD)
+        assert img.size == (
+            cmd_demo.PAD + 3 * (cmd_demo.CELL + cmd_demo.PAD),
+            cmd_demo.HEADER
+            + len(names) * (cmd_demo.CELL + cmd_demo.CAPTION + cmd_demo.PAD)
+            + cmd_demo.PAD,
+        )
         pixels = np.asarray(img)
     assert pixels.std() > 10  # not a blank picture
     for name in names:
@@ -160,7 +163,11 @@ assert code == 0, code
 def test_demo_runs_without_torch(tmp_path: Path) -> None:
     """`pip install .` without extras (no torch, scipy, scikit-image or matplotlib; onnx is
     optional at run time): the demo still works."""
-    proc = run_blocked(NO_TORCH, tmp_path, str(tmp_path / "out"),
-                       blocked=("torch", "onnx", "scipy", "skimage", "matplotlib"))
+    proc = run_blocked(
+        NO_TORCH,
+        tmp_path,
+        str(tmp_path / "out"),
+        blocked=("torch", "onnx", "scipy", "skimage", "matplotlib"),
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "out" / "demo.png").is_file()

@@ -15,8 +15,16 @@ from repo_paths import REPO
 from ngpm_compiler.cli import main
 from ngpm_compiler.evaluation.runs import RUN_FIELDS, SUMMARY_FIELDS
 
-PNGS = ("fig4a_similarity.png", "fig4b_time.png", "fig5a_mixture.png", "fig5b_trainset.png",
-        "grid_glyphs.png", "grid_silhouettes.png", "circuit.png", "chain.png")
+PNGS = (
+    "fig4a_similarity.png",
+    "fig4b_time.png",
+    "fig5a_mixture.png",
+    "fig5b_trainset.png",
+    "grid_glyphs.png",
+    "grid_silhouettes.png",
+    "circuit.png",
+    "chain.png",
+)
 MODELS = {"unguided", "const", "local", "local+target", "all", "all_k1"}
 
 
@@ -40,9 +48,20 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_quick_writes_every_file(quick: Path) -> None:
     """Every output exists and holds something: tables have a header and rows, the
     settings parse and say --quick, the Markdown files are not empty."""
-    for name in (*PNGS, "README.md", "report.md", "settings.json", "shape_runs.csv",
-                 "shape_summary.csv", "speedup.csv", "trainset.csv", "models.csv",
-                 "grids.csv", "circuit_runs.csv", "chain_runs.csv"):
+    for name in (
+        *PNGS,
+        "README.md",
+        "report.md",
+        "settings.json",
+        "shape_runs.csv",
+        "shape_summary.csv",
+        "speedup.csv",
+        "trainset.csv",
+        "models.csv",
+        "grids.csv",
+        "circuit_runs.csv",
+        "chain_runs.csv",
+    ):
         path = quick / name
         assert path.is_file() and path.stat().st_size > 0, name
         if name.endswith(".csv"):
@@ -88,8 +107,13 @@ def test_summary_is_consistent_with_runs(quick: Path) -> None:
     summ = _csv(quick / "shape_summary.csv")
     assert tuple(summ[0]) == SUMMARY_FIELDS
     for s in summ:
-        sub = [r for r in runs if r["model"] == s["model"] and r["n"] == s["n"]
-               and s["dataset"] in ("all", r["dataset"])]
+        sub = [
+            r
+            for r in runs
+            if r["model"] == s["model"]
+            and r["n"] == s["n"]
+            and s["dataset"] in ("all", r["dataset"])
+        ]
         meds = []
         for t in sorted({r["target"] for r in sub}):
             meds.append(np.median([float(r["similarity"]) for r in sub if r["target"] == t]))
@@ -104,11 +128,19 @@ def test_other_tables(quick: Path) -> None:
     assert [int(r["traces"]) for r in ts] == sorted(int(r["traces"]) for r in ts)
     assert len(ts) >= 2
     grids = _csv(quick / "grids.csv")
-    assert {r["kind"] for r in grids} == {"reference", "guided", "unguided_equal_n",
-                                          "unguided_equal_time"}
+    assert {r["kind"] for r in grids} == {
+        "reference",
+        "guided",
+        "unguided_equal_n",
+        "unguided_equal_time",
+    }
     circ = _csv(quick / "circuit_runs.csv")
-    assert {r["kind"] for r in circ} == {"reference", "guided", "unguided_equal_n",
-                                         "unguided_equal_time"}
+    assert {r["kind"] for r in circ} == {
+        "reference",
+        "guided",
+        "unguided_equal_n",
+        "unguided_equal_time",
+    }
     chain = _csv(quick / "chain_runs.csv")
     assert {r["model"] for r in chain} == {"unguided", "guided"}
     models = {r["model"] for r in _csv(quick / "models.csv")}
@@ -123,8 +155,7 @@ def test_reports_embed_figures_and_numbers(quick: Path) -> None:
     report = (quick / "report.md").read_text()
     assert "## Settings" in report and "## Guides" in report
     settings = json.loads((quick / "settings.json").read_text())
-    assert settings["quick"] is True and settings["test_targets"] == {"glyphs": 1,
-                                                                      "silhouettes": 1}
+    assert settings["quick"] is True and settings["test_targets"] == {"glyphs": 1, "silhouettes": 1}
 
 
 def test_report_stage_alone_reuses_csvs(quick: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -134,8 +165,9 @@ def test_report_stage_alone_reuses_csvs(quick: Path, monkeypatch: pytest.MonkeyP
     assert "Hand-written discussion." in (quick / "README.md").read_text()
 
 
-def test_bad_options_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture,
-                                         monkeypatch: pytest.MonkeyPatch) -> None:
+def test_bad_options_are_one_line_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.chdir(REPO)
     with pytest.raises(SystemExit, match="2"):  # refused by argparse, before any stage runs
         main(["eval", "--quick", "-o", str(tmp_path), "--stages", "heldout,nope"])
@@ -150,8 +182,9 @@ def test_bad_options_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureF
     assert "--ray-address needs --backend ray" in err and err.count("\n") == 1
 
 
-def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                           capsys: pytest.CaptureFixture) -> None:
+def test_eval_needs_no_repository_checkout(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
     """Issue #21: `ngpmc eval` found its grammars via the repository root, so an installed
     package could not run it. The vines model now comes with ngpm_runtime; the chain grammar
     is given on the command line (or found in the current folder)."""
@@ -170,8 +203,21 @@ def test_eval_needs_no_repository_checkout(tmp_path: Path, monkeypatch: pytest.M
     assert "a clone of the ngpm repository; it is not installed" in err
     assert err.count("\n") == 1
     chain = str(REPO / "grammars" / "chain.lsys")
-    cfg = config_from_args(parse(["eval", "-o", "r", "--stages", "chain",
-                                  "--chain-grammar", chain, "--grammar", "missing.lsys"]))
+    cfg = config_from_args(
+        parse(
+            [
+                "eval",
+                "-o",
+                "r",
+                "--stages",
+                "chain",
+                "--chain-grammar",
+                chain,
+                "--grammar",
+                "missing.lsys",
+            ]
+        )
+    )
     assert cfg.chain.chain_grammar == chain and cfg.chain.grammar == "missing.lsys"
 
 

@@ -41,8 +41,7 @@ def error_line(capsys, *args: str) -> str:
 
 def cli(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
     """ngpmc in a subprocess, killed (and the test failed) if it runs past `timeout`."""
-    return subprocess.run([*NGPMC, *args], capture_output=True, text=True, timeout=timeout,
-                          **kw)
+    return subprocess.run([*NGPMC, *args], capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def write(path: Path, text: str) -> str:
@@ -53,10 +52,18 @@ def write(path: Path, text: str) -> str:
 # --------------------------------------------------------------------------- seeds
 
 
-@pytest.mark.parametrize("command", [
-    ["grow", "x.png"], ["sample", VINES, "-o", "x.png"], ["demo"],
-    ["targets", "build", "scribbles", "-o", "x"], ["traces", VINES, "--targets", "t", "-o", "o"],
-    ["train", "t", "-o", "o.pt"], ["eval", "-o", "x"]])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["grow", "x.png"],
+        ["sample", VINES, "-o", "x.png"],
+        ["demo"],
+        ["targets", "build", "scribbles", "-o", "x"],
+        ["traces", VINES, "--targets", "t", "-o", "o"],
+        ["train", "t", "-o", "o.pt"],
+        ["eval", "-o", "x"],
+    ],
+)
 def test_negative_seed_is_refused_at_parsing(capsys, command: list[str]) -> None:
     line = error_line(capsys, *command, "--seed", "-1")
     assert "--seed" in line and "seeds are integers from 0" in line and "-1" in line
@@ -70,11 +77,24 @@ def test_seed_must_be_an_integer(capsys) -> None:
 
 
 def test_traces_without_viewport_says_so(tmp_path: Path, capsys) -> None:
-    g = write(tmp_path / "nv.lsys", "derivation length: 3\nAxiom: F F\nproduction:\n"
-              "F --> F F : 0.5 | F : 0.5\nendlsystem\n")
+    g = write(
+        tmp_path / "nv.lsys",
+        "derivation length: 3\nAxiom: F F\nproduction:\nF --> F F : 0.5 | F : 0.5\nendlsystem\n",
+    )
     (tmp_path / "t").mkdir()
-    line = error_line(capsys, "traces", g, "--targets", str(tmp_path / "t"), "-o",
-                      str(tmp_path / "tr"), "-n", "1", "--workers", "1")
+    line = error_line(
+        capsys,
+        "traces",
+        g,
+        "--targets",
+        str(tmp_path / "t"),
+        "-o",
+        str(tmp_path / "tr"),
+        "-n",
+        "1",
+        "--workers",
+        "1",
+    )
     assert "no 'viewport:' line" in line and "nv.lsys" in line
     assert not (tmp_path / "tr").exists()  # refused before anything was written
 
@@ -92,9 +112,12 @@ def test_sample_size_has_a_limit(tmp_path: Path, capsys) -> None:
 def test_grow_into_a_closed_pipe_still_writes_its_files(horse: Path) -> None:
     """`ngpmc grow ... | head -1`: no 'Broken pipe' error, the outputs are all written."""
     out = horse.with_name("vine.png")
-    proc = subprocess.Popen([*NGPMC, "grow", str(horse), "-N", "2", "-o", str(out), "--svg",
-                             "--steps-gif"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [*NGPMC, "grow", str(horse), "-N", "2", "-o", str(out), "--svg", "--steps-gif"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     first = proc.stdout.readline()
     proc.stdout.close()  # the reader goes away, as `head -1` does
     _, err = proc.communicate(timeout=120)
@@ -114,8 +137,21 @@ def test_traces_stops_when_every_job_is_dropped(tmp_path: Path) -> None:
     g = write(tmp_path / "f3.lsys", "viewport: -10 10 -10 10\nAxiom: F F F\nendlsystem\n")
     data = tmp_path / "sc"
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
-    proc = cli("traces", g, "--targets", str(data), "-n", "3", "--particles", "4", "-o",
-               str(tmp_path / "tr"), "--workers", "1", timeout=120)
+    proc = cli(
+        "traces",
+        g,
+        "--targets",
+        str(data),
+        "-n",
+        "3",
+        "--particles",
+        "4",
+        "-o",
+        str(tmp_path / "tr"),
+        "--workers",
+        "1",
+        timeout=120,
+    )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert "stopped after 50 jobs in a row were dropped" in last
@@ -123,14 +159,16 @@ def test_traces_stops_when_every_job_is_dropped(tmp_path: Path) -> None:
     assert (tmp_path / "tr" / "manifest.json").is_file()
 
 
-EXPONENTIAL = ("viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\nproduction:\n"
-               "A --> A A\nendlsystem\n")
+EXPONENTIAL = (
+    "viewport: -10 10 -10 10\nderivation length: 60\nAxiom: A\nproduction:\nA --> A A\nendlsystem\n"
+)
 
 
 def test_exponential_grammar_stops_at_the_module_cap(tmp_path: Path, horse: Path) -> None:
     g = write(tmp_path / "exp.lsys", EXPONENTIAL)
-    proc = cli("grow", str(horse), "--grammar", g, "-N", "10", "-o", str(tmp_path / "e.png"),
-               timeout=60)
+    proc = cli(
+        "grow", str(horse), "--grammar", g, "-N", "10", "-o", str(tmp_path / "e.png"), timeout=60
+    )
     assert proc.returncode == 0, proc.stderr
     assert "0 primitives" in proc.stdout
     assert "status limit: max modules (20000 modules" in proc.stdout
@@ -150,8 +188,21 @@ def test_traces_on_an_exponential_grammar_ends(tmp_path: Path) -> None:
     g = write(tmp_path / "exp.lsys", EXPONENTIAL)
     data = tmp_path / "sc"
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
-    proc = cli("traces", g, "--targets", str(data), "-n", "2", "--particles", "20",
-               "-o", str(tmp_path / "tr"), "--workers", "1", timeout=120)
+    proc = cli(
+        "traces",
+        g,
+        "--targets",
+        str(data),
+        "-n",
+        "2",
+        "--particles",
+        "20",
+        "-o",
+        str(tmp_path / "tr"),
+        "--workers",
+        "1",
+        timeout=120,
+    )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert "samples stop at the 'max modules' cap (20000 modules expanded" in last
@@ -162,7 +213,8 @@ def test_traces_on_an_exponential_grammar_ends(tmp_path: Path) -> None:
 
 def test_module_cap_option_is_checked(capsys) -> None:
     assert "argument --max-modules: must be from 1 to" in error_line(
-        capsys, "sample", VINES, "-o", "x.png", "--max-modules", "0")
+        capsys, "sample", VINES, "-o", "x.png", "--max-modules", "0"
+    )
 
 
 def test_traces_killed_by_timeout_exits_promptly(tmp_path: Path) -> None:
@@ -177,10 +229,27 @@ def test_traces_killed_by_timeout_exits_promptly(tmp_path: Path) -> None:
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
     for i, delay in enumerate((4.0, 5.5)):
         out = tmp_path / f"tr{i}"
-        proc = subprocess.Popen([*NGPMC, "traces", VINES, "--targets", str(data), "-n", "500",
-                                 "--particles", "30", "--shard-size", "3", "-o", str(out)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                start_new_session=True)
+        proc = subprocess.Popen(
+            [
+                *NGPMC,
+                "traces",
+                VINES,
+                "--targets",
+                str(data),
+                "-n",
+                "500",
+                "--particles",
+                "30",
+                "--shard-size",
+                "3",
+                "-o",
+                str(out),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )
         time.sleep(delay)
         os.killpg(proc.pid, signal.SIGTERM)
         try:
@@ -201,8 +270,22 @@ def traces_dir(tmp_path_factory) -> Path:
     data = tmp / "sc"
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
     out = tmp / "tr"
-    proc = cli("traces", str(REPO / "grammars" / "chain.lsys"), "--targets", str(data), "-n",
-               "6", "--particles", "4", "--shard-size", "2", "--workers", "1", "-o", str(out))
+    proc = cli(
+        "traces",
+        str(REPO / "grammars" / "chain.lsys"),
+        "--targets",
+        str(data),
+        "-n",
+        "6",
+        "--particles",
+        "4",
+        "--shard-size",
+        "2",
+        "--workers",
+        "1",
+        "-o",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     return out
 
@@ -220,13 +303,13 @@ def test_train_stops_on_a_missing_shard(traces_dir: Path, tmp_path: Path, capsys
     shards[1].write_bytes(b"not a shard")
     line = error_line(capsys, "train", str(tr), "-o", str(model), "--epochs", "1")
     assert f"unreadable {shards[1].name}" in line
-    code, _, err = run(capsys, "train", str(tr), "-o", str(model), "--epochs", "1",
-                       "--allow-missing")
+    code, _, err = run(
+        capsys, "train", str(tr), "-o", str(model), "--epochs", "1", "--allow-missing"
+    )
     assert code == 0 and "warning" in err and model.is_file()
 
 
-def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Path,
-                                                 capsys) -> None:
+def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Path, capsys) -> None:
     (tmp_path / "existing.pt").mkdir()
     line = error_line(capsys, "train", str(traces_dir), "-o", str(tmp_path / "existing.pt"))
     assert "is a folder; -o wants the model file to write" in line
@@ -240,14 +323,21 @@ def test_train_checks_its_output_before_training(traces_dir: Path, tmp_path: Pat
 # --------------------------------------------------------------------------- messages
 
 
-@pytest.mark.parametrize("successor, col, words", [
-    ("F ] B : 0.5 | F [ + B ] : 0.5", 9, "unmatched ']' in rule for B: no '[' before it"),
-    ("F B : 0.5 | F [ + B : 0.5", 21, "unmatched '[' in rule for B: no ']' closes it"),
-])
-def test_check_finds_unmatched_brackets(tmp_path: Path, successor: str, col: int,
-                                        words: str) -> None:
-    g = write(tmp_path / "br.lsys", "viewport: -10 10 -10 10\nderivation length: 4\n"
-              f"Axiom: B\nproduction:\nB --> {successor}\nendlsystem\n")
+@pytest.mark.parametrize(
+    "successor, col, words",
+    [
+        ("F ] B : 0.5 | F [ + B ] : 0.5", 9, "unmatched ']' in rule for B: no '[' before it"),
+        ("F B : 0.5 | F [ + B : 0.5", 21, "unmatched '[' in rule for B: no ']' closes it"),
+    ],
+)
+def test_check_finds_unmatched_brackets(
+    tmp_path: Path, successor: str, col: int, words: str
+) -> None:
+    g = write(
+        tmp_path / "br.lsys",
+        "viewport: -10 10 -10 10\nderivation length: 4\n"
+        f"Axiom: B\nproduction:\nB --> {successor}\nendlsystem\n",
+    )
     for command in (["check", g], ["sample", g, "-o", str(tmp_path / "s.png")]):
         proc = cli(*command, timeout=60)
         assert proc.returncode == 2 and "Traceback" not in proc.stderr
@@ -266,25 +356,41 @@ def bare_images(tmp_path: Path) -> Path:
     return folder
 
 
-def test_folder_without_sidecars_loads_with_automatic_starts(bare_images: Path,
-                                                             tmp_path: Path, capsys) -> None:
+def test_folder_without_sidecars_loads_with_automatic_starts(
+    bare_images: Path, tmp_path: Path, capsys
+) -> None:
     from ngpm_runtime.image.targets import Target, auto_start, load_dataset
 
     targets = load_dataset(bare_images)
     assert [t.name for t in targets] == ["heart", "horse"]
     assert all(t.start == Target(t.mask, auto_start(t.mask)).start for t in targets)
-    code, out, err = run(capsys, "targets", "show", str(bare_images), "-o",
-                         str(tmp_path / "sheet.png"))
+    code, out, err = run(
+        capsys, "targets", "show", str(bare_images), "-o", str(tmp_path / "sheet.png")
+    )
     assert code == 0 and "2 of 2 targets" in out, err
-    proc = cli("traces", str(REPO / "grammars" / "chain.lsys"), "--targets", str(bare_images),
-               "-n", "2", "--particles", "4", "--workers", "1", "-o", str(tmp_path / "tr"))
+    proc = cli(
+        "traces",
+        str(REPO / "grammars" / "chain.lsys"),
+        "--targets",
+        str(bare_images),
+        "-n",
+        "2",
+        "--particles",
+        "4",
+        "--workers",
+        "1",
+        "-o",
+        str(tmp_path / "tr"),
+    )
     assert proc.returncode == 0 and "2 traces kept" in proc.stdout, proc.stderr
 
 
 def test_grow_says_it_wants_an_image_not_a_folder(bare_images: Path, capsys) -> None:
     line = error_line(capsys, "grow", str(bare_images), "-o", "x.png")
-    assert line == (f"ngpmc: error: {bare_images} is a folder: grow wants one target image "
-                    "(ngpmc grow IMAGE -o vine.png), so run it once per image")
+    assert line == (
+        f"ngpmc: error: {bare_images} is a folder: grow wants one target image "
+        "(ngpmc grow IMAGE -o vine.png), so run it once per image"
+    )
 
 
 def test_errors_name_the_users_path_not_a_temp_file(tmp_path: Path, capsys) -> None:
@@ -298,8 +404,7 @@ def test_errors_name_the_users_path_not_a_temp_file(tmp_path: Path, capsys) -> N
     assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
 
 
-def test_o_on_a_symlink_writes_through_to_its_target(tmp_path: Path, horse: Path,
-                                                    capsys) -> None:
+def test_o_on_a_symlink_writes_through_to_its_target(tmp_path: Path, horse: Path, capsys) -> None:
     """Issue #27, finding 8: `-o LINK` replaces the file the link points to (atomically,
     beside that file); the link stays a link. A link loop is one error line."""
     real = tmp_path / "kept" / "sheet.png"
@@ -323,13 +428,16 @@ def test_compile_o_wants_a_folder(tmp_path: Path, capsys) -> None:
     out = tmp_path / "vines_sampler.py"
     out.write_text("# mine\n")
     line = error_line(capsys, "compile", VINES, "-o", str(out))
-    assert line == (f"ngpmc: error: {out}: is a file; -o wants a folder (the outputs are "
-                    "named after the grammar)")
+    assert line == (
+        f"ngpmc: error: {out}: is a file; -o wants a folder (the outputs are "
+        "named after the grammar)"
+    )
     assert out.read_text() == "# mine\n"
 
 
-def test_animated_gif_uses_its_first_frame_with_a_shape(tmp_path: Path, horse: Path,
-                                                        capsys) -> None:
+def test_animated_gif_uses_its_first_frame_with_a_shape(
+    tmp_path: Path, horse: Path, capsys
+) -> None:
     from ngpm_runtime.image.targets import load_target, read_image
     from PIL import Image
 

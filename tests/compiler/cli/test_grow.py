@@ -21,8 +21,11 @@ from ngpm_compiler.cli import main
 
 VINES = str(REPO / "grammars" / "vines.lsys")
 CHAIN = str(REPO / "grammars" / "chain.lsys")
-LINE_RE = re.compile(r"^(\w+): similarity (-?[\d.]+), (\d+) particles \((guided|unguided)\), "
-                     r"([\d.]+) s, (\d+) primitives$", re.M)
+LINE_RE = re.compile(
+    r"^(\w+): similarity (-?[\d.]+), (\d+) particles \((guided|unguided)\), "
+    r"([\d.]+) s, (\d+) primitives$",
+    re.M,
+)
 
 
 @pytest.fixture(autouse=True)
@@ -78,8 +81,9 @@ def build_parser_help(command: str) -> str:
 
 def test_svg_and_growth_animation_beside_the_render(horse: Path, capsys) -> None:
     out = horse.with_name("vine.png")
-    code, text, _ = run(capsys, "grow", str(horse), "-o", str(out), "--svg", "--steps-gif",
-                        "-N", "4")
+    code, text, _ = run(
+        capsys, "grow", str(horse), "-o", str(out), "--svg", "--steps-gif", "-N", "4"
+    )
     assert code == 0, text
     assert out.with_suffix(".svg").read_text().startswith("<svg")
     prims = int(LINE_RE.search(text).group(6))
@@ -98,8 +102,7 @@ def test_same_seed_same_result(horse: Path, capsys) -> None:
     outs = {}
     for name, seed in (("a", "7"), ("b", "7"), ("c", "8")):
         out = horse.with_name(f"{name}.svg")
-        code, text, _ = run(capsys, "grow", str(horse), "-N", "3", "--seed", seed, "-o",
-                            str(out))
+        code, text, _ = run(capsys, "grow", str(horse), "-N", "3", "--seed", seed, "-o", str(out))
         assert code == 0 and LINE_RE.search(text), text
         outs[name] = out.read_text()
     assert outs["a"] == outs["b"] and outs["a"] != outs["c"]
@@ -119,8 +122,7 @@ def test_guide_choices(horse: Path, capsys) -> None:
     # the same grammar compiled from source still gets the bundled guide (same hash)
     code, text, _ = run(capsys, "grow", str(horse), "--grammar", VINES, "-N", "3")
     assert code == 0 and "(guided)" in text
-    code, text, _ = run(capsys, "grow", str(horse), "--guide", str(bundled.guide_path()),
-                        "-N", "3")
+    code, text, _ = run(capsys, "grow", str(horse), "--guide", str(bundled.guide_path()), "-N", "3")
     assert code == 0 and "(guided)" in text
     # another grammar has no default guide
     code, text, _ = run(capsys, "grow", str(horse), "--grammar", CHAIN, "-N", "3")
@@ -131,11 +133,13 @@ def test_circuit_likelihood_needs_no_image_and_never_takes_the_shape_guide(capsy
     code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3")
     assert code == 0
     assert "no bundled guide for grammar vines with the circuit likelihood" in text
-    assert re.search(r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(unguided\)",
-                     text, re.M), text
+    assert re.search(
+        r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(unguided\)", text, re.M
+    ), text
     # a guide given explicitly is still used
-    code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3", "--guide",
-                        str(bundled.guide_path()))
+    code, text, _ = run(
+        capsys, "grow", "--likelihood", "circuit", "-N", "3", "--guide", str(bundled.guide_path())
+    )
     assert code == 0 and "(guided)" in text
 
 
@@ -163,13 +167,27 @@ def test_a_tall_tiny_png_is_refused_before_it_takes_memory(tmp_path: Path) -> No
     def two_gib() -> None:
         resource.setrlimit(resource.RLIMIT_AS, (2 * 2**30, 2 * 2**30))
 
-    proc = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "grow", str(tall),
-                           "-o", str(tmp_path / "v.png")], capture_output=True, text=True,
-                          timeout=120, preexec_fn=two_gib)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngpm_compiler.cli",
+            "grow",
+            str(tall),
+            "-o",
+            str(tmp_path / "v.png"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=two_gib,
+    )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
-    assert proc.stderr.strip() == (f"ngpmc: error: cannot read target image {tall}: the image "
-                                   "is 8 x 60000 px; the limit is 8192 px a side and "
-                                   "33,554,432 px in all")
+    assert proc.stderr.strip() == (
+        f"ngpmc: error: cannot read target image {tall}: the image "
+        "is 8 x 60000 px; the limit is 8192 px a side and "
+        "33,554,432 px in all"
+    )
 
 
 def test_grammar_given_as_the_image(capsys) -> None:
@@ -178,16 +196,18 @@ def test_grammar_given_as_the_image(capsys) -> None:
 
 
 def test_guide_for_another_grammar(horse: Path, capsys) -> None:
-    line = one_line_error(capsys, "grow", str(horse), "--grammar", CHAIN,
-                          "--guide", str(bundled.guide_path()))
+    line = one_line_error(
+        capsys, "grow", str(horse), "--grammar", CHAIN, "--guide", str(bundled.guide_path())
+    )
     assert "trained for grammar 'vines'" in line
 
 
 def test_corrupt_guide_and_missing_grammar(horse: Path, capsys) -> None:
     bad = horse.with_name("bad.onnx")
     bad.write_bytes(b"\x00" * 50)
-    assert "not a readable ONNX guide" in one_line_error(capsys, "grow", str(horse),
-                                                         "--guide", str(bad))
+    assert "not a readable ONNX guide" in one_line_error(
+        capsys, "grow", str(horse), "--guide", str(bad)
+    )
     line = one_line_error(capsys, "grow", str(horse), "--grammar", "nowhere/x.lsys")
     assert "no such grammar file" in line
 
@@ -196,13 +216,15 @@ def test_unwritable_or_wrong_outputs(horse: Path, capsys) -> None:
     out = horse.with_name("vine.png")
     line = one_line_error(capsys, "grow", str(horse), "-o", str(horse.parent / "no" / "v.png"))
     assert "cannot write there" in line
-    assert "must be a .png or .svg" in one_line_error(capsys, "grow", str(horse), "-o",
-                                                      str(horse.with_name("v.jpg")))
+    assert "must be a .png or .svg" in one_line_error(
+        capsys, "grow", str(horse), "-o", str(horse.with_name("v.jpg"))
+    )
     folder = horse.with_name("folder.png")
     folder.mkdir()
     assert "is a folder" in one_line_error(capsys, "grow", str(horse), "-o", str(folder))
-    assert "writes a .gif file" in one_line_error(capsys, "grow", str(horse), "-o", str(out),
-                                                  "--steps-gif", str(out))
+    assert "writes a .gif file" in one_line_error(
+        capsys, "grow", str(horse), "-o", str(out), "--steps-gif", str(out)
+    )
     with pytest.raises(SystemExit, match="2"):
         main(["grow", str(horse), "-N", "0"])
     assert "argument -N/--particles: must be from 1 to" in capsys.readouterr().err
@@ -214,8 +236,12 @@ def test_errors_through_the_installed_command(tmp_path: Path) -> None:
     cmd = [exe] if exe else [sys.executable, "-m", "ngpm_compiler.cli"]
     fake = tmp_path / "fake.png"
     fake.write_text("no image")
-    proc = subprocess.run([*cmd, "grow", str(fake), "-o", str(tmp_path / "v.png")],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [*cmd, "grow", str(fake), "-o", str(tmp_path / "v.png")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1 and "fake.png" in proc.stderr
 
@@ -224,9 +250,13 @@ def test_thin_strokes_lost_at_the_working_size_are_warned_about(tmp_path: Path, 
     thin = house(tmp_path / "house.png", 8)
     code, text, _ = run(capsys, "grow", str(thin), "-N", "2")
     assert code == 0
-    assert re.search(r"^warning: only \d+% of the picture's shape is kept at 50 x 50 pixels "
-                     r".*draw thicker strokes, or grow at --size 128 "
-                     r"\(guides trained at 50 x 50 guide less well there\)$", text, re.M), text
+    assert re.search(
+        r"^warning: only \d+% of the picture's shape is kept at 50 x 50 pixels "
+        r".*draw thicker strokes, or grow at --size 128 "
+        r"\(guides trained at 50 x 50 guide less well there\)$",
+        text,
+        re.M,
+    ), text
     code, text, _ = run(capsys, "grow", str(thin), "-N", "2", "--size", "128")
     assert code == 0 and "warning" not in text
     thick = house(tmp_path / "thick.png", 40)
@@ -244,8 +274,9 @@ def test_a_low_similarity_is_explained(horse: Path, capsys) -> None:
 
 
 @pytest.mark.parametrize("guide", [[], ["--guide", "none"]])
-def test_grow_with_a_3d_grammar_is_a_one_line_error(horse: Path, guide: list[str],
-                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_grow_with_a_3d_grammar_is_a_one_line_error(
+    horse: Path, guide: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
     """Guided 3D growth needs a 3D target (issue #26): said before the target or the guide
     is read, in one line."""
     tree = str(REPO / "grammars" / "tree3d.lsys")

@@ -14,8 +14,22 @@ from ngpm_compiler import cli
 from ngpm_compiler.cli import build_parser, main
 
 # values tried on every option that takes one
-BAD = ["0", "-1", "-3", "nan", "inf", "-inf", "", ",,", "1,,2", "100000", "1e18",
-       "1" + "0" * 30, "x", "FOLDER"]
+BAD = [
+    "0",
+    "-1",
+    "-3",
+    "nan",
+    "inf",
+    "-inf",
+    "",
+    ",,",
+    "1,,2",
+    "100000",
+    "1e18",
+    "1" + "0" * 30,
+    "x",
+    "FOLDER",
+]
 # refused by every option that refuses the non-number "x" (numbers, lists, choices)
 NOT_A_COUNT = ["-1", "-3", "nan", "inf", "-inf", "", ",,", "1,,2", "1e18", "1" + "0" * 30]
 ZERO_IS_VALID = {"--hidden", "--port", "--seed"}  # 0: automatic, any free port, a seed
@@ -39,8 +53,9 @@ def one_error_line(code: int, err: str) -> str:
     return lines[0]
 
 
-def commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
-             ) -> dict[tuple[str, ...], argparse.ArgumentParser]:
+def commands(
+    parser: argparse.ArgumentParser, path: tuple[str, ...] = ()
+) -> dict[tuple[str, ...], argparse.ArgumentParser]:
     """Every (sub)command's parser, by its words: ('targets', 'show') -> parser."""
     out = {path: parser} if path else {}
     for action in parser._actions:
@@ -67,14 +82,36 @@ def bases(tmp: Path) -> dict[tuple[str, ...], list[str]]:
         ("sample",): ["sample", f"{gone}.lsys", "-o", str(tmp / "s.png")],
         ("traces",): ["traces", f"{gone}.lsys", "--targets", gone, "-o", str(tmp / "tr")],
         ("train",): ["train", gone, "-o", str(tmp / "m.pt")],
-        ("iterate",): ["iterate", f"{gone}.lsys", "--targets", gone, "--validate", f"v={gone}",
-                       "-o", str(tmp / "it")],
+        ("iterate",): [
+            "iterate",
+            f"{gone}.lsys",
+            "--targets",
+            gone,
+            "--validate",
+            f"v={gone}",
+            "-o",
+            str(tmp / "it"),
+        ],
         ("export",): ["export", f"{gone}.pt", "-o", str(tmp / "g.onnx")],
-        ("tune",): ["tune", f"{gone}.lsys", f"{gone}.onnx", "--validate", f"v={gone}",
-                    "-o", str(tmp / "t.onnx")],
+        ("tune",): [
+            "tune",
+            f"{gone}.lsys",
+            f"{gone}.onnx",
+            "--validate",
+            f"v={gone}",
+            "-o",
+            str(tmp / "t.onnx"),
+        ],
         ("grow",): ["grow", f"{gone}.png"],
-        ("targets", "build"): ["targets", "build", "silhouettes", "-o", str(tmp / "ds"),
-                               "--from", gone],
+        ("targets", "build"): [
+            "targets",
+            "build",
+            "silhouettes",
+            "-o",
+            str(tmp / "ds"),
+            "--from",
+            gone,
+        ],
         ("targets", "list"): ["targets", "list", "--nope"],
         ("targets", "show"): ["targets", "show", f"{gone}.png", "-o", str(tmp / "sheet.png")],
         ("eval",): ["eval", "-o", str(tmp / "ev"), "--traces", gone, "--glyphs", gone],
@@ -93,14 +130,23 @@ def test_every_command_has_a_fuzz_base(tmp_path: Path) -> None:
 
 def test_numeric_options_have_checked_types() -> None:
     """No bare int or float: each number has a range that argparse checks."""
-    loose = [f"{' '.join(words)} {a.option_strings[0]}"
-             for words, parser in commands(build_parser()).items()
-             for a in value_options(parser) if a.type in (int, float)]
+    loose = [
+        f"{' '.join(words)} {a.option_strings[0]}"
+        for words, parser in commands(build_parser()).items()
+        for a in value_options(parser)
+        if a.type in (int, float)
+    ]
     assert not loose
 
 
-def fuzz_one(capsys, argv: list[str], action: argparse.Action, value: str,
-             refuses_text: bool, parse_only: bool) -> None:
+def fuzz_one(
+    capsys,
+    argv: list[str],
+    action: argparse.Action,
+    value: str,
+    refuses_text: bool,
+    parse_only: bool,
+) -> None:
     """One bad value on one option: refused at parsing where it must be, else a clean
     one-line failure of the (fast-failing) base command."""
     option = action.option_strings[-1]
@@ -112,8 +158,9 @@ def fuzz_one(capsys, argv: list[str], action: argparse.Action, value: str,
             capsys.readouterr()
     code, err = run(capsys, [*argv, option, value])
     line = one_error_line(code, err)
-    must_refuse = refuses_text and (value in NOT_A_COUNT or
-                                    (value == "0" and option not in ZERO_IS_VALID))
+    must_refuse = refuses_text and (
+        value in NOT_A_COUNT or (value == "0" and option not in ZERO_IS_VALID)
+    )
     if must_refuse:
         names = "/".join(action.option_strings)
         assert code == 2 and f"argument {names}: " in line, (value, line)
@@ -134,68 +181,125 @@ def test_option_fuzz(tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch) ->
         for action in value_options(sub):
             option = action.option_strings[-1]
             try:
-                sub.parse_args([*argv[len(words):], option, "x"])
+                sub.parse_args([*argv[len(words) :], option, "x"])
                 refuses_text = False
             except SystemExit:
                 refuses_text = True
             capsys.readouterr()
             for value in BAD:
                 value = str(folder) if value == "FOLDER" else value
-                fuzz_one(capsys, argv, action, value, refuses_text,
-                         (words, action.option_strings[0]) in PARSE_ONLY)
+                fuzz_one(
+                    capsys,
+                    argv,
+                    action,
+                    value,
+                    refuses_text,
+                    (words, action.option_strings[0]) in PARSE_ONLY,
+                )
                 tried += 1
     assert tried > 800
 
 
-@pytest.mark.parametrize("argv, words", [
-    (["train", "t", "-o", "m.pt", "--K", "-1"], "argument --K: must be from 1 to 64, got -1"),
-    (["train", "t", "-o", "m.pt", "--K", "0"], "argument --K: must be from 1 to 64, got 0"),
-    (["train", "t", "-o", "m.pt", "--batch-size", "0"], "argument --batch-size: must be from 1"),
-    (["train", "t", "-o", "m.pt", "--hidden", "-1"], "argument --hidden: must be from 0 to"),
-    (["train", "t", "-o", "m.pt", "--lr", "nan"],
-     "argument --lr: must be a number above 0 and at most 1, got nan"),
-    (["train", "t", "-o", "m.pt", "--epochs", "0"], "argument --epochs: must be from 1 to"),
-    (["train", "t", "-o", "m.pt", "--patience", "0"], "argument --patience: must be from 1"),
-    (["train", ",,", "-o", "m.pt"], "argument traces: an empty list"),
-    (["train", "a,,b", "-o", "m.pt"], "argument traces: an empty item in the list 'a,,b'"),
-    (["train", "t", "-o", "m.txt"], "argument -o/--out: the output must be a .pt file"),
-    (["export", "m.pt", "-o", "x.txt"], "argument -o/--out: the output must be a .onnx file"),
-    (["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", ""],
-     "argument --validate: an empty list"),
-    (["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v=a,v=b"],
-     "argument --validate: the name 'v' is given twice"),
-    (["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v="],
-     "argument --validate: 'v=': expected NAME=PATH"),
-    (["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v=a", "--ess", "0"],
-     "argument --ess: ess_threshold must be in (0, 1] or none, got 0.0"),
-    (["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v=a", "--temperatures", "inf"],
-     "argument --temperatures: temperature must be a number in [0.05, 20], got inf"),
-    (["targets", "show", "d", "-o", "s.png", "--cell", "0"], "argument --cell: must be from 8"),
-    (["targets", "show", "d", "-o", "s.png", "--cell", "100000"], "must be from 8 to 256"),
-    (["targets", "show", "d", "-o", "s.png", "--cols", "-3"], "argument --cols: must be from 1"),
-    (["targets", "show", "d", "-o", "s.png", "--max", "0"], "argument --max: must be from 1"),
-    (["targets", "show", "d", "-o", "sheet.txt"], "the output must be a .png file"),
-    (["targets", "build", "scribbles", "-o", "d", "--count", "0"], "argument --count"),
-    (["grow", "x.png", "--size", "100000"],
-     "argument --size: target sizes are 8 to 1024 pixels, got 100000"),
-    (["traces", "g", "--targets", "t", "-o", "o", "--size", "100000"], "target sizes are 8"),
-    (["traces", "g", "--targets", "t", "-o", "o", "--shard-size", "0"], "--shard-size"),
-    (["traces", "g", "--targets", "t", "-o", "", "-n", "5"], "argument -o/--out: an empty path"),
-    (["iterate", "g", "--targets", "t", "--validate", "v=d", "-o", "o", "--val-targets", "0"],
-     "argument --val-targets: must be from 1"),
-    (["iterate", "g", "--targets", "t,", "--validate", "v=d", "-o", "o"], "an empty item"),
-    (["eval", "-o", "x", "--stages", "heldout,nope"],
-     "argument --stages: unknown stage nope; choose from shape"),
-    (["eval", "-o", "x", "--ns", "1,,2"], "argument --ns: an empty item"),
-    (["serve", "--port", "70000"], "argument --port: must be from 0 to 65535, got 70000"),
-    (["serve", "--timeout", "nan"], "argument --timeout: must be a number above 0"),
-    (["demo", "-N", "0"], "argument -N/--particles: must be from 1 to 100000, got 0"),
-    (["demo", "--runs", "0"], "argument --runs: must be from 1"),
-    (["sample", "g.lsys", "-o", "s.png", "--max-modules", "0"], "argument --max-modules"),
-])
-def test_bad_values_are_refused_at_parsing(capsys, tmp_path: Path,
-                                           monkeypatch: pytest.MonkeyPatch,
-                                           argv: list[str], words: str) -> None:
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["train", "t", "-o", "m.pt", "--K", "-1"], "argument --K: must be from 1 to 64, got -1"),
+        (["train", "t", "-o", "m.pt", "--K", "0"], "argument --K: must be from 1 to 64, got 0"),
+        (
+            ["train", "t", "-o", "m.pt", "--batch-size", "0"],
+            "argument --batch-size: must be from 1",
+        ),
+        (["train", "t", "-o", "m.pt", "--hidden", "-1"], "argument --hidden: must be from 0 to"),
+        (
+            ["train", "t", "-o", "m.pt", "--lr", "nan"],
+            "argument --lr: must be a number above 0 and at most 1, got nan",
+        ),
+        (["train", "t", "-o", "m.pt", "--epochs", "0"], "argument --epochs: must be from 1 to"),
+        (["train", "t", "-o", "m.pt", "--patience", "0"], "argument --patience: must be from 1"),
+        (["train", ",,", "-o", "m.pt"], "argument traces: an empty list"),
+        (["train", "a,,b", "-o", "m.pt"], "argument traces: an empty item in the list 'a,,b'"),
+        (["train", "t", "-o", "m.txt"], "argument -o/--out: the output must be a .pt file"),
+        (["export", "m.pt", "-o", "x.txt"], "argument -o/--out: the output must be a .onnx file"),
+        (
+            ["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", ""],
+            "argument --validate: an empty list",
+        ),
+        (
+            ["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v=a,v=b"],
+            "argument --validate: the name 'v' is given twice",
+        ),
+        (
+            ["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v="],
+            "argument --validate: 'v=': expected NAME=PATH",
+        ),
+        (
+            ["tune", "g.lsys", "g.onnx", "-o", "t.onnx", "--validate", "v=a", "--ess", "0"],
+            "argument --ess: ess_threshold must be in (0, 1] or none, got 0.0",
+        ),
+        (
+            [
+                "tune",
+                "g.lsys",
+                "g.onnx",
+                "-o",
+                "t.onnx",
+                "--validate",
+                "v=a",
+                "--temperatures",
+                "inf",
+            ],
+            "argument --temperatures: temperature must be a number in [0.05, 20], got inf",
+        ),
+        (["targets", "show", "d", "-o", "s.png", "--cell", "0"], "argument --cell: must be from 8"),
+        (["targets", "show", "d", "-o", "s.png", "--cell", "100000"], "must be from 8 to 256"),
+        (
+            ["targets", "show", "d", "-o", "s.png", "--cols", "-3"],
+            "argument --cols: must be from 1",
+        ),
+        (["targets", "show", "d", "-o", "s.png", "--max", "0"], "argument --max: must be from 1"),
+        (["targets", "show", "d", "-o", "sheet.txt"], "the output must be a .png file"),
+        (["targets", "build", "scribbles", "-o", "d", "--count", "0"], "argument --count"),
+        (
+            ["grow", "x.png", "--size", "100000"],
+            "argument --size: target sizes are 8 to 1024 pixels, got 100000",
+        ),
+        (["traces", "g", "--targets", "t", "-o", "o", "--size", "100000"], "target sizes are 8"),
+        (["traces", "g", "--targets", "t", "-o", "o", "--shard-size", "0"], "--shard-size"),
+        (
+            ["traces", "g", "--targets", "t", "-o", "", "-n", "5"],
+            "argument -o/--out: an empty path",
+        ),
+        (
+            [
+                "iterate",
+                "g",
+                "--targets",
+                "t",
+                "--validate",
+                "v=d",
+                "-o",
+                "o",
+                "--val-targets",
+                "0",
+            ],
+            "argument --val-targets: must be from 1",
+        ),
+        (["iterate", "g", "--targets", "t,", "--validate", "v=d", "-o", "o"], "an empty item"),
+        (
+            ["eval", "-o", "x", "--stages", "heldout,nope"],
+            "argument --stages: unknown stage nope; choose from shape",
+        ),
+        (["eval", "-o", "x", "--ns", "1,,2"], "argument --ns: an empty item"),
+        (["serve", "--port", "70000"], "argument --port: must be from 0 to 65535, got 70000"),
+        (["serve", "--timeout", "nan"], "argument --timeout: must be a number above 0"),
+        (["demo", "-N", "0"], "argument -N/--particles: must be from 1 to 100000, got 0"),
+        (["demo", "--runs", "0"], "argument --runs: must be from 1"),
+        (["sample", "g.lsys", "-o", "s.png", "--max-modules", "0"], "argument --max-modules"),
+    ],
+)
+def test_bad_values_are_refused_at_parsing(
+    capsys, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, argv: list[str], words: str
+) -> None:
     monkeypatch.chdir(tmp_path)
     code, err = run(capsys, argv)
     line = one_error_line(code, err)
@@ -205,9 +309,21 @@ def test_bad_values_are_refused_at_parsing(capsys, tmp_path: Path,
 
 def test_valid_values_still_parse() -> None:
     parser = build_parser()
-    args = parser.parse_args(["tune", "g.lsys", "g.onnx", "-o", "T.ONNX", "--validate",
-                              " v = a/b , c/d.x ", "--ess", "none,0.5", "--temperatures",
-                              "1, 0.5"])
+    args = parser.parse_args(
+        [
+            "tune",
+            "g.lsys",
+            "g.onnx",
+            "-o",
+            "T.ONNX",
+            "--validate",
+            " v = a/b , c/d.x ",
+            "--ess",
+            "none,0.5",
+            "--temperatures",
+            "1, 0.5",
+        ]
+    )
     assert args.validate == {"v": "a/b", "d": "c/d.x"}
     assert args.ess == (None, 0.5) and args.temperatures == (1.0, 0.5)
     args = parser.parse_args(["train", "a, b", "-o", "m.pt", "--hidden", "0", "--lr", "1"])
@@ -215,8 +331,12 @@ def test_valid_values_still_parse() -> None:
     args = parser.parse_args(["eval", "-o", "x", "--stages", "heldout", "--ns", "1,10"])
     assert args.stages == ("heldout",) and args.ns == (1, 10)
     assert parser.parse_args(["eval", "-o", "x"]).heldout_guides == {}
-    assert parser.parse_args(["iterate", "g", "--targets", "t", "--validate", "d", "-o",
-                              "o"]).init_traces == ()
+    assert (
+        parser.parse_args(
+            ["iterate", "g", "--targets", "t", "--validate", "d", "-o", "o"]
+        ).init_traces
+        == ()
+    )
     assert parser.parse_args(["serve", "--port", "0"]).port == 0
 
 

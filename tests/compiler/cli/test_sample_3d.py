@@ -38,8 +38,9 @@ def drawn(path: Path) -> np.ndarray:
 
 
 @pytest.mark.parametrize("suffix", [".glb", ".obj", ".ply"])
-def test_sample_writes_a_mesh_of_a_3d_grammar(tmp_path: Path, suffix: str,
-                                              capsys: pytest.CaptureFixture[str]) -> None:
+def test_sample_writes_a_mesh_of_a_3d_grammar(
+    tmp_path: Path, suffix: str, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / f"plant{suffix}"
     assert main(["sample", str(PLANT), "-o", str(out)]) == 0
     prims, mesh = plant_mesh()
@@ -74,9 +75,20 @@ def test_png_gif_and_view_of_a_3d_grammar(tmp_path: Path) -> None:
     from ngpm_runtime.image.render3d import MARGIN
 
     size = 160
-    args = ["sample", str(PLANT), "-o", str(tmp_path / "t.glb"), "--png",
-            str(tmp_path / "p.png"), "--gif", str(tmp_path / "t.gif"), "--view", "0,0",
-            "--size", str(size)]
+    args = [
+        "sample",
+        str(PLANT),
+        "-o",
+        str(tmp_path / "t.glb"),
+        "--png",
+        str(tmp_path / "p.png"),
+        "--gif",
+        str(tmp_path / "t.gif"),
+        "--view",
+        "0,0",
+        "--size",
+        str(size),
+    ]
     assert main(args) == 0
     assert (tmp_path / "t.glb").stat().st_size > 10_000
     with Image.open(tmp_path / "t.gif") as pic:
@@ -88,15 +100,19 @@ def test_png_gif_and_view_of_a_3d_grammar(tmp_path: Path) -> None:
     scale = size * (1 - 2 * MARGIN) / max(hi[:2] - lo[:2])
     mid = (lo[:2] + hi[:2]) / 2
     rows, cols = np.nonzero(mask)
-    expect = [size / 2 + (lo[0] - mid[0]) * scale, size / 2 + (hi[0] - mid[0]) * scale,
-              size / 2 - (hi[1] - mid[1]) * scale, size / 2 - (lo[1] - mid[1]) * scale]
+    expect = [
+        size / 2 + (lo[0] - mid[0]) * scale,
+        size / 2 + (hi[0] - mid[0]) * scale,
+        size / 2 - (hi[1] - mid[1]) * scale,
+        size / 2 - (lo[1] - mid[1]) * scale,
+    ]
     got = [cols.min(), cols.max() + 1, rows.min(), rows.max() + 1]
     assert np.allclose(got, expect, atol=3), (got, expect)
     stem = round(size / 2 + (0 - mid[0]) * scale)  # the stem rises from the origin
     bottom = round(expect[3])
-    foot = mask[bottom - 4:bottom]  # the picture's lowest rows: the stem alone
-    assert foot[:, stem - 2:stem + 2].any()
-    assert not foot[:, :stem - 4].any() and not foot[:, stem + 4:].any()
+    foot = mask[bottom - 4 : bottom]  # the picture's lowest rows: the stem alone
+    assert foot[:, stem - 2 : stem + 2].any()
+    assert not foot[:, : stem - 4].any() and not foot[:, stem + 4 :].any()
 
 
 def test_png_alone_of_a_3d_grammar_is_a_shaded_picture(tmp_path: Path) -> None:
@@ -110,22 +126,26 @@ def test_png_alone_of_a_3d_grammar_is_a_shaded_picture(tmp_path: Path) -> None:
 
 def test_a_compiled_3d_sampler_samples_as_its_grammar(tmp_path: Path) -> None:
     assert main(["compile", str(PLANT), "-o", str(tmp_path)]) == 0
-    assert main(["sample", str(tmp_path / "plant3d_sampler.py"), "-o",
-                 str(tmp_path / "a.glb")]) == 0
+    assert (
+        main(["sample", str(tmp_path / "plant3d_sampler.py"), "-o", str(tmp_path / "a.glb")]) == 0
+    )
     assert main(["sample", str(PLANT), "-o", str(tmp_path / "b.glb")]) == 0
     assert (tmp_path / "a.glb").read_bytes() == (tmp_path / "b.glb").read_bytes()
 
 
 def test_seeded_3d_samples_are_reproducible(tmp_path: Path) -> None:
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
-        assert main(["sample", str(TREE), "--seed", str(seed), "-o",
-                     str(tmp_path / f"{name}.ply")]) == 0
+        assert (
+            main(["sample", str(TREE), "--seed", str(seed), "-o", str(tmp_path / f"{name}.ply")])
+            == 0
+        )
     a, b, c = ((tmp_path / f"{n}.ply").read_bytes() for n in "abc")
     assert a == b and a != c
 
 
-def test_svg_of_a_3d_grammar_is_a_one_line_error(tmp_path: Path,
-                                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_svg_of_a_3d_grammar_is_a_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["sample", str(PLANT), "-o", str(tmp_path / "t.svg")]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "SVG output is for 2D grammars" in err
@@ -133,11 +153,18 @@ def test_svg_of_a_3d_grammar_is_a_one_line_error(tmp_path: Path,
     assert not list(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("extra", [["-o", "t.glb"], ["-o", "t.ply"],
-                                   ["-o", "t.png", "--gif", "t.gif"],
-                                   ["-o", "t.png", "--view", "0,0"]])
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["-o", "t.glb"],
+        ["-o", "t.ply"],
+        ["-o", "t.png", "--gif", "t.gif"],
+        ["-o", "t.png", "--view", "0,0"],
+    ],
+)
 def test_mesh_options_of_a_2d_grammar_are_one_line_errors(
-        tmp_path: Path, extra: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, extra: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
     extra = [str(tmp_path / x) if x.startswith("t.") else x for x in extra]
     assert main(["sample", str(VINES), *extra]) == 1
     err = capsys.readouterr().err
@@ -160,6 +187,10 @@ def test_2d_pictures_are_those_of_save_render(tmp_path: Path, suffix: str) -> No
     out = tmp_path / f"cli{suffix}"
     assert main(["sample", str(VINES), "--seed", "4", "-o", str(out), "--size", "96"]) == 0
     program = grammar_cli.load(str(VINES)).program()
-    ref = save_render(list(forward(program, seed=4).primitives), tmp_path / f"ref{suffix}",
-                      viewport=program.viewport, size=96)
+    ref = save_render(
+        list(forward(program, seed=4).primitives),
+        tmp_path / f"ref{suffix}",
+        viewport=program.viewport,
+        size=96,
+    )
     assert out.read_bytes() == ref.read_bytes()

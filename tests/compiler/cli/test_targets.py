@@ -20,8 +20,25 @@ def test_list(capsys):
 
 def test_build_and_show(tmp_path, capsys):
     out_dir = tmp_path / "s"
-    assert main(["targets", "build", "scribbles", "-o", str(out_dir), "--count", "3",
-                 "--seed", "2", "--size", "40", "--mirror"]) == 0
+    assert (
+        main(
+            [
+                "targets",
+                "build",
+                "scribbles",
+                "-o",
+                str(out_dir),
+                "--count",
+                "3",
+                "--seed",
+                "2",
+                "--size",
+                "40",
+                "--mirror",
+            ]
+        )
+        == 0
+    )
     assert "6 targets" in capsys.readouterr().out
     index = json.loads((out_dir / "index.json").read_text())
     assert index["count"] == 6 and index["size"] == 40 and index["seed"] == 2
@@ -36,8 +53,9 @@ def test_show_single_image(tmp_path):
     img = np.full((80, 60), 255, np.uint8)
     img[10:70, 25:35] = 0
     Image.fromarray(img).save(tmp_path / "bar.png")
-    assert main(["targets", "show", str(tmp_path / "bar.png"), "-o",
-                 str(tmp_path / "one.png")]) == 0
+    assert (
+        main(["targets", "show", str(tmp_path / "bar.png"), "-o", str(tmp_path / "one.png")]) == 0
+    )
     assert (tmp_path / "one.png").is_file()
 
 
@@ -48,16 +66,39 @@ def test_build_silhouettes_warns_about_bad_files(tmp_path, capsys):
     img = np.full((60, 60), 255, np.uint8)
     img[10:50, 20:40] = 0
     Image.fromarray(img).save(src / "good.png")
-    assert main(["targets", "build", "silhouettes", "-o", str(tmp_path / "o"), "--count", "3",
-                 "--from", str(src)]) == 0
+    assert (
+        main(
+            [
+                "targets",
+                "build",
+                "silhouettes",
+                "-o",
+                str(tmp_path / "o"),
+                "--count",
+                "3",
+                "--from",
+                str(src),
+            ]
+        )
+        == 0
+    )
     cap = capsys.readouterr()
     assert "broken.png" in cap.err and "skipped 1" in cap.out
     assert len(list((tmp_path / "o").glob("silhouettes_*.png"))) == 3
 
 
 def test_errors_are_one_line(tmp_path, capsys):
-    rc = main(["targets", "build", "glyphs", "-o", str(tmp_path / "g"), "--font",
-               str(tmp_path / "missing.ttf")])
+    rc = main(
+        [
+            "targets",
+            "build",
+            "glyphs",
+            "-o",
+            str(tmp_path / "g"),
+            "--font",
+            str(tmp_path / "missing.ttf"),
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 1 and err.startswith("ngpmc: error:") and err.count("\n") == 1
     assert "missing.ttf" in err

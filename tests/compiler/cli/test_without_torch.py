@@ -24,7 +24,10 @@ for argv in (["train", {traces!r}, "-o", {model!r}], ["export", {model!r}, "-o",
 def test_train_and_export_without_torch_name_the_extra(tmp_path: Path) -> None:
     (tmp_path / "traces").mkdir()
     (tmp_path / "model.pt").write_bytes(b"not a model")
-    script = SCRIPT.format(traces=str(tmp_path / "traces"), model=str(tmp_path / "model.pt"),
-                           onnx=str(tmp_path / "g.onnx"))
+    script = SCRIPT.format(
+        traces=str(tmp_path / "traces"),
+        model=str(tmp_path / "model.pt"),
+        onnx=str(tmp_path / "g.onnx"),
+    )
     proc = run_blocked(script, tmp_path, blocked=("torch",), timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr

@@ -140,8 +140,7 @@ def write_sources(src: Path) -> None:
 def test_silhouettes_from_dir_skip_bad_files(tmp_path):
     write_sources(tmp_path / "src")
     with pytest.warns(DatasetWarning) as record:
-        files = build_dataset("silhouettes", tmp_path / "out", count=5,
-                              source_dir=tmp_path / "src")
+        files = build_dataset("silhouettes", tmp_path / "out", count=5, source_dir=tmp_path / "src")
     messages = [str(w.message) for w in record]
     assert any("c_broken.png" in m for m in messages)
     assert any("d_flat.png" in m for m in messages)
@@ -177,7 +176,8 @@ def test_silhouettes_from_dir_read_any_mode_and_skip_huge_images(tmp_path):
         build_dataset("silhouettes", tmp_path / "out", count=2, source_dir=src)
     assert [str(w.message) for w in record] == [
         f"skipped cannot read target image {src / 'b_tall.png'}: the image is 8 x 60000 px; "
-        "the limit is 8192 px a side and 33,554,432 px in all"]
+        "the limit is 8192 px a side and 33,554,432 px in all"
+    ]
     index = json.loads((tmp_path / "out" / "index.json").read_text())
     assert index["sources"] == ["file a_lab.tif", "file c_gray.png"]
     lab, plain = load_dataset(tmp_path / "out")
@@ -217,19 +217,32 @@ def test_fit_mask_moves_start_with_shape():
 def test_build_writes_files_index_and_mirrors(tmp_path):
     files = build_dataset("scribbles", tmp_path, count=4, seed=5, mirror=True)
     names = [p.name for p in files]
-    assert names == ["scribbles_0000.png", "scribbles_0000_m.png", "scribbles_0001.png",
-                     "scribbles_0001_m.png", "scribbles_0002.png", "scribbles_0002_m.png",
-                     "scribbles_0003.png", "scribbles_0003_m.png"]
+    assert names == [
+        "scribbles_0000.png",
+        "scribbles_0000_m.png",
+        "scribbles_0001.png",
+        "scribbles_0001_m.png",
+        "scribbles_0002.png",
+        "scribbles_0002_m.png",
+        "scribbles_0003.png",
+        "scribbles_0003_m.png",
+    ]
     for p in files:
         assert p.with_suffix(".txt").is_file()
     index = json.loads((tmp_path / "index.json").read_text())
     assert {k: index[k] for k in ("name", "count", "size", "seed", "complete")} == {
-        "name": "scribbles", "count": 8, "size": 50, "seed": 5, "complete": True}
+        "name": "scribbles",
+        "count": 8,
+        "size": 50,
+        "seed": 5,
+        "complete": True,
+    }
     assert "synthetic" in index["source"]
     a, am = load_target(files[0]), load_target(files[1])
     assert np.array_equal(am.mask, a.mask[:, ::-1])
-    assert am.start == pytest.approx((1 - a.start[0], a.start[1], -a.start[2], a.start[3]),
-                                     abs=1e-5)
+    assert am.start == pytest.approx(
+        (1 - a.start[0], a.start[1], -a.start[2], a.start[3]), abs=1e-5
+    )
     # the exact start of the generator survives the sidecar
     assert a.start == pytest.approx(scribble(rng(0, seed=5)).start, abs=1e-5)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
@@ -258,8 +271,11 @@ def test_interrupted_build_keeps_finished_files(tmp_path, monkeypatch):
                 raise KeyboardInterrupt
             yield item
 
-    monkeypatch.setitem(datasets.DATASETS, "scribbles",
-                        datasets.DatasetSpec("scribbles", spec.description, 300, flaky))
+    monkeypatch.setitem(
+        datasets.DATASETS,
+        "scribbles",
+        datasets.DatasetSpec("scribbles", spec.description, 300, flaky),
+    )
     with pytest.raises(KeyboardInterrupt):
         build_dataset("scribbles", tmp_path, count=6)
     done = sorted(p.name for p in tmp_path.glob("*.png"))

@@ -81,16 +81,19 @@ def test_clipart_from_png_folder(tmp_path):
     assert len(files) == len(ts) == 3 and all(t.mask.mean() > 0.08 for t in ts)
 
 
-@pytest.mark.skipif(not CLIPART.is_dir() or shutil.which("rsvg-convert") is None,
-                    reason="Debian packages openclipart-svg and librsvg2-bin not installed")
+@pytest.mark.skipif(
+    not CLIPART.is_dir() or shutil.which("rsvg-convert") is None,
+    reason="Debian packages openclipart-svg and librsvg2-bin not installed",
+)
 def test_clipart_from_openclipart_svgs(tmp_path):
     files = build_dataset("clipart", tmp_path / "c", count=3, source_dir=CLIPART)
     assert len(files) == 3
     assert all(clipart_reject(t.mask) is None for t in load_dataset(tmp_path / "c"))
 
 
-@pytest.mark.skipif(not SCRIPT_FONT.is_file(),
-                    reason="script font not installed (Debian package fonts-urw-base35)")
+@pytest.mark.skipif(
+    not SCRIPT_FONT.is_file(), reason="script font not installed (Debian package fonts-urw-base35)"
+)
 def test_script_glyphs_are_thin(tmp_path):
     build_dataset("glyphs", tmp_path / "g", count=20, font=SCRIPT_FONT)
     ts = load_dataset(tmp_path / "g")

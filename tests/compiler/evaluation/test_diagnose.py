@@ -60,8 +60,10 @@ def test_an_exploding_grammar_gets_one_warning_naming_the_rule(tmp_path: Path) -
     assert s is not None and s.n == 20 and s.capped == s.limits["max primitives"] > 0
     assert max(s.primitives) == 600 and min(s.primitives) < 600
     (line,) = warning_lines(diag)
-    assert line.startswith(f"warning: {c.filename}:{EXPLODING_LINE}: rule A branches "
-                           "supercritically: chains of A fork into 1.80 per generation")
+    assert line.startswith(
+        f"warning: {c.filename}:{EXPLODING_LINE}: rule A branches "
+        "supercritically: chains of A fork into 1.80 per generation"
+    )
     assert f"{s.capped} of {s.n} samples ran to a cap" in line
     text = "\n".join(sample_lines(diag))
     assert f"samples stopped by a cap: {s.capped} of {s.n}" in text
@@ -80,8 +82,9 @@ def test_a_bounded_fork_gets_no_warning(tmp_path: Path) -> None:
     assert sample_lines(quiet) == []
 
 
-@pytest.mark.parametrize("grammar", sorted((REPO / "grammars").glob("*.lsys")),
-                         ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "grammar", sorted((REPO / "grammars").glob("*.lsys")), ids=lambda p: p.name
+)
 def test_the_shipped_grammars_get_no_warning(grammar: Path) -> None:
     c = compile_grammar(grammar, filename=str(grammar))
     diag = diagnose(c, samples=20, time_smc=0)
@@ -90,9 +93,11 @@ def test_the_shipped_grammars_get_no_warning(grammar: Path) -> None:
 
 
 def test_samples_at_a_cap_without_a_supercritical_rule_are_a_warning(tmp_path: Path) -> None:
-    endless = ("viewport: -5 5 -1 9\nderivation length: 1000\nmax primitives: 50\n"
-               "Axiom: A\nproduction:\n"
-               "A --> F A\nendlsystem\n")
+    endless = (
+        "viewport: -5 5 -1 9\nderivation length: 1000\nmax primitives: 50\n"
+        "Axiom: A\nproduction:\n"
+        "A --> F A\nendlsystem\n"
+    )
     c = compiled(tmp_path, endless)
     diag = diagnose(c, samples=5, time_smc=0)
     assert diag.branching == []

@@ -23,8 +23,9 @@ def test_tasks_share_seeds_between_models():
     tasks = heldout_tasks(targets, ["g"], 10, (200, 600), repeats=2)
     assert len(tasks) == 3 * 2 * (3 + 1)
     guided = {(t.dataset, t.target, t.repeat): t.seed for t in tasks if t.model == "g"}
-    plain = {(t.dataset, t.target, t.repeat): t.seed for t in tasks
-             if t.model == UNGUIDED and t.n == 10}
+    plain = {
+        (t.dataset, t.target, t.repeat): t.seed for t in tasks if t.model == UNGUIDED and t.n == 10
+    }
     assert guided == plain and all(t.n == 10 for t in tasks if t.model == "g")
 
 
@@ -36,12 +37,14 @@ def test_run_heldout_caches_runs(tmp_path):
     grammar = str(REPO / "grammars" / "vines.lsys")
     logs: list[str] = []
     kw = dict(k=2, repeats=1, guided_n=3, unguided_ns=(6,), workers=1, log=logs.append)
-    res = run_heldout(tmp_path / "out", grammar, {"demo": str(d)},
-                      {"g": str(bundled.guide_path())}, **kw)
+    res = run_heldout(
+        tmp_path / "out", grammar, {"demo": str(d)}, {"g": str(bundled.guide_path())}, **kw
+    )
     assert len(res["rows"]) == 2 * 3
     assert "| g |" in res["table"] and "unguided N=6" in res["table"]
-    again = run_heldout(tmp_path / "out", grammar, {"demo": str(d)},
-                        {"g": str(bundled.guide_path())}, **kw)
+    again = run_heldout(
+        tmp_path / "out", grammar, {"demo": str(d)}, {"g": str(bundled.guide_path())}, **kw
+    )
     assert logs[-1].endswith("0 to do") and len(again["rows"]) == 6
 
 
@@ -54,9 +57,10 @@ def _demo_set(directory, n=2):
 
 def _sims(res):
     """What a held-out call measures, without the wall times."""
-    return ([(r["model"], r["target"], r["n"], r["repeat"], r["similarity"])
-             for r in res["rows"]], [(s["model"], s["n"], s["mean_similarity"])
-                                     for s in res["summary"]])
+    return (
+        [(r["model"], r["target"], r["n"], r["repeat"], r["similarity"]) for r in res["rows"]],
+        [(s["model"], s["n"], s["mean_similarity"]) for s in res["summary"]],
+    )
 
 
 def test_an_interrupted_run_resumes_where_it_stopped(tmp_path, monkeypatch):
@@ -97,15 +101,13 @@ def test_changed_targets_are_not_served_from_the_cache(tmp_path):
     logs: list[str] = []
     res = run_heldout(tmp_path / "out", grammar, *args, k=3, log=logs.append, **kw)
     assert logs == ["held-out: 3 runs, 2 to do"]  # only the first target kept its seed
-    assert _sims(res) == _sims(run_heldout(tmp_path / "f1", grammar, *args, k=3, log=quiet,
-                                           **kw))
+    assert _sims(res) == _sims(run_heldout(tmp_path / "f1", grammar, *args, k=3, log=quiet, **kw))
     image, other = sorted(d.glob("*.png"))[0], bundled.demo_targets()[3]
     save_target(Target(other.mask, other.start, image.stem), image)
     logs.clear()
     res = run_heldout(tmp_path / "out", grammar, *args, k=3, log=logs.append, **kw)
     assert logs == ["held-out: 3 runs, 1 to do"]
-    assert _sims(res) == _sims(run_heldout(tmp_path / "f2", grammar, *args, k=3, log=quiet,
-                                           **kw))
+    assert _sims(res) == _sims(run_heldout(tmp_path / "f2", grammar, *args, k=3, log=quiet, **kw))
 
 
 def test_a_runs_file_of_other_columns_is_a_one_line_error(tmp_path):
@@ -119,8 +121,18 @@ def test_a_runs_file_of_other_columns_is_a_one_line_error(tmp_path):
     old += f"unguided,demo,{bundled.demo_targets()[0].name},3,0,1,0.99,0.1,5\n"
     (out / "heldout_runs.csv").write_text(old)
     with pytest.raises(NgpmError) as err:
-        run_heldout(out, grammar, {"demo": str(d)}, {}, k=1, repeats=1, guided_n=3,
-                    unguided_ns=(), workers=1, log=lambda _m: None)
+        run_heldout(
+            out,
+            grammar,
+            {"demo": str(d)},
+            {},
+            k=1,
+            repeats=1,
+            guided_n=3,
+            unguided_ns=(),
+            workers=1,
+            log=lambda _m: None,
+        )
     message = str(err.value)
     assert message.startswith(f"{out / 'heldout_runs.csv'}: not a runs file (its columns")
     assert "grammar_sha" in message and "\n" not in message

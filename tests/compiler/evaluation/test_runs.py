@@ -53,8 +53,14 @@ def test_t_quantile_matches_scipy() -> None:
 
 
 def _row(model: str, target: str, n: int, sim: float, secs: float = 1.0) -> dict:
-    return {"model": model, "dataset": "glyphs", "target": target, "n": n, "similarity": sim,
-            "seconds": secs}
+    return {
+        "model": model,
+        "dataset": "glyphs",
+        "target": target,
+        "n": n,
+        "similarity": sim,
+        "seconds": secs,
+    }
 
 
 def test_summarize_takes_median_per_target_then_mean() -> None:
@@ -94,8 +100,7 @@ def test_time_to_reach_ignores_dips() -> None:
 
 
 def _summary(model: str, pts: list[tuple[int, float, float]]) -> list[dict]:
-    return [{"model": model, "n": n, "mean_similarity": s, "mean_seconds": t}
-            for n, s, t in pts]
+    return [{"model": model, "n": n, "mean_similarity": s, "mean_seconds": t} for n, s, t in pts]
 
 
 def test_speedups_and_lower_bound() -> None:
@@ -121,7 +126,7 @@ def test_shape_tasks_share_seeds_across_models() -> None:
 
 def _disk_target() -> Target:
     yy, xx = np.mgrid[0:50, 0:50]
-    mask = (xx - 25) ** 2 + (yy - 20) ** 2 < 12 ** 2
+    mask = (xx - 25) ** 2 + (yy - 20) ** 2 < 12**2
     return Target(mask, (0.5, 0.75, 0.0, -1.0), "disk")
 
 
@@ -140,8 +145,9 @@ def test_grow_once_scores_the_best_particle(vines) -> None:
 def test_run_tasks_returns_results_in_task_order() -> None:
     t = _disk_target()
     tasks = shape_tasks([UNGUIDED], {"x": 1}, [1, 4], 2)
-    res = run_tasks(str(REPO / "grammars" / "vines.lsys"), {"x": [t]}, {}, tasks, workers=1,
-                    shuffle_seed=1)
+    res = run_tasks(
+        str(REPO / "grammars" / "vines.lsys"), {"x": [t]}, {}, tasks, workers=1, shuffle_seed=1
+    )
     assert [r.task for r in res] == tasks
     assert all(r.target_name == "disk" and -1.0 <= r.similarity <= 1.0 for r in res)
     row = res[0].row()
@@ -149,8 +155,9 @@ def test_run_tasks_returns_results_in_task_order() -> None:
 
 
 def test_subset_keeps_the_first_jobs() -> None:
-    d = SiteData(np.zeros((6, 2), np.float32), np.arange(6.0), np.zeros((6, 2)),
-                 np.array([5, 1, 3, 1, 9, 3]))
+    d = SiteData(
+        np.zeros((6, 2), np.float32), np.arange(6.0), np.zeros((6, 2)), np.array([5, 1, 3, 1, 9, 3])
+    )
     out = subset({0: d}, np.array([9, 1, 3, 5]), 2)
     assert sorted(set(out[0].jobs)) == [1, 3]
     assert list(out[0].values) == [1.0, 2.0, 3.0, 5.0]

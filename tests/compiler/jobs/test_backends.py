@@ -24,8 +24,9 @@ def _job(x: int) -> tuple[int, int]:
     return x + pool.state()["offset"], x
 
 
-def _drain(backend, keys: list[int], job=_job, arg=lambda k: k * 10,
-           seconds: float = 60) -> dict[int, object]:
+def _drain(
+    backend, keys: list[int], job=_job, arg=lambda k: k * 10, seconds: float = 60
+) -> dict[int, object]:
     """Every job's result; fails (rather than hangs) when they have not come back in time."""
     out: dict[int, object] = {}
     deadline = time.monotonic() + seconds
@@ -89,10 +90,12 @@ def test_driver_records_a_job_once_however_often_it_returns(tmp_path, monkeypatc
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     data = make_dataset(tmp_path / "data", 2)
-    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
-                      shard_size=4)
-    monkeypatch.setattr(backends, "make_backend",
-                        lambda kind, workers, setup, args, address=None: _Twice(setup, args))
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1, shard_size=4)
+    monkeypatch.setattr(
+        backends,
+        "make_backend",
+        lambda kind, workers, setup, args, address=None: _Twice(setup, args),
+    )
     m = generate_traces(cfg, tmp_path / "twice", progress=False)
     assert m["kept"] == m["jobs_done"] == 6 and len(m["job_seconds"]) == 6
     assert sorted(load_traces(tmp_path / "twice").kept_jobs.tolist()) == list(range(6))
@@ -113,9 +116,13 @@ def _failing_setup(kind: str) -> dict[str, int]:
     raise ValueError("no such thing")
 
 
-@pytest.mark.parametrize("kind, words", [
-    ("ngpm", "guide.onnx: guide was trained for grammar 'vines', not 'chain'"),
-    ("other", "a worker process could not start: ValueError: no such thing")])
+@pytest.mark.parametrize(
+    "kind, words",
+    [
+        ("ngpm", "guide.onnx: guide was trained for grammar 'vines', not 'chain'"),
+        ("other", "a worker process could not start: ValueError: no such thing"),
+    ],
+)
 def test_a_worker_whose_setup_fails_fails_the_first_job(kind: str, words: str) -> None:
     """It used to exit, and the Pool started another in its place, forever."""
     t0 = time.monotonic()
@@ -137,11 +144,22 @@ def _dies_once(arg: tuple[int, str, int]) -> int:
 
 def test_local_pool_runs_the_job_of_a_killed_worker_again(tmp_path: Path) -> None:
     """A worker killed mid-job used to leave its job unfinished forever."""
-    got = _drain(LocalPool(2, _setup, (0,)), list(range(5)), _dies_once,
-                 lambda k: (k, str(tmp_path), int(k == 2)))
+    got = _drain(
+        LocalPool(2, _setup, (0,)),
+        list(range(5)),
+        _dies_once,
+        lambda k: (k, str(tmp_path), int(k == 2)),
+    )
     assert got == {k: k for k in range(5)} and len(list(tmp_path.glob("2_*"))) == 1
     (tmp_path / "always").mkdir()
-    with pytest.raises(NgpmError, match=r"worker processes died 2 times while job 1 ran "
-                                        r"\(killed, or out of memory\?\)"):
-        _drain(LocalPool(1, _setup, (0,), max_retries=1), [1], _dies_once,
-               lambda k: (k, str(tmp_path / "always"), 99))
+    with pytest.raises(
+        NgpmError,
+        match=r"worker processes died 2 times while job 1 ran "
+        r"\(killed, or out of memory\?\)",
+    ):
+        _drain(
+            LocalPool(1, _setup, (0,), max_retries=1),
+            [1],
+            _dies_once,
+            lambda k: (k, str(tmp_path / "always"), 99),
+        )

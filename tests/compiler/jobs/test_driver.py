@@ -45,8 +45,13 @@ def test_every_job_once_at_capacity() -> None:
     got: list[tuple[int, int]] = []
     polls: list[int] = []
     with Repeats() as jobs:
-        drive(jobs, _square, iter([(k, k + 1) for k in range(7)]),
-              lambda k, r: got.append((k, r)), between=lambda: polls.append(1))
+        drive(
+            jobs,
+            _square,
+            iter([(k, k + 1) for k in range(7)]),
+            lambda k, r: got.append((k, r)),
+            between=lambda: polls.append(1),
+        )
     assert got == [(k, (k + 1) ** 2) for k in range(7)]
     assert jobs.most_running == 3 and len(polls) == 3
 
@@ -61,7 +66,12 @@ def test_no_room_stops_an_endless_todo() -> None:
             k += 1
 
     with InProcess(_setup, ()) as jobs:
-        drive(jobs, _square, endless(), lambda k, r: got.append(k),
-              room=lambda running: len(got) + running < 4)
+        drive(
+            jobs,
+            _square,
+            endless(),
+            lambda k, r: got.append(k),
+            room=lambda running: len(got) + running < 4,
+        )
     assert got == [0, 1, 2, 3]
     assert pool.state() == {}

@@ -44,8 +44,16 @@ def reference(tmp_path_factory) -> tuple[Path, dict[str, bytes]]:
 
 
 def config(data: Path, **kw) -> TraceConfig:
-    return TraceConfig(grammar=CHAIN, targets=str(data), n=N, particles=PARTICLES, seed=SEED,
-                       workers=2, shard_size=SHARD, **kw)
+    return TraceConfig(
+        grammar=CHAIN,
+        targets=str(data),
+        n=N,
+        particles=PARTICLES,
+        seed=SEED,
+        workers=2,
+        shard_size=SHARD,
+        **kw,
+    )
 
 
 def shard_bytes(out: Path) -> dict[str, bytes]:
@@ -56,9 +64,29 @@ def test_ray_shards_equal_the_local_backends(local_ray, reference, tmp_path):
     data, want = reference
     assert sorted(want) == [f"shard_{i:08d}.npz" for i in range(0, N, SHARD)]
     out = tmp_path / "ray"
-    assert main(["traces", CHAIN, "--targets", str(data), "-n", str(N), "--particles",
-                 str(PARTICLES), "--seed", str(SEED), "--shard-size", str(SHARD), "-o",
-                 str(out), "--backend", "ray"]) == 0
+    assert (
+        main(
+            [
+                "traces",
+                CHAIN,
+                "--targets",
+                str(data),
+                "-n",
+                str(N),
+                "--particles",
+                str(PARTICLES),
+                "--seed",
+                str(SEED),
+                "--shard-size",
+                str(SHARD),
+                "-o",
+                str(out),
+                "--backend",
+                "ray",
+            ]
+        )
+        == 0
+    )
     assert shard_bytes(out) == want
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["kept"] == N and manifest["config"]["backend"] == "ray"
@@ -79,8 +107,9 @@ def test_eval_runs_on_ray_equal_local_runs(local_ray):
     local = run_tasks(vines, targets, guides, tasks, workers=1)
     remote = run_tasks(vines, targets, guides, tasks, workers=2, backend="ray")
     assert [r.task for r in remote] == tasks
-    assert [(r.similarity, r.primitives) for r in remote] == \
-        [(r.similarity, r.primitives) for r in local]
+    assert [(r.similarity, r.primitives) for r in remote] == [
+        (r.similarity, r.primitives) for r in local
+    ]
 
 
 def running_task_workers() -> list[int]:
@@ -121,13 +150,32 @@ def test_killed_worker_job_is_retried_once(local_ray, reference, tmp_path):
 def start_driver(data: Path, out: Path, n: int, jobs: int = 10) -> subprocess.Popen:
     """`ngpmc traces --backend ray` (its own local Ray instance) in a session of its own,
     once it has finished `jobs` jobs."""
-    cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
-           "-n", str(n), "--particles", "8", "--seed", "1", "--shard-size", str(SHARD),
-           "-o", str(out), "--backend", "ray"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ngpm_compiler.cli",
+        "traces",
+        CHAIN,
+        "--targets",
+        str(data),
+        "-n",
+        str(n),
+        "--particles",
+        "8",
+        "--seed",
+        "1",
+        "--shard-size",
+        str(SHARD),
+        "-o",
+        str(out),
+        "--backend",
+        "ray",
+    ]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runtime")])}
     env.pop("RAY_ADDRESS", None)
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True
+    )
     store = TraceStore(out)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
@@ -155,12 +203,18 @@ def test_sigterm_cancels_and_resumes(tmp_path):
     while session_processes(proc.pid) and time.time() < deadline:
         time.sleep(0.2)
     assert not session_processes(proc.pid)  # the local Ray instance was shut down
-    m = generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=n, particles=8,
-                                    seed=1, workers=2, shard_size=SHARD), out, progress=False)
+    m = generate_traces(
+        TraceConfig(
+            grammar=CHAIN, targets=str(data), n=n, particles=8, seed=1, workers=2, shard_size=SHARD
+        ),
+        out,
+        progress=False,
+    )
     assert m["kept"] == m["jobs_done"] == n
     assert sorted(load_traces(out).kept_jobs.tolist()) == list(range(n))
-    assert [p.name for p in store.shard_paths()] == [f"shard_{i:08d}.npz"
-                                                     for i in range(0, n, SHARD)]
+    assert [p.name for p in store.shard_paths()] == [
+        f"shard_{i:08d}.npz" for i in range(0, n, SHARD)
+    ]
 
 
 def test_sigkill_of_the_driver_leaves_no_ray_process(tmp_path):

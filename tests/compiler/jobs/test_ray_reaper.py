@@ -17,10 +17,12 @@ from ngpm_compiler.jobs.ray_backend import start_reaper, stop_reaper
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs /proc")
 
 # a "raylet": starts an "agent" that outlives it, prints the agent's pid, then sleeps
-RAYLET = ("import subprocess, sys, time\n"
-          "agent = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)'])\n"
-          "print(agent.pid, flush=True)\n"
-          "time.sleep(120)\n")
+RAYLET = (
+    "import subprocess, sys, time\n"
+    "agent = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(120)'])\n"
+    "print(agent.pid, flush=True)\n"
+    "time.sleep(120)\n"
+)
 
 
 def alive(pid: int) -> bool:
@@ -28,8 +30,7 @@ def alive(pid: int) -> bool:
 
 
 def test_the_reaper_kills_the_orphans_once_the_driver_is_gone() -> None:
-    raylet = subprocess.Popen([sys.executable, "-c", RAYLET], stdout=subprocess.PIPE,
-                              text=True)
+    raylet = subprocess.Popen([sys.executable, "-c", RAYLET], stdout=subprocess.PIPE, text=True)
     agent = int(raylet.stdout.readline())
     other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
     reaper = start_reaper({raylet.pid})

@@ -47,8 +47,12 @@ ERRORS = [
     ("#define X 7 % 0\nAxiom: F\n", "division by zero in constant X", 1, 13),
     ("#define X sqrt(-1)\nAxiom: F\n", "cannot evaluate constant X", 1, 11),
     ("#define X 1\n#define X 2\nAxiom: F\n", "defined twice", 2, 9),
-    ("Axiom: A\nA --> F B\nB --> A\n", "recursive rules (A -> B -> A) need a 'derivation length:'",
-     2, 1),
+    (
+        "Axiom: A\nA --> F B\nB --> A\n",
+        "recursive rules (A -> B -> A) need a 'derivation length:'",
+        2,
+        1,
+    ),
     ("Axiom: F\nF --> F F\n", "recursive rules (F -> F)", 2, 1),
     ("Axiom: A(1, 2)\nA(x, x) --> F\n", "duplicate parameter 'x' in A", 2, 6),
     ("module A(x, x)\nAxiom: F\n", "duplicate parameter", 1, 8),
@@ -112,23 +116,39 @@ def test_probabilities_within_tolerance() -> None:
 def test_site_table_of_vines() -> None:
     c = compile_grammar(VINES, filename="grammars/vines.lsys")
     ids = [s.id for s in c.sites]
-    assert ids == ["S/0/normal0", "B/0/normal0", "L/choice", "Lf/0/normal0", "P/choice",
-                   "T/choice", "C1/choice", "C2/choice"]
+    assert ids == [
+        "S/0/normal0",
+        "B/0/normal0",
+        "L/choice",
+        "Lf/0/normal0",
+        "P/choice",
+        "T/choice",
+        "C1/choice",
+        "C2/choice",
+    ]
     s = c.sites[2]
     assert (s.kind, s.k, s.module, s.arity) == ("categorical", 3, "L", 0)
     b = c.sites[1]
     assert (b.kind, b.module, b.arity, b.source) == ("normal", "B", 1, "gauss(0, 22.5)")
-    assert VINES.splitlines()[b.line - 1][b.col - 1:].startswith("gauss(0, 22.5)")
+    assert VINES.splitlines()[b.line - 1][b.col - 1 :].startswith("gauss(0, 22.5)")
     assert c.sites[6].probs == (0.66, 0.34)
 
 
 def test_site_ids_with_conditions_and_axiom() -> None:
-    src = ("derivation length: 3\nAxiom: F(uniform(0, 1)) A(1)\n"
-           "A(x) : x > 1 --> F(gauss(0, 1)) : 0.5\nA(x) : x > 1 --> F(gauss(0, 2)) : 0.5\n"
-           "A(x) --> F(gauss(x, 1)) F(gauss(x, 1)) A(x + 1)\n")
+    src = (
+        "derivation length: 3\nAxiom: F(uniform(0, 1)) A(1)\n"
+        "A(x) : x > 1 --> F(gauss(0, 1)) : 0.5\nA(x) : x > 1 --> F(gauss(0, 2)) : 0.5\n"
+        "A(x) --> F(gauss(x, 1)) F(gauss(x, 1)) A(x + 1)\n"
+    )
     ids = [s.id for s in compile_grammar(src).sites]
-    assert ids == ["axiom/uniform0", "A(x>1)/choice", "A(x>1)/0/normal0", "A(x>1)/1/normal0",
-                   "A/0/normal0", "A/0/normal1"]
+    assert ids == [
+        "axiom/uniform0",
+        "A(x>1)/choice",
+        "A(x>1)/0/normal0",
+        "A(x>1)/1/normal0",
+        "A/0/normal0",
+        "A/0/normal1",
+    ]
 
 
 def edit(text: str, old: str, new: str) -> str:
@@ -136,24 +156,30 @@ def edit(text: str, old: str, new: str) -> str:
     return text.replace(old, new)
 
 
-@pytest.mark.parametrize("old,new", [
-    ("P --> @O(FLOWER) : 0.5\nP --> * : 0.5", "P --> @O(FLOWER) : 0.25\nP --> * : 0.75"),
-    ("Lf(s) --> [", "Q(z) --> F(uniform(0, 1))\nZ --> F(gauss(0, 1)) : 1\nLf(s) --> ["),
-    ("S --> +(gauss(0, 30)) B(W0)", "S --> +(gauss(0, 30)) +(uniform(-5, 5)) B(W0)"),
-    ("#define LEN 2", "# a new comment line\n\n#define LEN 2.5\n#define EXTRA 3"),
-    ("production:\n", "production:\nNew(a) --> F(flip(0.5))\n"),
-])
+@pytest.mark.parametrize(
+    "old,new",
+    [
+        ("P --> @O(FLOWER) : 0.5\nP --> * : 0.5", "P --> @O(FLOWER) : 0.25\nP --> * : 0.75"),
+        ("Lf(s) --> [", "Q(z) --> F(uniform(0, 1))\nZ --> F(gauss(0, 1)) : 1\nLf(s) --> ["),
+        ("S --> +(gauss(0, 30)) B(W0)", "S --> +(gauss(0, 30)) +(uniform(-5, 5)) B(W0)"),
+        ("#define LEN 2", "# a new comment line\n\n#define LEN 2.5\n#define EXTRA 3"),
+        ("production:\n", "production:\nNew(a) --> F(flip(0.5))\n"),
+    ],
+)
 def test_site_ids_are_stable_under_unrelated_edits(old: str, new: str) -> None:
     before = {s.id: s for s in compile_grammar(VINES).sites}
     after = {s.id: s for s in compile_grammar(edit(VINES, old, new)).sites}
     # every site of an unedited rule keeps its id (indices and lines may move)
-    for sid in ("B/0/normal0", "L/choice", "Lf/0/normal0", "T/choice", "C1/choice",
-                "C2/choice"):
+    for sid in ("B/0/normal0", "L/choice", "Lf/0/normal0", "T/choice", "C1/choice", "C2/choice"):
         assert sid in after
         assert (after[sid].kind, after[sid].k, after[sid].source) == (
-            before[sid].kind, before[sid].k, before[sid].source)
+            before[sid].kind,
+            before[sid].k,
+            before[sid].source,
+        )
     assert [s.index for s in compile_grammar(edit(VINES, old, new)).sites] == list(
-        range(len(after)))
+        range(len(after))
+    )
 
 
 def test_alternative_order_and_ordinals_define_ids() -> None:
@@ -174,25 +200,48 @@ def test_rules_before_any_section_are_productions() -> None:
 
 # ---- issue #27: what Python cannot compile, and runaway headers, are grammar errors --------
 
-@pytest.mark.parametrize("text, line, col, words", [
-    # Python reads at most 200 nested brackets: sin() prints two per level
-    ("Axiom: F(1)\nA --> F(2) F(" + "sin(" * 100 + "1" + ")" * 100 + ")\n", 2, 14,
-     "expression nested too deeply for Python (200 levels of parentheses"),
-    ("derivation length: 1\nAxiom: A(1)\nA(x) : " + "cos(x and " * 50 + "x" + ")" * 50
-     + " --> F\n", 3, 8, "expression nested too deeply for Python"),
-    ("Axiom: F(1)\n#define K " + "-" * 150 + "1\n", 2, 112, "expression nested too deeply: "
-     "more than 100 levels"),
-    ("Axiom: F(" + "1 + " * 400 + "1)\n", 1, 10, "more than 100 levels"),
-])
-def test_nesting_errors_name_the_place_and_cause(text: str, line: int, col: int,
-                                                 words: str) -> None:
+
+@pytest.mark.parametrize(
+    "text, line, col, words",
+    [
+        # Python reads at most 200 nested brackets: sin() prints two per level
+        (
+            "Axiom: F(1)\nA --> F(2) F(" + "sin(" * 100 + "1" + ")" * 100 + ")\n",
+            2,
+            14,
+            "expression nested too deeply for Python (200 levels of parentheses",
+        ),
+        (
+            "derivation length: 1\nAxiom: A(1)\nA(x) : "
+            + "cos(x and " * 50
+            + "x"
+            + ")" * 50
+            + " --> F\n",
+            3,
+            8,
+            "expression nested too deeply for Python",
+        ),
+        (
+            "Axiom: F(1)\n#define K " + "-" * 150 + "1\n",
+            2,
+            112,
+            "expression nested too deeply: more than 100 levels",
+        ),
+        ("Axiom: F(" + "1 + " * 400 + "1)\n", 1, 10, "more than 100 levels"),
+    ],
+)
+def test_nesting_errors_name_the_place_and_cause(
+    text: str, line: int, col: int, words: str
+) -> None:
     """Finding 8: every nesting Python could not compile was "nested too deeply" at 1:1."""
     e = err(text)
     assert words in e.message and (e.line, e.col) == (line, col), e
 
 
-@pytest.mark.parametrize("header, value", [
-    ("derivation length", "1e9"), ("max primitives", "1e18"), ("max modules", "1e12")])
+@pytest.mark.parametrize(
+    "header, value",
+    [("derivation length", "1e9"), ("max primitives", "1e18"), ("max modules", "1e12")],
+)
 def test_absurd_header_values_are_errors(header: str, value: str) -> None:
     """Finding 3: `max primitives: 1e18` with `derivation length: 1e9` ran without end."""
     e = err(f"{header}: {value}\nAxiom: F\n")
@@ -204,40 +253,65 @@ def test_absurd_header_values_are_errors(header: str, value: str) -> None:
 def test_polygon_closed_without_an_opening_is_an_error() -> None:
     e = err("Axiom: A\nA --> F . } F\n")
     assert "unmatched '}' in rule for A: no '{' before it" in e.message and (e.line, e.col) == (
-        2, 11)
+        2,
+        11,
+    )
     compile_grammar("Axiom: A\nA --> { . F . } [ { . ]\n")
 
 
 # --- 3D (docs/language.md section 4.1) ------------------------------------------------------
 
 
-@pytest.mark.parametrize("text", [
-    "Axiom: F & F\n", "Axiom: F ^(10) F\n", "Axiom: F \\ F\n", "Axiom: F / F\n",
-    "Axiom: F $ F\n", "Axiom: @Tp(0, -1, 0) F\n", "Axiom: @Ts(0.2) F\n",
-    "Axiom: A\nA --> F [/ F]\n", "Axiom: A\ninterpretation:\nA --> F & F\n",
-    "tropism: 0 -1 0 0.2\nAxiom: F\n", "dimensions: 3\nAxiom: F\n",
-    "viewport: -1 1 -1 1 -1 1\nAxiom: F\n",
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "Axiom: F & F\n",
+        "Axiom: F ^(10) F\n",
+        "Axiom: F \\ F\n",
+        "Axiom: F / F\n",
+        "Axiom: F $ F\n",
+        "Axiom: @Tp(0, -1, 0) F\n",
+        "Axiom: @Ts(0.2) F\n",
+        "Axiom: A\nA --> F [/ F]\n",
+        "Axiom: A\ninterpretation:\nA --> F & F\n",
+        "tropism: 0 -1 0 0.2\nAxiom: F\n",
+        "dimensions: 3\nAxiom: F\n",
+        "viewport: -1 1 -1 1 -1 1\nAxiom: F\n",
+    ],
+)
 def test_what_makes_a_grammar_3d(text: str) -> None:
     assert compile_grammar(text).checked.dim == 3
 
 
-@pytest.mark.parametrize("text", [
-    "Axiom: F + F - F | F\n", "Axiom: F ; F , F ;(2)\n", "dimensions: 2\nAxiom: F ; F\n",
-    "viewport: -1 1 -1 1\nAxiom: F(2 ^ 2 / 2)\n",
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "Axiom: F + F - F | F\n",
+        "Axiom: F ; F , F ;(2)\n",
+        "dimensions: 2\nAxiom: F ; F\n",
+        "viewport: -1 1 -1 1\nAxiom: F(2 ^ 2 / 2)\n",
+    ],
+)
 def test_2d_grammars_stay_2d(text: str) -> None:
     assert compile_grammar(text).checked.dim == 2
 
 
 ERRORS_3D = [
-    ("dimensions: 2\nAxiom: F & F\n", "the 3D symbol '&' needs a 3D grammar, but "
-     "'dimensions: 2' says this one is 2D", 2, 10),
+    (
+        "dimensions: 2\nAxiom: F & F\n",
+        "the 3D symbol '&' needs a 3D grammar, but 'dimensions: 2' says this one is 2D",
+        2,
+        10,
+    ),
     ("dimensions: 2\ntropism: 0 -1 0 1\nAxiom: F\n", "'tropism:' needs a 3D grammar", 2, 1),
     ("dimensions: 2\nviewport: 0 1 0 1 0 1\nAxiom: F\n", "a viewport of 6 numbers", 2, 1),
     ("dimensions: 4\nAxiom: F\n", "'dimensions:' must be 2 or 3, got 4", 1, 13),
-    ("viewport: 0 1 0 1\nAxiom: A\nA --> F / F\n", "this grammar is 3D (the 3D symbol '/' at "
-     "line 3:9), so its viewport is a box of 6 numbers", 1, 1),
+    (
+        "viewport: 0 1 0 1\nAxiom: A\nA --> F / F\n",
+        "this grammar is 3D (the 3D symbol '/' at line 3:9), so its viewport is a box of 6 numbers",
+        1,
+        1,
+    ),
     ("dimensions: 3\nviewport: 0 1 0 1\nAxiom: F\n", "('dimensions: 3' at line 1:1)", 2, 1),
     ("viewport: 0 1 0 1 1 0\nAxiom: F\n", "xmin < xmax and ymin < ymax and zmin < zmax", 1, 1),
     ("tropism: 0 0 0 0.5\nAxiom: F\n", "'tropism:' needs a direction other than 0 0 0", 1, 1),
@@ -260,10 +334,22 @@ def test_3d_errors_name_the_place(text: str, fragment: str, line: int, col: int)
 
 
 def test_3d_headers_and_defaults() -> None:
-    c = compile_grammar("angle: 30\nviewport: -1 1 -2 2 -3 3\ntropism: 0, -2, 0, 0.3\n"
-                        "Axiom: & ^(10) \\ / ; , ;(3) ~l @O F\n").checked
+    c = compile_grammar(
+        "angle: 30\nviewport: -1 1 -2 2 -3 3\ntropism: 0, -2, 0, 0.3\n"
+        "Axiom: & ^(10) \\ / ; , ;(3) ~l @O F\n"
+    ).checked
     assert (c.dim, c.box, c.viewport) == (3, (-1, 1, -2, 2, -3, 3), (-1, 1, -2, 2))
     assert c.tropism == (0.0, -1.0, 0.0, 0.3)  # a unit direction
     got = [(m.name, [a.value for a in m.args]) for m in c.axiom]
-    assert got == [("&", [30.0]), ("^", [10.0]), ("\\", [30.0]), ("/", [30.0]), (";", []),
-                   (",", []), (";", [3.0]), ("~l", [1.0, 1.0]), ("@O", [1.0]), ("F", [1.0])]
+    assert got == [
+        ("&", [30.0]),
+        ("^", [10.0]),
+        ("\\", [30.0]),
+        ("/", [30.0]),
+        (";", []),
+        (",", []),
+        (";", [3.0]),
+        ("~l", [1.0, 1.0]),
+        ("@O", [1.0]),
+        ("F", [1.0]),
+    ]

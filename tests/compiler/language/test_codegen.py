@@ -114,20 +114,38 @@ def test_vines_productions_follow_protocol() -> None:
 
 
 def test_defaults_and_types() -> None:
-    src = ("angle: 30\nAxiom: F f + - ~l ~l(2) @O !(2) | [ ] { . } % halt A(1 > 0)\n")
+    src = "angle: 30\nAxiom: F f + - ~l ~l(2) @O !(2) | [ ] { . } % halt A(1 > 0)\n"
     prog = compile_grammar(src).program()
     succ = prog.axiom(FixedCtx())
-    assert succ == [("F", 1.0), ("f", 1.0), ("+", 30.0), ("-", 30.0), ("~l", 1.0, 1.0),
-                    ("~l", 2.0, 1.0), ("@O", 1.0), ("!", 2.0), ("|",), ("[",), ("]",),
-                    ("{",), (".",), ("}",), ("%",), ("halt",), ("A", 1.0)]
+    assert succ == [
+        ("F", 1.0),
+        ("f", 1.0),
+        ("+", 30.0),
+        ("-", 30.0),
+        ("~l", 1.0, 1.0),
+        ("~l", 2.0, 1.0),
+        ("@O", 1.0),
+        ("!", 2.0),
+        ("|",),
+        ("[",),
+        ("]",),
+        ("{",),
+        (".",),
+        ("}",),
+        ("%",),
+        ("halt",),
+        ("A", 1.0),
+    ]
     assert all(type(a) is float for m in succ for a in m[1:])
 
 
 def test_math_in_degrees_and_random_calls() -> None:
-    src = ("#define K 2\nAxiom: A(3)\nA(x) --> F(sin(30) + cos(60) + atan2(1, 1) + x ^ K) "
-           "F(min(x, 1, 2) + max(x, 5) + abs(-x) + sqrt(16) + floor(2.5) + ceil(2.5) "
-           "+ round(2.5) + pi - pi + 7 % 4) F(flip(0.3) + uniform(1, 3) + gauss(x, 1) "
-           "+ categorical(1, 2, 3) + choice(0.5, 0.5) + normal(0, 1) + bernoulli(0.5))\n")
+    src = (
+        "#define K 2\nAxiom: A(3)\nA(x) --> F(sin(30) + cos(60) + atan2(1, 1) + x ^ K) "
+        "F(min(x, 1, 2) + max(x, 5) + abs(-x) + sqrt(16) + floor(2.5) + ceil(2.5) "
+        "+ round(2.5) + pi - pi + 7 % 4) F(flip(0.3) + uniform(1, 3) + gauss(x, 1) "
+        "+ categorical(1, 2, 3) + choice(0.5, 0.5) + normal(0, 1) + bernoulli(0.5))\n"
+    )
     c = compile_grammar(src)
     prog = c.program()
     ctx = FixedCtx(value=0.5)
@@ -136,13 +154,34 @@ def test_math_in_degrees_and_random_calls() -> None:
     assert succ[1][1] == pytest.approx(1 + 5 + 3 + 4 + 2 + 3 + 3 + 3)
     assert succ[2][1] == pytest.approx(1.0 + 2.0 + 3.5 + 0.0 + 0.0 + 0.5 + 1.0)
     kinds = [call[0] for call in ctx.calls]
-    assert kinds == ["bernoulli", "uniform", "normal", "categorical", "categorical", "normal",
-                     "bernoulli"]
+    assert kinds == [
+        "bernoulli",
+        "uniform",
+        "normal",
+        "categorical",
+        "categorical",
+        "normal",
+        "bernoulli",
+    ]
     ids = [s.id for s in c.sites]
-    assert ids == ["A/0/bernoulli0", "A/0/uniform0", "A/0/normal0", "A/0/categorical0",
-                   "A/0/categorical1", "A/0/normal1", "A/0/bernoulli1"]
+    assert ids == [
+        "A/0/bernoulli0",
+        "A/0/uniform0",
+        "A/0/normal0",
+        "A/0/categorical0",
+        "A/0/categorical1",
+        "A/0/normal1",
+        "A/0/bernoulli1",
+    ]
     assert [c.sites[call[1]].kind for call in ctx.calls] == [
-        "bernoulli", "uniform", "normal", "categorical", "categorical", "normal", "bernoulli"]
+        "bernoulli",
+        "uniform",
+        "normal",
+        "categorical",
+        "categorical",
+        "normal",
+        "bernoulli",
+    ]
     assert c.sites[3].k == 3 and c.sites[4].k == 2
 
 
@@ -158,13 +197,16 @@ def test_nested_random_calls_and_replay_purity() -> None:
 
 
 def test_param_names_per_alternative_and_shadowing() -> None:
-    src = ("#define x 5\nderivation length: 2\nAxiom: A(1) B(2)\n"
-           "A(y) : y > 0 --> F(y + x)\nA(z) : z > 0 --> G(z) : 1\nB(x) --> F(x)\n")
+    src = (
+        "#define x 5\nderivation length: 2\nAxiom: A(1) B(2)\n"
+        "A(y) : y > 0 --> F(y + x)\nA(z) : z > 0 --> G(z) : 1\nB(x) --> F(x)\n"
+    )
     # the second rule has the same condition (parameters renamed): same group
     with pytest.raises(Exception, match="sum to 2"):
         compile_grammar(src.replace("F(y + x)", "F(y + x) : 1"))
-    src2 = ("#define x 5\nAxiom: A(1) B(2)\nA(y) : y > 0 --> F(y + x)\nA(z) --> G(z)\n"
-            "B(x) --> F(x)\n")
+    src2 = (
+        "#define x 5\nAxiom: A(1) B(2)\nA(y) : y > 0 --> F(y + x)\nA(z) --> G(z)\nB(x) --> F(x)\n"
+    )
     prog = compile_grammar(src2).program()
     assert prog.productions["A"](FixedCtx(), 1.0) == [("F", 6.0)]
     assert prog.productions["A"](FixedCtx(), -1.0) == [("G", -1.0)]
@@ -192,8 +234,11 @@ def test_generated_code_is_ruff_clean(tmp_path: Path) -> None:
     for name in GRAMMARS:
         write_compiled(compiled(name), tmp_path)
     cfg = REPO / "pyproject.toml"
-    res = subprocess.run(["ruff", "check", "--config", str(cfg), "--no-cache", str(tmp_path)],
-                         capture_output=True, text=True)
+    res = subprocess.run(
+        ["ruff", "check", "--config", str(cfg), "--no-cache", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
     assert res.returncode == 0, res.stdout + res.stderr
 
 
@@ -209,11 +254,19 @@ def test_rewritten_turtle_symbol_gets_its_full_arity() -> None:
 
 
 def test_logical_values_are_one_or_zero() -> None:
-    src = ("#define X 2 or 3\n#define Y (1 < 2) + (3 and 4)\nAxiom: A(5)\n"
-           "A(v) --> F(v or 0) F(not v) F((v > 1) + (v and 2)) F(0 or 0) F(X) F(Y)\n")
+    src = (
+        "#define X 2 or 3\n#define Y (1 < 2) + (3 and 4)\nAxiom: A(5)\n"
+        "A(v) --> F(v or 0) F(not v) F((v > 1) + (v and 2)) F(0 or 0) F(X) F(Y)\n"
+    )
     prog = compile_grammar(src).program()
     assert prog.productions["A"](FixedCtx(), 5.0) == [
-        ("F", 1.0), ("F", 0.0), ("F", 2.0), ("F", 0.0), ("F", 1.0), ("F", 2.0)]
+        ("F", 1.0),
+        ("F", 0.0),
+        ("F", 2.0),
+        ("F", 0.0),
+        ("F", 1.0),
+        ("F", 2.0),
+    ]
 
 
 # ---- issue #27: no code from a name or a text, no name the generated code uses -------------
@@ -221,19 +274,47 @@ def test_logical_values_are_one_or_zero() -> None:
 # Each payload sets a global if it ever runs; quotes, newlines and separators try to end a
 # string, docstring or comment of the generated module around it.
 PAYLOADS = ['__import__("builtins").ngpm_pwned = 1', "__import__('builtins').ngpm_pwned = 1"]
-BREAKERS = ['"""', "'''", '"', "'", "\\", "\n", "\r", "\r\n", "\x00", "\u2028", "\u2029",
-            "\x0b", "\x0c", "\x1c", "\x1d", "\x1e", "\x85", "#", ";", ")", "]", "__", "é"]
-HOSTILE = st.lists(st.sampled_from(BREAKERS + PAYLOADS + [";" + p + ";" for p in PAYLOADS])
-                   | st.text(max_size=3), min_size=1, max_size=8).map("".join)
+BREAKERS = [
+    '"""',
+    "'''",
+    '"',
+    "'",
+    "\\",
+    "\n",
+    "\r",
+    "\r\n",
+    "\x00",
+    "\u2028",
+    "\u2029",
+    "\x0b",
+    "\x0c",
+    "\x1c",
+    "\x1d",
+    "\x1e",
+    "\x85",
+    "#",
+    ";",
+    ")",
+    "]",
+    "__",
+    "é",
+]
+HOSTILE = st.lists(
+    st.sampled_from(BREAKERS + PAYLOADS + [";" + p + ";" for p in PAYLOADS]) | st.text(max_size=3),
+    min_size=1,
+    max_size=8,
+).map("".join)
 
 
 def hostile_grammar(text: str) -> str:
     """A grammar whose rule texts carry `text` in comments (a rule's text, comments between its
     alternatives included, goes into its docstring)."""
     comment = "".join(c for c in text if c not in "\r\n")
-    return (f"#define N 2  # {comment}\nderivation length: 2\nAxiom: A(N)\n"
-            f"A(x) --> F(x) : 0.5  # {comment}\n#{comment}\n    | G(x) : 0.5  # {comment}\n"
-            f"G(y) --> F(gauss(y, 1))\n")
+    return (
+        f"#define N 2  # {comment}\nderivation length: 2\nAxiom: A(N)\n"
+        f"A(x) --> F(x) : 0.5  # {comment}\n#{comment}\n    | G(x) : 0.5  # {comment}\n"
+        f"G(y) --> F(gauss(y, 1))\n"
+    )
 
 
 def assert_not_pwned() -> None:
@@ -253,7 +334,8 @@ def test_hostile_file_names_and_texts_run_no_code(name: str, text: str) -> None:
     prog = c.program()
     assert_not_pwned()
     assert ast.get_docstring(ast.parse(c.source_code), clean=False) == (
-        f"Generated by ngpmc from {filename} -- do not edit.")
+        f"Generated by ngpmc from {filename} -- do not edit."
+    )
     assert prog.source == filename
     base = filename.replace("\\", "/").rsplit("/", 1)[-1]
     assert prog.productions["A"].__doc__.rstrip().endswith(f"({base}:4-6)")
@@ -268,10 +350,14 @@ def test_hostile_name_on_disk_runs_nothing(tmp_path: Path) -> None:
     name = 'x""";open("PWNED", "w");"""\n#y\u2028.lsys'
     (tmp_path / name).write_text((REPO / "grammars" / "chain.lsys").read_text())
     ngpmc = [sys.executable, "-m", "ngpm_compiler.cli"]
-    for args in (["check", name], ["compile", name, "-o", "out"],
-                 ["sample", name, "-o", "s.png", "--size", "32"]):
-        proc = subprocess.run([*ngpmc, *args], cwd=tmp_path, capture_output=True, text=True,
-                              timeout=120)
+    for args in (
+        ["check", name],
+        ["compile", name, "-o", "out"],
+        ["sample", name, "-o", "s.png", "--size", "32"],
+    ):
+        proc = subprocess.run(
+            [*ngpmc, *args], cwd=tmp_path, capture_output=True, text=True, timeout=120
+        )
         assert proc.returncode == 0, proc.stderr
     sampler = next((tmp_path / "out").glob("*_sampler.py"))
     assert load_program(sampler).source == name
@@ -287,28 +373,71 @@ def test_a_grammar_error_names_a_hostile_file_on_one_line() -> None:
 
 def test_constants_do_not_shadow_generated_parameters() -> None:
     """Finding 5: `#define arg0 5` with `F --> F(arg0)` drew F(1) (the parameter arg0)."""
-    prog = compile_grammar("#define arg0 5\nderivation length: 1\nAxiom: F\nF --> F(arg0)\n"
-                           ).program()
+    prog = compile_grammar(
+        "#define arg0 5\nderivation length: 1\nAxiom: F\nF --> F(arg0)\n"
+    ).program()
     assert prog.productions["F"](FixedCtx(), 1.0) == [("F", 5.0)]
 
 
 # Builtins the generated code uses, others, and the generated module's own names.
-TAKEN_NAMES = ["bool", "int", "float", "min", "max", "abs", "len", "range", "round", "sum",
-               "print", "str", "list", "tuple", "type", "object", "exec", "eval", "open",
-               "__import__", "__name__", "__builtins__", "_", "math", "ctx", "alt", "axiom",
-               "SITES", "PROGRAM", "Program", "Site", "arg0", "arg1", "produce_A",
-               "interpret_B", "c_x", "p_x", "None", "True", "lambda", "l", "O", "I"]
+TAKEN_NAMES = [
+    "bool",
+    "int",
+    "float",
+    "min",
+    "max",
+    "abs",
+    "len",
+    "range",
+    "round",
+    "sum",
+    "print",
+    "str",
+    "list",
+    "tuple",
+    "type",
+    "object",
+    "exec",
+    "eval",
+    "open",
+    "__import__",
+    "__name__",
+    "__builtins__",
+    "_",
+    "math",
+    "ctx",
+    "alt",
+    "axiom",
+    "SITES",
+    "PROGRAM",
+    "Program",
+    "Site",
+    "arg0",
+    "arg1",
+    "produce_A",
+    "interpret_B",
+    "c_x",
+    "p_x",
+    "None",
+    "True",
+    "lambda",
+    "l",
+    "O",
+    "I",
+]
 
 
 @pytest.mark.parametrize("n", TAKEN_NAMES)
 def test_builtin_and_generated_names_as_constants_and_parameters(n: str) -> None:
     """Finding 7: a constant or parameter named like a builtin the generated code uses
     (`bool`, ...) crashed; now every name means what the grammar says."""
-    src = (f"#define {n} 2\n#define K ({n} and 3) + (1 or 0) + round(0.5) + min({n}, 9)\n"
-           "derivation length: 1\nAxiom: A(3)\n"
-           f"A(v) : v > {n} and not (v < 0) --> F(v + {n} + (v > 1) + (v and 0)) "
-           f"B(min(v, {n}), {n} * K)\n"
-           f"B({n}, w) --> F({n} + w + (w or 1) + round(0.5) + abs(-1)) A(max({n}, 1))\n")
+    src = (
+        f"#define {n} 2\n#define K ({n} and 3) + (1 or 0) + round(0.5) + min({n}, 9)\n"
+        "derivation length: 1\nAxiom: A(3)\n"
+        f"A(v) : v > {n} and not (v < 0) --> F(v + {n} + (v > 1) + (v and 0)) "
+        f"B(min(v, {n}), {n} * K)\n"
+        f"B({n}, w) --> F({n} + w + (w or 1) + round(0.5) + abs(-1)) A(max({n}, 1))\n"
+    )
     prog = compile_grammar(src).program()
     assert prog.productions["A"](FixedCtx(), 3.0) == [("F", 6.0), ("B", 2.0, 10.0)]
     assert prog.productions["B"](FixedCtx(), 5.0, 4.0) == [("F", 12.0), ("A", 5.0)]
@@ -320,8 +449,8 @@ def test_architecture_doc_shows_the_real_generated_module(monkeypatch) -> None:
     `Site(dist=...)` field that does not exist). Its example is an excerpt of a fresh compile
     of the grammar it names: every run of lines between `...` lines appears, in order."""
     doc = (REPO / "docs" / "architecture.md").read_text(encoding="utf-8")
-    section = doc[doc.index("## 2. The generated module"):]
-    block = section[section.index("```python\n") + 10:section.index("\n```\n")]
+    section = doc[doc.index("## 2. The generated module") :]
+    block = section[section.index("```python\n") + 10 : section.index("\n```\n")]
     assert "grammars/vines.lsys" in block.splitlines()[0]
     monkeypatch.chdir(REPO)
     code = compile_grammar("grammars/vines.lsys").source_code
@@ -342,8 +471,11 @@ def test_3d_module_says_so_and_2d_modules_do_not(tmp_path: Path) -> None:
         assert ("box=" in code) == is_3d
     sampler, _ = write_compiled(compiled("tree3d"), tmp_path)
     prog = load_program(sampler)
-    assert (prog.dim, prog.box, prog.tropism) == (3, (-600.0, 600.0, -20.0, 1150.0, -600.0,
-                                                      600.0), (0.0, -1.0, 0.0, 0.22))
+    assert (prog.dim, prog.box, prog.tropism) == (
+        3,
+        (-600.0, 600.0, -20.0, 1150.0, -600.0, 600.0),
+        (0.0, -1.0, 0.0, 0.22),
+    )
     assert prog.viewport == (-600.0, 600.0, -20.0, 1150.0)
     assert compiled("vines").program().dim == 2
     flat = compile_grammar("dimensions: 3\nAxiom: F\n").program()

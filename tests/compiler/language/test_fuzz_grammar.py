@@ -21,12 +21,46 @@ from ngpm_compiler.language.errors import GrammarError
 SOURCES = [p.read_text() for p in sorted((REPO / "grammars").glob("*.lsys"))]
 TOKEN = re.compile(r"\s+|[A-Za-z_][A-Za-z0-9_]*|\d+\.?\d*|-->|.", re.S)
 ALPHABET = "()[]{}+-*/%^|!.,:<>=&$\\~@#\n\t 0123456789xwFfABLSOhalt"
-SNIPPETS = ["-->", ":", "|", "(", ")", "gauss(0, 1)", "flip(", "*", "/ 0", "1/3", "\n",
-            "#define Z 0\n", "derivation length: 2\n", "Axiom:", "A(x, x)", "x", "F(1, 2)",
-            "interpretation:\n", "endlsystem\n", "~c", "@O", "halt", "%", "not", "and",
-            "module F\n", "1e999", "..", "{", "}", "K(w) : w > 0 --> K(w)\n", "\\"]
-FUZZ = settings(max_examples=900, deadline=None, derandomize=True,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+SNIPPETS = [
+    "-->",
+    ":",
+    "|",
+    "(",
+    ")",
+    "gauss(0, 1)",
+    "flip(",
+    "*",
+    "/ 0",
+    "1/3",
+    "\n",
+    "#define Z 0\n",
+    "derivation length: 2\n",
+    "Axiom:",
+    "A(x, x)",
+    "x",
+    "F(1, 2)",
+    "interpretation:\n",
+    "endlsystem\n",
+    "~c",
+    "@O",
+    "halt",
+    "%",
+    "not",
+    "and",
+    "module F\n",
+    "1e999",
+    "..",
+    "{",
+    "}",
+    "K(w) : w > 0 --> K(w)\n",
+    "\\",
+]
+FUZZ = settings(
+    max_examples=900,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 
 
 def compiles_or_grammar_error(text: str) -> None:
@@ -59,11 +93,11 @@ def char_mutants(draw) -> str:
         i = draw(st.integers(0, max(0, len(text) - 1)))
         op = draw(st.sampled_from(["delete", "insert", "swap", "snippet"]))
         if op == "delete":
-            text = text[:i] + text[i + 1:]
+            text = text[:i] + text[i + 1 :]
         elif op == "insert":
             text = text[:i] + draw(st.sampled_from(ALPHABET)) + text[i:]
         elif op == "swap" and i + 1 < len(text):
-            text = text[:i] + text[i + 1] + text[i] + text[i + 2:]
+            text = text[:i] + text[i + 1] + text[i] + text[i + 2 :]
         else:
             text = text[:i] + draw(st.sampled_from(SNIPPETS)) + text[i:]
     return text
@@ -112,20 +146,58 @@ FUZZ_MOST = 3000
 PAYLOAD = '__import__("builtins").ngpm_pwned = 1'
 # What the red team tried: payloads in comments, names the generated code uses, deep nesting,
 # absurd headers, invalid priors.
-HOSTILE_NAMES = ["bool", "int", "float", "min", "arg0", "arg1", "ctx", "alt", "math", "SITES",
-                 "PROGRAM", "produce_A", "__import__", "__builtins__", "c_x", "p_x", "lambda",
-                 "None"]
+HOSTILE_NAMES = [
+    "bool",
+    "int",
+    "float",
+    "min",
+    "arg0",
+    "arg1",
+    "ctx",
+    "alt",
+    "math",
+    "SITES",
+    "PROGRAM",
+    "produce_A",
+    "__import__",
+    "__builtins__",
+    "c_x",
+    "p_x",
+    "lambda",
+    "None",
+]
 HOSTILE_SNIPPETS = HOSTILE_NAMES + [
-    f'# """;{PAYLOAD};"""\n', f"# ''';{PAYLOAD};'''\n", "# \\\n", "#\x00\r\u2028\u2029\x85\n",
-    "#define bool 2\n", "#define arg0 5\n", "#define math 1\n",
+    f'# """;{PAYLOAD};"""\n',
+    f"# ''';{PAYLOAD};'''\n",
+    "# \\\n",
+    "#\x00\r\u2028\u2029\x85\n",
+    "#define bool 2\n",
+    "#define arg0 5\n",
+    "#define math 1\n",
     "#define bool 2\n#define Z (1 and 2)\n",
     "A(bool, int) --> F(bool and int)\n",
-    "sin(" * 120, "(" * 300, "-" * 150, "1+" * 300, "cos(x and " * 60,
-    "max primitives: 1e18\n", "derivation length: 1e9\n", "max modules: 1e12\n",
-    "gauss(0, -1)", "uniform(1, 0)", "flip(2)", "choice(0, 0)", "gauss(0, 0)",
+    "sin(" * 120,
+    "(" * 300,
+    "-" * 150,
+    "1+" * 300,
+    "cos(x and " * 60,
+    "max primitives: 1e18\n",
+    "derivation length: 1e9\n",
+    "max modules: 1e12\n",
+    "gauss(0, -1)",
+    "uniform(1, 0)",
+    "flip(2)",
+    "choice(0, 0)",
+    "gauss(0, 0)",
 ]
-FILENAMES = ['f"""u\\zz.lsys', "f\nuzz\u2028.lsys", "f'''uzz\x00.lsys", f'x""";{PAYLOAD};"""y.lsys',
-             f"x\n{PAYLOAD}\n#.lsys", f"x\r{PAYLOAD}\r#.lsys"]
+FILENAMES = [
+    'f"""u\\zz.lsys',
+    "f\nuzz\u2028.lsys",
+    "f'''uzz\x00.lsys",
+    f'x""";{PAYLOAD};"""y.lsys',
+    f"x\n{PAYLOAD}\n#.lsys",
+    f"x\r{PAYLOAD}\r#.lsys",
+]
 
 
 def mutate(rng: random.Random) -> str:
@@ -135,14 +207,15 @@ def mutate(rng: random.Random) -> str:
         i = rng.randint(0, max(0, len(text) - 1))
         op = rng.choice(["delete", "insert", "swap", "snippet", "hostile", "tokens"])
         if op == "delete":
-            text = text[:i] + text[i + 1:]
+            text = text[:i] + text[i + 1 :]
         elif op == "insert":
             text = text[:i] + rng.choice(ALPHABET) + text[i:]
         elif op == "swap" and i + 1 < len(text):
-            text = text[:i] + text[i + 1] + text[i] + text[i + 2:]
+            text = text[:i] + text[i + 1] + text[i] + text[i + 2 :]
         elif op in ("snippet", "hostile"):
-            text = text[:i] + rng.choice(SNIPPETS if op == "snippet" else HOSTILE_SNIPPETS) \
-                + text[i:]
+            text = (
+                text[:i] + rng.choice(SNIPPETS if op == "snippet" else HOSTILE_SNIPPETS) + text[i:]
+            )
         else:
             tokens = TOKEN.findall(text)
             j, k = rng.randrange(len(tokens)), rng.randrange(len(tokens))
@@ -165,8 +238,11 @@ def test_seeded_fuzz_within_a_time_budget() -> None:
         plain = compile_or_error(text, "fuzz.lsys", done)
         named = compile_or_error(text, hostile, done)
         if isinstance(plain, GrammarError):
-            assert isinstance(named, GrammarError) and named.message == plain.message and (
-                named.line, named.col) == (plain.line, plain.col), (done, named, text)
+            assert (
+                isinstance(named, GrammarError)
+                and named.message == plain.message
+                and (named.line, named.col) == (plain.line, plain.col)
+            ), (done, named, text)
             continue
         assert not isinstance(named, GrammarError), (done, named, text)
         assert named.source == hostile and named.sites == plain.sites
@@ -185,10 +261,14 @@ def compile_or_error(text: str, filename: str, done: int) -> Program | GrammarEr
         return compile_grammar(text, filename=filename).program()
     except GrammarError as e:
         assert re.match(rf"{re.escape(printable(filename))}:\d+:\d+: \S", str(e)), (
-            done, str(e), text)
+            done,
+            str(e),
+            text,
+        )
         return e
-    except Exception as e:  # noqa: BLE001 - the point of the test
-        raise AssertionError(f"grammar {done} of seed 27 ({filename!r}): "
-                             f"{type(e).__name__}: {e}\n{text}") from None
+    except Exception as e:
+        raise AssertionError(
+            f"grammar {done} of seed 27 ({filename!r}): {type(e).__name__}: {e}\n{text}"
+        ) from None
     finally:
         assert not hasattr(builtins, "ngpm_pwned"), (done, filename, text)

@@ -21,24 +21,35 @@ def test_headers_defines_and_comments() -> None:
         "module X(a, b), Y\n\n  # indented comment\nviewport: -1, 2 -3 (4)\nangle: 22.5\n"
         "start: 0 -1 90\nmax primitives: 100\nderivation length: 7\nAxiom: X(1, 2) Y\n"
         "production:\nY --> F\nhomomorphism:\nX(a, b) --> F(a)\nendlsystem\n\n# done\n",
-        "t.lsys")
+        "t.lsys",
+    )
     assert [d.name for d in g.defines] == ["A", "B", "C"]
     assert isinstance(g.defines[1].expr, Binary) and g.defines[1].expr.op == "*"
     assert [(d.name, d.params) for d in g.decls] == [("X", ["a", "b"]), ("Y", [])]
-    assert sorted(g.headers) == ["angle", "derivation length", "max primitives", "start",
-                                 "viewport"]
+    assert sorted(g.headers) == [
+        "angle",
+        "derivation length",
+        "max primitives",
+        "start",
+        "viewport",
+    ]
     assert len(g.headers["viewport"].values) == 4 and len(g.headers["start"].values) == 3
     assert [m.name for m in g.axiom.modules] == ["X", "Y"]
-    assert [(r.pred, r.section) for r in g.rules] == [("Y", "production"),
-                                                     ("X", "interpretation")]
+    assert [(r.pred, r.section) for r in g.rules] == [("Y", "production"), ("X", "interpretation")]
 
 
 def test_rule_parts() -> None:
-    g = parse("Axiom: A(1)\nA(x, y) : x > 1 and not y --> F(x) [ +(-30) A(x - 1, y) ] : 1\n",
-              "t.lsys")
+    g = parse(
+        "Axiom: A(1)\nA(x, y) : x > 1 and not y --> F(x) [ +(-30) A(x - 1, y) ] : 1\n", "t.lsys"
+    )
     r = g.rules[0]
-    assert (r.pred, r.params, r.cond_text, r.line, r.col) == ("A", ["x", "y"],
-                                                              "x > 1 and not y", 2, 1)
+    assert (r.pred, r.params, r.cond_text, r.line, r.col) == (
+        "A",
+        ["x", "y"],
+        "x > 1 and not y",
+        2,
+        1,
+    )
     assert isinstance(r.cond, Binary) and r.cond.op == "and"
     assert [m.name for m in r.successor.modules] == ["F", "[", "+", "A", "]"]
     plus = r.successor.modules[2]
@@ -48,8 +59,9 @@ def test_rule_parts() -> None:
 
 def test_alternatives_on_one_line_and_continued() -> None:
     one = parse("Axiom: F\nF --> F[+F]F[-F]F : 1/3 | F[+F]F : 1/3 | F[-F]F : 1/3\n", "t")
-    more = parse("Axiom: F\nF --> F[+F]F[-F]F : 1/3\n  # note\n    | F[+F]F : 1/3\n"
-                 "    | F[-F]F : 1/3\n", "t")
+    more = parse(
+        "Axiom: F\nF --> F[+F]F[-F]F : 1/3\n  # note\n    | F[+F]F : 1/3\n    | F[-F]F : 1/3\n", "t"
+    )
     for g in (one, more):
         assert len(g.rules) == 3 and all(r.pred == "F" for r in g.rules)
         assert [len(r.successor.modules) for r in g.rules] == [11, 6, 6]
@@ -78,8 +90,7 @@ def test_expression_precedence() -> None:
 
 def test_syntax_error_format() -> None:
     e = err("Axiom: A\nA -- F\n")
-    assert str(e) == ("t.lsys:2:3: unexpected '-', expected one of '(', '-->', ':'\n"
-                      "A -- F\n  ^")
+    assert str(e) == ("t.lsys:2:3: unexpected '-', expected one of '(', '-->', ':'\nA -- F\n  ^")
     assert e.exit_code == 2 and (e.line, e.col) == (2, 3)
 
 
@@ -107,13 +118,18 @@ def test_3d_symbols_beside_expressions() -> None:
     g = parse("Axiom: F(2 ^ 3 / 4, 1)/(90 / 2)^F,F\nF --> F/F : 1/2 | F^F : 1/2\n", "t")
     assert [m.name for m in g.axiom.modules] == ["F", "/", "^", "F", ",", "F"]
     assert g.axiom.modules[0].args[0].op == "/" and len(g.axiom.modules[0].args) == 2
-    assert [[m.name for m in r.successor.modules] for r in g.rules] == [["F", "/", "F"],
-                                                                       ["F", "^", "F"]]
+    assert [[m.name for m in r.successor.modules] for r in g.rules] == [
+        ["F", "/", "F"],
+        ["F", "^", "F"],
+    ]
 
 
 def test_3d_headers_and_tropism_symbols() -> None:
-    g = parse("dimensions: 3\ntropism: 0, -1, 0, 0.22\nviewport: -1 1 -2 2 (-3) 3\n"
-              "Axiom: @Tp(1, 0, 0) @Ts(0.1) @O\n", "t")
+    g = parse(
+        "dimensions: 3\ntropism: 0, -1, 0, 0.22\nviewport: -1 1 -2 2 (-3) 3\n"
+        "Axiom: @Tp(1, 0, 0) @Ts(0.1) @O\n",
+        "t",
+    )
     assert [len(g.headers[k].values) for k in ("dimensions", "tropism", "viewport")] == [1, 4, 6]
     assert [m.name for m in g.axiom.modules] == ["@Tp", "@Ts", "@O"]
 

@@ -23,8 +23,11 @@ from ngpm_compiler.learning.train import TrainConfig, train_guide
 def traces(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("context")
     data = make_dataset(tmp / "data")
-    generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=8, seed=1,
-                                workers=1), tmp / "traces", progress=False)
+    generate_traces(
+        TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=8, seed=1, workers=1),
+        tmp / "traces",
+        progress=False,
+    )
     return tmp, data, load_traces(tmp / "traces")
 
 
@@ -44,9 +47,14 @@ def test_traces_record_the_context_group(traces) -> None:
 def test_guides_with_and_without_context(traces, feature_set) -> None:
     tmp, data, ts = traces
     program = load_grammar(CHAIN)
-    model = train_guide(ts.sites, ts.layouts, ts.data,
-                        TrainConfig(feature_set=feature_set, epochs=2, val_fraction=0.0),
-                        grammar=program.name, grammar_hash=program.grammar_hash)
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        ts.data,
+        TrainConfig(feature_set=feature_set, epochs=2, val_fraction=0.0),
+        grammar=program.name,
+        grammar_hash=program.grammar_hash,
+    )
     path = write_onnx(model, tmp / f"{feature_set}.onnx")
     guide = Guide.load(path, program)
     lay = ts.layouts[0]

@@ -13,10 +13,16 @@ from ngpm_compiler.learning.nets import NetSpec, SiteNet, continuous_z, select_c
 LAYOUT = {"local": slice(0, 4), "target": slice(4, 10), "partial": slice(10, 16)}
 
 
-def make_net(kind: str, K: int = 4, feature_set: str = "all", k: int = 3,
-             probs: tuple[float, ...] | None = None) -> SiteNet:
-    spec = NetSpec(site_index=0, kind=kind, n_f=16, cols=select_columns(LAYOUT, feature_set),
-                   K=K, k=k)
+def make_net(
+    kind: str,
+    K: int = 4,
+    feature_set: str = "all",
+    k: int = 3,
+    probs: tuple[float, ...] | None = None,
+) -> SiteNet:
+    spec = NetSpec(
+        site_index=0, kind=kind, n_f=16, cols=select_columns(LAYOUT, feature_set), K=K, k=k
+    )
     return SiteNet(spec, prior_probs=probs)
 
 

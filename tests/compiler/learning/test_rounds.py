@@ -36,8 +36,13 @@ def test_guided_trace_replays_to_the_same_primitives(vines, vines_guide):
     target = targets[0]
     trace, n_prims = run_job(program, target, seed=3, particles=8, guide=guide)
     values = [(s, v) for s, _, v in trace]
-    again = replay(program, values, start=target.start_pose(program.viewport),
-                   canvas_size=target.size, target_mask=target.mask)
+    again = replay(
+        program,
+        values,
+        start=target.start_pose(program.viewport),
+        canvas_size=target.size,
+        target_mask=target.mask,
+    )
     assert len(again.primitives) == n_prims > 0
     assert all(f is not None and np.isfinite(f).all() for _, f, _ in trace)
 
@@ -50,18 +55,33 @@ def test_guided_smc_weights_are_exact(vines, vines_guide):
     res = grow(program, target, guide, 6, seed=1, trace=TraceRecording.VALUES)
     best = res.smc.best
     values = [(s, v) for s, _, v in best.trace]
-    again = replay(program, values, start=target.start_pose(program.viewport),
-                   canvas_size=target.size, target_mask=target.mask)
+    again = replay(
+        program,
+        values,
+        start=target.start_pose(program.viewport),
+        canvas_size=target.size,
+        target_mask=target.mask,
+    )
     assert again.primitives == best.primitives
     assert best.log_prior == pytest.approx(again.log_prior, rel=1e-9, abs=1e-9)
     # without likelihood or resampling, a particle's weight is log prior - log proposal
-    one = smc(program, None, 1, guide,
-              options=SMCOptions(ess_from_proposal=True, seed=2,
-                                 start=target.start_pose(program.viewport),
-                                 canvas_size=target.size, target_mask=target.mask))
+    one = smc(
+        program,
+        None,
+        1,
+        guide,
+        options=SMCOptions(
+            ess_from_proposal=True,
+            seed=2,
+            start=target.start_pose(program.viewport),
+            canvas_size=target.size,
+            target_mask=target.mask,
+        ),
+    )
     assert np.isfinite(one.log_weights[0]) and one.log_weights[0] != 0.0
-    prior_only = smc(program, None, 1, options=SMCOptions(seed=2,
-                                                          start=target.start_pose(program.viewport)))
+    prior_only = smc(
+        program, None, 1, options=SMCOptions(seed=2, start=target.start_pose(program.viewport))
+    )
     assert prior_only.log_weights[0] == 0.0
 
 
@@ -76,8 +96,7 @@ def _targets(tmp_path, n=2):
 def test_guided_traces_directory_records_the_guide(tmp_path):
     d = _targets(tmp_path)
     guide = str(bundled.guide_path())
-    cfg = TraceConfig(grammar=GRAMMAR, targets=str(d), n=2, particles=5, workers=1,
-                      guide=guide)
+    cfg = TraceConfig(grammar=GRAMMAR, targets=str(d), n=2, particles=5, workers=1, guide=guide)
     m = generate_traces(cfg, tmp_path / "traces", progress=False)
     assert m["kept"] == 2 and len(m["key"]["guide"]) == 64
     unguided = TraceConfig(grammar=GRAMMAR, targets=str(d), n=1, particles=5, workers=1)
@@ -86,24 +105,38 @@ def test_guided_traces_directory_records_the_guide(tmp_path):
     assert len(ts.kept_jobs) == 3 and (ts.kept_jobs >= JOB_STRIDE).sum() == 1
     # `ngpmc train` takes several directories
     out = tmp_path / "m.pt"
-    assert main(["train", f"{tmp_path / 'traces'},{tmp_path / 'u'}", "-o", str(out),
-                 "--epochs", "1"]) == 0
+    assert (
+        main(["train", f"{tmp_path / 'traces'},{tmp_path / 'u'}", "-o", str(out), "--epochs", "1"])
+        == 0
+    )
     assert load_model(out).summary["traces"] == 3
     # traces of other feature layouts (another feature definition) do not mix
     other = load_traces(tmp_path / "u")
-    other.layouts = {i: {**lay, "context": slice(lay["context"].start, lay["context"].stop - 1)}
-                     for i, lay in other.layouts.items()}
-    with pytest.raises(TraceError, match="traces with different feature layouts cannot be "
-                                         "merged$"):
+    other.layouts = {
+        i: {**lay, "context": slice(lay["context"].start, lay["context"].stop - 1)}
+        for i, lay in other.layouts.items()
+    }
+    with pytest.raises(TraceError, match="traces with different feature layouts cannot be merged$"):
         merge_traces([load_traces(tmp_path / "traces"), other])
 
 
 def small_rounds(tmp_path, d, rounds: int, val_targets: int) -> RoundsConfig:
     """Rounds of 2 traces of 5 particles from the bundled guide, validated on `d`."""
-    return RoundsConfig(grammar=GRAMMAR, targets=[str(d)], validation={"v": str(d)},
-                        out=str(tmp_path / "ei"), rounds=rounds, n=2, particles=5,
-                        init_guide=str(bundled.guide_path()), val_targets=val_targets,
-                        val_repeats=1, epochs=1, workers=1, mirror=False)
+    return RoundsConfig(
+        grammar=GRAMMAR,
+        targets=[str(d)],
+        validation={"v": str(d)},
+        out=str(tmp_path / "ei"),
+        rounds=rounds,
+        n=2,
+        particles=5,
+        init_guide=str(bundled.guide_path()),
+        val_targets=val_targets,
+        val_repeats=1,
+        epochs=1,
+        workers=1,
+        mirror=False,
+    )
 
 
 def test_round_loop_keeps_the_best_round(tmp_path, vines):
@@ -113,8 +146,7 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     assert [r["round"] for r in rows] == [0, 1, 2]
     assert rows[2]["traces"] == 4  # round 2 trains on both rounds' traces
     best = max(rows, key=lambda r: r["validation"])
-    assert (tmp_path / "ei" / "best.onnx").read_bytes() == \
-        open(best["guide"], "rb").read()
+    assert (tmp_path / "ei" / "best.onnx").read_bytes() == open(best["guide"], "rb").read()
     assert (tmp_path / "ei" / "rounds.csv").is_file()
     logs: list[str] = []
     again = expert_iteration(cfg, log=logs.append)  # resumed: nothing recorded or trained
@@ -132,22 +164,75 @@ def test_cli_traces_with_a_guide(tmp_path, capsys):
 
     d = _targets(tmp_path, n=1)
     out = tmp_path / "t"
-    code = main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "--particles", "4",
-                 "--workers", "1", "-o", str(out), "--guide", str(bundled.guide_path())])
+    code = main(
+        [
+            "traces",
+            GRAMMAR,
+            "--targets",
+            str(d),
+            "-n",
+            "1",
+            "--particles",
+            "4",
+            "--workers",
+            "1",
+            "-o",
+            str(out),
+            "--guide",
+            str(bundled.guide_path()),
+        ]
+    )
     assert code == 0 and "1 traces kept" in capsys.readouterr().out
-    assert main(["traces", GRAMMAR, "--targets", str(d), "-n", "1", "-o", str(tmp_path / "x"),
-                 "--guide", str(tmp_path / "missing.onnx")]) != 0
+    assert (
+        main(
+            [
+                "traces",
+                GRAMMAR,
+                "--targets",
+                str(d),
+                "-n",
+                "1",
+                "-o",
+                str(tmp_path / "x"),
+                "--guide",
+                str(tmp_path / "missing.onnx"),
+            ]
+        )
+        != 0
+    )
 
 
 def test_cli_iterate_checks_its_inputs(tmp_path, capsys):
     from ngpm_compiler.cli import main
 
-    code = main(["iterate", GRAMMAR, "--targets", str(tmp_path / "none"), "--validate",
-                 f"v={tmp_path}", "-o", str(tmp_path / "ei")])
+    code = main(
+        [
+            "iterate",
+            GRAMMAR,
+            "--targets",
+            str(tmp_path / "none"),
+            "--validate",
+            f"v={tmp_path}",
+            "-o",
+            str(tmp_path / "ei"),
+        ]
+    )
     assert code != 0 and "no such file or directory" in capsys.readouterr().err
     with pytest.raises(SystemExit, match="2"):  # argparse refuses it
-        main(["iterate", GRAMMAR, "--targets", str(tmp_path), "--validate", f"v={tmp_path}",
-              "-o", str(tmp_path / "ei"), "--rounds", "0"])
+        main(
+            [
+                "iterate",
+                GRAMMAR,
+                "--targets",
+                str(tmp_path),
+                "--validate",
+                f"v={tmp_path}",
+                "-o",
+                str(tmp_path / "ei"),
+                "--rounds",
+                "0",
+            ]
+        )
 
 
 def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path):
@@ -167,8 +252,9 @@ def test_a_resumed_iteration_scores_a_changed_round_anew(tmp_path):
     assert "round_1: validation similarity" in logs[-2]
     assert resumed[1]["validation"] != first[1]["validation"]
     assert [r["validation"] for r in resumed] == [r["validation"] for r in fresh]
-    assert ((tmp_path / "ei" / "best.onnx").read_bytes()
-            == (tmp_path / "fresh" / "best.onnx").read_bytes())
+    assert (tmp_path / "ei" / "best.onnx").read_bytes() == (
+        tmp_path / "fresh" / "best.onnx"
+    ).read_bytes()
 
 
 def test_cli_iterate_refuses_an_initial_guide_of_another_grammar(tmp_path):
@@ -181,14 +267,32 @@ def test_cli_iterate_refuses_an_initial_guide_of_another_grammar(tmp_path):
 
     data = make_dataset(tmp_path / "data", 2)
     guide = bundled.guide_path()
-    proc = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "iterate", CHAIN,
-                           "--targets", str(data), "--validate", f"v={data}", "-o",
-                           str(tmp_path / "ei"), "--init-guide", str(guide)],
-                          capture_output=True, text=True, timeout=60,
-                          env={**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'runtime'}"})
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngpm_compiler.cli",
+            "iterate",
+            CHAIN,
+            "--targets",
+            str(data),
+            "--validate",
+            f"v={data}",
+            "-o",
+            str(tmp_path / "ei"),
+            "--init-guide",
+            str(guide),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{REPO / 'runtime'}"},
+    )
     assert proc.returncode == 1
-    assert proc.stderr.startswith(f"ngpmc: error: {guide}: guide was trained for grammar "
-                                  "'vines'") and len(proc.stderr.strip().splitlines()) == 1
+    assert (
+        proc.stderr.startswith(f"ngpmc: error: {guide}: guide was trained for grammar 'vines'")
+        and len(proc.stderr.strip().splitlines()) == 1
+    )
     assert not (tmp_path / "ei").exists()
 
 
@@ -204,8 +308,11 @@ def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
     program = bundled.bundled_program()
     tuned = ProposalSettings(1.0, 0.3, 0.3)
     init = with_settings(bundled.guide_path(), tmp_path / "init.onnx", tuned)
-    round_1 = with_settings(perturbed_guide(bundled.guide_path(), tmp_path / "new.onnx"),
-                            tmp_path / "round_1.onnx", ProposalSettings())  # as trained
+    round_1 = with_settings(
+        perturbed_guide(bundled.guide_path(), tmp_path / "new.onnx"),
+        tmp_path / "round_1.onnx",
+        ProposalSettings(),
+    )  # as trained
     quality = {"round_0": 0.50, "round_1": 0.544}
     scored: dict[str, ProposalSettings] = {}
     teachers: list[str | None] = []
@@ -214,8 +321,11 @@ def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
         ((name, path),) = guides.items()
         scored[name] = Guide.load(path, program).settings
         bonus = 0.083 if scored[name] != ProposalSettings() else 0.0
-        return {"summary": [{"model": name, "n": kw["guided_n"],
-                             "mean_similarity": quality[name] + bonus}]}
+        return {
+            "summary": [
+                {"model": name, "n": kw["guided_n"], "mean_similarity": quality[name] + bonus}
+            ]
+        }
 
     def fake_record(cfg, r, guide, log):
         teachers.append(guide)
@@ -223,11 +333,20 @@ def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
 
     monkeypatch.setattr(heldout, "run_heldout", fake_heldout)
     monkeypatch.setattr(rounds, "record_round", fake_record)
-    monkeypatch.setattr(rounds, "train_round",
-                        lambda cfg, r, dirs, log: (str(round_1), {"traces": 2, "val_nll": 1.0}))
-    cfg = RoundsConfig(grammar=GRAMMAR, targets=[str(tmp_path)],
-                       validation={"v": str(tmp_path)}, out=str(tmp_path / "ei"), rounds=1,
-                       init_guide=str(init), workers=1)
+    monkeypatch.setattr(
+        rounds,
+        "train_round",
+        lambda cfg, r, dirs, log: (str(round_1), {"traces": 2, "val_nll": 1.0}),
+    )
+    cfg = RoundsConfig(
+        grammar=GRAMMAR,
+        targets=[str(tmp_path)],
+        validation={"v": str(tmp_path)},
+        out=str(tmp_path / "ei"),
+        rounds=1,
+        init_guide=str(init),
+        workers=1,
+    )
     logs: list[str] = []
     rows = expert_iteration(cfg, log=logs.append)
     assert scored == {"round_0": ProposalSettings(), "round_1": ProposalSettings()}
@@ -238,7 +357,8 @@ def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
     assert "proposes with T=1,Tc=0.3,ess=0.3 (ngpmc tune); scored with the default" in logs[0]
     # an untuned initial guide is scored as it is, with no copy
     plain = with_settings(bundled.guide_path(), tmp_path / "plain.onnx", ProposalSettings())
-    rows = expert_iteration(replace(cfg, init_guide=str(plain), out=str(tmp_path / "p")),
-                            log=lambda _m: None)
+    rows = expert_iteration(
+        replace(cfg, init_guide=str(plain), out=str(tmp_path / "p")), log=lambda _m: None
+    )
     assert rows[0]["teacher"] == "initial guide"
     assert not (tmp_path / "p" / "round_0" / "untuned.onnx").exists()

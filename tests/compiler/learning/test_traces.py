@@ -63,17 +63,37 @@ ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), str(REPO / "runti
 
 
 def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "ngpm_compiler.cli", "traces", CHAIN, "--targets", str(data),
-           "-n", str(n), "--particles", "8", "-o", str(out), "--workers", str(workers),
-           "--seed", "3", "--shard-size", "4"]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV,
-                            start_new_session=True, **kw)
+    cmd = [
+        sys.executable,
+        "-m",
+        "ngpm_compiler.cli",
+        "traces",
+        CHAIN,
+        "--targets",
+        str(data),
+        "-n",
+        str(n),
+        "--particles",
+        "8",
+        "-o",
+        str(out),
+        "--workers",
+        str(workers),
+        "--seed",
+        "3",
+        "--shard-size",
+        "4",
+    ]
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=ENV, start_new_session=True, **kw
+    )
 
 
 def finished_jobs(out: Path) -> int:
     store = TraceStore(out)
     return len(store.pending_paths()) + sum(
-        len(np.load(p)["jobs"]) for p in store.shard_paths() if p.stat().st_size > 0)
+        len(np.load(p)["jobs"]) for p in store.shard_paths() if p.stat().st_size > 0
+    )
 
 
 def test_kill_and_resume(tmp_path):
@@ -104,8 +124,13 @@ def test_kill_and_resume(tmp_path):
     assert sorted(ts.kept_jobs.tolist()) == list(range(n))
     # the same traces as one uninterrupted single-process run (jobs are pure)
     ref_out = tmp_path / "ref"
-    generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=n, particles=8, seed=3,
-                                workers=1, shard_size=4), ref_out, progress=False)
+    generate_traces(
+        TraceConfig(
+            grammar=CHAIN, targets=str(data), n=n, particles=8, seed=3, workers=1, shard_size=4
+        ),
+        ref_out,
+        progress=False,
+    )
     ref = load_traces(ref_out)
     assert sorted(ref.data) == sorted(ts.data) == [0]
     a, b = ref.data[0], ts.data[0]
@@ -129,8 +154,11 @@ def test_resume_refuses_other_configuration(tmp_path):
     m = json.loads(manifest.read_text())
     m["key"] = {k: v for k, v in m["key"].items() if k not in ("max_modules", "guide")}
     manifest.write_text(json.dumps(m))
-    with pytest.raises(TraceError, match=r"another configuration \(differs in guide, "
-                                         r"max_modules\); use a new directory"):
+    with pytest.raises(
+        TraceError,
+        match=r"another configuration \(differs in guide, "
+        r"max_modules\); use a new directory",
+    ):
         generate_traces(cfg, tmp_path / "t", progress=False)
     with pytest.raises(TraceError, match="not a traces directory"):
         load_traces(tmp_path / "data")
@@ -144,8 +172,12 @@ def test_mirror_adds_missing_copies(tmp_path):
     assert names == ["bar0", "bar1", "bar0_m", "bar1_m"]
     t = load_targets(data, 50, mirror=True)[0].mirrored()
     save_target(t, data / "bar0_m.png")
-    assert sorted(t.name for t in load_targets(data, 50, mirror=True)) == \
-        ["bar0", "bar0_m", "bar1", "bar1_m"]
+    assert sorted(t.name for t in load_targets(data, 50, mirror=True)) == [
+        "bar0",
+        "bar0_m",
+        "bar1",
+        "bar1_m",
+    ]
 
 
 def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
@@ -162,8 +194,11 @@ def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
 
     monkeypatch.setattr(workers_mod, "run_job", flaky)
     data = make_dataset(tmp_path / "data", 2)
-    m = generate_traces(TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4,
-                                    workers=1), tmp_path / "t", progress=False)
+    m = generate_traces(
+        TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1),
+        tmp_path / "t",
+        progress=False,
+    )
     failing = sum(job_spec(0, j, 2)[1] % 3 == 0 for j in range(m["jobs_done"]))
     assert failing >= 1 and m["kept"] == 6 and m["failed"] == m["dropped"] == failing
     assert len(load_traces(tmp_path / "t").kept_jobs) == 6
@@ -171,8 +206,13 @@ def test_failed_smc_jobs_are_dropped_and_counted(tmp_path, monkeypatch):
 
 def cli(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     """ngpmc in a subprocess; the test fails (TimeoutExpired) if it hangs."""
-    return subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", *args], env=ENV,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "ngpm_compiler.cli", *args],
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def test_traces_refuses_a_guide_that_does_not_fit_before_starting_workers(tmp_path):
@@ -183,11 +223,27 @@ def test_traces_refuses_a_guide_that_does_not_fit_before_starting_workers(tmp_pa
     data = make_dataset(tmp_path / "data", 2)
     corrupt = tmp_path / "corrupt.onnx"
     corrupt.write_bytes(bundled.guide_path().read_bytes()[:1000])
-    for guide, words in ((bundled.guide_path(), "guide was trained for grammar 'vines'"),
-                         (corrupt, "not a readable ONNX guide (corrupt or truncated file)")):
+    for guide, words in (
+        (bundled.guide_path(), "guide was trained for grammar 'vines'"),
+        (corrupt, "not a readable ONNX guide (corrupt or truncated file)"),
+    ):
         out = tmp_path / "tr"
-        proc = cli("traces", CHAIN, "--targets", str(data), "-n", "2", "--particles", "4",
-                   "--workers", "2", "-o", str(out), "--guide", str(guide))
+        proc = cli(
+            "traces",
+            CHAIN,
+            "--targets",
+            str(data),
+            "-n",
+            "2",
+            "--particles",
+            "4",
+            "--workers",
+            "2",
+            "-o",
+            str(out),
+            "--guide",
+            str(guide),
+        )
         assert proc.returncode == 1 and proc.stderr.startswith(f"ngpmc: error: {guide}: ")
         assert words in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
         assert not out.exists()
@@ -218,8 +274,9 @@ def test_a_killed_pool_worker_costs_only_a_rerun(tmp_path):
     import multiprocessing as mp
 
     data = make_dataset(tmp_path / "data", 2)
-    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=12, particles=30, seed=3,
-                      workers=2, shard_size=4)
+    cfg = TraceConfig(
+        grammar=CHAIN, targets=str(data), n=12, particles=30, seed=3, workers=2, shard_size=4
+    )
     killed: list[int] = []
 
     def kill_one(job: int) -> None:
@@ -247,8 +304,7 @@ def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeyp
     import ngpm_compiler.learning.trace_store as store_mod
 
     data = make_dataset(tmp_path / "data", 2)
-    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1,
-                      shard_size=4)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=6, particles=4, workers=1, shard_size=4)
     real, full = store_mod.atomic_write, []
 
     def write(path, data):

@@ -27,8 +27,10 @@ SITES = [
     Site(index=4, id="A/0/normal1", kind="normal"),  # never visited: no network
 ]
 # features: [x, noise, prior args...]; local = everything, no image groups
-LAYOUTS = {s.index: {"local": slice(0, 2 + s.n_args()), "target": slice(2, 2),
-                     "partial": slice(2, 2)} for s in SITES}
+LAYOUTS = {
+    s.index: {"local": slice(0, 2 + s.n_args()), "target": slice(2, 2), "partial": slice(2, 2)}
+    for s in SITES
+}
 
 
 def synthetic(n_jobs: int, per_job: int, seed: int) -> tuple[dict[int, SiteData], dict]:
@@ -44,16 +46,22 @@ def synthetic(n_jobs: int, per_job: int, seed: int) -> tuple[dict[int, SiteData]
     comp = rng.random(m) < 0.5
     z = np.where(comp, rng.normal(2 * x, 0.3), rng.normal(-1.5, 0.2, m))
     args = np.tile([5.0, 2.0], (m, 1))
-    lz = np.logaddexp(np.log(0.5) - 0.5 * ((z - 2 * x) / 0.3) ** 2 - np.log(0.3),
-                      np.log(0.5) - 0.5 * ((z + 1.5) / 0.2) ** 2 - np.log(0.2))
+    lz = np.logaddexp(
+        np.log(0.5) - 0.5 * ((z - 2 * x) / 0.3) ** 2 - np.log(0.3),
+        np.log(0.5) - 0.5 * ((z + 1.5) / 0.2) ** 2 - np.log(0.2),
+    )
     data[0] = (5 + 2 * z, args)
     true_logp[0] = lz - 0.5 * np.log(2 * np.pi) - np.log(2.0)
     # uniform on (0, 10): logit(u) ~ N(2x, 0.5)
     zu = rng.normal(2 * x, 0.5)
     u = expit(zu)
     data[1] = (10 * u, np.tile([0.0, 10.0], (m, 1)))
-    true_logp[1] = (-0.5 * ((zu - 2 * x) / 0.5) ** 2 - np.log(0.5) - 0.5 * np.log(2 * np.pi)
-                    - np.log(10 * u * (1 - u)))
+    true_logp[1] = (
+        -0.5 * ((zu - 2 * x) / 0.5) ** 2
+        - np.log(0.5)
+        - 0.5 * np.log(2 * np.pi)
+        - np.log(10 * u * (1 - u))
+    )
     # bernoulli p = sigmoid(3x)
     p = expit(3 * x)
     b = (rng.random(m) < p).astype(float)
@@ -85,11 +93,9 @@ def test_kl_falls_towards_known_conditionals():
     data, _ = synthetic(n_jobs=40, per_job=100, seed=0)
     test, true_logp = synthetic(n_jobs=10, per_job=200, seed=1)
     config = TrainConfig(feature_set="local", K=4, epochs=25, batch_size=128, lr=0.01)
-    untrained = train_guide(SITES, LAYOUTS, data, TrainConfig(**{**config.__dict__,
-                                                                 "epochs": 0}))
+    untrained = train_guide(SITES, LAYOUTS, data, TrainConfig(**{**config.__dict__, "epochs": 0}))
     model = train_guide(SITES, LAYOUTS, data, config)
-    before, after = kl_per_visit(untrained, test, true_logp), kl_per_visit(model, test,
-                                                                           true_logp)
+    before, after = kl_per_visit(untrained, test, true_logp), kl_per_visit(model, test, true_logp)
     assert sorted(model.nets) == [0, 1, 2, 3]  # site 4 never visited
     for i in range(4):
         assert after[i] < 0.5 * before[i], (i, before, after)
@@ -101,8 +107,7 @@ def test_kl_falls_towards_known_conditionals():
 
 def test_const_features_learn_the_marginal():
     data, _ = synthetic(n_jobs=20, per_job=100, seed=3)
-    model = train_guide(SITES, LAYOUTS, data, TrainConfig(feature_set="const", epochs=15,
-                                                          lr=0.02))
+    model = train_guide(SITES, LAYOUTS, data, TrainConfig(feature_set="const", epochs=15, lr=0.02))
     with torch.no_grad():
         p = model.nets[2](torch.zeros(1, 3))[0, 0].item()
     assert p == pytest.approx(data[2].values.mean(), abs=0.05)
@@ -133,8 +138,9 @@ def test_checkpoint_resume_gives_the_same_model(tmp_path):
     train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, **cfg), checkpoint=ck)
     assert ck.is_file()
     resumed = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=4, **cfg), checkpoint=ck)
-    assert [h["val_nll"] for h in resumed.summary["history"]] == \
-        [h["val_nll"] for h in full.summary["history"]]
+    assert [h["val_nll"] for h in resumed.summary["history"]] == [
+        h["val_nll"] for h in full.summary["history"]
+    ]
     assert_same_weights(full, resumed)
     save_model(resumed, tmp_path / "m.pt")
     again = load_model(tmp_path / "m.pt")
@@ -169,8 +175,9 @@ def test_early_stopping_returns_the_best_epochs_weights():
 def assert_same_weights(a, b) -> None:
     assert sorted(a.nets) == sorted(b.nets)
     for i in a.nets:
-        for (name, x), y in zip(a.nets[i].state_dict().items(),
-                                b.nets[i].state_dict().values(), strict=True):
+        for (name, x), y in zip(
+            a.nets[i].state_dict().items(), b.nets[i].state_dict().values(), strict=True
+        ):
             assert torch.equal(x, y), (i, name)
 
 

@@ -27,27 +27,29 @@ from typing import Any
 import numpy as np
 import pytest
 
-pytest.importorskip("starlette", reason="ngpmc serve needs the [web] extra: "
-                                        'pip install -e ".[web]"')
+pytest.importorskip(
+    "starlette", reason='ngpmc serve needs the [web] extra: pip install -e ".[web]"'
+)
 with warnings.catch_warnings():  # Starlette 1.x prefers httpx2 and warns about httpx
     warnings.simplefilter("ignore")
     try:
         from starlette.testclient import TestClient
     except (ImportError, RuntimeError):
-        pytest.skip("Starlette's test client needs httpx (pip install httpx)",
-                    allow_module_level=True)
+        pytest.skip(
+            "Starlette's test client needs httpx (pip install httpx)", allow_module_level=True
+        )
 
-from ngpm_runtime import bundled  # noqa: E402
-from ngpm_runtime.image.targets import load_target  # noqa: E402
-from ngpm_runtime.inference.smc import SMCState, take_arrays  # noqa: E402
-from PIL import Image, ImageDraw  # noqa: E402
-from repo_paths import REPO  # noqa: E402
+from ngpm_runtime import bundled
+from ngpm_runtime.image.targets import load_target
+from ngpm_runtime.inference.smc import SMCState, take_arrays
+from PIL import Image, ImageDraw
+from repo_paths import REPO
 
-from ngpm_compiler.cli import main  # noqa: E402
-from ngpm_compiler.web.app import bind, create_app, make_server  # noqa: E402
-from ngpm_compiler.web.config import Limits, load_config  # noqa: E402
-from ngpm_compiler.web.runs import Run, RunCheck, RunStopped  # noqa: E402
-from ngpm_compiler.web.sse import FrameStream  # noqa: E402
+from ngpm_compiler.cli import main
+from ngpm_compiler.web.app import bind, create_app, make_server
+from ngpm_compiler.web.config import Limits, load_config
+from ngpm_compiler.web.runs import Run, RunCheck, RunStopped
+from ngpm_compiler.web.sse import FrameStream
 
 BASE = "http://127.0.0.1"
 
@@ -64,8 +66,12 @@ def drawing(size: int = 320) -> Image.Image:
     img = Image.new("RGB", (size, size), "white")
     d = ImageDraw.Draw(img)
     s = size / 320
-    d.line([(160 * s, 300 * s), (160 * s, 170 * s), (70 * s, 50 * s)], fill="black",
-           width=int(24 * s), joint="curve")
+    d.line(
+        [(160 * s, 300 * s), (160 * s, 170 * s), (70 * s, 50 * s)],
+        fill="black",
+        width=int(24 * s),
+        joint="curve",
+    )
     d.line([(160 * s, 170 * s), (250 * s, 50 * s)], fill="black", width=int(24 * s))
     return img
 
@@ -282,10 +288,19 @@ BAD_GROW = [
     ({"image": None}, 400, "data url"),
     ({"image": "data:image/png,abc"}, 400, "base64 data url"),
     ({"image": "data:image/png;base64,&&&"}, 400, "not valid base64"),
-    ({"image": "data:image/png;base64," + base64.b64encode(b"hello").decode()}, 415,
-     "not an image"),
-    ({"image": "data:image/png;base64," + base64.b64encode(b"\x89PNG\r\n\x1a\n" + b"\0" * 60)
-      .decode()}, 415, "not an image"),
+    (
+        {"image": "data:image/png;base64," + base64.b64encode(b"hello").decode()},
+        415,
+        "not an image",
+    ),
+    (
+        {
+            "image": "data:image/png;base64,"
+            + base64.b64encode(b"\x89PNG\r\n\x1a\n" + b"\0" * 60).decode()
+        },
+        415,
+        "not an image",
+    ),
     ({"image": png_url(Image.new("RGB", (40, 40)), "PPM")}, 415, "PPM images are not accepted"),
     ({"image": big_png(4097, 16)}, 413, "4097 x 16 px"),
     ({"image": png_url(Image.new("RGB", (300, 300), "white"))}, 422, "holds no shape"),
@@ -294,10 +309,12 @@ BAD_GROW = [
 ]
 
 
-@pytest.mark.parametrize("body, status, words", BAD_GROW,
-                         ids=[f"{i}-{s}" for i, (_, s, _) in enumerate(BAD_GROW)])
-def test_bad_grow_requests_get_a_clear_json_error(client: TestClient, body: dict[str, Any],
-                                                  status: int, words: str) -> None:
+@pytest.mark.parametrize(
+    "body, status, words", BAD_GROW, ids=[f"{i}-{s}" for i, (_, s, _) in enumerate(BAD_GROW)]
+)
+def test_bad_grow_requests_get_a_clear_json_error(
+    client: TestClient, body: dict[str, Any], status: int, words: str
+) -> None:
     full = {"image": png_url(drawing(100)), **body}
     assert_error(client.post("/api/grow", json=full), status, words)
 
@@ -309,16 +326,28 @@ def test_a_truncated_image_and_a_shape_too_small_are_422_or_400(client: TestClie
     assert_error(client.post("/api/grow", json={"image": cut}), 400, "cannot decode")
     dot = Image.new("RGB", (500, 500), "white")
     ImageDraw.Draw(dot).rectangle((10, 10, 14, 14), fill="black")
-    assert_error(client.post("/api/grow", json={"image": png_url(dot), "polarity": "dark"}),
-                 422, "no shape")
+    assert_error(
+        client.post("/api/grow", json={"image": png_url(dot), "polarity": "dark"}), 422, "no shape"
+    )
 
 
 def test_bodies_that_are_not_json_objects_are_refused(client: TestClient) -> None:
-    assert_error(client.post("/api/grow", content=b"image=1",
-                             headers={"content-type": "application/x-www-form-urlencoded"}),
-                 415, "json")
-    assert_error(client.post("/api/grow", content=b"{not json",
-                             headers={"content-type": "application/json"}), 400, "not valid json")
+    assert_error(
+        client.post(
+            "/api/grow",
+            content=b"image=1",
+            headers={"content-type": "application/x-www-form-urlencoded"},
+        ),
+        415,
+        "json",
+    )
+    assert_error(
+        client.post(
+            "/api/grow", content=b"{not json", headers={"content-type": "application/json"}
+        ),
+        400,
+        "not valid json",
+    )
     assert_error(client.post("/api/grow", json=[1, 2]), 400, "json object")
     assert_error(client.post("/api/grow", json={}), 400, "'image' is missing")
 
@@ -330,13 +359,20 @@ def test_deep_or_crowded_json_is_a_400_not_a_crash(client: TestClient) -> None:
     deep = b'{"image": ' + b"[" * 100_000 + b"]" * 100_000 + b"}"
     nine = b'{"image": ' + b"[" * 8 + b"]" * 8 + b"}"
     for path in ("/api/grow", "/api/shape"):
-        assert_error(client.post(path, content=deep, headers=json_type), 400,
-                     "too many values (more than 256)")
-        assert_error(client.post(path, content=nine, headers=json_type), 400,
-                     "nested too deeply (more than 8 levels")
+        assert_error(
+            client.post(path, content=deep, headers=json_type),
+            400,
+            "too many values (more than 256)",
+        )
+        assert_error(
+            client.post(path, content=nine, headers=json_type),
+            400,
+            "nested too deeply (more than 8 levels",
+        )
     crowded = json.dumps({"image": png_url(drawing(100)), "seed": [0] * 5000}).encode()
-    assert_error(client.post("/api/grow", content=crowded, headers=json_type), 400,
-                 "too many values")
+    assert_error(
+        client.post("/api/grow", content=crowded, headers=json_type), 400, "too many values"
+    )
     odd = {"image": png_url(drawing(100)), "grammar": '[[[[[[[[[[{{{{,,,,\\"'}
     assert_error(client.post("/api/grow", json=odd), 400, "unknown grammar")
 
@@ -345,12 +381,12 @@ def test_oversized_requests_and_images_are_413(config: Any) -> None:
     small = load_config(limits=Limits(max_body_bytes=2000, max_image_bytes=1000))
     client = TestClient(create_app(small), base_url=BASE)
     noisy = Image.fromarray(np.random.default_rng(0).integers(0, 255, (60, 60, 3), np.uint8))
-    assert_error(client.post("/api/grow", json={"image": png_url(noisy)}), 413,
-                 "larger than")
+    assert_error(client.post("/api/grow", json={"image": png_url(noisy)}), 413, "larger than")
     limited = load_config(limits=Limits(max_image_bytes=1000))
     client = TestClient(create_app(limited), base_url=BASE)
-    assert_error(client.post("/api/grow", json={"image": png_url(noisy)}), 413,
-                 "image file is larger than")
+    assert_error(
+        client.post("/api/grow", json={"image": png_url(noisy)}), 413, "image file is larger than"
+    )
 
 
 def peer(app: Any, address: str) -> TestClient:
@@ -362,8 +398,11 @@ def test_one_run_per_client_and_a_busy_server(config: Any) -> None:
     app = create_app(load_config(limits=Limits(max_runs=2)))
     body = {"image": png_url(drawing(100)), "particles": 1}
     mine = app.state.slots.acquire("127.0.0.2")  # a run of this client is going
-    assert_error(peer(app, "127.0.0.2").post("/api/grow", json=body), 409,
-                 "from your address (127.0.0.2) is still going")
+    assert_error(
+        peer(app, "127.0.0.2").post("/api/grow", json=body),
+        409,
+        "from your address (127.0.0.2) is still going",
+    )
     other = app.state.slots.acquire("127.0.0.3")  # and a second client's: full
     resp = peer(app, "127.0.0.4").post("/api/grow", json=body)
     assert_error(resp, 503, "busy")
@@ -384,8 +423,9 @@ def test_a_client_cannot_take_more_slots_by_naming_itself_anew(config: Any) -> N
     client = peer(app, "127.0.0.2")
     body = {"image": png_url(drawing(100)), "particles": 1}
     for name in ("client-aaaaaaaa", "client-bbbbbbbb"):
-        resp = client.post("/api/grow", json=body,
-                           headers={"x-client-id": name, "cookie": f"ngpm_client={name}"})
+        resp = client.post(
+            "/api/grow", json=body, headers={"x-client-id": name, "cookie": f"ngpm_client={name}"}
+        )
         assert_error(resp, 409, "still going")
     assert app.state.slots.active() == 1
     app.state.slots.release(mine)
@@ -393,8 +433,10 @@ def test_a_client_cannot_take_more_slots_by_naming_itself_anew(config: Any) -> N
 
 def test_two_clients_grow_at_once_as_they_would_alone(config: Any) -> None:
     app = create_app(config)
-    alone = [grow(TestClient(app, base_url=BASE), seed=s, particles=6)[-1][1]["primitives"]
-             for s in (1, 2)]
+    alone = [
+        grow(TestClient(app, base_url=BASE), seed=s, particles=6)[-1][1]["primitives"]
+        for s in (1, 2)
+    ]
     results: dict[int, Any] = {}
 
     def one(seed: int) -> None:
@@ -430,8 +472,11 @@ def test_shape_finds_the_shape_of_an_uploaded_picture(client: TestClient) -> Non
     opaque = mask[..., 3] > 0
     assert opaque[128, 128] and not opaque[5, 128] and not opaque[128, 5]
     assert 0.05 < opaque.mean() < 0.3  # the disk, padded to a square
-    assert_error(client.post("/api/shape", json={"image": png_url(Image.new("L", (50, 50)))}),
-                 422, "no shape")
+    assert_error(
+        client.post("/api/shape", json={"image": png_url(Image.new("L", (50, 50)))}),
+        422,
+        "no shape",
+    )
     assert_error(client.post("/api/shape", json={"image": "x", "extra": 1}), 400, "extra")
 
 
@@ -441,8 +486,7 @@ def data_url(img: Image.Image, fmt: str, **save: Any) -> str:
     return f"data:image/{fmt.lower()};base64," + base64.b64encode(buf.getvalue()).decode()
 
 
-def test_pictures_are_read_as_ngpmc_grow_reads_them(client: TestClient,
-                                                     tmp_path: Path) -> None:
+def test_pictures_are_read_as_ngpmc_grow_reads_them(client: TestClient, tmp_path: Path) -> None:
     """Findings 7 and 8: a LAB TIFF was a 500, and an animated GIF whose first frame is
     blank was refused (422) although `ngpmc grow` takes its first frame with a shape. Both
     now go through the runtime's one loader: the same mask as the command line's."""
@@ -503,15 +547,20 @@ def test_command_line_grammars_and_guides_are_offered() -> None:
     cfg = load_config(guide=str(bundled.guide_path()))
     assert [c.id for c in cfg.grammars[0].guides] == ["cli", "bundled"]
     assert load_config(guide="none").grammars[0].guides == []
-    client = TestClient(create_app(load_config(str(REPO / "grammars" / "chain.lsys"))),
-                        base_url=BASE)
+    client = TestClient(
+        create_app(load_config(str(REPO / "grammars" / "chain.lsys"))), base_url=BASE
+    )
     opts = client.get("/api/options").json()
     assert [g["id"] for g in opts["grammars"]] == ["cli", "vines"]
     evs = grow(client, grammar="cli", particles=3)
     assert evs[0][1]["guide"] is None and evs[-1][0] == "done"
-    assert_error(client.post("/api/grow", json={"image": png_url(drawing(100)),
-                                                "grammar": "cli", "guide": "bundled"}),
-                 400, "unknown guide")
+    assert_error(
+        client.post(
+            "/api/grow", json={"image": png_url(drawing(100)), "grammar": "cli", "guide": "bundled"}
+        ),
+        400,
+        "unknown guide",
+    )
 
 
 def test_serve_command_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> None:
@@ -558,8 +607,9 @@ def live() -> Iterator[int]:
         sock.close()
 
 
-def seconds_held(socks: list[socket.socket], trickles: list[bytes],
-                 limit: float = 6.0) -> list[float]:
+def seconds_held(
+    socks: list[socket.socket], trickles: list[bytes], limit: float = 6.0
+) -> list[float]:
     """Send each socket the next byte of its trickle every 0.2 s until the server closes
     it: the seconds each stayed open (inf: still open after `limit`)."""
     t0 = time.monotonic()
@@ -581,7 +631,7 @@ def seconds_held(socks: list[socket.socket], trickles: list[bytes],
                 held[i] = time.monotonic() - t0
                 continue
             try:
-                s.send(trickles[i][step % len(trickles[i]):][:1])
+                s.send(trickles[i][step % len(trickles[i]) :][:1])
             except BlockingIOError:
                 pass
             except OSError:
@@ -604,8 +654,10 @@ def test_slow_clients_are_cut_off_and_cannot_crowd_the_server(live: int) -> None
     body byte) were held forever. Now a request must arrive within request_timeout_s (1 s
     here); connections beyond max_connections (8) get 503 meanwhile."""
     head = b"GET /api/options HTTP/1.1\r\nHost: 127.0.0.1\r\n"
-    post = (b"POST /api/shape HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
-            b"application/json\r\nContent-Length: 5000\r\n\r\n{")
+    post = (
+        b"POST /api/shape HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+        b"application/json\r\nContent-Length: 5000\r\n\r\n{"
+    )
     socks, trickles = [], []
     for k in range(10):
         s = socket.create_connection(("127.0.0.1", live), timeout=10)
@@ -630,8 +682,9 @@ def test_serve_prints_the_url_answers_and_stops_on_ctrl_c() -> None:
     pytest.importorskip("uvicorn", reason="ngpmc serve needs the [web] extra (uvicorn)")
     exe = shutil.which("ngpmc")
     cmd = [exe] if exe else [sys.executable, "-m", "ngpm_compiler.cli"]
-    proc = subprocess.Popen([*cmd, "serve", "--port", "0"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*cmd, "serve", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     try:
         lines = [proc.stdout.readline(), proc.stdout.readline()]
         assert lines[0].startswith("ngpmc serve: vines (1 guide)"), lines

@@ -20,13 +20,18 @@ import pytest
 WEB_EXTRA = 'ngpmc serve needs the [web] extra: pip install -e ".[web]"'
 pytest.importorskip("starlette", reason=WEB_EXTRA)
 pytest.importorskip("uvicorn", reason=WEB_EXTRA)
-sync_api = pytest.importorskip("playwright.sync_api",
-                               reason="the browser test needs Playwright: pip install playwright")
+sync_api = pytest.importorskip(
+    "playwright.sync_api", reason="the browser test needs Playwright: pip install playwright"
+)
 
 
 def find_chromium() -> str | None:
-    for cand in (os.environ.get("NGPM_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
-                 shutil.which("chromium-browser")):
+    for cand in (
+        os.environ.get("NGPM_CHROMIUM"),
+        "/usr/bin/chromium",
+        shutil.which("chromium"),
+        shutil.which("chromium-browser"),
+    ):
         if cand and Path(cand).is_file() and os.access(cand, os.X_OK):
             return cand
     return None
@@ -34,8 +39,10 @@ def find_chromium() -> str | None:
 
 CHROMIUM = find_chromium()
 if CHROMIUM is None:
-    pytest.skip("no Chromium browser installed (Debian: apt-get install chromium; or set "
-                "NGPM_CHROMIUM)", allow_module_level=True)
+    pytest.skip(
+        "no Chromium browser installed (Debian: apt-get install chromium; or set NGPM_CHROMIUM)",
+        allow_module_level=True,
+    )
 
 from PIL import Image, ImageDraw  # noqa: E402
 
@@ -43,9 +50,16 @@ from ngpm_compiler.web.app import bind, make_server  # noqa: E402
 from ngpm_compiler.web.config import load_config  # noqa: E402
 
 # The network is closed: these flags keep Chromium from waiting on it.
-CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                 "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync"]
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 @pytest.fixture(scope="module")
@@ -68,8 +82,12 @@ def server_url() -> Iterator[str]:
 def browser() -> Iterator[Any]:
     with sync_api.sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
         ctx = pw.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS,
-            viewport={"width": 1240, "height": 860})
+            profile,
+            executable_path=CHROMIUM,
+            headless=True,
+            args=CHROMIUM_ARGS,
+            viewport={"width": 1240, "height": 860},
+        )
         try:
             yield ctx
         finally:
@@ -103,13 +121,16 @@ def draw_stroke(page: Any, points: list[tuple[float, float]]) -> None:
 
 
 def painted_pixels(page: Any, canvas: str) -> int:
-    return page.evaluate("""(id) => {
+    return page.evaluate(
+        """(id) => {
         const c = document.getElementById(id);
         const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
         let n = 0;
         for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++;
         return n;
-    }""", canvas)
+    }""",
+        canvas,
+    )
 
 
 def test_draw_a_stroke_grow_and_see_the_vine(page: Any) -> None:

@@ -16,16 +16,19 @@ from repo_paths import REPO
 from ngpm_compiler.language.compile import compile_grammar
 
 # ABOP's productions as printed (p.26 and p.27); ' is "next colour"
-BUSH = {"A": "[&FL!A]/////'[&FL!A]///////'[&FL!A]", "F": "S/////F", "S": "FL",
-        "L": "['''^^{-f+f+f-|-f+f+f}]"}
+BUSH = {
+    "A": "[&FL!A]/////'[&FL!A]///////'[&FL!A]",
+    "F": "S/////F",
+    "S": "FL",
+    "L": "['''^^{-f+f+f-|-f+f+f}]",
+}
 PLANT = {
     "plant": "internode + [ plant + flower ] - - / / [ - - leaf ] internode [ + + leaf ] - "
-             "[ plant flower ] + + plant flower",
+    "[ plant flower ] + + plant flower",
     "internode": "F seg [ / / & & leaf ] [ / / ^ ^ leaf ] F seg",
     "seg": "seg F seg",
     "leaf": "[ ' { + f - f f - f + | + f - f f - f } ]",
-    "flower": "[ & & & pedicel ' / wedge / / / / wedge / / / / wedge / / / / wedge / / / / "
-              "wedge ]",
+    "flower": "[ & & & pedicel ' / wedge / / / / wedge / / / / wedge / / / / wedge / / / / wedge ]",
     "pedicel": "F F",
     "wedge": "[ ' ^ F ] [ { & & & & - f + f | - f + f } ]",
 }
@@ -94,8 +97,9 @@ def same_geometry(prims: list, segs: list, polys: list) -> None:
     got_segs = [p for p in prims if p[0] == "seg3"]
     got_polys = [p for p in prims if p[0] == "poly3"]
     assert len(got_segs) == len(segs) and len(got_polys) == len(polys)
-    np.testing.assert_allclose([p[1:7] for p in got_segs],
-                               [np.concatenate(s[:2]) for s in segs], atol=1e-9)
+    np.testing.assert_allclose(
+        [p[1:7] for p in got_segs], [np.concatenate(s[:2]) for s in segs], atol=1e-9
+    )
     assert [p[8] for p in got_segs] == [s[2] for s in segs]
     for p, (verts, color) in zip(got_polys, polys, strict=True):
         np.testing.assert_allclose(np.array(p[1]), verts, atol=1e-9)
@@ -132,22 +136,22 @@ def test_tree_figure_2_8a_branching() -> None:
     angles d1 = 94.74 and d2 = 132.63 between them, 1 + 2 (3^6 - 1) segments, and branches
     that droop: with e = 0.22 the segments end lower than without tropism."""
     prims = ngpm("tree3d")
-    assert len(prims) == 1 + 2 * (3 ** 6 - 1) and {p[0] for p in prims} == {"seg3"}
+    assert len(prims) == 1 + 2 * (3**6 - 1) and {p[0] for p in prims} == {"seg3"}
     trunk = prims[0]
-    np.testing.assert_allclose(trunk[1:7], (0, 0, 0, 0, 200 * 1.109 ** 6, 0), atol=1e-9)
-    assert trunk[7] == pytest.approx(1.732 ** 6)
+    np.testing.assert_allclose(trunk[1:7], (0, 0, 0, 0, 200 * 1.109**6, 0), atol=1e-9)
+    assert trunk[7] == pytest.approx(1.732**6)
     top = np.array(prims[1][4:7])  # the end of A's first F(50)
     firsts = [p for p in prims if np.allclose(p[1:4], top) and p is not prims[1]][:3]
     dirs = [np.array(p[4:7]) - top for p in firsts]
     for d in dirs:
         assert math.degrees(math.acos(d[1] / np.linalg.norm(d))) == pytest.approx(18.95)
     az = [math.degrees(math.atan2(d[2], d[0])) for d in dirs]
-    gaps = sorted(abs((b - a + 180) % 360 - 180) for a, b in zip(az, az[1:] + az[:1],
-                                                                 strict=True))
+    gaps = sorted(abs((b - a + 180) % 360 - 180) for a, b in zip(az, az[1:] + az[:1], strict=True))
     assert gaps == pytest.approx(sorted([94.74, 132.63, 360 - 94.74 - 132.63]))
     text = (REPO / "grammars" / "tree3d.lsys").read_text()
-    straight = compile_grammar(text.replace("tropism: 0 -1 0 0.22", "tropism: 0 -1 0 0"),
-                               filename="tree3d.lsys").program()
+    straight = compile_grammar(
+        text.replace("tropism: 0 -1 0 0.22", "tropism: 0 -1 0 0"), filename="tree3d.lsys"
+    ).program()
     unbent = forward(straight).primitives
     assert np.mean([p[5] for p in prims]) < np.mean([p[5] for p in unbent]) - 100
     assert bounds3d(prims)[0] < bounds3d(unbent)[0]  # and spread wider

@@ -5,12 +5,12 @@ import math
 
 import numpy as np
 import pytest
-from fixtures.tiny_programs import make_program  # noqa: E402
-from ngpm_runtime.errors import ProgramError  # noqa: E402
-from ngpm_runtime.geometry.derive import DONE, DRAWN, LIMIT, NEED, Deriver  # noqa: E402
-from ngpm_runtime.geometry.turtle import prim_bbox  # noqa: E402
-from ngpm_runtime.inference.smc import SMCOptions, forward, smc  # noqa: E402
-from ngpm_runtime.program import Site, load_program  # noqa: E402
+from fixtures.tiny_programs import make_program
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.derive import DONE, DRAWN, LIMIT, NEED, Deriver
+from ngpm_runtime.geometry.turtle import prim_bbox
+from ngpm_runtime.inference.smc import SMCOptions, forward, smc
+from ngpm_runtime.program import Site, load_program
 from repo_paths import REPO, VINES_SAMPLER
 
 VINES = VINES_SAMPLER
@@ -31,12 +31,33 @@ def approx(a, b):
 
 
 def test_turtle_symbols() -> None:
-    prog = make_program({}, axiom=[
-        ("F", 2.0), ("+", 90.0), ("!", 0.5), ("F", 1.0), ("-", 45.0), ("|",), ("f", 1.0),
-        ("[",), ("+", 90.0), ("F", 1.0), ("]",), ("~l", 2.0, 0.4), ("@O", 0.3),
-        ("{",), (".",), ("f", 1.0), (".",), ("+", 90.0), ("f", 1.0), (".",), ("}",),
-        ("Q", 7.0),
-    ])
+    prog = make_program(
+        {},
+        axiom=[
+            ("F", 2.0),
+            ("+", 90.0),
+            ("!", 0.5),
+            ("F", 1.0),
+            ("-", 45.0),
+            ("|",),
+            ("f", 1.0),
+            ("[",),
+            ("+", 90.0),
+            ("F", 1.0),
+            ("]",),
+            ("~l", 2.0, 0.4),
+            ("@O", 0.3),
+            ("{",),
+            (".",),
+            ("f", 1.0),
+            (".",),
+            ("+", 90.0),
+            ("f", 1.0),
+            (".",),
+            ("}",),
+            ("Q", 7.0),
+        ],
+    )
     s = math.sqrt(0.5)
     # after F(2) +90 F(1): at (2, 1), heading 90; -45 | -> heading 225; f(1) -> (2-s, 1-s)
     x, y = 2 - s, 1 - s
@@ -54,9 +75,20 @@ def test_turtle_symbols() -> None:
 def test_default_turn_angle_and_start_argument() -> None:
     prog = make_program({}, axiom=[("+",), ("F", 1.0), ("-",), ("-",), ("F", 1.0)], angle=60.0)
     got = prims_of(prog, start=(1.0, 2.0, 30.0))
-    approx(got, [("seg", 1.0, 2.0, 1.0, 3.0, 1.0),
-                 ("seg", 1.0, 3.0, 1.0 + math.cos(math.radians(-30)),
-                  3.0 + math.sin(math.radians(-30)), 1.0)])
+    approx(
+        got,
+        [
+            ("seg", 1.0, 2.0, 1.0, 3.0, 1.0),
+            (
+                "seg",
+                1.0,
+                3.0,
+                1.0 + math.cos(math.radians(-30)),
+                3.0 + math.sin(math.radians(-30)),
+                1.0,
+            ),
+        ],
+    )
 
 
 def test_program_start_used_by_default() -> None:
@@ -66,22 +98,29 @@ def test_program_start_used_by_default() -> None:
 
 def test_expansion_is_leftmost_depth_first_and_depth_limited() -> None:
     # A(i) --> F(i) A(i + 1): axiom depth 0, so derivation_length 3 expands A three times
-    prog = make_program({"A": lambda ctx, i: [("F", i), ("A", i + 1.0)]},
-                        axiom=[("A", 1.0)], derivation_length=3)
+    prog = make_program(
+        {"A": lambda ctx, i: [("F", i), ("A", i + 1.0)]}, axiom=[("A", 1.0)], derivation_length=3
+    )
     got = prims_of(prog)
     assert [p[3] for p in got] == [1.0, 3.0, 6.0]
 
 
 def test_successor_order() -> None:
     # A --> B C, B --> F(1), C --> F(2): B's successor is drawn before C's
-    prog = make_program({"A": lambda ctx: [("B",), ("C",)], "B": lambda ctx: [("F", 1.0)],
-                         "C": lambda ctx: [("F", 2.0)]})
+    prog = make_program(
+        {
+            "A": lambda ctx: [("B",), ("C",)],
+            "B": lambda ctx: [("F", 1.0)],
+            "C": lambda ctx: [("F", 2.0)],
+        }
+    )
     assert [p[3] for p in prims_of(prog)] == [1.0, 3.0]
 
 
 def test_production_returning_none_leaves_module_for_the_turtle() -> None:
-    prog = make_program({"F": lambda ctx, n: None if n < 2 else [("F", n / 2), ("F", n / 2)]},
-                        axiom=[("F", 4.0)])
+    prog = make_program(
+        {"F": lambda ctx, n: None if n < 2 else [("F", n / 2), ("F", n / 2)]}, axiom=[("F", 4.0)]
+    )
     assert [p[3] - p[1] for p in prims_of(prog)] == [1.0, 1.0, 1.0, 1.0]
 
 
@@ -91,17 +130,35 @@ def test_empty_successor_deletes() -> None:
 
 
 def test_cut_discards_rest_of_branch_only() -> None:
-    prog = make_program({}, axiom=[
-        ("[",), ("F", 1.0), ("[",), ("F", 5.0), ("]",), ("%",), ("F", 7.0), ("[",), ("F", 9.0),
-        ("]",), ("]",), ("F", 2.0), ("%",), ("F", 3.0)])
+    prog = make_program(
+        {},
+        axiom=[
+            ("[",),
+            ("F", 1.0),
+            ("[",),
+            ("F", 5.0),
+            ("]",),
+            ("%",),
+            ("F", 7.0),
+            ("[",),
+            ("F", 9.0),
+            ("]",),
+            ("]",),
+            ("F", 2.0),
+            ("%",),
+            ("F", 3.0),
+        ],
+    )
     got = prims_of(prog)
     assert [p[3] - p[1] for p in got] == [1.0, 5.0, 2.0]
     assert got[2][1] == 0.0  # the branch's ] restored the pose
 
 
 def test_halt_discards_everything() -> None:
-    prog = make_program({"A": lambda ctx: [("F", 1.0), ("halt",), ("F", 2.0)]},
-                        axiom=[("[",), ("A",), ("]",), ("F", 3.0)])
+    prog = make_program(
+        {"A": lambda ctx: [("F", 1.0), ("halt",), ("F", 2.0)]},
+        axiom=[("[",), ("A",), ("]",), ("F", 3.0)],
+    )
     assert len(prims_of(prog)) == 1
 
 
@@ -118,14 +175,22 @@ def test_interpretation_rules() -> None:
 
 def test_interpretation_rule_with_random_site() -> None:
     sites = [Site(index=0, id="interp:L/0/normal0", kind="normal", module="L")]
-    prog = make_program({}, axiom=[("L",)], sites=sites,
-                        interpretation={"L": lambda ctx: [("F", ctx.normal(0, 5.0, 0.0))]})
+    prog = make_program(
+        {},
+        axiom=[("L",)],
+        sites=sites,
+        interpretation={"L": lambda ctx: [("F", ctx.normal(0, 5.0, 0.0))]},
+    )
     approx(prims_of(prog), [("seg", 0.0, 0.0, 5.0, 0.0, 1.0)])
 
 
 def test_module_with_production_past_derivation_length_gets_interpreted() -> None:
-    prog = make_program({"A": lambda ctx: [("A",), ("A",)]}, axiom=[("A",)],
-                        derivation_length=2, interpretation={"A": lambda ctx: [("F", 1.0)]})
+    prog = make_program(
+        {"A": lambda ctx: [("A",), ("A",)]},
+        axiom=[("A",)],
+        derivation_length=2,
+        interpretation={"A": lambda ctx: [("F", 1.0)]},
+    )
     assert len(prims_of(prog)) == 4
 
 
@@ -139,16 +204,21 @@ def test_errors_in_generated_code_name_module_and_line() -> None:
     def produce_a(ctx, w):
         return [("F", 1.0 / w)]
 
-    prog = make_program({"A": produce_a}, axiom=[("A", 0.0)], source="g/tiny.lsys",
-                        locations={"production A": (7, 1)})
+    prog = make_program(
+        {"A": produce_a},
+        axiom=[("A", 0.0)],
+        source="g/tiny.lsys",
+        locations={"production A": (7, 1)},
+    )
     with pytest.raises(ProgramError, match=r"tiny\.lsys:7: production A.*ZeroDivisionError"):
         forward(prog)
 
     def produce_b(ctx):
         return [("F", math.sqrt(-1.0))]
 
-    prog = make_program({"B": produce_b}, axiom=[("B",)], source="tiny.lsys",
-                        locations={"production B": (9, 1)})
+    prog = make_program(
+        {"B": produce_b}, axiom=[("B",)], source="tiny.lsys", locations={"production B": (9, 1)}
+    )
     with pytest.raises(ProgramError, match=r"tiny\.lsys:9: production B.*math domain"):
         forward(prog)
 
@@ -164,12 +234,14 @@ def test_error_in_axiom_names_the_axiom() -> None:
 def test_error_locations_come_from_the_locations_table_not_docstrings() -> None:
     """Issue #21: the deriver read rule lines back out of docstrings by regex; the generated
     module now hands them over as its LOCATIONS table."""
+
     def produce_a(ctx):
         """A --> F(1 / 0)   (other.lsys:99)"""
         return [("F", 1 / 0)]
 
-    prog = make_program({"A": produce_a}, source="grammars/tiny.lsys",
-                        locations={"production A": (7, 3)})
+    prog = make_program(
+        {"A": produce_a}, source="grammars/tiny.lsys", locations={"production A": (7, 3)}
+    )
     with pytest.raises(ProgramError, match=r"^tiny\.lsys:7: production A: ZeroDivision"):
         forward(prog)
     with pytest.raises(ProgramError, match=r"^production A: ZeroDivision"):
@@ -203,8 +275,9 @@ def test_impure_production_is_detected() -> None:
 
 def test_replay_asks_sites_one_at_a_time() -> None:
     sites = [Site(index=0, id="a", kind="normal"), Site(index=1, id="b", kind="normal")]
-    prog = make_program({"A": lambda ctx: [("F", ctx.normal(0, 0, 1)), ("F", ctx.normal(1, 5, 2))]},
-                        sites=sites)
+    prog = make_program(
+        {"A": lambda ctx: [("F", ctx.normal(0, 0, 1)), ("F", ctx.normal(1, 5, 2))]}, sites=sites
+    )
     d = Deriver(prog)
     p = d.start((0.0, 0.0, 0.0, 1.0))
     assert d.advance(p) == NEED and p.need == (0, (0, 1))
@@ -291,8 +364,10 @@ def test_one_bbox_scalar_and_batched_agree() -> None:
     rng = np.random.default_rng(0)
     prims = [("seg", *rng.normal(size=4), abs(rng.normal())) for _ in range(50)]
     prims += [("disk", *rng.normal(size=2), rng.normal()) for _ in range(50)]
-    prims += [("leaf", *rng.normal(size=2), rng.uniform(-720, 720), *rng.normal(size=2))
-              for _ in range(200)]
+    prims += [
+        ("leaf", *rng.normal(size=2), rng.uniform(-720, 720), *rng.normal(size=2))
+        for _ in range(200)
+    ]
     prims += [("poly", tuple(map(tuple, rng.normal(size=(5, 2))))) for _ in range(20)]
     for p in prims:
         assert prim_bboxes(p[0], [p])[0][0].tolist() == list(prim_bbox(p))
@@ -317,10 +392,15 @@ def test_invalid_prior_arguments_at_run_time_are_errors(successor: str, words: s
 
     from ngpm_compiler.language.compile import compile_grammar
 
-    prog = compile_grammar("viewport: -5 5 -5 5\nderivation length: 1\nAxiom: A(1)\n"
-                           f"A(x) --> {successor}\n", filename="bad.lsys").program()
-    for run in (lambda: forward(prog), lambda: smc(prog, None, 4, options=SMCOptions(seed=1)),
-                lambda: replay(prog, [(0, 0.0)])):
+    prog = compile_grammar(
+        f"viewport: -5 5 -5 5\nderivation length: 1\nAxiom: A(1)\nA(x) --> {successor}\n",
+        filename="bad.lsys",
+    ).program()
+    for run in (
+        lambda: forward(prog),
+        lambda: smc(prog, None, 4, options=SMCOptions(seed=1)),
+        lambda: replay(prog, [(0, 0.0)]),
+    ):
         with pytest.raises(ProgramError) as info:
             run()
         assert str(info.value).startswith(f"bad.lsys:4: production A(1): {words}")
@@ -329,8 +409,9 @@ def test_invalid_prior_arguments_at_run_time_are_errors(successor: str, words: s
 def test_degenerate_priors_at_run_time_are_point_masses() -> None:
     from ngpm_compiler.language.compile import compile_grammar
 
-    prog = compile_grammar("derivation length: 1\nAxiom: A(0)\n"
-                           "A(x) --> F(gauss(1, x)) F(uniform(x + 2, 2))\n").program()
+    prog = compile_grammar(
+        "derivation length: 1\nAxiom: A(0)\nA(x) --> F(gauss(1, x)) F(uniform(x + 2, 2))\n"
+    ).program()
     lengths = [math.hypot(p[3] - p[1], p[4] - p[2]) for p in forward(prog).primitives]
     assert lengths == pytest.approx([1.0, 2.0], abs=1e-12)
 
@@ -349,11 +430,15 @@ def test_one_samples_work_has_a_ceiling(monkeypatch) -> None:
     def waste(ctx, n):  # 50 modules of work per primitive, for ever
         return [("B", n - 1.0)] if n > 0 else [("F", 0.01), ("B", 50.0)]
 
-    prog = make_program({"B": waste}, axiom=[("B", 50.0)], max_primitives=10**18,
-                        source="grammars/waste.lsys")
+    prog = make_program(
+        {"B": waste}, axiom=[("B", 50.0)], max_primitives=10**18, source="grammars/waste.lsys"
+    )
     monkeypatch.setattr(derive, "MAX_WORK", 5000)
-    with pytest.raises(ProgramError, match=r"^waste\.lsys: one sample expanded or interpreted "
-                                           r"more than 5000 modules"):
+    with pytest.raises(
+        ProgramError,
+        match=r"^waste\.lsys: one sample expanded or interpreted "
+        r"more than 5000 modules",
+    ):
         forward(prog)
     monkeypatch.setattr(derive, "MAX_WORK", 10**9)
     monkeypatch.setattr(derive, "MAX_PRIMITIVES", 30)

@@ -60,8 +60,9 @@ def test_one_cylinder_is_closed_round_and_the_right_size() -> None:
 def test_a_bend_shares_its_mitred_ring() -> None:
     turn = math.radians(60)
     end = (math.sin(turn), 1 + math.cos(turn), 0.0)
-    mesh = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0),
-                                 ("seg3", 0, 1, 0, *end, 0.2, 0)])
+    mesh = mesh_from_primitives(
+        [("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0), ("seg3", 0, 1, 0, *end, 0.2, 0)]
+    )
     sides = 12
     assert len(mesh.vertices) == 3 * sides  # start, shared joint, end
     tm = as_trimesh(mesh)
@@ -69,9 +70,10 @@ def test_a_bend_shares_its_mitred_ring() -> None:
     # a mitred joint keeps the volume: cross-section times the centre line's length
     assert tm.volume == pytest.approx(prism_area(0.1, sides) * 2, rel=0.01)
     # the joint ring lies in the bisecting plane, on both cylinders
-    joint = mesh.vertices[sides:2 * sides] - np.array([0, 1, 0])
+    joint = mesh.vertices[sides : 2 * sides] - np.array([0, 1, 0])
     normal = np.array([math.sin(turn), 1 + math.cos(turn), 0]) / math.hypot(
-        math.sin(turn), 1 + math.cos(turn))
+        math.sin(turn), 1 + math.cos(turn)
+    )
     assert np.allclose(joint @ normal, 0, atol=1e-12)
     assert np.allclose(np.hypot(joint[:, 0], joint[:, 2]), 0.1)  # on the first cylinder
 
@@ -85,9 +87,11 @@ def test_a_plant_of_many_branches_is_closed() -> None:
 
 
 def test_a_fork_continues_the_straightest_branch() -> None:
-    prims = [("seg3", 0, 0, 0, 0, 1, 0, 0.1, 0),
-             ("seg3", 0, 1, 0, 1, 2, 0, 0.1, 0),  # the side branch, drawn first
-             ("seg3", 0, 1, 0, 0, 2, 0, 0.1, 0)]  # the continuation
+    prims = [
+        ("seg3", 0, 0, 0, 0, 1, 0, 0.1, 0),
+        ("seg3", 0, 1, 0, 1, 2, 0, 0.1, 0),  # the side branch, drawn first
+        ("seg3", 0, 1, 0, 0, 2, 0, 0.1, 0),
+    ]  # the continuation
     mesh = mesh_from_primitives(prims)
     sides = 12  # radius 0.05 of a plant 2.2 across: over 1%
     assert len(mesh.vertices) == 5 * sides  # 3 starts + 2 ends; the joint ring shared once
@@ -95,10 +99,12 @@ def test_a_fork_continues_the_straightest_branch() -> None:
 
 
 def test_a_sharp_turn_or_a_colour_change_caps_instead_of_sharing() -> None:
-    back = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0),
-                                 ("seg3", 0, 1, 0, 0.1, 0, 0, 0.2, 0)])  # turns > 120 deg
-    colours = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0),
-                                    ("seg3", 0, 1, 0, 0, 2, 0, 0.2, 2)])
+    back = mesh_from_primitives(
+        [("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0), ("seg3", 0, 1, 0, 0.1, 0, 0, 0.2, 0)]
+    )  # turns > 120 deg
+    colours = mesh_from_primitives(
+        [("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0), ("seg3", 0, 1, 0, 0, 2, 0, 0.2, 2)]
+    )
     for mesh in (back, colours):
         assert len(mesh.vertices) == 4 * 12
         assert as_trimesh(mesh).is_watertight
@@ -150,8 +156,9 @@ def test_sphere_is_closed_and_centred() -> None:
 def test_colour_index_picks_the_palette() -> None:
     assert [material_index("seg3", c) for c in (0, 1, 3, 8, 9)] == [0, 1, 3, 0, 1]
     assert PALETTE[0].name == "bark" and PALETTE[1].name == "leaf"
-    mesh = mesh_from_primitives([("seg3", 0, 0, 0, 0, 1, 0, 0.2, 3),
-                                 ("leaf3", 0, 1, 0, 0, 1, 0, 1, 0, 0, 1, 0.5, 5)])
+    mesh = mesh_from_primitives(
+        [("seg3", 0, 0, 0, 0, 1, 0, 0.2, 3), ("leaf3", 0, 1, 0, 0, 1, 0, 1, 0, 0, 1, 0.5, 5)]
+    )
     assert set(mesh.face_material.tolist()) == {3, 5}
     vm = mesh.vertex_material()
     assert np.array_equal(vm[mesh.faces], np.repeat(mesh.face_material[:, None], 3, axis=1))

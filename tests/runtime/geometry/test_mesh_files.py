@@ -14,12 +14,14 @@ from ngpm_runtime.geometry.mesh import PALETTE, MeshError, mesh_from_primitives
 trimesh = pytest.importorskip("trimesh")
 pygltflib = pytest.importorskip("pygltflib")
 
-PRIMS = [("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0),
-         ("seg3", 0, 1, 0, 0.2, 2, 0.1, 0.15, 0),
-         ("seg3", 0.2, 2, 0.1, 0.3, 3, 0.0, 0.1, 2),
-         ("leaf3", 0.2, 2, 0.1, 1, 0, 0, 0, 0, 1, 0.8, 0.3, 0),
-         ("sphere", 0.3, 3, 0, 0.2, 0),
-         ("poly3", ((-1, 0, -1), (-0.5, 0, -1), (-0.5, 0.5, -1)), 4)]
+PRIMS = [
+    ("seg3", 0, 0, 0, 0, 1, 0, 0.2, 0),
+    ("seg3", 0, 1, 0, 0.2, 2, 0.1, 0.15, 0),
+    ("seg3", 0.2, 2, 0.1, 0.3, 3, 0.0, 0.1, 2),
+    ("leaf3", 0.2, 2, 0.1, 1, 0, 0, 0, 0, 1, 0.8, 0.3, 0),
+    ("sphere", 0.3, 3, 0, 0.2, 0),
+    ("poly3", ((-1, 0, -1), (-0.5, 0, -1), (-0.5, 0.5, -1)), 4),
+]
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +78,8 @@ def test_obj_and_mtl_read_back(mesh, tmp_path: Path) -> None:
         rgb = next(m.rgb for m in PALETTE if m.name == name)
         assert np.allclose(geom.visual.material.diffuse[:3], rgb, atol=1)
     assert sorted(g.visual.material.name for g in scene.geometry.values()) == sorted(
-        PALETTE[m].name for m in used(mesh))
+        PALETTE[m].name for m in used(mesh)
+    )
 
 
 def test_ply_reads_back_with_vertex_colours(mesh, tmp_path: Path) -> None:
@@ -92,7 +95,7 @@ def test_ply_reads_back_with_vertex_colours(mesh, tmp_path: Path) -> None:
 def test_empty_mesh_files(tmp_path: Path) -> None:
     empty = mesh_from_primitives([])
     glb = empty.save(tmp_path / "e.glb").read_bytes()
-    text = json.loads(glb[20:20 + struct.unpack("<I", glb[12:16])[0]])
+    text = json.loads(glb[20 : 20 + struct.unpack("<I", glb[12:16])[0]])
     assert "meshes" not in text and text["scenes"] == [{"nodes": [0]}]
     assert pygltflib.GLTF2().load(str(tmp_path / "e.glb")).asset.version == "2.0"
     empty.save(tmp_path / "e.ply")

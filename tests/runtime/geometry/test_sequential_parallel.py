@@ -133,8 +133,10 @@ def key(prims) -> tuple:
 def parallel_samples(program, n: int, seed: int) -> Counter:
     rng = np.random.default_rng(seed)
     ctx = PriorCtx(rng)
-    return Counter(key(turtle(program, interpret(program, ctx, parallel_derivation(program, ctx))))
-                   for _ in range(n))
+    return Counter(
+        key(turtle(program, interpret(program, ctx, parallel_derivation(program, ctx))))
+        for _ in range(n)
+    )
 
 
 def forward_samples(program, n: int) -> Counter:
@@ -167,7 +169,9 @@ def test_sequential_equals_parallel(name: str) -> None:
 def test_the_comparison_detects_a_different_distribution() -> None:
     """Power check: the same test rejects a grammar whose probabilities differ a little."""
     program = compile_grammar(GRAMMARS["branching"]).program()
-    other = compile_grammar(GRAMMARS["branching"].replace(": 0.3\n    | F [ - A ]   : 0.3",
-                                                          ": 0.38\n    | F [ - A ]   : 0.22"
-                                                          )).program()
+    other = compile_grammar(
+        GRAMMARS["branching"].replace(
+            ": 0.3\n    | F [ - A ]   : 0.3", ": 0.38\n    | F [ - A ]   : 0.22"
+        )
+    ).program()
     assert homogeneity_p(forward_samples(program, N), parallel_samples(other, N, 7)) < P_MIN

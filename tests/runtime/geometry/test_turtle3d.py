@@ -114,8 +114,9 @@ def test_roll_to_horizontal() -> None:
     want_h = frame(run([("&", 50.0), ("+", 20.0), ("/", 70.0)])[0])[0]
     np.testing.assert_allclose(h, want_h, atol=1e-12)
     assert abs(lv[1]) < 1e-12 and u[1] > 0  # L horizontal, U toward the sky
-    np.testing.assert_allclose(lv, np.cross((0, 1, 0), h) / np.linalg.norm(np.cross((0, 1, 0), h)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        lv, np.cross((0, 1, 0), h) / np.linalg.norm(np.cross((0, 1, 0), h)), atol=1e-12
+    )
     assert_orthonormal(t)
 
 
@@ -131,8 +132,10 @@ def test_tropism_bends_heading_toward_t() -> None:
     a = e + e * math.cos(e)
     assert_frame(t, (math.cos(a), -math.sin(a), 0), (math.sin(a), math.cos(a), 0), (0, 0, 1))
     # a heading along T (or against it) is not bent; nor is anything without F
-    assert run([("F", 1.0)], start3d(0, 0, -90.0, tropism=(0, -1, 0, e)))[0][3:12] == \
-        start3d(0, 0, -90.0)[3:12]
+    assert (
+        run([("F", 1.0)], start3d(0, 0, -90.0, tropism=(0, -1, 0, e)))[0][3:12]
+        == start3d(0, 0, -90.0)[3:12]
+    )
     assert run([("F", 1.0)], start3d(0, 0, 90.0, tropism=(0, -1, 0, e)))[0][3:12] == UP[3:12]
     assert run([("f", 1.0), ("+", 10.0)], east)[0][14] == (0.0, -1.0, 0.0, e)
 
@@ -155,8 +158,19 @@ def test_tropism_keeps_the_frame_orthonormal() -> None:
 
 
 def test_push_pop_restores_everything() -> None:
-    t, prims = run([("!", 0.5), (";",), ("[",), ("&", 40.0), ("!", 0.1), (";", 4.0),
-                    ("F", 1.0), ("]",), ("F", 1.0)])
+    t, prims = run(
+        [
+            ("!", 0.5),
+            (";",),
+            ("[",),
+            ("&", 40.0),
+            ("!", 0.1),
+            (";", 4.0),
+            ("F", 1.0),
+            ("]",),
+            ("F", 1.0),
+        ]
+    )
     assert prims[1] == ("seg3", 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.5, 1)
     assert prims[0][-2:] == (0.1, 4)
     with pytest.raises(ProgramError, match="without a matching"):
@@ -166,13 +180,31 @@ def test_push_pop_restores_everything() -> None:
 
 
 def test_leaf_sphere_and_polygon_primitives() -> None:
-    t, prims = run([("&", 90.0), (";",), ("~l", 2.0, 0.5), ("@O", 0.3), ("{",), (".",),
-                    ("f", 1.0), (".",), ("+", 90.0), ("f", 1.0), (".",), (";",), ("}",),
-                    ("{",), (".",), ("f", 1.0), (".",), ("}",)])
+    t, prims = run(
+        [
+            ("&", 90.0),
+            (";",),
+            ("~l", 2.0, 0.5),
+            ("@O", 0.3),
+            ("{",),
+            (".",),
+            ("f", 1.0),
+            (".",),
+            ("+", 90.0),
+            ("f", 1.0),
+            (".",),
+            (";",),
+            ("}",),
+            ("{",),
+            (".",),
+            ("f", 1.0),
+            (".",),
+            ("}",),
+        ]
+    )
     # after & 90: H = -Z, L = -X, at the origin, colour 1
     assert prims[0][0] == "leaf3" and prims[0][-1] == 1
-    np.testing.assert_allclose(prims[0][1:12], (0, 0, 0, 0, 0, -1, -1, 0, 0, 2.0, 0.5),
-                               atol=1e-12)
+    np.testing.assert_allclose(prims[0][1:12], (0, 0, 0, 0, 0, -1, -1, 0, 0, 2.0, 0.5), atol=1e-12)
     assert prims[1] == ("sphere", 0.0, 0.0, 0.0, 0.3, 1)
     kind, verts, color = prims[2]
     assert (kind, color, len(prims)) == ("poly3", 2, 3)  # colour at `}`; 2 vertices: nothing
@@ -203,9 +235,12 @@ def test_tropism_symbols() -> None:
 
 
 def test_bounds_and_projection() -> None:
-    prims = [("seg3", 0, 0, 0, 1, 2, 3, 0.5, 0), ("sphere", -1, 0, 1, 0.5, 0),
-             ("leaf3", 0, 0, 0, 0, 0, -1, -1, 0, 0, 2.0, 0.5, 1),
-             ("poly3", ((0, 0, 0), (1, 0, 0), (0, 5, 0)), 0)]
+    prims = [
+        ("seg3", 0, 0, 0, 1, 2, 3, 0.5, 0),
+        ("sphere", -1, 0, 1, 0.5, 0),
+        ("leaf3", 0, 0, 0, 0, 0, -1, -1, 0, 0, 2.0, 0.5, 1),
+        ("poly3", ((0, 0, 0), (1, 0, 0), (0, 5, 0)), 0),
+    ]
     assert prim3_bounds(prims[0]) == (-0.25, -0.25, -0.25, 1.25, 2.25, 3.25)
     assert prim3_bounds(prims[2]) == (-0.25, 0.0, -2.0, 0.25, 0.0, 0.0)
     assert bounds3d(prims) == (-1.5, -0.5, -2.0, 1.25, 5.0, 3.25)
@@ -225,12 +260,17 @@ def test_bounds_and_projection() -> None:
 
 
 def test_deriver_uses_the_3d_turtle_and_start_pose() -> None:
-    prog = make_program({}, axiom=[("F", 1.0), ("&", 90.0), ("F", 2.0), ("Q",), (";",)],
-                        dim=3, start=(1.0, 2.0, 0.0))
+    prog = make_program(
+        {},
+        axiom=[("F", 1.0), ("&", 90.0), ("F", 2.0), ("Q",), (";",)],
+        dim=3,
+        start=(1.0, 2.0, 0.0),
+    )
     got = forward(prog).primitives
     assert [(p[0], p[-2:]) for p in got] == [("seg3", (1.0, 0))] * 2
-    np.testing.assert_allclose([p[1:7] for p in got], [(1, 2, 0, 2, 2, 0), (2, 2, 0, 2, 2, -2)],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        [p[1:7] for p in got], [(1, 2, 0, 2, 2, 0), (2, 2, 0, 2, 2, -2)], atol=1e-12
+    )
     assert forward(prog, start=(0.0, 0.0, 90.0)).primitives[0][1:7] == (0, 0, 0, 0, 1, 0)
     # a 2D program ignores the 3D-only symbols and its colour symbols
     flat = make_program({}, axiom=[("F", 1.0), ("&", 90.0), (";",), ("F", 2.0)])
@@ -240,16 +280,23 @@ def test_deriver_uses_the_3d_turtle_and_start_pose() -> None:
 
 
 def test_header_tropism_reaches_the_turtle() -> None:
-    prog = make_program({}, axiom=[("F", 1.0), ("F", 1.0)], dim=3, start=(0.0, 0.0, 0.0),
-                        tropism=(0.0, -1.0, 0.0, 0.5))
+    prog = make_program(
+        {},
+        axiom=[("F", 1.0), ("F", 1.0)],
+        dim=3,
+        start=(0.0, 0.0, 0.0),
+        tropism=(0.0, -1.0, 0.0, 0.5),
+    )
     got = forward(prog).primitives
     np.testing.assert_allclose(got[1][4:7], (1 + math.cos(0.5), -math.sin(0.5), 0), atol=1e-12)
 
 
 def test_3d_runs_into_a_picture_are_one_line_errors() -> None:
     prog = make_program({}, axiom=[("F", 1.0)], dim=3, viewport=(-1, 1, -1, 1))
-    for run_it in (lambda: smc(prog, CircuitLikelihood((-1, 1, -1, 1)), 2),
-                   lambda: smc(prog, None, 2, options=SMCOptions(trace=TraceRecording.FULL))):
+    for run_it in (
+        lambda: smc(prog, CircuitLikelihood((-1, 1, -1, 1)), 2),
+        lambda: smc(prog, None, 2, options=SMCOptions(trace=TraceRecording.FULL)),
+    ):
         with pytest.raises(ProgramError) as err:
             run_it()
         assert "3D grammar" in str(err.value) and "issue #26" in str(err.value)

@@ -14,10 +14,13 @@ VP = (-12.0, 12.0, -22.0, 2.0)
 
 
 def _program() -> Program:
-    sites = [Site(index=0, id="B/0/normal0", kind="normal", arity=1),
-             Site(index=1, id="L/choice", kind="categorical", k=3, arity=0)]
-    return Program(name="t", sites=sites, axiom=lambda ctx: [("S",)], productions={},
-                   derivation_length=40)
+    sites = [
+        Site(index=0, id="B/0/normal0", kind="normal", arity=1),
+        Site(index=1, id="L/choice", kind="categorical", k=3, arity=0),
+    ]
+    return Program(
+        name="t", sites=sites, axiom=lambda ctx: [("S",)], productions={}, derivation_length=40
+    )
 
 
 def _slow_level(img: np.ndarray, lv: int) -> np.ndarray:
@@ -26,7 +29,7 @@ def _slow_level(img: np.ndarray, lv: int) -> np.ndarray:
     out = np.zeros((h, w))
     for r in range(h):
         for c in range(w):
-            out[r, c] = img[r * s:(r + 1) * s, c * s:(c + 1) * s].mean()
+            out[r, c] = img[r * s : (r + 1) * s, c * s : (c + 1) * s].mean()
     return out
 
 
@@ -45,8 +48,9 @@ def _slow_windows(img: np.ndarray, x: float, y: float) -> list[float]:
     return vals
 
 
-def _slow_context(img: np.ndarray, target: np.ndarray, x: float, y: float,
-                  heading: float) -> list[float]:
+def _slow_context(
+    img: np.ndarray, target: np.ndarray, x: float, y: float, heading: float
+) -> list[float]:
     """The context group by its definition, one number at a time."""
     t2, c2 = _slow_level(target.astype(float), 2), _slow_level(img.astype(float), 2)
     total = t2.sum()
@@ -66,8 +70,15 @@ def _slow_context(img: np.ndarray, target: np.ndarray, x: float, y: float,
 
 def _slow_row(site: Site, img, target, turtle, depth, params, args) -> list[float]:
     x, y, h, w = turtle
-    local = [2 * (x + 12) / 24 - 1, 2 * (y + 22) / 24 - 1, (h % 360) / 180 - 1,
-             math.sin(math.radians(h)), math.cos(math.radians(h)), w, depth / 40]
+    local = [
+        2 * (x + 12) / 24 - 1,
+        2 * (y + 22) / 24 - 1,
+        (h % 360) / 180 - 1,
+        math.sin(math.radians(h)),
+        math.cos(math.radians(h)),
+        w,
+        depth / 40,
+    ]
     local += list(params) + list(args)
     tf = _slow_windows(target, x, y) if target is not None else [0.0] * 36
     return local + tf + _slow_windows(img, x, y)
@@ -81,8 +92,10 @@ def test_features_match_slow_computation() -> None:
     n = 7
     canvas = Canvas(n, 50, 50, VP)
     for _ in range(15):
-        prims = [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
-                 for _ in range(n)]
+        prims = [
+            ("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
+            for _ in range(n)
+        ]
         canvas.draw(np.arange(n), prims)
     # positions inside, on the border and outside the viewport
     xs = np.array([0.0, -11.9, 11.99, -13.0, 5.0, 0.3, 30.0])
@@ -92,19 +105,23 @@ def test_features_match_slow_computation() -> None:
     idx = np.array([6, 0, 3, 2, 2, 5, 1])
     for tmask, context in ((target, False), (None, False), (target, True), (None, True)):
         fm = FeatureMaker(prog, VP, tmask, context=context)
-        for site, params, args in ((prog.sites[0], rng.normal(size=(n, 1)),
-                                    rng.normal(size=(n, 2))),
-                                   (prog.sites[1], np.zeros((n, 0)),
-                                    np.tile([0.2, 0.3, 0.5], (n, 1)))):
+        for site, params, args in (
+            (prog.sites[0], rng.normal(size=(n, 1)), rng.normal(size=(n, 2))),
+            (prog.sites[1], np.zeros((n, 0)), np.tile([0.2, 0.3, 0.5], (n, 1))),
+        ):
             got = fm.features(site, canvas, idx, turtle, depth, params, args)
             assert got.dtype == np.float32
             assert got.shape == (n, fm.n_features(site))
             for k in range(n):
-                want = _slow_row(site, canvas.image[idx[k]], tmask, turtle[k], depth[k],
-                                 params[k], args[k])
+                want = _slow_row(
+                    site, canvas.image[idx[k]], tmask, turtle[k], depth[k], params[k], args[k]
+                )
                 if context:
-                    want += ([0.0] * N_CONTEXT if tmask is None else _slow_context(
-                        canvas.image[idx[k]], tmask, *turtle[k, :3]))
+                    want += (
+                        [0.0] * N_CONTEXT
+                        if tmask is None
+                        else _slow_context(canvas.image[idx[k]], tmask, *turtle[k, :3])
+                    )
                 np.testing.assert_allclose(got[k], want, rtol=1e-5, atol=1e-6)
 
 
@@ -115,12 +132,19 @@ def test_features_round_rows_equal_features_per_site() -> None:
     target = np.zeros((50, 50), dtype=bool)
     target[5:30, 10:40] = True
     canvas = Canvas(6, 50, 50, VP)
-    canvas.draw(np.arange(6), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0)
-                               for _ in range(6)])
+    canvas.draw(
+        np.arange(6), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0) for _ in range(6)]
+    )
     fm = FeatureMaker(prog, VP, target)
     idx = np.array([4, 1, 1, 0, 5])
-    turtle = np.column_stack([rng.uniform(-14, 14, 5), rng.uniform(-24, 4, 5),
-                              rng.uniform(-400, 400, 5), rng.uniform(0.1, 1, 5)])
+    turtle = np.column_stack(
+        [
+            rng.uniform(-14, 14, 5),
+            rng.uniform(-24, 4, 5),
+            rng.uniform(-400, 400, 5),
+            rng.uniform(0.1, 1, 5),
+        ]
+    )
     depth = rng.integers(0, 40, 5).astype(float)
     sites = [prog.sites[0], prog.sites[1]]
     params = [rng.normal(size=(2, 1)), np.zeros((3, 0))]
@@ -142,17 +166,27 @@ def test_cached_rows_equal_fresh_rows(context: bool) -> None:
     target[5:30, 10:40] = True
     n = 6
     canvas = Canvas(n, 50, 50, VP, pyramid=True)
-    canvas.draw(np.arange(n), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0)
-                               for _ in range(n)])
+    canvas.draw(
+        np.arange(n), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0) for _ in range(n)]
+    )
     fm = FeatureMaker(prog, VP, target, context=context)
-    turtles = [(float(rng.uniform(-14, 14)), float(rng.uniform(-24, 4)),
-                float(rng.uniform(-400, 400)), float(rng.uniform(0.1, 1))) for _ in range(n)]
+    turtles = [
+        (
+            float(rng.uniform(-14, 14)),
+            float(rng.uniform(-24, 4)),
+            float(rng.uniform(-400, 400)),
+            float(rng.uniform(0.1, 1)),
+        )
+        for _ in range(n)
+    ]
     hits = 0
     for step in range(3):
         fm.forget()
         if step:
-            canvas.draw(np.arange(n), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2),
-                                        1.0) for _ in range(n)])
+            canvas.draw(
+                np.arange(n),
+                [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 1.0) for _ in range(n)],
+            )
         for _ in range(8):
             idx = sorted(rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False))
             for i in idx:
@@ -167,8 +201,9 @@ def test_cached_rows_equal_fresh_rows(context: bool) -> None:
             params = [rng.normal(size=(m0, 1)), np.zeros((len(idx) - m0, 0))]
             args = [rng.normal(size=(m0, 2)), np.tile([0.2, 0.3, 0.5], (len(idx) - m0, 1))]
             got = fm.features_cached(sites, canvas, idx, ts, depths, params, args)
-            want = fm.features_round(sites, canvas, np.array(idx), np.array(ts),
-                                     np.array(depths), params, args)
+            want = fm.features_round(
+                sites, canvas, np.array(idx), np.array(ts), np.array(depths), params, args
+            )
             for a, b in zip(got, want, strict=True):
                 assert a.dtype == np.float32
                 np.testing.assert_array_equal(a, b)
@@ -194,8 +229,15 @@ def test_no_canvas_no_target_gives_zero_windows() -> None:
     prog = _program()
     fm = FeatureMaker(prog, VP, None)
     site = prog.sites[1]
-    got = fm.features(site, None, np.arange(2), np.zeros((2, 4)), np.zeros(2),
-                      np.zeros((2, 0)), np.full((2, 3), 1 / 3))
+    got = fm.features(
+        site,
+        None,
+        np.arange(2),
+        np.zeros((2, 4)),
+        np.zeros(2),
+        np.zeros((2, 0)),
+        np.full((2, 3), 1 / 3),
+    )
     lay = fm.layout(site)
     assert not got[:, lay["target"]].any() and not got[:, lay["partial"]].any()
     np.testing.assert_allclose(got[:, 7:10], 1 / 3, rtol=1e-6)
@@ -210,9 +252,17 @@ def test_heading_not_finite_looks_ahead_outside() -> None:
     target[5:30, 10:40] = True
     canvas = Canvas(3, 50, 50, VP, pyramid=True)
     fm = FeatureMaker(prog, VP, target, context=True)
-    turtle = np.array([[0.0, -10.0, math.nan, 1.0], [0.0, -10.0, math.inf, 1.0],
-                       [0.0, -10.0, 90.0, 1.0]])
-    rows = fm.features(prog.sites[1], canvas, np.arange(3), turtle, np.zeros(3),
-                       np.zeros((3, 0)), np.full((3, 3), 1 / 3))
+    turtle = np.array(
+        [[0.0, -10.0, math.nan, 1.0], [0.0, -10.0, math.inf, 1.0], [0.0, -10.0, 90.0, 1.0]]
+    )
+    rows = fm.features(
+        prog.sites[1],
+        canvas,
+        np.arange(3),
+        turtle,
+        np.zeros(3),
+        np.zeros((3, 0)),
+        np.full((3, 3), 1 / 3),
+    )
     ahead = rows[:, fm.layout(prog.sites[1])["context"]][:, 2:]
     assert (ahead[:2] == -1).all() and (ahead[2] >= 0).all()

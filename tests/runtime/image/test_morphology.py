@@ -25,10 +25,15 @@ def random_masks(seed: int, count: int) -> list[np.ndarray]:
         else:
             noise = rng.random((h + 4, w + 4))
             for _ in range(int(rng.integers(1, 5))):
-                noise = (noise[:-2, :-2] + noise[1:-1, 1:-1] + noise[2:, 2:]
-                         + noise[:-2, 2:] + noise[2:, :-2]) / 5
+                noise = (
+                    noise[:-2, :-2]
+                    + noise[1:-1, 1:-1]
+                    + noise[2:, 2:]
+                    + noise[:-2, 2:]
+                    + noise[2:, :-2]
+                ) / 5
                 noise = np.pad(noise, 1, mode="edge")
-            out.append(noise[2:h + 2, 2:w + 2] > np.quantile(noise, rng.uniform(0.2, 0.8)))
+            out.append(noise[2 : h + 2, 2 : w + 2] > np.quantile(noise, rng.uniform(0.2, 0.8)))
     return out
 
 
@@ -76,11 +81,16 @@ def test_neighbor_count_equals_convolve() -> None:
 
 def test_otsu_equals_skimage() -> None:
     rng = np.random.default_rng(1)
-    images = [rng.integers(lo, hi, size=(int(rng.integers(5, 80)), int(rng.integers(5, 80))),
-                           dtype=np.uint8)
-              for lo, hi in [(0, 256), (0, 3), (100, 140), (250, 256)] * 30]
-    images += [(np.asarray(mask, np.uint8) * 200 + rng.integers(0, 40, mask.shape))
-               .astype(np.uint8) for mask in MASKS[:60]]
+    images = [
+        rng.integers(
+            lo, hi, size=(int(rng.integers(5, 80)), int(rng.integers(5, 80))), dtype=np.uint8
+        )
+        for lo, hi in [(0, 256), (0, 3), (100, 140), (250, 256)] * 30
+    ]
+    images += [
+        (np.asarray(mask, np.uint8) * 200 + rng.integers(0, 40, mask.shape)).astype(np.uint8)
+        for mask in MASKS[:60]
+    ]
     for img in images:
         assert m.otsu_threshold(img) == threshold_otsu(img)
 
@@ -89,16 +99,14 @@ def _auto_start_scipy(mask: np.ndarray) -> tuple[float, ...]:
     """auto_start with the SciPy / scikit-image functions the runtime used before."""
     import ngpm_runtime.image.targets as targets
 
-    saved = {k: getattr(targets, k) for k in ("label", "skeletonize", "max_edt",
-                                               "neighbor_count")}
+    saved = {k: getattr(targets, k) for k in ("label", "skeletonize", "max_edt", "neighbor_count")}
     kernel = np.ones((3, 3), dtype=np.int32)
     kernel[1, 1] = 0
     try:
         targets.label = lambda x: label(x, connectivity=2)
         targets.skeletonize = skeletonize
         targets.max_edt = lambda x: float(distance_transform_edt(x).max())
-        targets.neighbor_count = lambda x: convolve(x.astype(np.int32), kernel,
-                                                    mode="constant")
+        targets.neighbor_count = lambda x: convolve(x.astype(np.int32), kernel, mode="constant")
         return targets.auto_start(mask)
     finally:
         for k, v in saved.items():

@@ -85,7 +85,7 @@ def test_canvas_matches_slow_rasterization(size: tuple[int, int]) -> None:
             y0, x0 = batch.y0[k], batch.x0[k]
             assert 0 <= y0 and y0 + ky <= h and 0 <= x0 and x0 + kx <= w
             full_new = np.zeros((h, w), dtype=bool)
-            full_new[y0:y0 + ky, x0:x0 + kx] = batch.new[k]
+            full_new[y0 : y0 + ky, x0 : x0 + kx] = batch.new[k]
             expect_new = (canvas.image[i] == 1) & (before[i] == 0)
             assert np.array_equal(full_new, expect_new)
         untouched = np.setdiff1d(np.arange(n), idx)
@@ -137,7 +137,7 @@ def test_prim_mask_and_viewport_of() -> None:
     prim = ("leaf", 0.0, -10.0, 30.0, 3.0, 1.0)
     y0, x0, m = prim_mask(prim, VP, 50, 50)
     full = np.zeros((50, 50), dtype=np.uint8)
-    full[y0:y0 + m.shape[0], x0:x0 + m.shape[1]] = m
+    full[y0 : y0 + m.shape[0], x0 : x0 + m.shape[1]] = m
     assert np.array_equal(full, _slow_image([prim], VP, 50, 50))
     vp = viewport_of([("seg", 0, 0, 4, 0, 1), ("disk", 0, 3, 1)])
     assert vp[0] < -0.5 and vp[1] > 4.5 and vp[2] < -0.5 and vp[3] > 4
@@ -150,8 +150,10 @@ def test_repeated_take_with_double_buffers() -> None:
     canvas = Canvas(n, 30, 30, VP)
     ref_img = np.zeros((n, 30, 30), dtype=np.uint8)
     for _ in range(6):
-        prims = [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
-                 for _ in range(n)]
+        prims = [
+            ("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), rng.uniform(0.5, 3))
+            for _ in range(n)
+        ]
         canvas.draw(np.arange(n), prims)
         for i, p in enumerate(prims):
             ref_img[i] |= rasterize([p], VP, 30, 30)
@@ -170,8 +172,12 @@ def test_degenerate_primitives() -> None:
     disk = rasterize([("disk", 0.3, -9.7, 2.0)], VP, 50, 50)
     assert seg.sum() > 0 and np.array_equal(seg, disk)
     canvas = Canvas(4, 50, 50, VP)
-    prims = [("leaf", 0.0, -10.0, 30.0, 3.0, 0.0), ("disk", float("nan"), 0.0, 1.0),
-             ("seg", 0.0, 0.0, float("inf"), 0.0, 1.0), ("poly", ((0.0, 0.0), (1.0, 1.0)))]
+    prims = [
+        ("leaf", 0.0, -10.0, 30.0, 3.0, 0.0),
+        ("disk", float("nan"), 0.0, 1.0),
+        ("seg", 0.0, 0.0, float("inf"), 0.0, 1.0),
+        ("poly", ((0.0, 0.0), (1.0, 1.0))),
+    ]
     batch = canvas.draw(np.arange(4), prims)
     assert not batch.new.any() and canvas.image.sum() == 0
     assert all(lv.sum() == 0 for lv in canvas.levels)
@@ -198,8 +204,9 @@ def _prim_strategy():
         st.tuples(st.just("seg"), coord, coord, coord, coord, pos),
         st.tuples(st.just("leaf"), coord, coord, st.floats(-720, 720), pos, pos),
         st.tuples(st.just("disk"), coord, coord, pos),
-        st.tuples(st.just("poly"), st.lists(st.tuples(coord, coord), min_size=3, max_size=6)
-                  .map(tuple)),
+        st.tuples(
+            st.just("poly"), st.lists(st.tuples(coord, coord), min_size=3, max_size=6).map(tuple)
+        ),
     )
 
 

@@ -21,8 +21,12 @@ from ngpm_runtime.image.render import (
 from PIL import Image
 
 VP = (0.0, 10.0, 0.0, 10.0)
-PRIMS = [("seg", 1.0, 5.0, 9.0, 5.0, 1.0), ("disk", 8.0, 8.0, 1.0),
-         ("leaf", 2.0, 2.0, 0.0, 3.0, 1.0), ("poly", ((6.0, 1.0), (9.0, 1.0), (9.0, 3.0)))]
+PRIMS = [
+    ("seg", 1.0, 5.0, 9.0, 5.0, 1.0),
+    ("disk", 8.0, 8.0, 1.0),
+    ("leaf", 2.0, 2.0, 0.0, 3.0, 1.0),
+    ("poly", ((6.0, 1.0), (9.0, 1.0), (9.0, 3.0))),
+]
 
 
 def _at(img: np.ndarray, x: float, y: float) -> tuple[int, ...]:
@@ -53,12 +57,14 @@ def test_fit_viewport_and_aspect() -> None:
 
 
 def test_save_png_and_svg(tmp_path) -> None:
-    png = save_render(PRIMS, tmp_path / "a.png", VP, size=64,
-                      target_mask=np.ones((5, 5), dtype=bool))
+    png = save_render(
+        PRIMS, tmp_path / "a.png", VP, size=64, target_mask=np.ones((5, 5), dtype=bool)
+    )
     with Image.open(png) as im:
         assert im.size == (64, 64) and im.mode == "RGB"
-    svg = save_render(PRIMS, tmp_path / "a.svg", VP, size=64,
-                      target_mask=np.ones((5, 5), dtype=bool))
+    svg = save_render(
+        PRIMS, tmp_path / "a.svg", VP, size=64, target_mask=np.ones((5, 5), dtype=bool)
+    )
     root = ET.parse(svg).getroot()
     tags = [el.tag.split("}")[1] for el in root.iter()]
     for tag in ("line", "circle", "ellipse", "polygon", "image"):

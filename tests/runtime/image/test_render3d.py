@@ -43,7 +43,7 @@ def test_vertical_cylinder_is_a_vertical_bar_in_the_middle() -> None:
     scale = size * (1 - 2 * MARGIN) / 2  # pixels per metre
     assert right - left + 1 == pytest.approx(0.5 * scale, abs=2)
     assert (left + right) / 2 == pytest.approx(size / 2 - 0.5, abs=1)
-    assert m[top + 2:bottom - 2, left + 1:right].all()  # solid
+    assert m[top + 2 : bottom - 2, left + 1 : right].all()  # solid
 
 
 def test_sphere_is_a_shaded_disk() -> None:
@@ -51,7 +51,7 @@ def test_sphere_is_a_shaded_disk() -> None:
     img = render_mesh(mesh_from_primitives(SPHERE), size=size, view=(0, 0))
     m = ink(img)
     radius = size * (1 - 2 * MARGIN) / 2
-    assert m.sum() == pytest.approx(np.pi * radius ** 2, rel=0.05)
+    assert m.sum() == pytest.approx(np.pi * radius**2, rel=0.05)
     yy, xx = np.nonzero(m)
     assert np.hypot(yy.mean() - size / 2 + 0.5, xx.mean() - size / 2 + 0.5) < 1
     assert np.hypot(yy - size / 2, xx - size / 2).max() <= radius + 2
@@ -62,8 +62,12 @@ def test_sphere_is_a_shaded_disk() -> None:
 
 
 def test_nearer_faces_hide_farther_ones() -> None:
-    mesh = mesh_from_primitives([("sphere", 0, 0, 1, 1, 1),    # leaf green, toward +Z
-                                 ("sphere", 0, 0, -1, 1, 7)])  # blossom, toward -Z
+    mesh = mesh_from_primitives(
+        [
+            ("sphere", 0, 0, 1, 1, 1),  # leaf green, toward +Z
+            ("sphere", 0, 0, -1, 1, 7),
+        ]
+    )  # blossom, toward -Z
     for az, nearer in ((0, "green"), (180, "pink")):
         r, g, b = render_mesh(mesh, size=64, view=(az, 0))[32, 32].astype(int)
         assert (g > r) == (nearer == "green"), (az, r, g, b)

@@ -13,8 +13,18 @@ def outline(side: int, width: int) -> np.ndarray:
     img = Image.new("L", (side, side), 0)
     d = ImageDraw.Draw(img)
     s = side
-    d.line([(0.2 * s, 0.9 * s), (0.8 * s, 0.9 * s), (0.8 * s, 0.5 * s), (0.5 * s, 0.2 * s),
-            (0.2 * s, 0.5 * s), (0.2 * s, 0.9 * s)], fill=255, width=width)
+    d.line(
+        [
+            (0.2 * s, 0.9 * s),
+            (0.8 * s, 0.9 * s),
+            (0.8 * s, 0.5 * s),
+            (0.5 * s, 0.2 * s),
+            (0.2 * s, 0.5 * s),
+            (0.2 * s, 0.9 * s),
+        ],
+        fill=255,
+        width=width,
+    )
     return np.asarray(img) > 0
 
 

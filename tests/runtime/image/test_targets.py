@@ -274,8 +274,9 @@ def test_animation_frames_searched_and_checked_are_bounded(tmp_path):
     with pytest.raises(TargetError, match=f"none of the animation's first {MAX_FRAMES} "):
         read_image(tmp_path / "blank.gif")
     # a TIFF's pages each have their own size: a big second page is refused unread
-    blank.save(tmp_path / "pages.tif", save_all=True,
-               append_images=[Image.new("RGB", (300, 40), "white")])
+    blank.save(
+        tmp_path / "pages.tif", save_all=True, append_images=[Image.new("RGB", (300, 40), "white")]
+    )
     with pytest.raises(ImageSizeError, match="300 x 40 px; the limit is 200"):
         read_image(tmp_path / "pages.tif", max_side=200)
     # a multi-page TIFF gives its first page that holds a shape, in any mode
@@ -345,10 +346,19 @@ def test_original_sidecar_format_is_read(tmp_path):
     assert read_sidecar(tmp_path / "c.txt") == pytest.approx((0.25, 0.5, 0.6, 0.8))
 
 
-@pytest.mark.parametrize("text", [
-    "", "0.5 0.5\n", "0.5 0.5\n0 -1\n1 1\n", "0.5 0.5 0.5\n0 -1\n", "a b\n0 -1\n",
-    "0.5 0.5\n0 0\n", "1.5 0.5\n0 -1\n", "nan 0.5\n0 -1\n",
-])
+@pytest.mark.parametrize(
+    "text",
+    [
+        "",
+        "0.5 0.5\n",
+        "0.5 0.5\n0 -1\n1 1\n",
+        "0.5 0.5 0.5\n0 -1\n",
+        "a b\n0 -1\n",
+        "0.5 0.5\n0 0\n",
+        "1.5 0.5\n0 -1\n",
+        "nan 0.5\n0 -1\n",
+    ],
+)
 def test_malformed_sidecar_names_file(tmp_path, text):
     m = disk_mask()
     save_gray(tmp_path / "img.png", m)
@@ -423,7 +433,7 @@ def test_auto_start_other_shapes():
     assert abs(x - 0.5) < 0.04 and y > 0.65 and (dx, dy) == pytest.approx((0, -1))
     slanted = np.zeros((50, 50), bool)
     for r in range(10, 40):
-        slanted[r, r - 5:r] = True  # leans to the right going down
+        slanted[r, r - 5 : r] = True  # leans to the right going down
     x, y, dx, dy = auto_start(slanted)
     assert dy < 0 and dx < 0  # from the bottom-right end, up and to the left
     assert y > 0.7
@@ -470,8 +480,10 @@ def test_load_without_sidecar_uses_auto_start(tmp_path):
 
 
 def test_load_dataset_with_and_without_index(tmp_path):
-    targets = [Target(disk_mask(50, 50, 25, 10 + 10 * i, 6), (0.5, 0.6, 0, -1), f"d_{i:04d}")
-               for i in range(3)]
+    targets = [
+        Target(disk_mask(50, 50, 25, 10 + 10 * i, 6), (0.5, 0.6, 0, -1), f"d_{i:04d}")
+        for i in range(3)
+    ]
     for t in targets:
         save_target(t, tmp_path / f"{t.name}.png")
     Image.new("L", (30, 30), 0).save(tmp_path / "no_sidecar.png")  # ignored without index

@@ -101,8 +101,9 @@ def test_normal_mixture_proposal_integrates_to_one_and_matches_samples() -> None
     args = np.array([[1.0, 2.0]])
 
     def dens(x):
-        return np.exp(proposal_logpdf(NORMAL, np.repeat(args, len(x), 0),
-                                      np.repeat(params, len(x), 0), x))
+        return np.exp(
+            proposal_logpdf(NORMAL, np.repeat(args, len(x), 0), np.repeat(params, len(x), 0), x)
+        )
 
     assert abs(_integrate(dens, -40, 40) - 1.0) < 1e-6
     n = 60000
@@ -116,15 +117,17 @@ def test_uniform_logit_normal_proposal_integrates_to_one() -> None:
     args = np.array([[-2.0, 3.0]])
 
     def dens(x):
-        return np.exp(proposal_logpdf(UNIFORM, np.repeat(args, len(x), 0),
-                                      np.repeat(params, len(x), 0), x))
+        return np.exp(
+            proposal_logpdf(UNIFORM, np.repeat(args, len(x), 0), np.repeat(params, len(x), 0), x)
+        )
 
     assert abs(_integrate(dens, -2.0, 3.0) - 1.0) < 1e-4
     n = 20000
     v = proposal_sample(UNIFORM, np.repeat(args, n, 0), np.repeat(params, n, 0), rng())
     assert np.all((v > -2.0) & (v < 3.0))
-    assert np.all(np.isfinite(proposal_logpdf(UNIFORM, np.repeat(args, n, 0),
-                                              np.repeat(params, n, 0), v)))
+    assert np.all(
+        np.isfinite(proposal_logpdf(UNIFORM, np.repeat(args, n, 0), np.repeat(params, n, 0), v))
+    )
     assert proposal_logpdf(UNIFORM, args, params, np.array([3.5]))[0] == -np.inf
 
 
@@ -134,12 +137,14 @@ def test_discrete_proposals() -> None:
     v = proposal_sample(CAT, args, params, rng())
     freq = np.bincount(v.astype(int), minlength=3) / len(v)
     np.testing.assert_allclose(freq, [0.1, 0.1, 0.8], atol=0.01)
-    np.testing.assert_allclose(proposal_logpdf(CAT, args[:2], params[:2], np.array([2.0, 0.0])),
-                               np.log([0.8, 0.1]))
+    np.testing.assert_allclose(
+        proposal_logpdf(CAT, args[:2], params[:2], np.array([2.0, 0.0])), np.log([0.8, 0.1])
+    )
     bp = np.array([[0.9], [0.9]])
     np.testing.assert_allclose(
         proposal_logpdf(BERN, np.array([[0.5], [0.5]]), bp, np.array([1.0, 0.0])),
-        np.log([0.9, 0.1]))
+        np.log([0.9, 0.1]),
+    )
 
 
 def test_prior_draw_log_density_matches_prior_logpdf() -> None:
@@ -192,7 +197,7 @@ def test_categorical_prior_logpdf_shared_rows() -> None:
     args = np.repeat(w, 6, axis=0)
     x = np.array([0.0, 1.0, 2.0, 2.0, 3.0, 0.5])
     shared = prior_logpdf(CAT, args, x)
-    single = np.array([prior_logpdf(CAT, w, x[i:i + 1])[0] for i in range(6)])
+    single = np.array([prior_logpdf(CAT, w, x[i : i + 1])[0] for i in range(6)])
     np.testing.assert_array_equal(shared, single)
     assert shared[4] == -np.inf and shared[5] == -np.inf
 
@@ -205,13 +210,15 @@ def test_small_categorical_draw_matches_the_array_path() -> None:
         params[::7, 0] = 0.0
         big_v, big_q = proposal_draw(CAT, np.ones((200, k)), params, rng(5))
         g = rng(5)
-        parts = [proposal_draw(CAT, np.ones((4, k)), params[i:i + 4], g) for i in
-                 range(0, 200, 4)]
+        parts = [
+            proposal_draw(CAT, np.ones((4, k)), params[i : i + 4], g) for i in range(0, 200, 4)
+        ]
         g2 = rng(5)
         small_v = np.concatenate([p[0] for p in parts])
         small_q = np.concatenate([p[1] for p in parts])
-        np.testing.assert_array_equal(small_q, proposal_logpdf(CAT, np.ones((200, k)),
-                                                               params, small_v))
+        np.testing.assert_array_equal(
+            small_q, proposal_logpdf(CAT, np.ones((200, k)), params, small_v)
+        )
         # the same uniforms, drawn in pieces: the same values
         u = np.concatenate([g2.random(4) for _ in range(50)])
         assert np.array_equal(u, rng(5).random(200))
@@ -227,10 +234,12 @@ def test_small_normal_draw_matches_the_array_path() -> None:
             args = np.column_stack([r.normal(size=n) * 10, r.random(n) * 5 + 0.01])
             params = r.normal(size=(n, 9)) * 2
             v, q = proposal_draw(NORMAL, args, params, rng(4))
-            np.testing.assert_allclose(v, proposal_sample(NORMAL, args, params, rng(4)),
-                                       rtol=1e-13, atol=1e-13)
-            np.testing.assert_allclose(q, proposal_logpdf(NORMAL, args, params, v),
-                                       rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(
+                v, proposal_sample(NORMAL, args, params, rng(4)), rtol=1e-13, atol=1e-13
+            )
+            np.testing.assert_allclose(
+                q, proposal_logpdf(NORMAL, args, params, v), rtol=1e-12, atol=1e-12
+            )
     # a zero sd takes the array path (a point mass)
     v, q = proposal_draw(NORMAL, np.array([[1.0, 0.0]]), np.zeros((1, 3)), rng(0))
     assert v[0] == 1.0 and q[0] == 0.0
@@ -284,16 +293,20 @@ def test_temper_mixture_scales_weights_and_sds() -> None:
     params = np.array([[0.0, 1.0, -0.5, 0.5, 0.1, -0.3]])
     out = temper("normal", params, temperature=0.25, choice_temperature=0.1)
     np.testing.assert_allclose(out[:, :k], params[:, :k] / 0.25)
-    np.testing.assert_allclose(out[:, k:2 * k], params[:, k:2 * k])
-    np.testing.assert_allclose(np.exp(out[:, 2 * k:]), np.exp(params[:, 2 * k:]) * 0.5)
+    np.testing.assert_allclose(out[:, k : 2 * k], params[:, k : 2 * k])
+    np.testing.assert_allclose(np.exp(out[:, 2 * k :]), np.exp(params[:, 2 * k :]) * 0.5)
     assert temper("uniform", params, temperature=1.0) is params
     # one component: exactly the density to the power 1/T, renormalized (a narrower normal)
     one = np.array([[0.0, 0.4, np.log(0.7)]])
     args = np.array([[1.0, 2.0]])
     xs = np.linspace(-8, 10, 4001)
     t = 0.5
-    got = proposal_logpdf(NORMAL, np.repeat(args, len(xs), 0),
-                          np.repeat(temper("normal", one, temperature=t), len(xs), 0), xs)
+    got = proposal_logpdf(
+        NORMAL,
+        np.repeat(args, len(xs), 0),
+        np.repeat(temper("normal", one, temperature=t), len(xs), 0),
+        xs,
+    )
     base = proposal_logpdf(NORMAL, np.repeat(args, len(xs), 0), np.repeat(one, len(xs), 0), xs)
     powered = base / t
     powered -= np.log(np.sum(np.exp(powered)) * (xs[1] - xs[0]))

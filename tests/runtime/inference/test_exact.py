@@ -7,16 +7,16 @@ import math
 import numpy as np
 import pytest
 from fixtures.exact import check, enumerate_program, exact, gauss_exact, pooled, tv
-from fixtures.tiny_programs import (  # noqa: E402
+from fixtures.tiny_programs import (
     EndPointLikelihood,
     SumXLikelihood,
     branch_program,
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.inference.distributions import prior_logpdf  # noqa: E402
-from ngpm_runtime.inference.proposals import FixedProposal  # noqa: E402
-from ngpm_runtime.inference.smc import SMCOptions, smc  # noqa: E402
+from ngpm_runtime.inference.distributions import prior_logpdf
+from ngpm_runtime.inference.proposals import FixedProposal
+from ngpm_runtime.inference.smc import SMCOptions, smc
 
 # A proposal far from the prior at every discrete site of each grammar.
 DISCRETE_Q = FixedProposal({0: [0.2, 0.8], 1: [0.6, 0.1, 0.3], 2: [0.8]})
@@ -40,18 +40,13 @@ def test_enumeration_is_a_distribution() -> None:
         assert len(runs) > 5
 
 
-
-
-
-
 @pytest.mark.parametrize(("scheme", "ess", "prop"), CASES)
 def test_discrete_posterior_and_evidence(scheme, ess, prop) -> None:
     prog = discrete_program()
     like = SumXLikelihood(goal=2.0, scale=1.0)
     want_post, want_log_z = exact(prog, like)
     post, log_z = pooled(prog, like, DISCRETE_Q if prop else None, scheme, ess, seed=10)
-    assert check(post, log_z, want_post, want_log_z, 0.06), (tv(post, want_post), log_z,
-                                                             want_log_z)
+    assert check(post, log_z, want_post, want_log_z, 0.06), (tv(post, want_post), log_z, want_log_z)
 
 
 @pytest.mark.parametrize(("scheme", "ess", "prop"), CASES[2:])
@@ -60,8 +55,7 @@ def test_branch_cut_halt_posterior_and_evidence(scheme, ess, prop) -> None:
     like = SumXLikelihood(goal=2.5, scale=1.0)
     want_post, want_log_z = exact(prog, like)
     post, log_z = pooled(prog, like, BRANCH_Q if prop else None, scheme, ess, seed=20)
-    assert check(post, log_z, want_post, want_log_z, 0.08), (tv(post, want_post), log_z,
-                                                             want_log_z)
+    assert check(post, log_z, want_post, want_log_z, 0.08), (tv(post, want_post), log_z, want_log_z)
 
 
 def test_exact_check_detects_ignored_proposal_weights() -> None:
@@ -71,8 +65,10 @@ def test_exact_check_detects_ignored_proposal_weights() -> None:
             v, _ = super().propose(site, args, feats, rng)
             return v, prior_logpdf(site, args, v)
 
-    for prog, like, q in ((discrete_program(), SumXLikelihood(2.0, 1.0), DISCRETE_Q),
-                          (branch_program(), SumXLikelihood(2.5, 1.0), BRANCH_Q)):
+    for prog, like, q in (
+        (discrete_program(), SumXLikelihood(2.0, 1.0), DISCRETE_Q),
+        (branch_program(), SumXLikelihood(2.5, 1.0), BRANCH_Q),
+    ):
         want_post, want_log_z = exact(prog, like)
         post, log_z = pooled(prog, like, Unweighted(q.params), "residual", None)
         assert not check(post, log_z, want_post, want_log_z, 0.08)
@@ -87,18 +83,20 @@ def test_smc_weights_are_all_equal_to_evidence_without_likelihood() -> None:
     assert abs(r.log_evidence) < 0.05
 
 
-
-
 @pytest.mark.parametrize("prop", [None, "q"])
 def test_gaussian_lengths_posterior_and_evidence(prop) -> None:
     obs, sd = [1.8, 1.5], [0.4, 0.3]
     like = EndPointLikelihood(obs, sd)
     want_mean, want_log_z = gauss_exact(obs, sd)
     # q: a two-component mixture in prior units, wider and shifted
-    q = FixedProposal({0: [0.0, 0.0, -0.5, 1.0, 0.3, 0.3],
-                       1: [0.0, 0.5, -0.5, 0.3, 0.4, 0.0]})
-    r = smc(gauss_program(), like, 8000, q if prop else None,
-            options=SMCOptions(ess_from_proposal=True, seed=3, resample="systematic"))
+    q = FixedProposal({0: [0.0, 0.0, -0.5, 1.0, 0.3, 0.3], 1: [0.0, 0.5, -0.5, 0.3, 0.4, 0.0]})
+    r = smc(
+        gauss_program(),
+        like,
+        8000,
+        q if prop else None,
+        options=SMCOptions(ess_from_proposal=True, seed=3, resample="systematic"),
+    )
     w = np.exp(r.log_weights - r.log_weights.max())
     w /= w.sum()
     first = np.array([p.primitives[0][3] for p in r.particles])
@@ -121,8 +119,9 @@ endlsystem
 """
 
 
-@pytest.mark.parametrize(("scheme", "ess", "prop"), [("residual", None, None),
-                                                     ("systematic", 0.5, "q")])
+@pytest.mark.parametrize(
+    ("scheme", "ess", "prop"), [("residual", None, None), ("systematic", 0.5, "q")]
+)
 def test_compiled_grammar_posterior_and_evidence(scheme, ess, prop) -> None:
     # groups, a categorical, flips, cut, halt and a random interpretation rule, compiled
     from ngpm_compiler.language.compile import compile_grammar
@@ -134,5 +133,4 @@ def test_compiled_grammar_posterior_and_evidence(scheme, ess, prop) -> None:
     want_post, want_log_z = exact(prog, like)
     assert len(want_post) > 10
     post, log_z = pooled(prog, like, q if prop else None, scheme, ess, seed=30)
-    assert check(post, log_z, want_post, want_log_z, 0.08), (tv(post, want_post), log_z,
-                                                             want_log_z)
+    assert check(post, log_z, want_post, want_log_z, 0.08), (tv(post, want_post), log_z, want_log_z)

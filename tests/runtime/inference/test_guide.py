@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.datasets import CHAIN, make_dataset  # noqa: E402
-from fixtures.guides import N_F, SITES, fake_program, random_model  # noqa: E402
+from fixtures.datasets import CHAIN, make_dataset
+from fixtures.guides import N_F, SITES, fake_program, random_model
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import SMCOptions, smc
@@ -32,8 +32,7 @@ def count_calls(g: Guide) -> None:
     (the numpy engine switched off)."""
     g.numpy_nets = {}
     g.session = CountingSession(g.session)
-    g.site_sessions = {s: CountingSession(x, g.session.calls) for s, x in
-                       g.site_sessions.items()}
+    g.site_sessions = {s: CountingSession(x, g.session.calls) for s, x in g.site_sessions.items()}
 
 
 @pytest.fixture()
@@ -117,8 +116,9 @@ def test_bundled_guide_engines_agree():
 def test_engine_names_the_path(tmp_path):
     """Guide.engine: numpy for a net that reads features, onnxruntime for a feature-free
     one, the prior for a site without a net; emptying numpy_nets switches to onnxruntime."""
-    g = Guide.load(write_onnx(random_model(2, "all", skip=(2,)), tmp_path / "g.onnx"),
-                   fake_program())
+    g = Guide.load(
+        write_onnx(random_model(2, "all", skip=(2,)), tmp_path / "g.onnx"), fake_program()
+    )
     assert [g.engine(s) for s in range(4)] == ["numpy", "numpy", "prior", "numpy"]
     g.numpy_nets = {}
     assert g.engine(0) == "onnxruntime"
@@ -140,8 +140,12 @@ def test_propose_round_matches_propose(tmp_path):
     rng = np.random.default_rng(6)
     sites = [SITES[0], SITES[1], SITES[2], SITES[3]]
     ns = [5, 1, 4, 7]
-    args = [np.tile([2.0, 3.0], (5, 1)), np.tile([-1.0, 4.0], (1, 1)), np.full((4, 1), 0.3),
-            np.tile([1.0, 1.0, 1.0], (7, 1))]
+    args = [
+        np.tile([2.0, 3.0], (5, 1)),
+        np.tile([-1.0, 4.0], (1, 1)),
+        np.full((4, 1), 0.3),
+        np.tile([1.0, 1.0, 1.0], (7, 1)),
+    ]
     feats = [rng.normal(size=(n, N_F)).astype(np.float32) for n in ns]
     a = g.propose_round(sites, args, feats, np.random.default_rng(1))
     b = g.propose_round(sites, args, feats, np.random.default_rng(1))
@@ -162,8 +166,11 @@ def test_propose_round_of_one_site_equals_propose(tmp_path):
     path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
     g = Guide.load(path, fake_program())
     rng = np.random.default_rng(7)
-    for site, arg in ((SITES[0], np.tile([2.0, 3.0], (5, 1))), (SITES[2], np.full((5, 1), 0.3)),
-                      (SITES[3], np.tile([1.0, 1.0, 1.0], (5, 1)))):
+    for site, arg in (
+        (SITES[0], np.tile([2.0, 3.0], (5, 1))),
+        (SITES[2], np.full((5, 1), 0.3)),
+        (SITES[3], np.tile([1.0, 1.0, 1.0], (5, 1))),
+    ):
         f = rng.normal(size=(5, N_F)).astype(np.float32)
         ((v, q),) = g.propose_round([site], [arg], [f], np.random.default_rng(2))
         v2, q2 = g.propose(site, arg, f, np.random.default_rng(2))
@@ -184,8 +191,7 @@ def test_fallback_site_uses_the_prior(guide):
 def test_const_guide_needs_no_features(tmp_path):
     g = Guide.load(write_onnx(random_model(1, "const"), tmp_path / "c.onnx"), fake_program())
     assert not g.uses_features
-    values, log_q = g.propose(SITES[0], np.tile([0.0, 1.0], (5, 1)), None,
-                              np.random.default_rng(0))
+    values, log_q = g.propose(SITES[0], np.tile([0.0, 1.0], (5, 1)), None, np.random.default_rng(0))
     assert values.shape == log_q.shape == (5,) and np.isfinite(log_q).all()
 
 
@@ -196,8 +202,25 @@ def test_one_call_per_site_per_round_in_smc(tmp_path):
     program = load_grammar(CHAIN)
     out = tmp_path / "m"
     data = make_dataset(tmp_path / "data", 2)
-    assert main(["traces", CHAIN, "--targets", str(data), "-n", "3", "--particles", "5",
-                 "-o", str(out / "tr"), "--workers", "1"]) == 0
+    assert (
+        main(
+            [
+                "traces",
+                CHAIN,
+                "--targets",
+                str(data),
+                "-n",
+                "3",
+                "--particles",
+                "5",
+                "-o",
+                str(out / "tr"),
+                "--workers",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert main(["train", str(out / "tr"), "-o", str(out / "m.pt"), "--epochs", "2"]) == 0
     assert main(["export", str(out / "m.pt"), "-o", str(out / "g.onnx")]) == 0
     g = Guide.load(out / "g.onnx", program)
@@ -210,34 +233,98 @@ def test_one_call_per_site_per_round_in_smc(tmp_path):
 def test_cli_pipeline_and_errors(tmp_path, capsys):
     data = make_dataset(tmp_path / "data", 2)
     tr, model, onnx_path = tmp_path / "tr", tmp_path / "m.pt", tmp_path / "g.onnx"
-    assert main(["traces", CHAIN, "--targets", str(data), "-n", "4", "--particles", "6",
-                 "-o", str(tr), "--workers", "1", "--mirror"]) == 0
+    assert (
+        main(
+            [
+                "traces",
+                CHAIN,
+                "--targets",
+                str(data),
+                "-n",
+                "4",
+                "--particles",
+                "6",
+                "-o",
+                str(tr),
+                "--workers",
+                "1",
+                "--mirror",
+            ]
+        )
+        == 0
+    )
     out, err = capsys.readouterr()
     assert "4 traces kept" in out
     assert "\r" not in err and err.count("\n") <= 2, err  # no progress bar in a log file
-    assert main(["train", str(tr), "-o", str(model), "--epochs", "3", "--K", "1",
-                 "--features", "local"]) == 0
+    assert (
+        main(
+            ["train", str(tr), "-o", str(model), "--epochs", "3", "--K", "1", "--features", "local"]
+        )
+        == 0
+    )
     out, err = capsys.readouterr()
     assert "1 site networks" in out and "validation NLL" in out
     assert "\r" not in err and err.count("\n") <= 2, err
     assert not Path(str(model) + ".ckpt").exists()
     assert main(["export", str(model), "-o", str(onnx_path)]) == 0
     png = tmp_path / "grown.png"
-    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "--guide", str(onnx_path),
-                 "-N", "5", "-o", str(png)]) == 0
+    assert (
+        main(
+            [
+                "grow",
+                str(data / "bar0.png"),
+                "--grammar",
+                CHAIN,
+                "--guide",
+                str(onnx_path),
+                "-N",
+                "5",
+                "-o",
+                str(png),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "similarity" in out and "(guided)" in out and png.is_file()
-    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "-N", "5",
-                 "-o", str(png)]) == 0
+    assert (
+        main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "-N", "5", "-o", str(png)]) == 0
+    )
     assert "(unguided)" in capsys.readouterr().out
     # a guide for another grammar, a corrupt guide, a corrupt model: one-line errors
     vines = str(Path(CHAIN).with_name("vines.lsys"))
-    assert main(["grow", str(data / "bar0.png"), "--grammar", vines, "--guide",
-                 str(onnx_path), "-o", str(png)]) == 1
+    assert (
+        main(
+            [
+                "grow",
+                str(data / "bar0.png"),
+                "--grammar",
+                vines,
+                "--guide",
+                str(onnx_path),
+                "-o",
+                str(png),
+            ]
+        )
+        == 1
+    )
     assert "trained for grammar" in capsys.readouterr().err
     onnx_path.write_bytes(onnx_path.read_bytes()[:100])
-    assert main(["grow", str(data / "bar0.png"), "--grammar", CHAIN, "--guide",
-                 str(onnx_path), "-o", str(png)]) == 1
+    assert (
+        main(
+            [
+                "grow",
+                str(data / "bar0.png"),
+                "--grammar",
+                CHAIN,
+                "--guide",
+                str(onnx_path),
+                "-o",
+                str(png),
+            ]
+        )
+        == 1
+    )
     assert "corrupt or truncated" in capsys.readouterr().err
     model.write_bytes(b"junk")
     assert main(["export", str(model), "-o", str(onnx_path)]) == 1

@@ -9,21 +9,21 @@ import math
 
 import numpy as np
 import pytest
-from fixtures.exact import check, exact, gauss_exact, pooled, tv  # noqa: E402
-from fixtures.tiny_programs import (  # noqa: E402
+from fixtures.exact import check, exact, gauss_exact, pooled, tv
+from fixtures.tiny_programs import (
     EndPointLikelihood,
     SumXLikelihood,
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker  # noqa: E402
-from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf  # noqa: E402
-from ngpm_runtime.inference.guide import Guide, ProposalSettings  # noqa: E402
-from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc  # noqa: E402
+from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker
+from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
+from ngpm_runtime.inference.guide import Guide, ProposalSettings
+from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
-from ngpm_compiler.learning.export import write_onnx  # noqa: E402
-from ngpm_compiler.learning.trace_data import SiteData, prior_arg_columns  # noqa: E402
-from ngpm_compiler.learning.train import TrainConfig, train_guide  # noqa: E402
+from ngpm_compiler.learning.export import write_onnx
+from ngpm_compiler.learning.trace_data import SiteData, prior_arg_columns
+from ngpm_compiler.learning.train import TrainConfig, train_guide
 
 VIEWPORT = (-4.0, 4.0, -4.0, 4.0)
 
@@ -93,16 +93,25 @@ def site_data(program, traces):
     for s, items in rows.items():
         f = np.stack([r[0] for r in items]).astype(np.float32)
         cols = prior_arg_columns(program.sites[s], fm.layout(program.sites[s]))
-        data[s] = SiteData(f, np.array([r[1] for r in items]), f[:, cols].astype(float),
-                           np.array([r[2] for r in items]))
+        data[s] = SiteData(
+            f,
+            np.array([r[1] for r in items]),
+            f[:, cols].astype(float),
+            np.array([r[2] for r in items]),
+        )
     layouts = {s.index: fm.layout(s) for s in program.sites}
     return data, layouts
 
 
 def learned_guide(program, data, layouts, tmp_path, epochs, **cfg):
-    model = train_guide(program.sites, layouts, data,
-                        TrainConfig(epochs=epochs, val_fraction=0.0, **cfg),
-                        grammar=program.name, grammar_hash=program.grammar_hash)
+    model = train_guide(
+        program.sites,
+        layouts,
+        data,
+        TrainConfig(epochs=epochs, val_fraction=0.0, **cfg),
+        grammar=program.name,
+        grammar_hash=program.grammar_hash,
+    )
     path = write_onnx(model, tmp_path / f"guide{epochs}.onnx")
     return Guide.load(path, program)
 
@@ -141,8 +150,9 @@ def test_guide_trained_on_posterior_samples_approaches_it(discrete_case, tmp_pat
     data, layouts = site_data(program, [traces[i] for i in sample])
     kls = []
     for epochs in (0, 30):
-        guide = learned_guide(program, data, layouts, tmp_path, epochs, feature_set="local",
-                              lr=0.02, batch_size=128)
+        guide = learned_guide(
+            program, data, layouts, tmp_path, epochs, feature_set="local", lr=0.02, batch_size=128
+        )
         lq = np.array([log_q(guide, program, t) for t in traces])
         assert abs(np.logaddexp.reduce(lq)) < 1e-5  # the guide is a distribution on traces
         kls.append(float(np.sum(post * (np.log(post) - lq))))
@@ -159,8 +169,11 @@ def test_guided_smc_stays_exact_discrete(discrete_case, tmp_path):
     guide = learned_guide(program, data, layouts, tmp_path, 15, feature_set="all", lr=0.02)
     want_post, want_log_z = exact(program, like)
     got_post, got_log_z = pooled(program, like, guide, "residual", None, n=3000, runs=4)
-    assert check(got_post, got_log_z, want_post, want_log_z, 0.06), \
-        (tv(got_post, want_post), got_log_z, want_log_z)
+    assert check(got_post, got_log_z, want_post, want_log_z, 0.06), (
+        tv(got_post, want_post),
+        got_log_z,
+        want_log_z,
+    )
 
     class Unweighted:  # guard: the check notices a guide whose log q is not reported
         uses_features = True
@@ -173,24 +186,27 @@ def test_guided_smc_stays_exact_discrete(discrete_case, tmp_path):
     assert not check(bad_post, bad_log_z, want_post, want_log_z, 0.06)
 
 
-
 def test_tuned_guide_stays_exact_discrete(discrete_case, tmp_path):
     """Settings of `ngpmc tune` (sharper or flatter choices, adaptive resampling) change the
     proposal, not the answers: enumerated posterior and evidence again."""
     program, like, post, traces = discrete_case
     rng = np.random.default_rng(2)
-    data, layouts = site_data(program, [traces[i] for i in rng.choice(len(traces), 1500,
-                                                                      p=post)])
+    data, layouts = site_data(program, [traces[i] for i in rng.choice(len(traces), 1500, p=post)])
     guide = learned_guide(program, data, layouts, tmp_path, 15, feature_set="all", lr=0.02)
     want_post, want_log_z = exact(program, like)
     f = np.zeros((1, guide.nets[0]["n_f"]), np.float32)
     for tc in (0.5, 2.0):
-        tuned = Guide.load(guide.path, program,
-                           settings=ProposalSettings(choice_temperature=tc, ess_threshold=0.5))
+        tuned = Guide.load(
+            guide.path, program, settings=ProposalSettings(choice_temperature=tc, ess_threshold=0.5)
+        )
         assert not np.allclose(tuned.params(0, f), guide.params(0, f))  # q does change
         got_post, got_log_z = pooled(program, like, tuned, "residual", 0.5, n=3000, runs=4)
-        assert check(got_post, got_log_z, want_post, want_log_z, 0.06), \
-            (tc, tv(got_post, want_post), got_log_z, want_log_z)
+        assert check(got_post, got_log_z, want_post, want_log_z, 0.06), (
+            tc,
+            tv(got_post, want_post),
+            got_log_z,
+            want_log_z,
+        )
 
 
 @pytest.mark.parametrize("K", [1, 4])
@@ -215,24 +231,33 @@ def test_guided_smc_stays_exact_gaussian(tmp_path, K):
     traces = [[(s, f, float(x[j])) for j, (s, f, _) in enumerate(template)] for x in samples]
     data, layouts = site_data(program, traces)
     untrained = learned_guide(program, data, layouts, tmp_path, 0, feature_set="local", K=K)
-    guide = learned_guide(program, data, layouts, tmp_path, 20, feature_set="local", K=K,
-                          lr=0.02)
+    guide = learned_guide(program, data, layouts, tmp_path, 20, feature_set="local", K=K, lr=0.02)
     # KL(posterior marginal || guide) per site falls (estimated on the samples)
     for s in (0, 1):
         site, f = program.sites[s], template[s][1][None, :]
         args = np.array([[M1, S1] if s == 0 else [M2, S2]])
         xs = samples[:, s]
-        nll = [-proposal_logpdf(site, np.repeat(args, len(xs), 0),
-                                np.repeat(g.params(s, f[:, :-N_CONTEXT]), len(xs), 0),
-                                xs).mean()
-               for g in (untrained, guide)]
+        nll = [
+            -proposal_logpdf(
+                site,
+                np.repeat(args, len(xs), 0),
+                np.repeat(g.params(s, f[:, :-N_CONTEXT]), len(xs), 0),
+                xs,
+            ).mean()
+            for g in (untrained, guide)
+        ]
         true_sd = math.sqrt(cov[s, s])
         entropy = 0.5 * math.log(2 * math.pi * math.e * true_sd**2)
         assert nll[1] - entropy < 0.25 * (nll[0] - entropy) and nll[1] - entropy < 0.02, nll
     sharp = Guide.load(guide.path, program, settings=ProposalSettings(temperature=0.5))
     for g in (guide, sharp):  # a sharper mixture (ngpmc tune) stays exact too
-        r = smc(program, like, 8000, g, options=SMCOptions(ess_from_proposal=True, seed=3,
-                                                           resample="systematic"))
+        r = smc(
+            program,
+            like,
+            8000,
+            g,
+            options=SMCOptions(ess_from_proposal=True, seed=3, resample="systematic"),
+        )
         w = np.exp(r.log_weights - r.log_weights.max())
         w /= w.sum()
         first = np.array([p.primitives[0][3] for p in r.particles])

@@ -23,9 +23,16 @@ from onnx import TensorProto, helper, numpy_helper
 Edit = Callable[[onnx.ModelProto], "bytes | None"]
 JSON_KEYS = ("sites", "features", "nets", "training", "proposal")
 META_KEYS = ("ngpm_format", "grammar", "grammar_hash", "K", *JSON_KEYS)
-WRONG_JSON = {"list": "[1, 2]", "number": "7", "null": "null", "string": '"x"',
-              "nested": '{"a": {"b": {"c": [1, {"d": null}]}}}', "invalid": '{"a": ',
-              "huge": json.dumps("x" * 3_000_000), "deep": "[" * 100_000 + "]" * 100_000}
+WRONG_JSON = {
+    "list": "[1, 2]",
+    "number": "7",
+    "null": "null",
+    "string": '"x"',
+    "nested": '{"a": {"b": {"c": [1, {"d": null}]}}}',
+    "invalid": '{"a": ',
+    "huge": json.dumps("x" * 3_000_000),
+    "deep": "[" * 100_000 + "]" * 100_000,
+}
 
 
 def _bundled() -> onnx.ModelProto:
@@ -52,10 +59,12 @@ def meta(key: str, value: str | None) -> Edit:
 
 def meta_json(key: str, change: Callable[[object], object]) -> Edit:
     """Edit the JSON in metadata `key`: `change` mutates it in place or returns a new value."""
+
     def edit(m: onnx.ModelProto) -> None:
         value = json.loads(_props(m)[key])
         new = change(value)
         _set_prop(m, key, json.dumps(value if new is None else new))
+
     return edit
 
 
@@ -65,16 +74,19 @@ def net_field(field: str, value: object) -> Edit:
 
 def weight(name: str, change: Callable[[np.ndarray], np.ndarray]) -> Edit:
     """Replace initializer `name` by `change(its array)` (dtype and shape may change)."""
+
     def edit(m: onnx.ModelProto) -> None:
         t = next(t for t in m.graph.initializer if t.name == name)
         t.CopyFrom(numpy_helper.from_array(change(numpy_helper.to_array(t).copy()), name))
+
     return edit
 
 
 def poke(value: float, at: tuple[int, ...] = (0, 0)) -> Callable[[np.ndarray], np.ndarray]:
     def change(a: np.ndarray) -> np.ndarray:
-        a[at[:a.ndim]] = value
+        a[at[: a.ndim]] = value
         return a
+
     return change
 
 
@@ -102,6 +114,7 @@ def _set_attr(name: str, attr: str, value: int) -> Edit:
         kept = [a for a in node.attribute if a.name != attr]
         del node.attribute[:]
         node.attribute.extend([*kept, helper.make_attribute(attr, value)])
+
     return graph(change)
 
 
@@ -164,8 +177,10 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "zero bytes": (lambda m: b"", "not a readable ONNX guide"),
         "truncated": (lambda m: m.SerializeToString()[:90_000], "not a readable ONNX guide"),
         "last bytes cut": (lambda m: m.SerializeToString()[:-30], "not a readable ONNX"),
-        "not onnx": (lambda m: b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 8,
-                     "not a readable ONNX guide"),
+        "not onnx": (
+            lambda m: b"\x89PNG\r\n\x1a\n" + bytes(range(256)) * 8,
+            "not a readable ONNX guide",
+        ),
         "another model": (_other_model, "not an ngpm guide"),
         "another model labelled ngpm": (_other_model_labelled, "graph has no input f_0"),
         "format 2": (meta("ngpm_format", "ngpm-guide-onnx/2"), "is newer than"),
@@ -179,39 +194,62 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "an unknown site": (_sites(_extra_site), "site table does not match"),
         "site row a string": (_sites(lambda s: ["x", *s[1:]]), "sites"),
         "site ids swapped": (_sites(lambda s: [s[1], s[0], *s[2:]]), "site table"),
-        "net for an unknown site": (meta_json("nets", lambda n: n.__setitem__("8", n["0"])),
-                                    "network for site 8"),
-        "net key not a number": (meta_json("nets", lambda n: n.__setitem__("x", n["0"])),
-                                 "nets"),
+        "net for an unknown site": (
+            meta_json("nets", lambda n: n.__setitem__("8", n["0"])),
+            "network for site 8",
+        ),
+        "net key not a number": (meta_json("nets", lambda n: n.__setitem__("x", n["0"])), "nets"),
         "net row a list": (meta_json("nets", lambda n: n.__setitem__("0", [98, 12])), "nets"),
         "n_f a string": (net_field("n_f", "98"), "n_f"),
         "n_f a float": (net_field("n_f", 98.0), "n_f"),
         "n_f true": (net_field("n_f", True), "n_f"),
         "n_f huge": (net_field("n_f", 10**12), "n_f"),
         "n_out null": (net_field("n_out", None), "n_out"),
-        "feature set a number": (meta_json("features", lambda f: f.__setitem__(
-            "feature_set", 7)), "feature_set"),
-        "feature set a list": (meta_json("features", lambda f: f.__setitem__(
-            "feature_set", ["all"])), "feature_set"),
-        "feature set unknown": (meta_json("features", lambda f: f.__setitem__(
-            "feature_set", "all+colour")), "feature_set"),
-        "feature set const": (meta_json("features", lambda f: f.__setitem__(
-            "feature_set", "const")), "feature_set"),
-        "feature set without context": (meta_json("features", lambda f: f.__setitem__(
-            "feature_set", "all")), "feature_set"),
-        "layouts a list": (meta_json("features", lambda f: f.__setitem__("layouts", [])),
-                           "layouts"),
-        "layout group reversed": (meta_json("features", lambda f: f["layouts"]["0"].__setitem__(
-            "target", [45, 9])), "layouts"),
-        "layout past n_f": (meta_json("features", lambda f: f["layouts"]["0"].__setitem__(
-            "context", [81, 99])), "reads 98 features, but its layout has 99"),
-        "columns strings": (meta_json("features", lambda f: f["columns"].__setitem__(
-            "0", ["a"])), "columns"),
-        "columns past n_f": (meta_json("features", lambda f: f["columns"]["0"].__setitem__(
-            0, 500)), "columns"),
+        "feature set a number": (
+            meta_json("features", lambda f: f.__setitem__("feature_set", 7)),
+            "feature_set",
+        ),
+        "feature set a list": (
+            meta_json("features", lambda f: f.__setitem__("feature_set", ["all"])),
+            "feature_set",
+        ),
+        "feature set unknown": (
+            meta_json("features", lambda f: f.__setitem__("feature_set", "all+colour")),
+            "feature_set",
+        ),
+        "feature set const": (
+            meta_json("features", lambda f: f.__setitem__("feature_set", "const")),
+            "feature_set",
+        ),
+        "feature set without context": (
+            meta_json("features", lambda f: f.__setitem__("feature_set", "all")),
+            "feature_set",
+        ),
+        "layouts a list": (
+            meta_json("features", lambda f: f.__setitem__("layouts", [])),
+            "layouts",
+        ),
+        "layout group reversed": (
+            meta_json("features", lambda f: f["layouts"]["0"].__setitem__("target", [45, 9])),
+            "layouts",
+        ),
+        "layout past n_f": (
+            meta_json("features", lambda f: f["layouts"]["0"].__setitem__("context", [81, 99])),
+            "reads 98 features, but its layout has 99",
+        ),
+        "columns strings": (
+            meta_json("features", lambda f: f["columns"].__setitem__("0", ["a"])),
+            "columns",
+        ),
+        "columns past n_f": (
+            meta_json("features", lambda f: f["columns"]["0"].__setitem__(0, 500)),
+            "columns",
+        ),
         "training a list": (meta("training", "[1, 2]"), "training"),
-        "val_nll a string": (meta_json("training", lambda t: t.__setitem__("val_nll", "low")),
-                             "training"),
+        "val_nll a string": (
+            meta_json("training", lambda t: t.__setitem__("val_nll", "low")),
+            "training",
+        ),
         "proposal temperature true": (meta("proposal", '{"temperature": true}'), "proposal"),
         "proposal temperature NaN": (meta("proposal", '{"temperature": NaN}'), "proposal"),
         "proposal unknown key": (meta("proposal", '{"colour": 1}'), "proposal"),
@@ -220,10 +258,8 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "-inf bias": (weight("s2_b1", poke(-math.inf, (3,))), "s2_b1.*not finite"),
         "NaN bound": (weight("s4_bounds", poke(math.nan, (1,))), "s4_bounds.*not finite"),
         "huge weight": (weight("s3_w1", poke(1e30)), "s3_w1"),
-        "float64 weights": (weight("s0_w1", lambda a: a.astype(np.float64)),
-                            "s0_w1|readable ONNX"),
-        "int32 columns": (weight("s0_cols", lambda a: a.astype(np.int32)),
-                          "s0_cols|readable ONNX"),
+        "float64 weights": (weight("s0_w1", lambda a: a.astype(np.float64)), "s0_w1|readable ONNX"),
+        "int32 columns": (weight("s0_cols", lambda a: a.astype(np.int32)), "s0_cols|readable ONNX"),
         "weights transposed": (weight("s0_w1", lambda a: a.T.copy()), "s0|site 0|readable"),
         "a bias short": (weight("s1_b1", lambda a: a[:-1]), "s1|site 1|readable"),
         "column past the row": (weight("s2_cols", poke(5000, (0,))), "s2_cols|site 2"),
@@ -234,25 +270,36 @@ def variants() -> dict[str, tuple[Edit, str]]:
         "softmax over the batch": (_set_attr("p_2", "axis", 0), "site 2"),
         "log-softmax over the batch": (_set_attr("s0_logw", "axis", 0), "site 0"),
         "concat over the batch": (_set_attr("p_0", "axis", 0), "p_0|fail|readable"),
-        "bounds on the raw output": (graph(_rewire_mul), "site 0 .*does not compute what "
-                                     "`ngpmc export` writes .*numpy engine and onnxruntime"),
+        "bounds on the raw output": (
+            graph(_rewire_mul),
+            "site 0 .*does not compute what `ngpmc export` writes .*numpy engine and onnxruntime",
+        ),
         "relu for tanh": (graph(_tanh_to_relu), "Relu"),
-        "a weight renamed": (graph(_rename_weight), r"site 0 \(S/0/normal0\) network has no "
-                             "parameter s0_w1 "),
-        "bounds one number": (weight("s1_bounds", lambda a: a[:1] * 0 + 10),
-                              r"site 1 .*parameter s1_bounds is float32 of shape \[1\]"),
+        "a weight renamed": (
+            graph(_rename_weight),
+            r"site 0 \(S/0/normal0\) network has no "
+            "parameter s0_w1 ",
+        ),
+        "bounds one number": (
+            weight("s1_bounds", lambda a: a[:1] * 0 + 10),
+            r"site 1 .*parameter s1_bounds is float32 of shape \[1\]",
+        ),
         "the graph reads a copy": (graph(_read_a_copy), "site 2 .*does not compute what"),
         # harmless: the same networks and settings
         "unknown metadata key": (meta("comment", "hello"), "same"),
-        "training with extra keys": (meta_json("training", lambda t: t.__setitem__("x", [1])),
-                                     "same"),
+        "training with extra keys": (
+            meta_json("training", lambda t: t.__setitem__("x", [1])),
+            "same",
+        ),
         "producer renamed": (lambda m: setattr(m, "producer_name", "someone"), "same"),
         "no proposal settings": (meta("proposal", None), "defaults"),
     }
     for key in META_KEYS:
         if key != "proposal":
-            out[f"no {key}"] = (meta(key, None), "not an ngpm guide" if key == "ngpm_format"
-                                else f"{key}.*missing")
+            out[f"no {key}"] = (
+                meta(key, None),
+                "not an ngpm guide" if key == "ngpm_format" else f"{key}.*missing",
+            )
     for key in JSON_KEYS:
         for kind, text in WRONG_JSON.items():
             out[f"{key} {kind}"] = (meta(key, text), key)
@@ -332,8 +379,12 @@ def test_a_numpy_engine_that_disagrees_is_an_error(tmp_path: Path, monkeypatch) 
     with pytest.raises(GuideError) as info:
         Guide.load(bundled.guide_path(), bundled.bundled_program())
     line = str(info.value)
-    assert line.startswith(f"{bundled.guide_path()}: site 1 (B/0/normal0) network: its graph "
-                           "does not compute") and "\n" not in line, line
+    assert (
+        line.startswith(
+            f"{bundled.guide_path()}: site 1 (B/0/normal0) network: its graph does not compute"
+        )
+        and "\n" not in line
+    ), line
 
 
 def test_a_guide_that_cannot_be_cut_is_an_error(monkeypatch) -> None:
@@ -348,14 +399,23 @@ def test_a_guide_that_cannot_be_cut_is_an_error(monkeypatch) -> None:
     monkeypatch.setattr(onnx.utils, "Extractor", Broken)
     with pytest.raises(GuideError) as info:
         Guide.load(bundled.guide_path(), bundled.bundled_program())
-    assert str(info.value) == (f"{bundled.guide_path()}: cannot cut the guide into its site "
-                               "networks: no such node")
+    assert str(info.value) == (
+        f"{bundled.guide_path()}: cannot cut the guide into its site networks: no such node"
+    )
 
 
 # --------------------------------------------------------------------------- command line
 
-CLI_VARIANTS = ["NaN weight", "nets list", "features huge", "proposal temperature true",
-                "truncated", "a bias short", "other grammar", "a weight renamed"]
+CLI_VARIANTS = [
+    "NaN weight",
+    "nets list",
+    "features huge",
+    "proposal temperature true",
+    "truncated",
+    "a bias short",
+    "other grammar",
+    "a weight renamed",
+]
 
 
 @pytest.mark.parametrize("name", CLI_VARIANTS)
@@ -384,9 +444,22 @@ def test_grow_with_a_hostile_guide_in_a_process(tmp_path: Path) -> None:
 
     bad = _write(tmp_path, "a bias short", VARIANTS["a bias short"][0])
     out = tmp_path / "out.png"
-    proc = subprocess.run([sys.executable, "-m", "ngpm_compiler.cli", "grow",
-                           str(bundled.demo_target_path("horse")), "--guide", str(bad),
-                           "-o", str(out)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ngpm_compiler.cli",
+            "grow",
+            str(bundled.demo_target_path("horse")),
+            "--guide",
+            str(bad),
+            "-o",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode != 0 and proc.stderr.count("\n") == 1, proc.stderr
     assert proc.stderr.startswith(f"ngpmc: error: {bad}: the guide's networks fail")
     assert not out.exists()
@@ -400,8 +473,10 @@ def test_without_the_onnx_package_the_probe_run_refuses(tmp_path: Path) -> None:
 
     from blocked_imports import run_blocked
 
-    bad = [str(_write(tmp_path, name, VARIANTS[name][0]))
-           for name in ("NaN weight", "a bias short", "softmax over the batch")]
+    bad = [
+        str(_write(tmp_path, name, VARIANTS[name][0]))
+        for name in ("NaN weight", "a bias short", "softmax over the batch")
+    ]
     body = textwrap.dedent("""
         from ngpm_runtime import bundled
         from ngpm_runtime.errors import GuideError
@@ -417,11 +492,14 @@ def test_without_the_onnx_package_the_probe_run_refuses(tmp_path: Path) -> None:
             else:
                 raise AssertionError(path + " loaded")
         """)
-    proc = run_blocked(body, tmp_path, *bad, blocked=("onnx", "torch", "ngpm_compiler"),
-                       timeout=120)
+    proc = run_blocked(
+        body, tmp_path, *bad, blocked=("onnx", "torch", "ngpm_compiler"), timeout=120
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.splitlines()
     assert lines[-1] == "ok" and len(lines) == 4, proc.stdout
-    assert "s0_w1" not in lines[0] and "site 0 (S/0/normal0) network gives values that are " \
-        "not finite" in lines[0]
+    assert (
+        "s0_w1" not in lines[0]
+        and "site 0 (S/0/normal0) network gives values that are not finite" in lines[0]
+    )
     assert "networks fail on test rows" in lines[1] and "do not sum to 1" in lines[2]

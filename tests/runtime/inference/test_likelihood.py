@@ -64,8 +64,11 @@ def _slow_circuit(img: np.ndarray, bbox, vp) -> float:
     edge = _slow_sobel(img.astype(float)).mean()
     fill = img.astype(float).mean()
     x = edge * (1 - abs(fill - 0.5) / 0.5)
-    return (-0.5 * ((x - 1) / 0.01) ** 2 - math.log(0.01 * math.sqrt(2 * math.pi))
-            + _slow_overhang(bbox, vp))
+    return (
+        -0.5 * ((x - 1) / 0.01) ** 2
+        - math.log(0.01 * math.sqrt(2 * math.pi))
+        + _slow_overhang(bbox, vp)
+    )
 
 
 def _hand_images() -> tuple[np.ndarray, np.ndarray]:
@@ -117,8 +120,9 @@ def _random_prims(rng: np.random.Generator, n: int) -> list[tuple]:
         k = rng.integers(3)
         if k == 0:
             a = rng.uniform(0, 2 * math.pi)
-            out.append(("seg", x, y, x + 2 * math.cos(a), y + 2 * math.sin(a),
-                        rng.uniform(0.2, 1.2)))
+            out.append(
+                ("seg", x, y, x + 2 * math.cos(a), y + 2 * math.sin(a), rng.uniform(0.2, 1.2))
+            )
         elif k == 1:
             out.append(("leaf", x, y, rng.uniform(0, 360), 2.0, 1.0))
         else:
@@ -153,8 +157,11 @@ def test_increments_telescope_to_full_value(kind: str) -> None:
     for i in range(n):
         if not np.isfinite(boxes[i]).all():
             continue
-        want = (_slow_shape(canvas.image[i], t, boxes[i], VP) if kind == "shape"
-                else _slow_circuit(canvas.image[i], boxes[i], VP))
+        want = (
+            _slow_shape(canvas.image[i], t, boxes[i], VP)
+            if kind == "shape"
+            else _slow_circuit(canvas.image[i], boxes[i], VP)
+        )
         assert total[i] == pytest.approx(want, rel=1e-9, abs=1e-6)
         assert lik.full(canvas.image[i], boxes[i]) == pytest.approx(want, rel=1e-9, abs=1e-6)
 

@@ -31,8 +31,12 @@ B --> f(categorical(1, 2, 3)) f(choice(2, 1)) : 0.25
 endlsystem
 """
 
-ARGS = {"normal": [1.0, 2.0], "uniform": [-1.0, 3.0], "bernoulli": [0.3],
-        "categorical": [1.0, 2.0, 3.0]}
+ARGS = {
+    "normal": [1.0, 2.0],
+    "uniform": [-1.0, 3.0],
+    "bernoulli": [0.3],
+    "categorical": [1.0, 2.0, 3.0],
+}
 
 
 def _site(kind: str) -> Site:
@@ -81,15 +85,17 @@ def test_each_kind_fits_together(kind: str) -> None:
     params = _params(kind, n, K, rng)
     assert table.output_problem(params[:5], K, 1e-3) == ""
     values, log_q = dist.proposal_draw(site, args, params, rng)
-    np.testing.assert_allclose(log_q, dist.proposal_logpdf(site, args, params, values),
-                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        log_q, dist.proposal_logpdf(site, args, params, values), rtol=1e-12, atol=1e-12
+    )
     assert np.isfinite(log_q).all()
     np.testing.assert_array_equal(table.temper(params, 1.0, 1.0), params)
     tempered = table.temper(params, 2.0, 2.0)  # another proposal of the same layout
     assert tempered.shape == params.shape and not np.allclose(tempered, params)
     values, log_q = dist.proposal_draw(site, args, tempered, rng)
-    np.testing.assert_allclose(log_q, dist.proposal_logpdf(site, args, tempered, values),
-                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(
+        log_q, dist.proposal_logpdf(site, args, tempered, values), rtol=1e-12, atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("kind", [k for k in SITE_KINDS if KINDS[k].continuous])

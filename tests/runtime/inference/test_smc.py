@@ -1,16 +1,15 @@
 """SMC mechanics: determinism, batching, resampling, traces, features, failures, options."""
 
-
 import numpy as np
 import pytest
-from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program  # noqa: E402
-from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed  # noqa: E402
-from ngpm_runtime.image import features as features_module  # noqa: E402
-from ngpm_runtime.image.raster import rasterize  # noqa: E402
-from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, ShapeLikelihood  # noqa: E402
-from ngpm_runtime.inference.proposals import PriorProposal  # noqa: E402
-from ngpm_runtime.inference.resample import SCHEMES, resample  # noqa: E402
-from ngpm_runtime.inference.smc import (  # noqa: E402
+from fixtures.tiny_programs import SumXLikelihood, discrete_program, make_program
+from ngpm_runtime.errors import NgpmError, ProgramError, SMCFailed
+from ngpm_runtime.image import features as features_module
+from ngpm_runtime.image.raster import rasterize
+from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, ShapeLikelihood
+from ngpm_runtime.inference.proposals import PriorProposal
+from ngpm_runtime.inference.resample import SCHEMES, resample
+from ngpm_runtime.inference.smc import (
     SiteOrder,
     SMCObserver,
     SMCOptionError,
@@ -66,8 +65,9 @@ def test_likelihood_increments_sum_to_full_loglik(vines) -> None:
         from ngpm_runtime.geometry.turtle import prim_bbox
 
         boxes = np.array([prim_bbox(q) for q in p.primitives])
-        bbox = np.array([boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(),
-                         boxes[:, 3].max()])
+        bbox = np.array(
+            [boxes[:, 0].min(), boxes[:, 1].min(), boxes[:, 2].max(), boxes[:, 3].max()]
+        )
         assert abs(like.full(img, bbox) - p.log_likelihood) < 1e-6
 
 
@@ -239,16 +239,23 @@ def test_ess_threshold_defaults_to_the_proposals_settings() -> None:
     unless the caller says otherwise."""
 
     class Tuned(PriorProposal):
-        class settings:  # noqa: N801 (stands in for ProposalSettings)
+        class settings:
             ess_threshold = 0.5
 
     like = SumXLikelihood(2.0, 3.0)
-    tuned = smc(discrete_program(), like, 100, Tuned(), options=SMCOptions(ess_from_proposal=True,
-                                                                           seed=1))
-    want = smc(discrete_program(), like, 100, PriorProposal(), options=SMCOptions(seed=1,
-                                                                                  ess_threshold=0.5))
-    every = smc(discrete_program(), like, 100, Tuned(), options=SMCOptions(seed=1,
-                                                                           ess_threshold=None))
+    tuned = smc(
+        discrete_program(), like, 100, Tuned(), options=SMCOptions(ess_from_proposal=True, seed=1)
+    )
+    want = smc(
+        discrete_program(),
+        like,
+        100,
+        PriorProposal(),
+        options=SMCOptions(seed=1, ess_threshold=0.5),
+    )
+    every = smc(
+        discrete_program(), like, 100, Tuned(), options=SMCOptions(seed=1, ess_threshold=None)
+    )
     assert tuned.info["resamples"] == want.info["resamples"] < tuned.steps - 1
     assert np.array_equal(tuned.log_weights, want.log_weights)
     assert every.info["resamples"] == every.steps - 1
@@ -279,14 +286,21 @@ def test_errors_in_generated_code_surface_from_smc() -> None:
         return [("F", math.log(0.0))]
 
     with pytest.raises(ProgramError, match=r"bad\.lsys:3"):
-        smc(make_program({"A": produce_a}, source="bad.lsys",
-                         locations={"production A": (3, 1)}), SumXLikelihood(), 10)
+        smc(
+            make_program({"A": produce_a}, source="bad.lsys", locations={"production A": (3, 1)}),
+            SumXLikelihood(),
+            10,
+        )
 
 
 def test_finished_particles_wait() -> None:
     # particles finish after 1..3 primitives; all of them end "done" with their weights
-    r = smc(discrete_program(), SumXLikelihood(2.0, 1.0), 300, options=SMCOptions(seed=2,
-                                                                                  ess_threshold=0.2))
+    r = smc(
+        discrete_program(),
+        SumXLikelihood(2.0, 1.0),
+        300,
+        options=SMCOptions(seed=2, ess_threshold=0.2),
+    )
     lengths = {len(p.primitives) for p in r.particles}
     assert len(lengths) > 1 and all(p.status == "done" for p in r.particles)
 
@@ -299,12 +313,12 @@ def test_particles_that_draw_nothing_get_the_blank_loglik(vines) -> None:
     def produce_a(ctx):
         return [("F", 4.0)] if ctx.choose(0, (0.5, 0.5)) == 0 else []
 
-    prog = make_program({"A": produce_a}, sites=sites, viewport=vines.viewport,
-                        start=START)
+    prog = make_program({"A": produce_a}, sites=sites, viewport=vines.viewport, start=START)
     like = ShapeLikelihood(disk_mask(), vines.viewport)
     r = smc(prog, like, 40, options=SMCOptions(seed=0, ess_threshold=0.01))
-    blank = like.full(np.zeros((50, 50), dtype=np.uint8),
-                      np.array([np.inf, np.inf, -np.inf, -np.inf]))
+    blank = like.full(
+        np.zeros((50, 50), dtype=np.uint8), np.array([np.inf, np.inf, -np.inf, -np.inf])
+    )
     empties = [p for p in r.particles if not p.primitives]
     assert empties and all(p.log_likelihood == blank for p in empties)
     assert blank < -1000  # eq. 1 of an empty image: far from the target
@@ -314,12 +328,15 @@ def test_resampling_properties() -> None:
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    weights = st.lists(st.floats(0.0, 1e3), min_size=1, max_size=30).filter(
-        lambda w: sum(w) > 1e-6)
+    weights = st.lists(st.floats(0.0, 1e3), min_size=1, max_size=30).filter(lambda w: sum(w) > 1e-6)
 
     @settings(max_examples=60, deadline=None)
-    @given(w=weights, n=st.integers(1, 50), scheme=st.sampled_from(sorted(SCHEMES)),
-           seed=st.integers(0, 2**31))
+    @given(
+        w=weights,
+        n=st.integers(1, 50),
+        scheme=st.sampled_from(sorted(SCHEMES)),
+        seed=st.integers(0, 2**31),
+    )
     def check(w, n, scheme, seed):
         w = np.array(w)
         with np.errstate(divide="ignore"):
@@ -351,8 +368,9 @@ def test_value_traces_replay_to_the_full_trace(vines) -> None:
     assert vals.best.primitives == full.best.primitives
     assert [(s, v) for s, _, v in vals.best.trace] == [(s, v) for s, _, v in full.best.trace]
     assert all(f is None for _, f, _ in vals.best.trace)
-    again = replay(vines, [(s, v) for s, _, v in vals.best.trace], start=START,
-                   target_mask=disk_mask())
+    again = replay(
+        vines, [(s, v) for s, _, v in vals.best.trace], start=START, target_mask=disk_mask()
+    )
     assert again.primitives == full.best.primitives
     assert again.log_prior == pytest.approx(full.best.log_prior, abs=1e-9)
     assert len(again.trace) == len(full.best.trace)
