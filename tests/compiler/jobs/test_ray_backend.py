@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fixtures.datasets import CHAIN, make_dataset
+from fixtures.trace_dirs import finished_jobs
 from repo_paths import REPO
 
 ray = pytest.importorskip("ray", reason="ray is not installed (pip install -e '.[cluster]')")
 
 from ngpm_compiler.cli import main  # noqa: E402
-from ngpm_compiler.learning.shards import TraceError  # noqa: E402
 from ngpm_compiler.learning.trace_data import load_traces  # noqa: E402
 from ngpm_compiler.learning.trace_store import TraceStore  # noqa: E402
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces  # noqa: E402
@@ -148,16 +148,6 @@ def test_killed_worker_job_is_retried_once(local_ray, reference, tmp_path):
     assert shard_bytes(out) == want
 
 
-def finished_jobs(store: TraceStore) -> int:
-    """Distinct finished job ids on disk. Counting files would count a job twice while the
-    driver gathers pending jobs into a shard (the shard is written before they are removed);
-    a file removed mid-read reads as none yet."""
-    try:
-        return len(np.unique(store.finished()["jobs"]))
-    except (OSError, ValueError, TraceError):
-        return 0
-
-
 def start_driver(data: Path, out: Path, n: int, jobs: int = 10) -> subprocess.Popen:
     """`ngpmc traces --backend ray` (its own local Ray instance) in a session of its own,
     once it has finished `jobs` jobs."""
@@ -187,10 +177,9 @@ def start_driver(data: Path, out: Path, n: int, jobs: int = 10) -> subprocess.Po
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, start_new_session=True
     )
-    store = TraceStore(out)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
-        if finished_jobs(store) >= jobs:
+        if finished_jobs(out) >= jobs:
             break
         time.sleep(0.05)
     assert proc.poll() is None, proc.communicate()[1][-2000:]

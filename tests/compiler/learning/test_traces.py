@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fixtures.datasets import CHAIN, make_dataset
+from fixtures.trace_dirs import finished_jobs
 from ngpm_runtime.image.targets import save_target
 from repo_paths import REPO
 
@@ -89,13 +90,6 @@ def run_traces(out: Path, data: Path, n: int, workers: int, **kw) -> subprocess.
     )
 
 
-def finished_jobs(out: Path) -> int:
-    store = TraceStore(out)
-    return len(store.pending_paths()) + sum(
-        len(np.load(p)["jobs"]) for p in store.shard_paths() if p.stat().st_size > 0
-    )
-
-
 def test_kill_and_resume(tmp_path):
     data = make_dataset(tmp_path / "data")
     n = 24
@@ -103,11 +97,8 @@ def test_kill_and_resume(tmp_path):
     proc = run_traces(out, data, n, workers=2)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
-        try:
-            if finished_jobs(out) >= 6 and TraceStore(out).shard_paths():
-                break
-        except (OSError, ValueError):
-            pass
+        if finished_jobs(out) >= 6 and TraceStore(out).shard_paths():
+            break
         time.sleep(0.05)
     assert proc.poll() is None, proc.communicate()[1][-2000:]
     os.killpg(proc.pid, signal.SIGKILL)  # the run and its workers, mid-run
