@@ -176,55 +176,47 @@ def test_guided_smc_with_package_data_needs_no_torch_lark_or_compiler(tmp_path: 
     assert proc.stdout.strip().endswith("ok")
 
 
-def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> None:
-    """The bundled guide on vines (the rounds, numpy nets and grouped draws of the fast
-    path): a seeded run repeats exactly, and each particle's log weight is its log prior +
-    log likelihood - log q, with log q recomputed site by site from its trace."""
-    from ngpm_runtime.inference.distributions import proposal_logpdf
+def _guided_vines(program, guide, target, seed: int, max_steps: int, **options):
+    """SMC of the bundled vines and guide into `target`, N = 10, full traces."""
     from ngpm_runtime.inference.likelihood import ShapeLikelihood
     from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
-    program = bundled.bundled_program()
-    guide = bundled.bundled_guide(program)
-    target = bundled.demo_targets()[1]
     vp = program.viewport
-
-    def run():
-        return smc(
-            program,
-            ShapeLikelihood(target.mask, vp),
-            10,
-            guide,
-            options=SMCOptions(
-                ess_from_proposal=True,
-                seed=3,
-                start=target.start_pose(vp),
-                canvas_size=target.size,
-                target_mask=target.mask,
-                trace=TraceRecording.FULL,
-                max_steps=12,
-            ),
-        )
-
-    a, b = run(), run()
-    np.testing.assert_array_equal(a.log_weights, b.log_weights)
-    assert [p.primitives for p in a.particles] == [p.primitives for p in b.particles]
-    # no resampling (ESS never below 1e-9 N): check every weight site by site
-    one = smc(
+    return smc(
         program,
         ShapeLikelihood(target.mask, vp),
         10,
         guide,
         options=SMCOptions(
-            seed=3,
+            seed=seed,
             start=target.start_pose(vp),
             canvas_size=target.size,
             target_mask=target.mask,
             trace=TraceRecording.FULL,
-            max_steps=4,
-            ess_threshold=1e-9,
+            max_steps=max_steps,
+            **options,
         ),
     )
+
+
+def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> None:
+    """The bundled guide on vines (the rounds, numpy nets and grouped draws of the fast
+    path): a seeded run repeats exactly, and each particle's log weight is its log prior +
+    log likelihood - log q, with log q recomputed site by site from its trace."""
+    from ngpm_runtime.inference.distributions import proposal_logpdf
+
+    program = bundled.bundled_program()
+    guide = bundled.bundled_guide(program)
+    target = bundled.demo_targets()[1]
+
+    def run():
+        return _guided_vines(program, guide, target, seed=3, max_steps=12, ess_from_proposal=True)
+
+    a, b = run(), run()
+    np.testing.assert_array_equal(a.log_weights, b.log_weights)
+    assert [p.primitives for p in a.particles] == [p.primitives for p in b.particles]
+    # no resampling (ESS never below 1e-9 N): check every weight site by site
+    one = _guided_vines(program, guide, target, seed=3, max_steps=4, ess_threshold=1e-9)
     assert one.info["resamples"] == 0
     for p in one.particles:
         log_q = 0.0
@@ -245,30 +237,13 @@ def test_guided_run_with_remembered_feature_rows_equals_fresh_rows(monkeypatch) 
     guided vines run where every round computes its rows afresh (features_round) gives the
     same weights, primitives and trace feature rows, bit for bit."""
     from ngpm_runtime.image.features import FeatureMaker
-    from ngpm_runtime.inference.likelihood import ShapeLikelihood
-    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
     program = bundled.bundled_program()
     guide = bundled.bundled_guide(program)
     target = bundled.demo_targets()[0]
-    vp = program.viewport
 
     def run():
-        return smc(
-            program,
-            ShapeLikelihood(target.mask, vp),
-            10,
-            guide,
-            options=SMCOptions(
-                ess_from_proposal=True,
-                seed=5,
-                start=target.start_pose(vp),
-                canvas_size=target.size,
-                target_mask=target.mask,
-                trace=TraceRecording.FULL,
-                max_steps=15,
-            ),
-        )
+        return _guided_vines(program, guide, target, seed=5, max_steps=15, ess_from_proposal=True)
 
     cached = run()
 
