@@ -147,10 +147,12 @@ def _covers(kind: int, p: np.ndarray, verts: np.ndarray, v0: int, v1: int, x: fl
             t = 1.0
         qx = dx - t * ex
         qy = dy - t * ey
-        return qx * qx + qy * qy < (p[4] * p[4]) / 4.0
+        hit: bool = qx * qx + qy * qy < (p[4] * p[4]) / 4.0
+        return hit
     if kind == DISK:
         dx, dy = x - p[0], y - p[1]
-        return dx * dx + dy * dy < p[2] * p[2]
+        hit = dx * dx + dy * dy < p[2] * p[2]
+        return hit
     if kind == LEAF:
         rad = np.radians(p[2])
         c, s = math.cos(rad), math.sin(rad)
@@ -158,7 +160,8 @@ def _covers(kind: int, p: np.ndarray, verts: np.ndarray, v0: int, v1: int, x: fl
         dx, dy = x - (p[0] + p[3] / 2.0 * c), y - (p[1] + p[3] / 2.0 * s)
         u = dx * (c * b) + dy * (s * b)
         v = dy * (c * a) - dx * (s * a)
-        return u * u + v * v < (a * b) ** 2
+        hit = u * u + v * v < (a * b) ** 2
+        return hit
     inside = False
     if v1 - v0 < 3:
         return inside
@@ -235,7 +238,8 @@ def _bounds(b: np.ndarray, vp: np.ndarray) -> float:
         ey = _max(vp[2] - b[1], 0.0) + _max(b[3] - vp[3], 0.0)
     ex = ex / (vp[1] - vp[0])
     ey = ey / (vp[3] - vp[2])
-    return -((ex / BOUNDS_SCALE) ** 2) - (ey / BOUNDS_SCALE) ** 2
+    value: float = -((ex / BOUNDS_SCALE) ** 2) - (ey / BOUNDS_SCALE) ** 2
+    return value
 
 
 @jit
@@ -347,9 +351,9 @@ def feature_windows(out: np.ndarray, turtle: np.ndarray, depth: np.ndarray, idx:
     (the lookahead's 15 (angle, distance) pairs) is not empty, the context group.
 
     view = (xmin, ymax, xmax - xmin, -(ymax - ymin), derivation length); size (3, L) level
-    heights, widths and padded widths; offs (L, 9) window offsets; ctx_geom = (total, base, padded width,
-    height, width of the look-ahead level, aspect); cells, cell_t: the fill level's cells
-    and the target there."""
+    heights, widths and padded widths; offs (L, 9) window offsets; ctx_geom = (total,
+    base, padded width, height, width of the look-ahead level, aspect); cells, cell_t: the
+    fill level's cells and the target there."""
     n = idx.shape[0]
     nl, nw = 7, 9 * N_LEVELS
     for k in range(n):
@@ -415,29 +419,59 @@ def _context(out: np.ndarray, row: np.ndarray, target: np.ndarray, u: float, v: 
 
 
 @jit
-def _pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
-    """numpy's sum of a[lo:lo + n] (float64, contiguous), in numpy's order: pairwise over
-    blocks of 128, eight accumulators within a block."""
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of a block of at most 128 floats: eight accumulators, then the rest."""
     if n < 8:
         res = 0.0
         for i in range(lo, lo + n):
             res += a[i]
         return res
-    if n <= 128:
-        r = a[lo:lo + 8].copy()
-        i = 8
-        while i < n - (n % 8):
-            for j in range(8):
-                r[j] += a[lo + i + j]
-            i += 8
-        res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
-        while i < n:
-            res += a[lo + i]
-            i += 1
-        return res
-    n2 = n // 2
-    n2 -= n2 % 8
-    return _pairwise_sum(a, lo, n2) + _pairwise_sum(a, lo + n2, n - n2)
+    r = a[lo:lo + 8].copy()
+    i = 8
+    while i < n - (n % 8):
+        for j in range(8):
+            r[j] += a[lo + i + j]
+        i += 8
+    total: float = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += a[lo + i]
+        i += 1
+    return total
+
+
+@jit
+def _pairwise_sum(a: np.ndarray) -> float:
+    """numpy's sum of a float64 vector, in numpy's order: halves (multiples of 8) down to
+    blocks of 128 (numpy's recursion, run on an explicit stack: a cached kernel calling a
+    recursive one crashes numba)."""
+    lo = np.zeros(64, dtype=np.int64)  # frames: first element, length, phase, left sum
+    ln = np.zeros(64, dtype=np.int64)
+    phase = np.zeros(64, dtype=np.int64)
+    left = np.zeros(64)
+    ln[0] = a.shape[0]
+    sp = 1
+    while True:
+        t = sp - 1
+        if ln[t] <= 128:
+            v = _block_sum(a, lo[t], ln[t])
+            sp -= 1
+            while sp > 0 and phase[sp - 1] == 2:  # a right half done: add it to its left
+                v = left[sp - 1] + v
+                sp -= 1
+            if sp == 0:
+                return v
+            p = sp - 1  # a left half done: start the right one
+            half = ln[p] // 2
+            half -= half % 8
+            left[p], phase[p] = v, 2
+            lo[sp], ln[sp], phase[sp] = lo[p] + half, ln[p] - half, 0
+            sp += 1
+        else:
+            half = ln[t] // 2
+            half -= half % 8
+            phase[t] = 1
+            lo[sp], ln[sp], phase[sp] = lo[t], half, 0
+            sp += 1
 
 
 @jit
@@ -446,7 +480,8 @@ def weights(log_w: np.ndarray) -> np.ndarray:
     top = log_w[0]
     for x in log_w:
         top = _max(top, x)
-    return np.exp(log_w - top)
+    w: np.ndarray = np.exp(log_w - top)
+    return w
 
 
 @jit
@@ -455,7 +490,7 @@ def residual_counts(w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]
     fractional parts' normalized cumulative sum and how many draws are left (resample.py's
     arithmetic)."""
     m = w.shape[0]
-    total = _pairwise_sum(w, 0, m)
+    total = _pairwise_sum(w)
     counts = np.empty(m, dtype=np.int64)
     frac = np.empty(m)
     used = 0

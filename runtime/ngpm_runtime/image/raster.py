@@ -167,7 +167,8 @@ def rasterize(prims: list[Prim], viewport: Viewport, height: int, width: int) ->
     for s in range(0, len(prims), _RASTER_CHUNK):  # the kernel draws repeated rows in turn
         chunk = prims[s:s + _RASTER_CHUNK]
         canvas.draw(np.zeros(len(chunk), dtype=np.intp), chunk)
-    return canvas.image[0]
+    image: np.ndarray = canvas.image[0]
+    return image
 
 
 # ---------------------------------------------------------------- canvas

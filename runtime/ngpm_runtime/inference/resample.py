@@ -7,7 +7,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-
 _NO_DRAWS = np.zeros(0)
 
 
