@@ -526,9 +526,13 @@ def ancestors(counts: np.ndarray, cum: np.ndarray, u: np.ndarray) -> np.ndarray:
 @jit
 def take_rows(image: np.ndarray, padded: np.ndarray, anc: np.ndarray, image_out: np.ndarray,
               padded_out: np.ndarray) -> None:
-    """Resampling's canvas copies: row k of the outputs becomes row anc[k]."""
+    """Resampling's canvas copies: row k of the outputs becomes row anc[k] (canvases and
+    pyramids flattened to (N, cells): plain loops, which compile to block copies)."""
     for k in range(anc.shape[0]):
-        if not 0 <= anc[k] < image.shape[0]:
+        src = anc[k]
+        if not 0 <= src < image.shape[0]:
             raise IndexError("take: particle index out of range")
-        image_out[k] = image[anc[k]]
-        padded_out[k] = padded[anc[k]]
+        for j in range(image.shape[1]):
+            image_out[k, j] = image[src, j]
+        for j in range(padded.shape[1]):
+            padded_out[k, j] = padded[src, j]

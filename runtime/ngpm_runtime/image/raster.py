@@ -239,7 +239,8 @@ class Canvas:
         if self._spare is None:
             self._spare = [np.empty_like(self.image), np.empty_like(self.padded)]
         img, pad = self._spare
-        self._k.take_rows(self.image, self.padded, idx, img, pad)
+        n = self.n
+        self._k.take_rows(self.image.reshape(n, -1), self.padded, idx, img.reshape(n, -1), pad)
         self._spare = [self.image, self.padded]
         self.image, self.padded = img, pad
 
