@@ -4,9 +4,9 @@ One call per step and part: `draw` (primitives -> canvases and their count pyram
 `shape_increment` / `circuit_increment` (the likelihoods' incremental updates),
 `feature_windows` (turtle columns, 3x3 windows at 4 levels, context), `residual_counts`,
 `ancestors` and `take_rows` (resampling). They do the arithmetic of the numpy code they
-replaced (tests/runtime/reference/ keeps it) in the same order, so images, pyramids,
-shape likelihoods and features are bit-identical to it; only the circuit likelihood's edge
-sums are added in another order (equal to ~1e-12).
+replaced (tests/reference/ keeps it) in the same order, so images, pyramids, likelihoods,
+features and ancestors are bit-identical to it (sums included: `_pairwise_sum` adds as
+numpy's sum does).
 
 numba compiles each kernel on first use and caches it on disk (`cache=True`: in
 `__pycache__` beside this file, or numba's user cache when that is not writable). This
@@ -308,6 +308,7 @@ def circuit_increment(edge_sum: np.ndarray, filled: np.ndarray, box: np.ndarray,
     ky, kx = new.shape[1], new.shape[2]
     npx = float(h * w)
     delta = np.empty(n)
+    buf = np.zeros((ky + 2) * (kx + 2))
     for k in range(n):
         p = idx[k]
         count = 0
@@ -316,10 +317,14 @@ def circuit_increment(edge_sum: np.ndarray, filled: np.ndarray, box: np.ndarray,
                 count += new[k, i, j]
         d_edge = 0.0
         if count:
+            # the changes over the window and its ring, summed in numpy's order
+            buf[:] = 0.0
             for r in range(max(y0[k] - 1, 0), min(y0[k] + ky + 1, h)):
                 for c in range(max(x0[k] - 1, 0), min(x0[k] + kx + 1, w)):
-                    d_edge += (MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], False)]
-                               - MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], True)])
+                    buf[(r - y0[k] + 1) * (kx + 2) + c - x0[k] + 1] = (
+                        MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], False)]
+                        - MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], True)])
+            d_edge = _pairwise_sum(buf)
         edge_sum[p] += d_edge
         filled[p] += count
         _union(box[p], bbox[k])

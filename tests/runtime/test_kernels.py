@@ -1,9 +1,8 @@
 """The compiled kernels (ngpm_runtime/kernels.py) against the numpy code they replaced
 (tests/reference/): many seeded random primitive sets, drawn in lockstep into both, give
-the same images, pyramids, draw batches, shape likelihoods, feature rows and resampling
-ancestors bit for bit; circuit likelihoods agree to 1e-12 (their edge sums are added in
-another order), and a feature column of sin/cos to 1 float32 ulp (numpy's and the C
-library's sin may differ in the last bit on some machines)."""
+the same images, pyramids, draw batches, shape and circuit likelihoods, feature rows and
+resampling ancestors bit for bit, but for the feature columns of sin/cos, allowed 1 float32
+ulp (numpy's and the C library's sin may differ in the last bit on some machines)."""
 
 from __future__ import annotations
 
@@ -82,9 +81,9 @@ def test_draw_likelihoods_and_take_match_numpy(seed: int, size: tuple[int, int])
     target = _target(rng, h, w)
     pyr = bool(seed % 3)
     new, old = Canvas(n, h, w, VP, pyramid=pyr), ref_raster.Canvas(n, h, w, VP, pyramid=pyr)
-    likes = [(ShapeLikelihood(target, VP), ref_likelihood.ShapeLikelihood(target, VP), 0.0),
-             (CircuitLikelihood(VP), ref_likelihood.CircuitLikelihood(VP), 1e-12)]
-    states = [(a.start(n), b.start(n)) for a, b, _ in likes]
+    likes = [(ShapeLikelihood(target, VP), ref_likelihood.ShapeLikelihood(target, VP)),
+             (CircuitLikelihood(VP), ref_likelihood.CircuitLikelihood(VP))]
+    states = [(a.start(n), b.start(n)) for a, b in likes]
     for _ in range(14):
         idx = np.sort(rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False))
         prims = [random_prim(rng) for _ in idx]
@@ -95,11 +94,11 @@ def test_draw_likelihoods_and_take_match_numpy(seed: int, size: tuple[int, int])
         _same_batch(got, want)
         np.testing.assert_array_equal(new.image, old.image)
         np.testing.assert_array_equal(new.padded, old.padded)
-        for (a, b, tol), (sa, sb) in zip(likes, states, strict=True):
+        for (a, b), (sa, sb) in zip(likes, states, strict=True):
             da, db = a.increment(sa, new, got), b.increment(sb, old, want)
-            np.testing.assert_allclose(da, db, rtol=tol, atol=tol * 1e3)
+            np.testing.assert_array_equal(da, db)  # NaNs compare equal here
             for key in sa:
-                np.testing.assert_allclose(sa[key], sb[key], rtol=tol, atol=tol * 1e3)
+                np.testing.assert_array_equal(sa[key], sb[key])
         anc = np.sort(rng.integers(0, n, n))
         new.take(anc)
         old.take(anc)
