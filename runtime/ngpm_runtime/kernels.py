@@ -16,10 +16,30 @@ importing the runtime, and `ngpmc --help`, does not load numba.
 
 from __future__ import annotations
 
+import importlib
 import math
+import sys
 
 import numpy as np
 from numba import njit
+
+
+def _load_array_typing() -> None:
+    """Import numba's array typing (numba.np.arraymath) with scipy.linalg hidden, if it is
+    not loaded yet: the module probes scipy's BLAS on import, which costs 0.3-0.4 s of scipy
+    imports at the first kernel call. The kernels use no BLAS; the probe's only effect is
+    that np.vdot in numba code of this process uses a plain loop."""
+    hide = "scipy.linalg" not in sys.modules
+    if hide:
+        sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # its import fails
+    try:
+        importlib.import_module("numba.np.arraymath")
+    finally:
+        if hide:
+            del sys.modules["scipy.linalg"]
+
+
+_load_array_typing()
 
 PAD = 3  # as raster.PAD (raster imports this module lazily, so the value is repeated)
 N_LEVELS = 4

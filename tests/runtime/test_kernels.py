@@ -7,6 +7,9 @@ ulp (numpy's and the C library's sin may differ in the last bit on some machines
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -214,3 +217,22 @@ except SystemExit:
     proc = run_blocked(body, tmp_path, blocked=("numba", "llvmlite"), timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.strip().endswith("ok")
+
+
+def test_loading_the_kernels_imports_no_scipy_linalg() -> None:
+    """numba's BLAS probe would import scipy.linalg (0.3-0.4 s) at the first kernel call;
+    kernels.py hides it while numba's array typing loads, and leaves a loaded one alone."""
+    code = """
+import sys
+import numpy as np
+{pre}
+from ngpm_runtime import kernels
+kernels.residual_counts(kernels.weights(np.zeros(4)), 4)
+print("scipy.linalg" in sys.modules, sys.modules.get("scipy.linalg") is not None)
+"""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    for pre, want in [("", "False False"), ("import scipy.linalg", "True True")]:
+        proc = subprocess.run([sys.executable, "-c", code.format(pre=pre)], env=env,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert proc.stdout.strip() == want

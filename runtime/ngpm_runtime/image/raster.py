@@ -193,9 +193,12 @@ class Canvas:
         self.image = np.zeros((self.n, self.height, self.width), dtype=np.uint8)
         self._hp, self._wp, self._starts = padded_layout(self.height, self.width)
         self.pyramid = pyramid
-        blank = padded_pyramid([np.zeros(s, dtype=np.float32)
-                                for s in level_shapes(self.height, self.width)])
-        self.padded = np.repeat(blank[None, :] if pyramid else blank[None, :0], self.n, axis=0)
+        if pyramid:
+            blank = padded_pyramid([np.zeros(s, dtype=np.float32)
+                                    for s in level_shapes(self.height, self.width)])
+            self.padded = np.repeat(blank[None, :], self.n, axis=0)
+        else:  # no blank pyramid built (render_frames makes one such canvas per primitive)
+            self.padded = np.zeros((self.n, 0), dtype=np.float32)
         self._spare: list[np.ndarray] | None = None  # take()'s second buffers
 
     @property
