@@ -524,7 +524,11 @@ def residual_counts(w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]
         counts[i] = int(math.floor(scaled))
         frac[i] = scaled - counts[i]
         used += counts[i]
-    cum = np.cumsum(frac)
+    cum = np.empty(m)  # np.cumsum's sequential sums (a loop compiles faster than it)
+    acc = 0.0
+    for i in range(m):
+        acc += frac[i]
+        cum[i] = acc
     if n > used:
         cum /= cum[-1]
         cum[-1] = 1.0
@@ -538,8 +542,19 @@ def ancestors(counts: np.ndarray, cum: np.ndarray, u: np.ndarray) -> np.ndarray:
     counts = counts.copy()
     last = cum.shape[0] - 1
     for x in u:
-        counts[min(np.searchsorted(cum, x, side="right"), last)] += 1
-    out = np.empty(counts.sum(), dtype=np.int64)
+        lo, hi = 0, cum.shape[0]  # np.searchsorted(cum, x, side="right") (compiles faster)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            c = cum[mid]
+            if x < c or (c != c and x == x):  # numpy's order: NaN after every number
+                hi = mid
+            else:
+                lo = mid + 1
+        counts[min(lo, last)] += 1
+    total = 0
+    for c in counts:
+        total += c
+    out = np.empty(total, dtype=np.int64)
     pos = 0
     for i in range(counts.shape[0]):
         for _ in range(counts[i]):
