@@ -34,9 +34,7 @@ from ngpm_runtime.image.raster import (
 from ngpm_runtime.program import Program, Site
 
 # _context_geometry's answer (its docstring names the parts)
-ContextGeometry = tuple[
-    np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, np.ndarray, float
-]
+ContextGeometry = tuple[np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, float]
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
@@ -56,8 +54,14 @@ FEATURE_GROUPS = {
 FEATURE_SETS = tuple(FEATURE_GROUPS)
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
-_TWO_NEG = np.array([2.0, -2.0])
-_ONE_POS = np.array([-1.0, 1.0])
+# what the feature kernel gets for a group that is not there
+_NO_TARGET = np.zeros(0, dtype=np.float32)
+_NO_CANVAS = np.zeros((0, 0), dtype=np.float32)
+_NO_SIZE = np.zeros((3, 0))
+_NO_OFFS = np.zeros((0, 9), dtype=np.intp)
+_NO_CTX = np.zeros((0, 2))
+_NO_GEOM = np.zeros(6)
+_NO_CELLS = np.zeros(0, dtype=np.intp)
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -74,13 +78,6 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
     m = min(k, a.shape[1])
     out[:, :m] = a[:, :m]
     return out
-
-
-def _unit(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    # non-finite or far-away positions read as outside everywhere
-    u = np.nan_to_num(np.asarray(u, dtype=np.float64), nan=-10.0, posinf=10.0, neginf=-10.0)
-    v = np.nan_to_num(np.asarray(v, dtype=np.float64), nan=-10.0, posinf=10.0, neginf=-10.0)
-    return np.minimum(np.maximum(u, -10.0), 10.0), np.minimum(np.maximum(v, -10.0), 10.0)
 
 
 class FeatureMaker:
@@ -102,14 +99,18 @@ class FeatureMaker:
             None if target_mask is None else pyramid(np.asarray(target_mask, dtype=bool))
         )
         self._target_flat: np.ndarray | None = None
-        self._geom: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._geom: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._context_geom: dict[tuple[int, int], ContextGeometry] = {}
         # features_cached: particle -> turtle state of its site-independent row in _block
         self._rows: dict[int, Turtle] = {}
         self._block = np.empty((0, self.n_common), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
-        self._origin = np.array([xmin, ymax])
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
+        # the feature kernel's (origin x, origin y, span x, span y, derivation length)
+        self._view = np.array([xmin, ymax, *self._span, self.derivation_length])
+        from ngpm_runtime import kernels  # numba loads when features are made
+
+        self._k = kernels
 
     def _shape(self, canvas: Canvas | None) -> tuple[int, int]:
         if canvas is not None:
@@ -145,22 +146,19 @@ class FeatureMaker:
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + self.n_common - N_LOCAL_BASE
 
-    def _windows(self, h: int, w: int) -> tuple[np.ndarray, ...]:
-        """Per canvas size, in raster's padded pyramid layout: (2, L) level (heights,
-        widths), lowest and highest (row, col) a window centre is clipped to, the (padded
-        width, 1) multipliers of a (row, col), all float64, and the 3x3 window offsets per
-        level (L, 9) from a padded row-major index, each level's start and padding folded in.
-        """
+    def _windows(self, h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per canvas size, in raster's padded pyramid layout: (3, L) level heights, widths
+        and padded widths (float64), and the 3x3 window offsets per level (L, 9) from a
+        padded row-major index, each level's start and padding folded in."""
         key = (h, w)
         if key not in self._geom:
             hp, wp, starts = padded_layout(h, w)
             size = np.array(
-                [[h >> lv for lv in range(N_LEVELS)], [w >> lv for lv in range(N_LEVELS)]],
+                [[h >> lv for lv in range(N_LEVELS)], [w >> lv for lv in range(N_LEVELS)], wp],
                 dtype=np.float64,
             )
-            mult = np.stack([wp.astype(np.float64), np.ones(N_LEVELS)])
             offs = _DR[None, :] * wp[:, None] + _DC[None, :] + (starts + PAD * wp + PAD)[:, None]
-            self._geom[key] = (size, np.full_like(size, -2.0), size + 1, mult, offs.astype(np.intp))
+            self._geom[key] = (size, np.ascontiguousarray(offs, dtype=np.intp))
         return self._geom[key]
 
     def _padded_target(self) -> np.ndarray:
@@ -202,8 +200,8 @@ class FeatureMaker:
         common = self._common(
             canvas,
             idx,
-            np.asarray(turtle, dtype=np.float64).reshape(n, 4),
-            np.asarray(depth, dtype=np.float64).reshape(n),
+            np.ascontiguousarray(turtle, dtype=np.float64).reshape(n, 4),
+            np.ascontiguousarray(depth, dtype=np.float64).reshape(n),
         )
         return self._site_rows(sites, common, params, prior_args)
 
@@ -305,53 +303,46 @@ class FeatureMaker:
         target and partial windows, context) of every particle, in few numpy calls (SMC's
         batches are small)."""
         n = len(idx)
-        # (u, v): normalized image position, u right, v down from ymax
-        uv = (turtle[:, :2] - self._origin) / self._span
         out = np.empty((n, self.n_common), dtype=np.float32)
-        out[:, :2] = uv * _TWO_NEG + _ONE_POS  # 2u - 1, 1 - 2v
-        heading = turtle[:, 2]
-        out[:, 2] = np.mod(heading, 360.0) / 180.0 - 1.0
-        rad = np.radians(heading)
-        out[:, 3] = np.sin(rad)
-        out[:, 4] = np.cos(rad)
-        out[:, 5] = turtle[:, 3]
-        out[:, 6] = depth / self.derivation_length
-        nl = N_LOCAL_BASE
-        target = out[:, nl : nl + N_WINDOW]
-        partial = out[:, nl + N_WINDOW : nl + 2 * N_WINDOW]
         h, w = self._shape(canvas)
-        if self.context:
-            out[:, nl + 2 * N_WINDOW :] = 0.0
-        if h == 0 or w == 0:
-            target[:] = 0.0 if self.target_levels is None else -1.0
-            partial[:] = 0.0 if canvas is None else -1.0
+        if h == 0 or w == 0:  # no image: the turtle columns, windows all 0 or -1
+            self._k.feature_windows(
+                out,
+                turtle,
+                depth,
+                idx,
+                self._view,
+                _NO_SIZE,
+                _NO_OFFS,
+                _NO_TARGET,
+                _NO_CANVAS,
+                _NO_CTX,
+                _NO_GEOM,
+                _NO_CELLS,
+                _NO_TARGET,
+            )
+            nl = N_LOCAL_BASE
+            out[:, nl : nl + N_WINDOW] = 0.0 if self.target_levels is None else -1.0
+            out[:, nl + N_WINDOW : nl + 2 * N_WINDOW] = 0.0 if canvas is None else -1.0
             return out
-        if not np.isfinite(uv).all():
-            uv = np.column_stack(_unit(uv[:, 0], uv[:, 1]))
-        size, low, high, mult, offs = self._windows(h, w)
-        # the turtle's (row, col) at each level, clipped to the padding (a window centred 2
-        # cells outside lies wholly outside, like one further out): (n, 2, L)
-        rc = np.floor(uv[:, ::-1, None] * size)
-        np.maximum(rc, low, out=rc)
-        np.minimum(rc, high, out=rc)
-        # (n, L * 9) indices into the padded pyramid (target's and every canvas's row)
-        at = ((rc * mult).sum(axis=1).astype(np.intp)[:, :, None] + offs).reshape(n, N_WINDOW)
-        if self.target_levels is None:
-            target[:] = 0.0
-        else:
-            target[:] = self._padded_target()[at]
-        if canvas is None:
-            partial[:] = 0.0
-        else:
-            partial[:] = canvas.padded[idx[:, None], at]
+        size, offs = self._windows(h, w)
+        target_flat = _NO_TARGET if self.target_levels is None else self._padded_target()
+        rows = _NO_CANVAS if canvas is None else canvas.padded
         if self.context and self.target_levels is not None and canvas is not None:
-            self._context(out[:, nl + 2 * N_WINDOW :], canvas, idx, uv, heading, h, w)
+            cells, t, total, base, wp, hl, wl, rays, aspect = self._context_geometry(h, w)
+            geom = np.array([total, base, wp, hl, wl, aspect])
+        else:
+            cells, t, rays, geom = _NO_CELLS, _NO_TARGET, _NO_CTX, _NO_GEOM
+        self._k.feature_windows(
+            out, turtle, depth, idx, self._view, size, offs, target_flat, rows, rays, geom, cells, t
+        )
         return out
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
         """Per canvas size: the fill level's cells in the padded row, the target there and
         its sum; the look-ahead level's first cell (start + padding), padded width, height
-        and width; the 15 look-ahead (angle, distance) pairs and the viewport's aspect."""
+        and width; the 15 look-ahead (angle, distance) pairs (15, 2) and the viewport's
+        aspect."""
         key = (h, w)
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
@@ -365,49 +356,22 @@ class FeatureMaker:
             t = self._padded_target()[cells]
             lv = _RAY_LEVEL
             base = int(starts[lv] + PAD * wp[lv] + PAD)
-            angles = np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST))
-            dist = np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES))
+            rays = np.column_stack(
+                [
+                    np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST)),
+                    np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES)),
+                ]
+            )
             aspect = -self._span[0] / self._span[1]  # viewport width / height
             self._context_geom[key] = (
-                cells,
+                np.ascontiguousarray(cells, dtype=np.intp),
                 t,
                 max(float(t.sum()), 1e-6),
                 base,
                 int(wp[lv]),
                 h >> lv,
                 w >> lv,
-                angles,
-                dist,
+                rays,
                 aspect,
             )
         return self._context_geom[key]
-
-    def _context(
-        self,
-        out: np.ndarray,
-        canvas: Canvas,
-        idx: np.ndarray,
-        uv: np.ndarray,
-        heading: np.ndarray,
-        h: int,
-        w: int,
-    ) -> None:
-        """The context group (module docstring) of n particles into `out` (n, N_CONTEXT)."""
-        cells, t, total, base, wp, hl, wl, angles, dist, aspect = self._context_geometry(h, w)
-        d = t - canvas.padded[idx[:, None], cells]
-        unfilled = np.maximum(d, 0.0).sum(axis=1)
-        out[:, 0] = unfilled / total
-        out[:, 1] = (unfilled - d.sum(axis=1)) / total  # sum of max(-d, 0)
-        # (n, 15) look-ahead cells; one outside the image lands in the padding (-1 in the
-        # target's row), and so does one of a heading that is not finite (fmax: NaN -> -1)
-        ang = np.radians(heading[:, None] + angles)
-        row = np.floor((uv[:, 1:] - np.sin(ang) * dist * aspect) * hl)
-        col = np.floor((uv[:, :1] + np.cos(ang) * dist) * wl)
-        np.fmax(row, -1.0, out=row)
-        np.fmin(row, hl, out=row)
-        np.fmax(col, -1.0, out=col)
-        np.fmin(col, wl, out=col)
-        at = (row * wp + col).astype(np.intp) + base
-        tv = self._padded_target()[at]
-        ahead = np.maximum(tv - canvas.padded[idx[:, None], at], 0.0)
-        out[:, 2:] = np.where(tv < 0, -1.0, ahead)

@@ -1,7 +1,9 @@
 """Image likelihoods (architecture.md section 7), incremental over `DrawBatch`es.
 
 Every likelihood keeps per-particle state arrays (indexed by the SMC with the resampling
-indices) and returns, per draw, `new log-lik - previous log-lik`. State `ll` starts at 0, so
+indices) and returns, per draw, `new log-lik - previous log-lik` (the shape and circuit
+updates are compiled kernels, ngpm_runtime.kernels; the functions here compute the same
+values from scratch). State `ll` starts at 0, so
 the first increment also carries the blank image's value and the sum of a particle's
 increments is its log-likelihood from scratch (`full(image, bbox)`).
 
@@ -118,13 +120,6 @@ def _circuit_value(edge: np.ndarray | np.float64, fill: np.ndarray | np.float64)
     return -0.5 * z * z - math.log(CIRCUIT_SIGMA * math.sqrt(2.0 * math.pi))
 
 
-def union_bbox(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Union of boxes (..., 4) in (xmin, ymin, xmax, ymax) order."""
-    return np.concatenate(
-        [np.minimum(a[..., :2], b[..., :2]), np.maximum(a[..., 2:], b[..., 2:])], axis=-1
-    )
-
-
 def empty_bbox(n: int) -> np.ndarray:
     """n boxes holding nothing yet (+inf mins, -inf maxes)."""
     out = np.empty((n, 4))
@@ -166,6 +161,13 @@ class Likelihood(Protocol):
         return None
 
 
+def _kernels() -> Any:
+    """The compiled kernels (ngpm_runtime.kernels), imported when a likelihood is made."""
+    from ngpm_runtime import kernels
+
+    return kernels
+
+
 def _blank_value(full: Callable[[np.ndarray, np.ndarray], float], height: int, width: int) -> float:
     """`full` of an empty image with an empty box; NaN reads as zero likelihood."""
     blank = np.zeros((height, width), dtype=np.uint8)
@@ -189,6 +191,8 @@ class ShapeLikelihood(Likelihood):
         # gain of covering pixel p, in normalized-similarity units
         self.gain = w * (2.0 * t - 1.0) / total / (1.0 - self.sim_blank)
         self.gain_flat = self.gain.reshape(-1)
+        self._vp = np.array(self.viewport)
+        self._k = _kernels()
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {"sim": np.zeros(n), "bbox": empty_bbox(n), "ll": np.zeros(n)}
@@ -200,16 +204,18 @@ class ShapeLikelihood(Likelihood):
             raise TargetError(
                 f"canvas {canvas.image.shape[1:]} and target {self.target.shape} differ in size"
             )
-        idx = draw.idx
         k, pix = draw.hits(self.target.shape[1])
-        dsim = np.bincount(k, weights=self.gain_flat[pix], minlength=len(idx))
-        sim = state["sim"][idx] + dsim
-        bbox = union_bbox(state["bbox"][idx], draw.bbox)
-        ll = -(((sim - 1.0) / SHAPE_SIGMA) ** 2) + bounds_penalty(bbox, self.viewport)
-        delta: np.ndarray = ll - state["ll"][idx]
-        state["sim"][idx] = sim
-        state["bbox"][idx] = bbox
-        state["ll"][idx] = ll
+        delta: np.ndarray = self._k.shape_increment(
+            state["sim"],
+            state["bbox"],
+            state["ll"],
+            draw.idx,
+            k,
+            pix,
+            self.gain_flat,
+            draw.bbox,
+            self._vp,
+        )
         return delta
 
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:
@@ -220,48 +226,6 @@ class ShapeLikelihood(Likelihood):
         return _blank_value(self.full, height, width)
 
 
-# Sobel magnitude / 4 of a 0/1 image, by the integer gradients (gx, gy) in [-4, 4]^2
-_GRAD = np.arange(-4, 5)
-_MAG_LUT = (np.sqrt(_GRAD[:, None] ** 2 + _GRAD[None, :] ** 2) / 4.0).reshape(-1)
-
-
-def _edge_sum_codes(p: np.ndarray) -> np.ndarray:
-    """LUT codes (n, h, w) of the Sobel gradients of 0/1 int16 patches (n, h+2, w+2)."""
-    left, mid, right = p[:, :, :-2], p[:, :, 1:-1], p[:, :, 2:]
-    dx = right - left
-    gx = dx[:, :-2] + 2 * dx[:, 1:-1] + dx[:, 2:]
-    sm = left + 2 * mid + right
-    gy = sm[:, 2:] - sm[:, :-2]
-    out: np.ndarray = (gx + 4) * 9 + (gy + 4)
-    return out
-
-
-def _edge_change(
-    image: np.ndarray, idx: np.ndarray, y0: np.ndarray, x0: np.ndarray, new: np.ndarray
-) -> np.ndarray:
-    """Change of each canvas's Sobel magnitude sum caused by its `new` pixels (already drawn).
-
-    Only the window plus a 1-pixel ring can change; that needs a 2-pixel margin of input.
-    """
-    _, h, w = image.shape
-    ky, kx = new.shape[1:]
-    rows = y0[:, None] + np.arange(-2, ky + 2)  # (n, ky+4)
-    cols = x0[:, None] + np.arange(-2, kx + 2)
-    rin = (rows >= 0) & (rows < h)
-    cin = (cols >= 0) & (cols < w)
-    flat = (idx[:, None] * h + np.clip(rows, 0, h - 1))[:, :, None] * w + np.clip(cols, 0, w - 1)[
-        :, None, :
-    ]
-    after = image.reshape(-1)[flat].astype(np.int16)
-    after *= rin[:, :, None] & cin[:, None, :]
-    before = after.copy()
-    before[:, 2 : 2 + ky, 2 : 2 + kx] -= new
-    inner = rin[:, 1:-1, None] & cin[:, None, 1:-1]
-    diff = _MAG_LUT[_edge_sum_codes(after)] - _MAG_LUT[_edge_sum_codes(before)]
-    out: np.ndarray = (diff * inner).sum(axis=(1, 2))
-    return out
-
-
 class CircuitLikelihood(Likelihood):
     """The paper's equation 2: dense edges at about half fill (no target)."""
 
@@ -269,6 +233,8 @@ class CircuitLikelihood(Likelihood):
 
     def __init__(self, viewport: Viewport) -> None:
         self.viewport = as_viewport(viewport)
+        self._vp = np.array(self.viewport)
+        self._k = _kernels()
 
     def start(self, n: int) -> dict[str, np.ndarray]:
         return {
@@ -281,24 +247,19 @@ class CircuitLikelihood(Likelihood):
     def increment(
         self, state: dict[str, np.ndarray], canvas: Canvas, draw: DrawBatch
     ) -> np.ndarray:
-        idx = draw.idx
-        h, w = canvas.height, canvas.width
-        d_edge = np.zeros(len(idx))
-        changed = np.flatnonzero(draw.new.any(axis=(1, 2)))
-        if changed.size:
-            d_edge[changed] = _edge_change(
-                canvas.image, idx[changed], draw.y0[changed], draw.x0[changed], draw.new[changed]
-            )
-        edge_sum = state["edge_sum"][idx] + d_edge
-        filled = state["filled"][idx] + draw.new.sum(axis=(1, 2))
-        bbox = union_bbox(state["bbox"][idx], draw.bbox)
-        npx = float(h * w)
-        ll = _circuit_value(edge_sum / npx, filled / npx) + bounds_penalty(bbox, self.viewport)
-        delta: np.ndarray = ll - state["ll"][idx]
-        state["edge_sum"][idx] = edge_sum
-        state["filled"][idx] = filled
-        state["bbox"][idx] = bbox
-        state["ll"][idx] = ll
+        delta: np.ndarray = self._k.circuit_increment(
+            state["edge_sum"],
+            state["filled"],
+            state["bbox"],
+            state["ll"],
+            canvas.image,
+            draw.idx,
+            draw.y0,
+            draw.x0,
+            draw.new,
+            draw.bbox,
+            self._vp,
+        )
         return delta
 
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:

@@ -1,10 +1,13 @@
-"""Resampling schemes for SMC. Each returns `n` ancestor indices in ascending order."""
+"""Resampling schemes for SMC. Each returns `n` ancestor indices in ascending order.
+The weights and the residual scheme (SMC's default) are compiled (ngpm_runtime.kernels)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
 import numpy as np
+
+_NO_DRAWS = np.zeros(0)
 
 
 def _cumulative(w: np.ndarray) -> np.ndarray:
@@ -32,15 +35,12 @@ def systematic(w: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def residual(w: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    w = w / w.sum()
-    scaled = n * w
-    counts = np.floor(scaled).astype(np.int64)
-    rest = n - int(counts.sum())
-    if rest > 0:
-        frac = scaled - counts
-        extra = _search(_cumulative(frac), rng.random(rest))
-        counts += np.bincount(extra, minlength=len(w))
-    return np.repeat(np.arange(len(w)), counts)
+    from ngpm_runtime import kernels
+
+    counts, cum, rest = kernels.residual_counts(np.ascontiguousarray(w, dtype=np.float64), n)
+    u = rng.random(rest) if rest > 0 else _NO_DRAWS
+    anc: np.ndarray = kernels.ancestors(counts, cum, u)
+    return anc
 
 
 SCHEMES: dict[str, Callable[[np.ndarray, int, np.random.Generator], np.ndarray]] = {
@@ -55,5 +55,7 @@ def resample(
     scheme: str, log_w: np.ndarray, rng: np.random.Generator, n: int | None = None
 ) -> np.ndarray:
     """Ancestor indices (ascending) drawn with `scheme` from unnormalized log weights."""
-    w = np.exp(log_w - np.max(log_w))
+    from ngpm_runtime import kernels
+
+    w = kernels.weights(np.ascontiguousarray(log_w, dtype=np.float64))
     return SCHEMES[scheme](w, len(log_w) if n is None else n, rng)

@@ -1,0 +1,656 @@
+"""Compiled numeric kernels of the SMC step (numba), each over a whole population.
+
+One call per step and part: `draw` (primitives -> canvases and their count pyramids),
+`shape_increment` / `circuit_increment` (the likelihoods' incremental updates),
+`feature_windows` (turtle columns, 3x3 windows at 4 levels, context), `residual_counts`,
+`ancestors` and `take_rows` (resampling). They do the arithmetic of the numpy code they
+replaced (tests/reference/ keeps it) in the same order, so images, pyramids, likelihoods,
+features and ancestors are bit-identical to it (sums included: `_pairwise_sum` adds as
+numpy's sum does).
+
+numba compiles each kernel on first use and caches it on disk (`cache=True`: in
+`__pycache__` beside this file, or numba's user cache when that is not writable). This
+module is imported lazily (by the Canvas, FeatureMaker, likelihoods and resampling) so that
+importing the runtime, and `ngpmc --help`, does not load numba.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import sys
+
+import numpy as np
+from numba import njit
+
+
+def _load_array_typing() -> None:
+    """Import numba's array typing (numba.np.arraymath) with scipy.linalg hidden, if it is
+    not loaded yet: the module probes scipy's BLAS on import, which costs 0.3-0.4 s of scipy
+    imports at the first kernel call. The kernels use no BLAS; the probe's only effect is
+    that np.vdot in numba code of this process uses a plain loop."""
+    hide = "scipy.linalg" not in sys.modules
+    if hide:
+        sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # its import fails
+    try:
+        importlib.import_module("numba.np.arraymath")
+    finally:
+        if hide:
+            del sys.modules["scipy.linalg"]
+
+
+_load_array_typing()
+
+PAD = 3  # as raster.PAD (raster imports this module lazily, so the value is repeated)
+N_LEVELS = 4
+EPS = 1e-9
+SEG, DISK, LEAF, POLY = 0, 1, 2, 3  # primitive kind codes of `draw`
+SHAPE_SIGMA = 0.02  # as likelihood.py
+BOUNDS_SCALE = 0.001
+CIRCUIT_TAU = 0.5
+CIRCUIT_SIGMA = 0.01
+CIRCUIT_LOG_NORM = math.log(CIRCUIT_SIGMA * math.sqrt(2.0 * math.pi))
+# every kernel: cached on disk, releases the GIL, numpy's float semantics (x / 0 -> inf)
+jit = njit(cache=True, nogil=True, error_model="numpy")
+# Sobel magnitude / 4 of a 0/1 image by its integer gradients (gx + 4) * 9 + (gy + 4)
+_GRAD = np.arange(-4, 5)
+MAG_LUT = (np.sqrt(_GRAD[:, None] ** 2 + _GRAD[None, :] ** 2) / 4.0).reshape(-1)
+
+
+@jit
+def _min(a: float, b: float) -> float:
+    """np.minimum of two floats (a NaN wins)."""
+    return a if (a <= b or a != a) else b
+
+
+@jit
+def _max(a: float, b: float) -> float:
+    """np.maximum of two floats (a NaN wins)."""
+    return a if (a >= b or a != a) else b
+
+
+@jit
+def _prim_box(
+    kind: int, p: np.ndarray, verts: np.ndarray, v0: int, v1: int, out: np.ndarray
+) -> None:
+    """World box (xmin, ymin, xmax, ymax) of one primitive, as turtle.prim_bboxes."""
+    if kind == SEG:
+        r = abs(p[4]) / 2.0
+        out[0] = _min(p[0], p[2]) - r
+        out[1] = _min(p[1], p[3]) - r
+        out[2] = _max(p[0], p[2]) + r
+        out[3] = _max(p[1], p[3]) + r
+    elif kind == DISK:
+        r = abs(p[2])
+        out[0], out[1], out[2], out[3] = p[0] - r, p[1] - r, p[0] + r, p[1] + r
+    elif kind == LEAF:
+        rad = np.radians(p[2])
+        c, s = math.cos(rad), math.sin(rad)
+        a, b = abs(p[3]) / 2.0, abs(p[4]) / 2.0
+        cx, cy = p[0] + p[3] / 2.0 * c, p[1] + p[3] / 2.0 * s
+        ex = math.sqrt((a * c) ** 2 + (b * s) ** 2)
+        ey = math.sqrt((a * s) ** 2 + (b * c) ** 2)
+        out[0], out[1], out[2], out[3] = cx - ex, cy - ey, cx + ex, cy + ey
+    else:
+        out[0], out[1], out[2], out[3] = np.inf, np.inf, -np.inf, -np.inf
+        for v in range(v0, v1):
+            if v == v0:
+                out[0], out[1], out[2], out[3] = verts[v, 0], verts[v, 1], verts[v, 0], verts[v, 1]
+            else:
+                out[0] = _min(out[0], verts[v, 0])
+                out[1] = _min(out[1], verts[v, 1])
+                out[2] = _max(out[2], verts[v, 0])
+                out[3] = _max(out[3], verts[v, 1])
+
+
+@jit
+def _windows(
+    bbox: np.ndarray, view: np.ndarray, h: int, w: int
+) -> tuple[np.ndarray, np.ndarray, int, int, np.ndarray]:
+    """Common window (ky, kx), origins y0, x0 and empty flags of the boxes (raster's rule:
+    pixel centres inside each box, clipped to the image)."""
+    n = bbox.shape[0]
+    xmin, ymax, sx, sy = view[0], view[1], view[2], view[3]
+    lo = np.empty((n, 2), dtype=np.int64)  # (x, y) pixel corners
+    hi = np.empty((n, 2), dtype=np.int64)
+    empty = np.zeros(n, dtype=np.bool_)
+    kx, ky = -1, -1
+    for k in range(n):
+        finite = True
+        for q in range(4):
+            if not math.isfinite(bbox[k, q]):
+                finite = False
+        if not finite:
+            empty[k] = True
+            lo[k, 0], lo[k, 1] = 0, 0
+            continue
+        corners = (
+            (bbox[k, 0] - xmin) / sx - 0.5,
+            (bbox[k, 3] - ymax) / -sy - 0.5,
+            (bbox[k, 2] - xmin) / sx - 0.5,
+            (bbox[k, 1] - ymax) / -sy - 0.5,
+        )
+        lims = (w + 1.0, h + 1.0, w + 1.0, h + 1.0)
+        lasts = (0.0, 0.0, w - 1.0, h - 1.0)
+        for q in range(4):
+            v = corners[q] - EPS if q < 2 else corners[q] + EPS
+            v = _min(_max(v, -1.0), lims[q])
+            if q < 2:
+                lo[k, q] = int(_max(math.ceil(v), lasts[q]))
+            else:
+                hi[k, q - 2] = int(_min(math.floor(v), lasts[q]))
+        if hi[k, 0] < lo[k, 0] or hi[k, 1] < lo[k, 1]:
+            empty[k] = True
+        else:
+            kx = max(kx, hi[k, 0] - lo[k, 0] + 1)
+            ky = max(ky, hi[k, 1] - lo[k, 1] + 1)
+    if kx < 0:
+        kx, ky = 1, 1
+    kx, ky = min(max(1, kx), w), min(max(1, ky), h)
+    y0 = np.zeros(n, dtype=np.int64)
+    x0 = np.zeros(n, dtype=np.int64)
+    for k in range(n):
+        if not empty[k]:
+            x0[k] = min(lo[k, 0], w - kx)
+            y0[k] = min(lo[k, 1], h - ky)
+    return y0, x0, ky, kx, empty
+
+
+@jit
+def _covers(
+    kind: int, p: np.ndarray, verts: np.ndarray, v0: int, v1: int, x: float, y: float
+) -> bool:
+    """Whether the pixel centre (x, y) lies strictly inside the primitive (raster's tests,
+    operation for operation)."""
+    if kind == SEG:
+        ex, ey = p[2] - p[0], p[3] - p[1]
+        l2 = ex * ex + ey * ey
+        inv = 1.0 / l2 if l2 > 0 else 0.0
+        dx, dy = x - p[0], y - p[1]
+        t = dx * (ex * inv) + dy * (ey * inv)
+        if t < 0.0:
+            t = 0.0
+        if t > 1.0:
+            t = 1.0
+        qx = dx - t * ex
+        qy = dy - t * ey
+        hit: bool = qx * qx + qy * qy < (p[4] * p[4]) / 4.0
+        return hit
+    if kind == DISK:
+        dx, dy = x - p[0], y - p[1]
+        hit = dx * dx + dy * dy < p[2] * p[2]
+        return hit
+    if kind == LEAF:
+        rad = np.radians(p[2])
+        c, s = math.cos(rad), math.sin(rad)
+        a, b = abs(p[3]) / 2.0, abs(p[4]) / 2.0
+        dx, dy = x - (p[0] + p[3] / 2.0 * c), y - (p[1] + p[3] / 2.0 * s)
+        u = dx * (c * b) + dy * (s * b)
+        v = dy * (c * a) - dx * (s * a)
+        hit = u * u + v * v < (a * b) ** 2
+        return hit
+    inside = False
+    if v1 - v0 < 3:
+        return inside
+    for i in range(v0, v1):
+        j = i - 1 if i > v0 else v1 - 1
+        xi, yi, xj, yj = verts[i, 0], verts[i, 1], verts[j, 0], verts[j, 1]
+        if yi == yj:
+            continue  # horizontal edges never cross a horizontal ray
+        if (yi > y) != (yj > y) and x < xi + (y - yi) * (xj - xi) / (yj - yi):
+            inside = not inside
+    return inside
+
+
+@jit
+def draw(
+    image: np.ndarray,
+    padded: np.ndarray,
+    idx: np.ndarray,
+    kinds: np.ndarray,
+    par: np.ndarray,
+    verts: np.ndarray,
+    vstart: np.ndarray,
+    view: np.ndarray,
+    wp: np.ndarray,
+    starts: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rasterize primitive k (kinds[k], par[k], polygon vertices verts[vstart[k]:vstart[k+1]])
+    into canvas idx[k] of image (N, H, W) uint8, and its new pixels into the padded pyramid
+    rows (N, T) float32 (T == 0: no pyramid). view = (xmin, ymax, sx, sy); wp, starts: the
+    padded layout. Returns bbox (n, 4), y0, x0 (n,), new (n, ky, kx) bool and the new
+    pixels as (batch row, row * W + col) in row-major order."""
+    n = idx.shape[0]
+    h, w = image.shape[1], image.shape[2]
+    bbox = np.empty((n, 4))
+    for k in range(n):
+        if not 0 <= idx[k] < image.shape[0]:
+            raise IndexError("draw: particle index out of range")
+        _prim_box(kinds[k], par[k], verts, vstart[k], vstart[k + 1], bbox[k])
+    y0, x0, ky, kx, empty = _windows(bbox, view, h, w)
+    new = np.zeros((n, ky, kx), dtype=np.bool_)
+    hit_k = np.empty(n * ky * kx, dtype=np.int64)
+    hit_pix = np.empty(n * ky * kx, dtype=np.int64)
+    m = 0
+    pyr = padded.shape[1] > 0
+    xmin, ymax, sx, sy = view[0], view[1], view[2], view[3]
+    for k in range(n):
+        if empty[k]:
+            continue
+        pi, kind, v0, v1 = idx[k], kinds[k], vstart[k], vstart[k + 1]
+        for i in range(ky):
+            r = y0[k] + i
+            y = ymax - (r + 0.5) * sy
+            for j in range(kx):
+                c = x0[k] + j
+                if image[pi, r, c] != 0:
+                    continue
+                if not _covers(kind, par[k], verts, v0, v1, xmin + (c + 0.5) * sx, y):
+                    continue
+                new[k, i, j] = True
+                image[pi, r, c] = 1
+                hit_k[m] = k
+                hit_pix[m] = r * w + c
+                m += 1
+                if pyr:
+                    padded[pi, starts[0] + (r + PAD) * wp[0] + c + PAD] = 1.0
+                    for lv in range(1, N_LEVELS):
+                        rl, cl = r >> lv, c >> lv
+                        if rl < (h >> lv) and cl < (w >> lv):
+                            padded[pi, starts[lv] + (rl + PAD) * wp[lv] + cl + PAD] += np.float32(
+                                1.0 / 4.0**lv
+                            )
+    return bbox, y0, x0, new, hit_k[:m], hit_pix[:m]
+
+
+@jit
+def _bounds(b: np.ndarray, vp: np.ndarray) -> float:
+    """likelihood.bounds_penalty of one box (xmin, ymin, xmax, ymax); vp (xmin, xmax, ymin,
+    ymax)."""
+    if not b[0] <= b[2]:
+        ex, ey = 0.0, 0.0
+    else:
+        ex = _max(vp[0] - b[0], 0.0) + _max(b[2] - vp[1], 0.0)
+        ey = _max(vp[2] - b[1], 0.0) + _max(b[3] - vp[3], 0.0)
+    ex = ex / (vp[1] - vp[0])
+    ey = ey / (vp[3] - vp[2])
+    value: float = -((ex / BOUNDS_SCALE) ** 2) - (ey / BOUNDS_SCALE) ** 2
+    return value
+
+
+@jit
+def _union(state: np.ndarray, b: np.ndarray) -> None:
+    """state |= b for boxes (xmin, ymin, xmax, ymax), NaN-propagating like np.minimum."""
+    state[0] = _min(state[0], b[0])
+    state[1] = _min(state[1], b[1])
+    state[2] = _max(state[2], b[2])
+    state[3] = _max(state[3], b[3])
+
+
+@jit
+def shape_increment(
+    sim: np.ndarray,
+    box: np.ndarray,
+    ll: np.ndarray,
+    idx: np.ndarray,
+    hit_k: np.ndarray,
+    hit_pix: np.ndarray,
+    gain: np.ndarray,
+    bbox: np.ndarray,
+    vp: np.ndarray,
+) -> np.ndarray:
+    """ShapeLikelihood's update: per batch row k (particle idx[k]) the similarity gain of its
+    new pixels (hit_k, hit_pix), the box grown by bbox[k]; the state arrays sim, box, ll
+    (per particle) are updated in place; returns new ll - old ll per row."""
+    n = idx.shape[0]
+    dsim = np.zeros(n)
+    for m in range(hit_k.shape[0]):
+        dsim[hit_k[m]] += gain[hit_pix[m]]
+    delta = np.empty(n)
+    for k in range(n):
+        i = idx[k]
+        s = sim[i] + dsim[k]
+        _union(box[i], bbox[k])
+        value = -(((s - 1.0) / SHAPE_SIGMA) ** 2) + _bounds(box[i], vp)
+        delta[k] = value - ll[i]
+        sim[i] = s
+        ll[i] = value
+    return delta
+
+
+@jit
+def _sobel_code(
+    image: np.ndarray,
+    p: int,
+    r: int,
+    c: int,
+    new: np.ndarray,
+    k: int,
+    y0: int,
+    x0: int,
+    before: bool,
+) -> int:
+    """MAG_LUT code of the Sobel gradient at (r, c) of canvas p (zero outside); `before`:
+    without the batch row k's new pixels."""
+    h, w = image.shape[1], image.shape[2]
+    ky, kx = new.shape[1], new.shape[2]
+    gx, gy = 0, 0
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            rr, cc = r + di, c + dj
+            if rr < 0 or rr >= h or cc < 0 or cc >= w:
+                continue
+            v = int(image[p, rr, cc])
+            if before and 0 <= rr - y0 < ky and 0 <= cc - x0 < kx and new[k, rr - y0, cc - x0]:
+                v = 0
+            gx += dj * (2 - abs(di)) * v  # columns' difference, rows smoothed 1, 2, 1
+            gy += di * (2 - abs(dj)) * v
+    return (gx + 4) * 9 + (gy + 4)
+
+
+@jit
+def circuit_increment(
+    edge_sum: np.ndarray,
+    filled: np.ndarray,
+    box: np.ndarray,
+    ll: np.ndarray,
+    image: np.ndarray,
+    idx: np.ndarray,
+    y0: np.ndarray,
+    x0: np.ndarray,
+    new: np.ndarray,
+    bbox: np.ndarray,
+    vp: np.ndarray,
+) -> np.ndarray:
+    """CircuitLikelihood's update (image already drawn): the change of each canvas's Sobel
+    sum over its window and a 1-pixel ring, its new pixel count, the grown box; state arrays
+    updated in place; returns new ll - old ll per batch row."""
+    n = idx.shape[0]
+    h, w = image.shape[1], image.shape[2]
+    ky, kx = new.shape[1], new.shape[2]
+    npx = float(h * w)
+    delta = np.empty(n)
+    buf = np.zeros((ky + 2) * (kx + 2))
+    for k in range(n):
+        p = idx[k]
+        count = 0
+        for i in range(ky):
+            for j in range(kx):
+                count += new[k, i, j]
+        d_edge = 0.0
+        if count:
+            # the changes over the window and its ring, summed in numpy's order
+            buf[:] = 0.0
+            for r in range(max(y0[k] - 1, 0), min(y0[k] + ky + 1, h)):
+                for c in range(max(x0[k] - 1, 0), min(x0[k] + kx + 1, w)):
+                    buf[(r - y0[k] + 1) * (kx + 2) + c - x0[k] + 1] = (
+                        MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], False)]
+                        - MAG_LUT[_sobel_code(image, p, r, c, new, k, y0[k], x0[k], True)]
+                    )
+            d_edge = _pairwise_sum(buf)
+        edge_sum[p] += d_edge
+        filled[p] += count
+        _union(box[p], bbox[k])
+        edge, fill = edge_sum[p] / npx, filled[p] / npx
+        x = edge * (1.0 - abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
+        z = (x - 1.0) / CIRCUIT_SIGMA
+        value = -0.5 * z * z - CIRCUIT_LOG_NORM + _bounds(box[p], vp)
+        delta[k] = value - ll[p]
+        ll[p] = value
+    return delta
+
+
+@jit
+def _unit(a: float) -> float:
+    """A normalized position made finite and within [-10, 10] (features' rule)."""
+    if a != a:
+        return -10.0
+    return min(max(a, -10.0), 10.0)  # +-inf -> +-10
+
+
+@jit
+def feature_windows(
+    out: np.ndarray,
+    turtle: np.ndarray,
+    depth: np.ndarray,
+    idx: np.ndarray,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+) -> None:
+    """FeatureMaker's site-independent columns of n particles into out (n, n_common)
+    float32: turtle columns, target and partial 3x3 windows at the 4 levels (target (T,)
+    and canvas (N, T) padded pyramids; an empty array: that group is 0), and, when `ctx`
+    (the lookahead's 15 (angle, distance) pairs) is not empty, the context group.
+
+    view = (xmin, ymax, xmax - xmin, -(ymax - ymin), derivation length); size (3, L) level
+    heights, widths and padded widths; offs (L, 9) window offsets; ctx_geom = (total,
+    base, padded width, height, width of the look-ahead level, aspect); cells, cell_t: the
+    fill level's cells and the target there."""
+    n = idx.shape[0]
+    nl, nw = 7, 9 * N_LEVELS
+    for k in range(n):
+        u = (turtle[k, 0] - view[0]) / view[2]
+        v = (turtle[k, 1] - view[1]) / view[3]
+        out[k, 0] = u * 2.0 + -1.0
+        out[k, 1] = v * -2.0 + 1.0
+        hd = turtle[k, 2]
+        out[k, 2] = (hd % 360.0) / 180.0 - 1.0  # Python's and np.mod's float rule
+        rad = np.radians(hd)
+        out[k, 3] = math.sin(rad)
+        out[k, 4] = math.cos(rad)
+        out[k, 5] = turtle[k, 3]
+        out[k, 6] = depth[k] / view[4]
+        if canvas.shape[1] and not 0 <= idx[k] < canvas.shape[0]:
+            raise IndexError("features: particle index out of range")
+        if not (math.isfinite(u) and math.isfinite(v)):
+            u, v = _unit(u), _unit(v)
+        for lv in range(size.shape[1]):
+            row = _min(_max(math.floor(v * size[0, lv]), -2.0), size[0, lv] + 1)
+            col = _min(_max(math.floor(u * size[1, lv]), -2.0), size[1, lv] + 1)
+            at0 = int(row * size[2, lv] + col)
+            for q in range(9):
+                at = at0 + offs[lv, q]
+                out[k, nl + 9 * lv + q] = target[at] if target.shape[0] else 0.0
+                out[k, nl + nw + 9 * lv + q] = canvas[idx[k], at] if canvas.shape[1] else 0.0
+        if out.shape[1] > nl + 2 * nw and not ctx.shape[0]:
+            out[k, nl + 2 * nw :] = 0.0
+        elif ctx.shape[0]:
+            _context(
+                out[k, nl + 2 * nw :],
+                canvas[idx[k]],
+                target,
+                u,
+                v,
+                hd,
+                ctx,
+                ctx_geom,
+                cells,
+                cell_t,
+            )
+
+
+@jit
+def _context(
+    out: np.ndarray,
+    row: np.ndarray,
+    target: np.ndarray,
+    u: float,
+    v: float,
+    heading: float,
+    ctx: np.ndarray,
+    geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+) -> None:
+    """The context group of one particle (features.py's module docstring): fill fractions,
+    then the look-ahead samples of the unfilled target."""
+    total = np.float32(geom[0])
+    unfilled, dsum = np.float32(0.0), np.float32(0.0)
+    for q in range(cells.shape[0]):
+        d = cell_t[q] - row[cells[q]]
+        dsum += d
+        if d > 0:
+            unfilled += d
+    out[0] = unfilled / total
+    out[1] = (unfilled - dsum) / total
+    base, wp, hl, wl, aspect = int(geom[1]), geom[2], geom[3], geom[4], geom[5]
+    for q in range(ctx.shape[0]):
+        ang = np.radians(heading + ctx[q, 0])
+        r = math.floor((v - math.sin(ang) * ctx[q, 1] * aspect) * hl)
+        c = math.floor((u + math.cos(ang) * ctx[q, 1]) * wl)
+        r = min(max(r, -1.0), hl) if r == r else -1.0
+        c = min(max(c, -1.0), wl) if c == c else -1.0
+        at = int(r * wp + c) + base
+        tv = target[at]
+        if tv < 0:
+            out[2 + q] = -1.0
+        else:
+            ahead = tv - row[at]
+            out[2 + q] = ahead if ahead > 0 else np.float32(0.0)
+
+
+@jit
+def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of a block of at most 128 floats: eight accumulators, then the rest."""
+    if n < 8:
+        res = 0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r = a[lo : lo + 8].copy()
+    i = 8
+    while i < n - (n % 8):
+        for j in range(8):
+            r[j] += a[lo + i + j]
+        i += 8
+    total: float = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += a[lo + i]
+        i += 1
+    return total
+
+
+@jit
+def _pairwise_sum(a: np.ndarray) -> float:
+    """numpy's sum of a float64 vector, in numpy's order: halves (multiples of 8) down to
+    blocks of 128 (numpy's recursion, run on an explicit stack: a cached kernel calling a
+    recursive one crashes numba)."""
+    lo = np.zeros(64, dtype=np.int64)  # frames: first element, length, phase, left sum
+    ln = np.zeros(64, dtype=np.int64)
+    phase = np.zeros(64, dtype=np.int64)
+    left = np.zeros(64)
+    ln[0] = a.shape[0]
+    sp = 1
+    while True:
+        t = sp - 1
+        if ln[t] <= 128:
+            v = _block_sum(a, lo[t], ln[t])
+            sp -= 1
+            while sp > 0 and phase[sp - 1] == 2:  # a right half done: add it to its left
+                v = left[sp - 1] + v
+                sp -= 1
+            if sp == 0:
+                return v
+            p = sp - 1  # a left half done: start the right one
+            half = ln[p] // 2
+            half -= half % 8
+            left[p], phase[p] = v, 2
+            lo[sp], ln[sp], phase[sp] = lo[p] + half, ln[p] - half, 0
+            sp += 1
+        else:
+            half = ln[t] // 2
+            half -= half % 8
+            phase[t] = 1
+            lo[sp], ln[sp], phase[sp] = lo[t], half, 0
+            sp += 1
+
+
+@jit
+def weights(log_w: np.ndarray) -> np.ndarray:
+    """exp(log_w - max log_w): unnormalized weights, the largest 1."""
+    top = log_w[0]
+    for x in log_w:
+        top = _max(top, x)
+    w: np.ndarray = np.exp(log_w - top)
+    return w
+
+
+@jit
+def residual_counts(w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Residual resampling, first part: floor(n * w / sum w) copies of each particle, the
+    fractional parts' normalized cumulative sum and how many draws are left (resample.py's
+    arithmetic)."""
+    m = w.shape[0]
+    total = _pairwise_sum(w)
+    counts = np.empty(m, dtype=np.int64)
+    frac = np.empty(m)
+    used = 0
+    for i in range(m):
+        scaled = n * (w[i] / total)
+        counts[i] = int(math.floor(scaled))
+        frac[i] = scaled - counts[i]
+        used += counts[i]
+    cum = np.empty(m)  # np.cumsum's sequential sums (a loop compiles faster than it)
+    acc = 0.0
+    for i in range(m):
+        acc += frac[i]
+        cum[i] = acc
+    if n > used:
+        cum /= cum[-1]
+        cum[-1] = 1.0
+    return counts, cum, n - used
+
+
+@jit
+def ancestors(counts: np.ndarray, cum: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Ancestor indices (ascending): counts[i] copies of i plus one per draw u, the
+    draw's index i being the first with u < cum[i] (cum from `residual_counts`)."""
+    counts = counts.copy()
+    last = cum.shape[0] - 1
+    for x in u:
+        lo, hi = 0, cum.shape[0]  # np.searchsorted(cum, x, side="right") (compiles faster)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            c = cum[mid]
+            if x < c or (c != c and x == x):  # numpy's order: NaN after every number
+                hi = mid
+            else:
+                lo = mid + 1
+        counts[min(lo, last)] += 1
+    total = 0
+    for c in counts:
+        total += c
+    out = np.empty(total, dtype=np.int64)
+    pos = 0
+    for i in range(counts.shape[0]):
+        for _ in range(counts[i]):
+            out[pos] = i
+            pos += 1
+    return out
+
+
+@jit
+def take_rows(
+    image: np.ndarray,
+    padded: np.ndarray,
+    anc: np.ndarray,
+    image_out: np.ndarray,
+    padded_out: np.ndarray,
+) -> None:
+    """Resampling's canvas copies: row k of the outputs becomes row anc[k] (canvases and
+    pyramids flattened to (N, cells): plain loops, which compile to block copies)."""
+    for k in range(anc.shape[0]):
+        src = anc[k]
+        if not 0 <= src < image.shape[0]:
+            raise IndexError("take: particle index out of range")
+        for j in range(image.shape[1]):
+            image_out[k, j] = image[src, j]
+        for j in range(padded.shape[1]):
+            padded_out[k, j] = padded[src, j]

@@ -1,0 +1,260 @@
+"""The compiled kernels (ngpm_runtime/kernels.py) against the numpy code they replaced
+(tests/reference/): many seeded random primitive sets, drawn in lockstep into both, give
+the same images, pyramids, draw batches, shape and circuit likelihoods, feature rows and
+resampling ancestors bit for bit, but for the feature columns of sin/cos, allowed 1 float32
+ulp (numpy's and the C library's sin may differ in the last bit on some machines)."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from blocked_imports import run_blocked
+from ngpm_runtime import kernels
+from ngpm_runtime.image.features import FeatureMaker
+from ngpm_runtime.image.raster import Canvas, prim_mask, rasterize
+from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood
+from ngpm_runtime.inference.resample import SCHEMES, resample
+from reference import features as ref_features
+from reference import likelihood as ref_likelihood
+from reference import raster as ref_raster
+from reference import resample as ref_resample
+
+VP = (-12.0, 12.0, -22.0, 2.0)
+# the numpy reference warns on the odd inputs (NaN, inf) the tests feed it
+pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
+ODD = [np.nan, np.inf, -np.inf, 1e300, -1e300, 0.0]
+
+
+def _coord(rng: np.random.Generator, lo: float, hi: float) -> float:
+    """Mostly inside [lo, hi] with a margin, sometimes an odd value."""
+    if rng.random() < 0.03:
+        return float(ODD[rng.integers(len(ODD))])
+    return float(rng.uniform(lo - 4, hi + 4))
+
+
+def random_prim(rng: np.random.Generator) -> tuple:
+    """A primitive of any kind, odd ones included (zero length or width, negative sizes,
+    non-finite or huge coordinates, degenerate polygons)."""
+    kind = ("seg", "seg", "seg", "leaf", "disk", "poly")[rng.integers(6)]
+    x, y = _coord(rng, -12, 12), _coord(rng, -22, 2)
+    if kind == "seg":
+        a = rng.uniform(0, 2 * math.pi)
+        ln = 0.0 if rng.random() < 0.05 else rng.uniform(0, 5)
+        return (
+            "seg",
+            x,
+            y,
+            x + ln * math.cos(a),
+            y + ln * math.sin(a),
+            float(rng.choice([0.0, rng.uniform(0.05, 2.0), -0.7])),
+        )
+    if kind == "leaf":
+        return ("leaf", x, y, _coord(rng, -400, 400), rng.uniform(-3, 3), rng.uniform(-1.5, 1.5))
+    if kind == "disk":
+        return ("disk", x, y, rng.uniform(-0.5, 2.5))
+    m = int(rng.integers(1, 7))
+    pts = [
+        (x + rng.uniform(-3, 3), y + float(rng.choice([0.0, rng.uniform(-3, 3)]))) for _ in range(m)
+    ]
+    return ("poly", tuple(pts))
+
+
+def _target(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    t = np.zeros((h, w), dtype=bool)
+    t[h // 4 : 3 * h // 4, w // 5 : 4 * w // 5] = True
+    t |= rng.random((h, w)) < 0.1
+    return t
+
+
+def _same_batch(got, want) -> None:
+    np.testing.assert_array_equal(got.idx, want.idx)
+    np.testing.assert_array_equal(got.y0, want.y0)
+    np.testing.assert_array_equal(got.x0, want.x0)
+    np.testing.assert_array_equal(got.new, want.new)
+    np.testing.assert_array_equal(got.bbox, want.bbox)  # NaNs compare equal here
+    for a, b in zip(got.hits(1000), want.hits(1000), strict=True):  # width: any
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("size", [(50, 50), (37, 23), (9, 13)])
+@pytest.mark.parametrize("seed", range(12))
+def test_draw_likelihoods_and_take_match_numpy(seed: int, size: tuple[int, int]) -> None:
+    rng = np.random.default_rng(seed)
+    h, w = size
+    n = 7
+    target = _target(rng, h, w)
+    pyr = bool(seed % 3)
+    new, old = Canvas(n, h, w, VP, pyramid=pyr), ref_raster.Canvas(n, h, w, VP, pyramid=pyr)
+    likes = [
+        (ShapeLikelihood(target, VP), ref_likelihood.ShapeLikelihood(target, VP)),
+        (CircuitLikelihood(VP), ref_likelihood.CircuitLikelihood(VP)),
+    ]
+    states = [(a.start(n), b.start(n)) for a, b in likes]
+    for _ in range(14):
+        idx = np.sort(rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False))
+        prims = [random_prim(rng) for _ in idx]
+        if rng.random() < 0.3:  # one kind only: the packing's fast path
+            prims = [
+                ("seg",) + p[1:] if p[0] == "seg" else ("disk", 0.0, -10.0, 1.5) for p in prims
+            ]
+        got, want = new.draw(idx, prims), old.draw(idx, prims)
+        _same_batch(got, want)
+        np.testing.assert_array_equal(new.image, old.image)
+        np.testing.assert_array_equal(new.padded, old.padded)
+        for (a, b), (sa, sb) in zip(likes, states, strict=True):
+            da, db = a.increment(sa, new, got), b.increment(sb, old, want)
+            np.testing.assert_array_equal(da, db)  # NaNs compare equal here
+            for key in sa:
+                np.testing.assert_array_equal(sa[key], sb[key])
+        anc = np.sort(rng.integers(0, n, n))
+        new.take(anc)
+        old.take(anc)
+        for sa, sb in states:
+            for key in sa:
+                sa[key], sb[key] = sa[key][anc], sb[key][anc]
+        np.testing.assert_array_equal(new.image, old.image)
+        np.testing.assert_array_equal(new.padded, old.padded)
+
+
+def test_rasterize_and_prim_mask_match_numpy() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        prims = [random_prim(rng) for _ in range(int(rng.integers(0, 150)))]
+        np.testing.assert_array_equal(
+            rasterize(prims, VP, 40, 30), ref_raster.rasterize(prims, VP, 40, 30)
+        )
+        for p in prims[:5]:
+            got, want = prim_mask(p, VP, 40, 30), ref_raster.prim_mask(p, VP, 40, 30)
+            assert got[:2] == want[:2]
+            np.testing.assert_array_equal(got[2], want[2])
+
+
+def test_draw_rejects_bad_rows() -> None:
+    canvas = Canvas(3, 20, 20, VP)
+    with pytest.raises(IndexError):
+        canvas.draw(np.array([3]), [("disk", 0.0, -10.0, 1.0)])
+    with pytest.raises(ValueError, match="unknown primitive kind"):
+        canvas.draw(np.array([0]), [("blob", 0.0)])
+    with pytest.raises(IndexError):
+        canvas.take(np.array([0, 1, 5]))
+
+
+def _turtles(rng: np.random.Generator, m: int) -> np.ndarray:
+    t = np.column_stack(
+        [
+            rng.uniform(-16, 16, m),
+            rng.uniform(-26, 6, m),
+            rng.uniform(-800, 800, m),
+            rng.uniform(0, 2, m),
+        ]
+    )
+    odd = rng.random((m, 3)) < 0.04
+    t[:, :3][odd] = rng.choice(ODD, size=int(odd.sum()))
+    t[rng.random(m) < 0.1, 2] = rng.choice([0.0, -360.0, 720.0, 90.0, -0.0])
+    return t
+
+
+@pytest.mark.parametrize("context", [False, True])
+@pytest.mark.parametrize("seed", range(8))
+def test_feature_rows_match_numpy(seed: int, context: bool) -> None:
+    rng = np.random.default_rng(100 + seed)
+    h, w = [(50, 50), (37, 23), (6, 11)][seed % 3]
+    n = 9
+    canvas = Canvas(n, h, w, VP)
+    for _ in range(20):
+        idx = np.sort(rng.choice(n, size=5, replace=False))
+        canvas.draw(idx, [random_prim(rng) for _ in idx])
+    program = SimpleNamespace(derivation_length=400)
+    target = _target(rng, h, w) if seed % 4 else None
+    for cv in (canvas, None):
+        a = FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        m = 40
+        idx = rng.integers(0, n, m)
+        turtle, depth = _turtles(rng, m), rng.integers(-1, 400, m).astype(np.float64)
+        got, want = a._common(cv, idx, turtle, depth), b._common(cv, idx, turtle, depth)
+        trig = [3, 4]
+        np.testing.assert_array_max_ulp(got[:, trig], want[:, trig], maxulp=1)
+        got[:, trig] = want[:, trig]
+        np.testing.assert_array_equal(got, want)
+
+
+def test_feature_rows_without_an_image() -> None:
+    program = SimpleNamespace(derivation_length=10)
+    rng = np.random.default_rng(3)
+    turtle = _turtles(rng, 6)
+    for target in (None, np.ones((0, 0), dtype=bool)):
+        a = FeatureMaker(program, VP, target, True)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, True)  # type: ignore[arg-type]
+        got = a._common(None, np.arange(6), turtle, np.arange(6.0))
+        want = b._common(None, np.arange(6), turtle, np.arange(6.0))
+        np.testing.assert_array_equal(got, want)
+
+
+def test_resampling_matches_numpy() -> None:
+    rng = np.random.default_rng(11)
+    for trial in range(300):
+        m = int(rng.integers(1, 700 if trial % 10 == 0 else 40))
+        log_w = rng.normal(0, float(rng.choice([0.1, 3.0, 300.0])), m)
+        log_w[rng.random(m) < 0.2] = -np.inf
+        if not np.isfinite(log_w).any():
+            log_w[0] = 0.0
+        n = m if trial % 3 else int(rng.integers(1, 60))
+        seed = int(rng.integers(2**31))
+        for scheme in SCHEMES:
+            got = resample(scheme, log_w, np.random.default_rng(seed), n)
+            want = ref_resample.resample(scheme, log_w, np.random.default_rng(seed), n)
+            np.testing.assert_array_equal(got, want)
+
+
+def test_numpy_order_sum() -> None:
+    rng = np.random.default_rng(2)
+    for m in [1, 7, 8, 9, 127, 128, 129, 255, 256, 1000, 4099]:
+        a = np.exp(rng.normal(0, 8, m))
+        assert kernels._pairwise_sum(a) == a.sum()
+
+
+def test_help_and_runtime_import_load_no_numba(tmp_path) -> None:
+    body = """
+import ngpm_runtime
+from ngpm_runtime.inference import smc, likelihood
+from ngpm_runtime.image import raster, features
+from ngpm_compiler.cli import main
+try:
+    main(["--help"])
+except SystemExit:
+    pass
+"""
+    proc = run_blocked(body, tmp_path, blocked=("numba", "llvmlite"), timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().endswith("ok")
+
+
+def test_loading_the_kernels_imports_no_scipy_linalg() -> None:
+    """numba's BLAS probe would import scipy.linalg (0.3-0.4 s) at the first kernel call;
+    kernels.py hides it while numba's array typing loads, and leaves a loaded one alone."""
+    code = """
+import sys
+import numpy as np
+{pre}
+from ngpm_runtime import kernels
+kernels.residual_counts(kernels.weights(np.zeros(4)), 4)
+print("scipy.linalg" in sys.modules, sys.modules.get("scipy.linalg") is not None)
+"""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    for pre, want in [("", "False False"), ("import scipy.linalg", "True True")]:
+        proc = subprocess.run(
+            [sys.executable, "-c", code.format(pre=pre)],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert proc.stdout.strip() == want
