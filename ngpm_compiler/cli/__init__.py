@@ -23,6 +23,8 @@ COMMAND_MODULES = [
     "ngpm_compiler.cli.demo",  # demo
     "ngpm_compiler.cli.serve",  # serve (needs the [web] extra)
 ]
+# commands that run SMC: the first on a machine compiles the kernels (a note says so)
+KERNEL_COMMANDS = {"grow", "traces", "iterate", "tune", "eval", "demo", "serve", "learn"}
 
 
 class _Version(argparse.Action):
@@ -52,6 +54,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _note_cold_kernels(command: str) -> None:
+    """One line on stderr when a command is about to compile the SMC kernels."""
+    if command in KERNEL_COMMANDS:
+        from ngpm_runtime.warmup import COLD_NOTE, cache_is_cold
+
+        if cache_is_cold():
+            print(f"ngpmc: {COLD_NOTE}", file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -60,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     stdout = pipes.install()
     try:
+        _note_cold_kernels(args.command)
         return int(args.handler(args) or 0)
     except NgpmError as err:
         print(f"ngpmc: error: {err}", file=sys.stderr)

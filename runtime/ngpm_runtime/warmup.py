@@ -1,0 +1,79 @@
+"""The compiled kernels' disk cache: is it there, and filling it ahead of the first run.
+
+numba compiles the kernels (ngpm_runtime/kernels.py and the modules it names) the first
+time a process uses them on a machine, about 15-30 s, and caches the machine code on disk
+(`__pycache__` beside the module, or numba's user cache when that folder is not writable,
+or `$NUMBA_CACHE_DIR`). Later processes load it in well under a second.
+
+`cache_is_cold()` tells whether a kernel has no cache file yet (the CLI prints a one-line
+note then). `warm_up()` fills the cache by running tiny SMC runs of
+the bundled vines model through every kernel path (unguided, guided, circuit, full
+traces); `python -m ngpm_runtime.warmup` runs it, e.g. right after `pip install` or in a
+Docker build.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from importlib import import_module
+
+# modules (relative to the package) whose @njit(cache=True) kernels are cached
+KERNEL_MODULES = ("kernels",)
+
+
+def cache_is_cold() -> bool:
+    """True when a kernel has no cache index file where numba will look for it (imports
+    numba: ask only where kernels are about to run). False when numba's cache layout is
+    not the one known here (its private `_cache` attributes)."""
+    from numba.core.dispatcher import Dispatcher
+
+    for name in KERNEL_MODULES:
+        module = import_module(f"ngpm_runtime.{name}")
+        for attr, value in vars(module).items():
+            if attr.startswith("_") or not isinstance(value, Dispatcher):
+                continue
+            try:
+                index = value._cache._cache_file._index_path
+            except AttributeError:
+                return False
+            if not os.path.exists(index):
+                return True
+    return False
+
+
+COLD_NOTE = (
+    "compiling the SMC kernels for this machine (once, about 20 s; later runs load them "
+    "from disk; `python -m ngpm_runtime.warmup` does it ahead of time)"
+)
+
+
+def warm_up() -> float:
+    """Run every kernel path once on tiny inputs (compiling and caching what is missing);
+    returns the seconds it took."""
+    from ngpm_runtime.bundled import bundled_program, default_guide, demo_targets
+    from ngpm_runtime.grow import grow
+    from ngpm_runtime.inference.smc import TraceRecording
+
+    t0 = time.perf_counter()
+    program = bundled_program()
+    target = demo_targets()[0]
+    guide = default_guide(program)
+    grow(program, target, None, n_particles=2, seed=0, max_modules=40)
+    grow(program, target, guide, n_particles=2, seed=0, max_modules=40)
+    grow(program, target, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
+    grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
+    return time.perf_counter() - t0
+
+
+def main() -> int:
+    cold = cache_is_cold()
+    print("ngpm: " + (COLD_NOTE if cold else "loading the cached SMC kernels"), file=sys.stderr)
+    seconds = warm_up()
+    print(f"ngpm: kernels ready ({seconds:.1f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
