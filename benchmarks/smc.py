@@ -52,6 +52,7 @@ STEP_CONFIGS = (
     ("unguided N=10", False, 10),
     ("unguided N=200", False, 200),
     ("unguided N=600", False, 600),
+    ("unguided N=2000", False, 2000),
 )
 LADDER = "10,20,50,100,200,400,600,1000,1500"
 
@@ -98,7 +99,13 @@ def one_run(program: Any, target: Any, proposal: Any, n: int, seed: int) -> dict
     )
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     sim = similarity(rasterize(res.best.primitives, vp, *target.size), target.mask)
-    return {"wall": wall, "cpu": cpu, "steps": res.steps, "sim": float(sim)}
+    return {
+        "wall": wall,
+        "cpu": cpu,
+        "steps": res.steps,
+        "particle_steps": res.info["particle_steps"],
+        "sim": float(sim),
+    }
 
 
 def step_table(
@@ -121,7 +128,7 @@ def step_table(
     )
     print(
         f"{'':16s} {'ms/step CPU':>11s} {'ms/step wall':>12s} {'s/run wall':>10s} "
-        f"{'s/run CPU':>9s} {'steps':>5s} {'similarity':>10s}"
+        f"{'s/run CPU':>9s} {'steps':>5s} {'us/particle-step':>16s} {'similarity':>10s}"
     )
     per_step: dict[str, float] = {}
     for label, rs in rows.items():
@@ -133,6 +140,7 @@ def step_table(
             f"{statistics.median(r['wall'] for r in rs):10.4f} "
             f"{statistics.median(r['cpu'] for r in rs):9.4f} "
             f"{statistics.median(r['steps'] for r in rs):5.0f} "
+            f"{statistics.median(1e6 * r['cpu'] / r['particle_steps'] for r in rs):16.1f} "
             f"{statistics.mean(r['sim'] for r in rs):10.3f}"
         )
     ratio = per_step["guided N=10"] / per_step["unguided N=10"]
