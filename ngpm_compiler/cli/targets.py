@@ -49,6 +49,12 @@ def _add_build(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="how to read --from images (default auto)",
     )
     build.add_argument("--mirror", action="store_true", help="also write mirrored copies")
+    build.add_argument(
+        "--resolution",
+        type=argtypes.integer(8, 128),
+        default=32,
+        help="voxels a side of the 3D sets (blobs3d, extruded, revolved; default 32)",
+    )
     build.set_defaults(handler=_build)
 
 
@@ -127,6 +133,7 @@ def _build(args: argparse.Namespace) -> int:
             source_dir=args.source_dir,
             mirror=args.mirror,
             polarity=args.polarity,
+            resolution=args.resolution,
         )
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in skipped:
