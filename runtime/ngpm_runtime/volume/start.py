@@ -2,7 +2,7 @@
 
 Automatic (as 2D's `auto_start`, which starts at the lowest end of the shape's skeleton
 and walks down to the shape's edge): the bottom of the largest connected part (voxels
-joined through faces), under the voxel of its lowest layer nearest to the part's centre
+joined through faces, edges or corners), under the voxel of its lowest layer nearest to the part's centre
 seen from above (ties: smallest x, then z). The point is the middle of that voxel's
 bottom face, so growth starts at the shape's lowest edge.
 
@@ -27,17 +27,23 @@ from ngpm_runtime.volume.target import VolumeError
 
 
 def label_largest(occupancy: np.ndarray) -> np.ndarray:
-    """(R, R, R) bool: the largest part of the filled voxels, 6-connected (ties: the part
-    holding the voxel that comes first in [ix, iy, iz] order)."""
+    """(R, R, R) bool: the largest part of the filled voxels, 26-connected (through faces,
+    edges or corners, as 2D parts are 8-connected; ties: the part holding the voxel that
+    comes first in [ix, iy, iz] order)."""
     occ = np.asarray(occupancy, dtype=bool)
     size = occ.size
     lab = np.where(occ.ravel(), np.arange(size), size).reshape(occ.shape)
     while True:
-        pad = np.pad(lab, 1, constant_values=size)
-        low = lab.copy()
-        for axis in range(3):
-            for step in (-1, 1):
-                np.minimum(low, np.roll(pad, step, axis=axis)[1:-1, 1:-1, 1:-1], out=low)
+        low = lab
+        for axis in range(3):  # the minimum over the 3 x 3 x 3 cube, one axis at a time
+            pad = np.pad(
+                low, [(1, 1) if a == axis else (0, 0) for a in range(3)], constant_values=size
+            )
+            n = low.shape[axis]
+            low = np.minimum(
+                np.minimum(pad.take(range(0, n), axis), pad.take(range(1, n + 1), axis)),
+                pad.take(range(2, n + 2), axis),
+            )
         low = np.where(occ, low, size)
         flat = np.append(low.ravel(), size)
         low = np.where(occ, flat[low], size)  # jump to the label's own label

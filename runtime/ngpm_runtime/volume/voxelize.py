@@ -24,7 +24,7 @@ from ngpm_runtime.volume.target import VolumeError
 
 JITTER = 0.01  # largest ray offset, in sample spacings
 TRIES = 6  # casts of a column before its odd count refuses the mesh
-CHUNK = 1 << 21  # (triangle, column) pairs tested at once
+CHUNK = 1 << 19  # (triangle, column) pairs tested at once
 
 
 def weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -222,3 +222,12 @@ def test_auto_start_takes_the_largest_part_bottom_middle():
     assert auto_start(ell).tolist() == [3.5, 0.0, 1.5]
     with pytest.raises(VolumeError, match="no filled voxel"):
         auto_start(np.zeros((3, 3, 3), dtype=bool))
+
+
+def test_parts_touching_at_an_edge_or_corner_are_one():
+    occ = np.zeros((6, 6, 6), dtype=bool)
+    occ[0, 0, 0] = occ[1, 1, 1] = occ[2, 2, 1] = True  # a diagonal chain: 3 voxels
+    occ[4:6, 4:6, 4] = True  # 4 voxels apart
+    assert label_largest(occ).sum() == 4
+    occ[3, 3, 2] = occ[4, 4, 3] = True  # corners join the chain to the square
+    assert label_largest(occ).sum() == 9
