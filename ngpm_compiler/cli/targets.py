@@ -143,6 +143,25 @@ def _build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_3d(directory: Path) -> bool:
+    """Whether a dataset directory holds a 3D set (.npz targets)."""
+    index = directory / "index.json"
+    return index.is_file() and '.npz"' in index.read_text(encoding="utf-8", errors="replace")
+
+
+def _show3d(args: argparse.Namespace) -> int:
+    """`targets show` of a 3D set: pictures of its voxels."""
+    from ngpm_runtime.volume.load import load_volume_dataset
+
+    from ngpm_compiler.datasets.sets3d import volume_sheet
+
+    targets = load_volume_dataset(args.source)
+    shown = targets[: args.max]
+    volume_sheet(shown, args.out, cols=args.cols, cell=args.cell)
+    print(f"{args.out}: {len(shown)} of {len(targets)} 3D targets")
+    return 0
+
+
 def _list(_args: argparse.Namespace) -> int:
     for spec in DATASETS.values():
         count = spec.default_count if spec.default_count is not None else "all"
@@ -152,6 +171,8 @@ def _list(_args: argparse.Namespace) -> int:
 
 def _show(args: argparse.Namespace) -> int:
     check_output_file(args.out, "PNG file")
+    if args.source.is_dir() and _is_3d(args.source):
+        return _show3d(args)
     if args.source.is_dir():
         targets = load_dataset(args.source, size=args.size)
     else:

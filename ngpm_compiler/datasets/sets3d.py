@@ -24,7 +24,7 @@ from ngpm_runtime.image.targets import Target, auto_start
 from ngpm_runtime.volume.load import UNIT_BOX, volume_from_lattice
 from ngpm_runtime.volume.target import VolumeTarget
 from ngpm_runtime.volume.voxelize import extrude, revolve
-from PIL import Image, ImageFont
+from PIL import Image, ImageDraw, ImageFont
 
 from ngpm_compiler.datasets.clipart import clipart_files, rasterize_svg
 from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
@@ -244,3 +244,31 @@ def save_volume(target: VolumeTarget, path: Path) -> Path:
     Image.fromarray(render_mesh(target.mesh(), PREVIEW_SIZE)).save(buf, format="PNG")
     atomic_write(path.with_suffix(".png"), buf.getvalue())
     return target.to_npz(path)
+
+
+def volume_sheet(
+    targets: list[VolumeTarget],
+    path: str | os.PathLike[str],
+    cols: int | None = None,
+    cell: int = 64,
+) -> Path:
+    """Pictures of 3D targets' voxels in a grid, names below; written atomically."""
+    if not targets:
+        raise DatasetError("nothing to draw: no targets")
+    n = len(targets)
+    cols = cols or max(1, min(n, int(np.ceil(np.sqrt(n * 1.5)))))
+    rows = -(-n // cols)
+    pad, label_h = 4, 12
+    sheet = Image.new(
+        "RGB", (cols * (cell + pad) + pad, rows * (cell + pad + label_h) + pad), "white"
+    )
+    draw = ImageDraw.Draw(sheet)
+    for k, t in enumerate(targets):
+        r, c = divmod(k, cols)
+        x0, y0 = pad + c * (cell + pad), pad + r * (cell + pad + label_h)
+        sheet.paste(Image.fromarray(render_mesh(t.mesh(), cell)), (x0, y0))
+        text = t.name if len(t.name) <= cell // 6 else t.name.split("_", 1)[-1]
+        draw.text((x0, y0 + cell + 1), text, fill=(0, 0, 0))
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG", optimize=True)
+    return atomic_write(path, buf.getvalue())

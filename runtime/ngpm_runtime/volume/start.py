@@ -2,8 +2,8 @@
 
 Automatic (as 2D's `auto_start`, which starts at the lowest end of the shape's skeleton
 and walks down to the shape's edge): the bottom of the largest connected part (voxels
-joined through faces, edges or corners), under the voxel of its lowest layer nearest to the part's centre
-seen from above (ties: smallest x, then z). The point is the middle of that voxel's
+joined through faces, edges or corners), under the voxel of its lowest layer nearest to the
+part's centre seen from above (ties: smallest x, then z). The point is the middle of that voxel's
 bottom face, so growth starts at the shape's lowest edge.
 
 Sidecar: `<mesh stem>.txt` beside a mesh, one line `x y z`, each in [0, 1] across the
@@ -39,10 +39,10 @@ def label_largest(occupancy: np.ndarray) -> np.ndarray:
             pad = np.pad(
                 low, [(1, 1) if a == axis else (0, 0) for a in range(3)], constant_values=size
             )
-            n = low.shape[axis]
+            side = int(low.shape[axis])
             low = np.minimum(
-                np.minimum(pad.take(range(0, n), axis), pad.take(range(1, n + 1), axis)),
-                pad.take(range(2, n + 2), axis),
+                np.minimum(pad.take(range(side), axis), pad.take(range(1, side + 1), axis)),
+                pad.take(range(2, side + 2), axis),
             )
         low = np.where(occ, low, size)
         flat = np.append(low.ravel(), size)

@@ -132,6 +132,9 @@ def test_cli_builds_a_3d_set_placed_by_a_3d_grammar(tmp_path, capsys):
     )
     assert code == 0
     assert "blobs3d: 2 targets" in capsys.readouterr().out
+    assert main(["targets", "show", str(tmp_path), "-o", str(tmp_path / "sheet.png")]) == 0
+    assert "2 of 2 3D targets" in capsys.readouterr().out
+    assert Image.open(tmp_path / "sheet.png").size == (2 * 68 + 4, 68 + 12 + 4)
     box = (-600.0, 600.0, -20.0, 1150.0, -600.0, 600.0)
     tree = Program(name="t", sites=[], axiom=lambda ctx: [], productions={}, dim=3, box=box)
     placed = load_volume_dataset(tmp_path, tree)
