@@ -42,6 +42,10 @@ def test_builds_are_seeded_and_reproducible(tmp_path, name):
     build_dataset(name, tmp_path / "b", count=3, seed=4, resolution=R)
     build_dataset(name, tmp_path / "c", count=3, seed=5, resolution=R)
     a, b, c = (built(tmp_path / d) for d in "abc")
+    for f in files:  # the same bytes, pictures too
+        for suffix in (".npz", ".png"):
+            again = tmp_path / "b" / f.with_suffix(suffix).name
+            assert again.read_bytes() == f.with_suffix(suffix).read_bytes()
     for x, y in zip(a, b, strict=True):
         assert np.array_equal(x.occupancy, y.occupancy) and np.array_equal(x.start, y.start)
     assert any(not np.array_equal(x.occupancy, z.occupancy) for x, z in zip(a, c, strict=True))
