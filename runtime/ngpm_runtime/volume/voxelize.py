@@ -91,8 +91,8 @@ def voxelize_mesh(
     for _ in range(TRIES):
         jitter = rng.uniform(-JITTER, JITTER, size=(2, r, r))
         inside, odd = _cast(tris, r, jitter)
-        done = todo & ~odd
-        occ[done] = inside[done]
+        done = todo & ~odd  # columns (ix, iz) settled by this cast
+        occ = np.where(done[:, None, :], inside, occ)
         todo &= odd
         if not todo.any():
             return occ

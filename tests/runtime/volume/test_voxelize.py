@@ -200,3 +200,34 @@ def test_bad_mesh_files_are_one_line_errors(tmp_path, name, data, message):
 def test_a_missing_mesh_is_named(tmp_path):
     with pytest.raises(MeshError, match="does not exist"):
         read_mesh(tmp_path / "none.obj")
+
+
+def test_columns_with_an_odd_count_are_cast_again(monkeypatch):
+    from ngpm_runtime.volume import voxelize
+
+    cube = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    good = voxelize_mesh(cube.vertices, cube.faces, ORIGIN, STEP, R)
+    real = voxelize._cast
+    calls = []
+
+    def flaky(tris, r, jitter):
+        inside, odd = real(tris, r, jitter)
+        calls.append(1)
+        if len(calls) == 1:  # the first cast grazes an edge in column (12, 20)
+            inside, odd = inside.copy(), odd.copy()
+            inside[12, :, 20] = ~inside[12, :, 20]
+            odd[12, 20] = True
+        return inside, odd
+
+    monkeypatch.setattr(voxelize, "_cast", flaky)
+    assert np.array_equal(voxelize_mesh(cube.vertices, cube.faces, ORIGIN, STEP, R), good)
+    assert len(calls) == 2
+
+    def always_odd(tris, r, jitter):
+        inside, odd = real(tris, r, jitter)
+        odd[3, 4] = True
+        return inside, odd
+
+    monkeypatch.setattr(voxelize, "_cast", always_odd)
+    with pytest.raises(VolumeError, match=r"^box\.obj is not watertight: rays through 1 column"):
+        voxelize_mesh(cube.vertices, cube.faces, ORIGIN, STEP, R, "box.obj")
