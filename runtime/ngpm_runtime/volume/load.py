@@ -197,18 +197,17 @@ def _from_picture(
             f"{path} is a picture: make it 3D with --extrude DEPTH (pushed along z) or "
             "--revolve (turned about its vertical middle)"
         )
+    if extrude is not None and not (math.isfinite(extrude) and 0 < extrude <= MAX_EXTRUDE):
+        raise VolumeError(
+            f"--extrude must be a depth above 0 and at most {MAX_EXTRUDE:g} "
+            f"(in picture sides), got {extrude}"
+        )
     size = max(2 * r, 16)
     target = load_target(path, size=size, polarity=polarity)
     mask = target.mask
     x, y = target.start[0] * size, (1.0 - target.start[1]) * size
     if extrude is not None:
-        depth = float(extrude)
-        if not (math.isfinite(depth) and 0 < depth <= MAX_EXTRUDE):
-            raise VolumeError(
-                f"--extrude must be a depth above 0 and at most {MAX_EXTRUDE:g} "
-                f"(in picture sides), got {extrude}"
-            )
-        cells = max(1, int(round(depth * size)))
+        cells = max(1, int(round(extrude * size)))
         lattice = vox.extrude(mask, cells)
         start = np.array([x, y, cells / 2.0])
     else:
