@@ -26,7 +26,7 @@ from ngpm_runtime.volume.target import VolumeTarget
 from ngpm_runtime.volume.voxelize import extrude, revolve
 from PIL import Image, ImageDraw, ImageFont
 
-from ngpm_compiler.datasets.clipart import clipart_files, rasterize_svg
+from ngpm_compiler.datasets.clipart import clipart_files, clipart_reject, rasterize_svg
 from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
 from ngpm_compiler.datasets.glyphs import default_font, font_codepoints, glyph_ok, render_glyph
 from ngpm_compiler.datasets.scribbles import scribble
@@ -185,7 +185,8 @@ def build_revolved(
 ) -> Iterator[Item3d]:
     """The procedural silhouettes (the `shapes` set's kinds in turn), or the pictures and
     SVG drawings under `--from DIR` (Openclipart: /usr/share/openclipart/svg/animals),
-    revolved; unusable pictures skipped with a warning."""
+    revolved; pictures the clipart set would refuse (too small, a frame, in several large
+    parts) skipped with a warning."""
     size = max(32, 2 * resolution)
     if source_dir is None:
         for j in range(2 * len(SHAPE_KINDS) if count is None else count):
@@ -219,6 +220,10 @@ def _revolved_files(
                     flat = silhouette_from_image(png, size, "alpha")
                 else:
                     flat = silhouette_from_image(png, size, polarity)
+                why = clipart_reject(flat.mask)  # as the clipart set: no frames, no specks
+                if why:
+                    warnings.warn(f"skipped {path.name}: {why}", DatasetWarning, stacklevel=2)
+                    continue
                 target = revolved(flat, resolution, "revolved")
             except TargetError as err:
                 warnings.warn(f"skipped {err}", DatasetWarning, stacklevel=2)
