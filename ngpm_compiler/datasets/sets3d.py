@@ -87,7 +87,7 @@ def _primitive(kind: str, rng: np.random.Generator, centre: np.ndarray, size: fl
 
 
 def blob3d(rng: np.random.Generator, resolution: int = 32) -> VolumeTarget:
-    """A union of 2 to 5 primitives, each placed touching the one before, drawn at twice
+    """A union of 2 to 5 primitives, each centred near the one before, drawn at twice
     the resolution and fitted to the unit cube; automatic start."""
     n = 2 * resolution
     c = (np.arange(n) + 0.5) / n
