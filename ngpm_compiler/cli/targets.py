@@ -49,6 +49,12 @@ def _add_build(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="how to read --from images (default auto)",
     )
     build.add_argument("--mirror", action="store_true", help="also write mirrored copies")
+    build.add_argument(
+        "--resolution",
+        type=argtypes.integer(8, 128),
+        default=32,
+        help="voxels a side of the 3D sets (blobs3d, extruded, revolved; default 32)",
+    )
     build.set_defaults(handler=_build)
 
 
@@ -127,12 +133,32 @@ def _build(args: argparse.Namespace) -> int:
             source_dir=args.source_dir,
             mirror=args.mirror,
             polarity=args.polarity,
+            resolution=args.resolution,
         )
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in skipped:
         print(f"ngpmc: warning: {w.message}", file=sys.stderr)
     extra = f", skipped {len(skipped)} unusable source file(s)" if skipped else ""
     print(f"{args.name}: {len(files)} targets in {args.out}{extra}")
+    return 0
+
+
+def _is_3d(directory: Path) -> bool:
+    """Whether a dataset directory holds a 3D set (.npz targets)."""
+    index = directory / "index.json"
+    return index.is_file() and '.npz"' in index.read_text(encoding="utf-8", errors="replace")
+
+
+def _show3d(args: argparse.Namespace) -> int:
+    """`targets show` of a 3D set: pictures of its voxels."""
+    from ngpm_runtime.volume.load import load_volume_dataset
+
+    from ngpm_compiler.datasets.sets3d import volume_sheet
+
+    targets = load_volume_dataset(args.source)
+    shown = targets[: args.max]
+    volume_sheet(shown, args.out, cols=args.cols, cell=args.cell)
+    print(f"{args.out}: {len(shown)} of {len(targets)} 3D targets")
     return 0
 
 
@@ -145,6 +171,8 @@ def _list(_args: argparse.Namespace) -> int:
 
 def _show(args: argparse.Namespace) -> int:
     check_output_file(args.out, "PNG file")
+    if args.source.is_dir() and _is_3d(args.source):
+        return _show3d(args)
     if args.source.is_dir():
         targets = load_dataset(args.source, size=args.size)
     else:

@@ -4,7 +4,9 @@ Every family's builder (scribbles.py, varied.py, glyphs.py, silhouettes.py, clip
 yields `(Target, source)` pairs; `build_dataset` writes them as `NAME_0000.png` +
 `NAME_0000.txt` (the sidecar) plus `index.json`, one file at a time (atomic writes),
 skipping files that already exist, so an interrupted build resumes. Nothing is downloaded:
-fonts and silhouettes come from files on this machine. Contact sheets: sheets.py.
+fonts and silhouettes come from files on this machine. Contact sheets: sheets.py. The 3D
+sets (sets3d.py, `dim` 3) yield `VolumeTarget`s, written as `NAME_0000.npz` with a picture
+`NAME_0000.png`, at `resolution` voxels a side.
 """
 
 from __future__ import annotations
@@ -13,17 +15,25 @@ import json
 import os
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from ngpm_runtime.files import atomic_write
 from ngpm_runtime.image.targets import Target, save_target, sidecar_path
+from ngpm_runtime.volume.target import VolumeTarget
 
 from ngpm_compiler.datasets.clipart import build_clipart
-from ngpm_compiler.datasets.common import DatasetError, DatasetWarning, Item
+from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
 from ngpm_compiler.datasets.glyphs import build_glyphs
 from ngpm_compiler.datasets.scribbles import build_scribbles
+from ngpm_compiler.datasets.sets3d import (
+    build_blobs3d,
+    build_extruded,
+    build_revolved,
+    mirrored3d,
+    save_volume,
+)
 from ngpm_compiler.datasets.silhouettes import build_shapes, build_silhouettes
 from ngpm_compiler.datasets.varied import build_varied
 
@@ -33,7 +43,8 @@ class DatasetSpec:
     name: str
     description: str
     default_count: int | None  # None: every item the source provides
-    builder: Callable[..., Iterator[Item]]
+    builder: Callable[..., Iterator[Any]]  # Items, or (VolumeTarget, source) when dim is 3
+    dim: int = 2
 
 
 DATASETS: dict[str, DatasetSpec] = {
@@ -78,6 +89,29 @@ DATASETS: dict[str, DatasetSpec] = {
         None,
         build_clipart,
     ),
+    "blobs3d": DatasetSpec(
+        "blobs3d",
+        "3D: random unions of 2-5 spheres, boxes, capsules and cones, automatic start (training)",
+        300,
+        build_blobs3d,
+        3,
+    ),
+    "extruded": DatasetSpec(
+        "extruded",
+        "3D: scribbles, varied strokes and glyphs extruded to a random depth, "
+        "start where the 2D target starts (training)",
+        300,
+        build_extruded,
+        3,
+    ),
+    "revolved": DatasetSpec(
+        "revolved",
+        "3D: procedural silhouettes (or --from DIR pictures, e.g. Openclipart) revolved "
+        "about their vertical middle, automatic start (testing)",
+        None,
+        build_revolved,
+        3,
+    ),
 }
 
 
@@ -91,8 +125,10 @@ def build_dataset(
     source_dir: str | os.PathLike[str] | None = None,
     mirror: bool = False,
     polarity: str = "auto",
+    resolution: int = 32,
 ) -> list[Path]:
-    """Build dataset `name` into out_dir; returns the PNG paths in index order.
+    """Build dataset `name` into out_dir; returns the PNG paths (the .npz paths of a 3D
+    set, made at `resolution` voxels a side; `size` is for 2D sets) in index order.
 
     Existing `NAME_####.png` files with sidecars are kept as they are (resume). Source
     items that cannot be used are skipped with a DatasetWarning. With mirror=True every
@@ -107,12 +143,14 @@ def build_dataset(
         raise DatasetError("count must be >= 0")
     if not isinstance(size, int) or size < 8:
         raise DatasetError("size must be an integer >= 8")
+    if spec.dim == 3 and (isinstance(resolution, bool) or not 8 <= resolution <= 128):
+        raise DatasetError("resolution must be an integer from 8 to 128")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     params = {
         "name": name,
         "seed": seed,
-        "size": size,
+        **({"resolution": resolution} if spec.dim == 3 else {"size": size}),
         "mirror": mirror,
         "font": str(font) if font is not None else None,
         "source_dir": str(source_dir) if source_dir is not None else None,
@@ -123,25 +161,20 @@ def build_dataset(
     sources: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DatasetWarning)
-        for i, (target, source) in enumerate(
-            spec.builder(
-                count=count,
-                seed=seed,
-                size=size,
-                font=font,
-                source_dir=source_dir,
-                polarity=polarity,
-            )
-        ):
-            stem = f"{name}_{i:04d}"
-            named = Target(target.mask, target.start, stem)
-            versions = [named, named.mirrored()] if mirror else [named]
-            for t in versions:
-                path = out / f"{t.name}.png"
-                if not (path.is_file() and sidecar_path(path).is_file()):
-                    save_target(t, path)
+        items = spec.builder(
+            count=count,
+            seed=seed,
+            size=size,
+            resolution=resolution,
+            font=font,
+            source_dir=source_dir,
+            polarity=polarity,
+        )
+        write = _write_volume if spec.dim == 3 else _write_target
+        for i, (target, source) in enumerate(items):
+            for path, mirrored in write(target, out, f"{name}_{i:04d}", mirror):
                 files.append(path)
-                sources.append(source + (" (mirrored)" if t is not named else ""))
+                sources.append(source + (" (mirrored)" if mirrored else ""))
     skipped = [str(w.message) for w in caught if issubclass(w.category, DatasetWarning)]
     for w in caught:  # hand the warnings on to whoever called us
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -159,6 +192,32 @@ def build_dataset(
         },
     )
     return files
+
+
+def _write_target(target: Target, out: Path, stem: str, mirror: bool) -> list[tuple[Path, bool]]:
+    """Write a 2D target (and its mirror) unless there already; (path, mirrored) each."""
+    named = Target(target.mask, target.start, stem)
+    done = []
+    for t in [named, named.mirrored()] if mirror else [named]:
+        path = out / f"{t.name}.png"
+        if not (path.is_file() and sidecar_path(path).is_file()):
+            save_target(t, path)
+        done.append((path, t is not named))
+    return done
+
+
+def _write_volume(
+    target: VolumeTarget, out: Path, stem: str, mirror: bool
+) -> list[tuple[Path, bool]]:
+    """Write a 3D target (and its mirror) unless there already; (path, mirrored) each."""
+    named = replace(target, name=stem)
+    done = []
+    for t in [named, mirrored3d(named)] if mirror else [named]:
+        path = out / f"{t.name}.npz"
+        if not (path.is_file() and path.with_suffix(".png").is_file()):
+            save_volume(t, path)
+        done.append((path, t is not named))
+    return done
 
 
 def _check_previous(index: Path, params: dict[str, Any]) -> None:
