@@ -22,7 +22,6 @@ from ngpm_runtime import kernels as _base  # noqa: F401  (numba's array typing, 
 N_LEVELS = 4
 EPS = 1e-9
 SEG3, SPHERE, LEAF3, POLY3 = 0, 1, 2, 3  # primitive kind codes of `draw`
-SHAPE_SIGMA = 0.02  # as inference/likelihood.py
 BOUNDS_SCALE = 0.001
 jit = njit(cache=True, nogil=True, error_model="numpy")
 
@@ -325,10 +324,11 @@ def volume_increment(
     gain: np.ndarray,
     bbox: np.ndarray,
     pbox: np.ndarray,
+    sigma: float,
 ) -> np.ndarray:
     """VoxelLikelihood's update: per batch row k (particle idx[k]) the similarity gain of its
     new voxels (hit_k, hit_vox), its box grown by bbox[k]; the state arrays sim, box (N, 6),
-    ll are updated in place; returns new ll - old ll per row."""
+    ll are updated in place; returns new ll - old ll per row (sigma: eq. 1's 0.02)."""
     n = idx.shape[0]
     dsim = np.zeros(n)
     for m in range(hit_k.shape[0]):
@@ -340,7 +340,7 @@ def volume_increment(
         for a in range(3):
             box[i, a] = _min(box[i, a], bbox[k, a])
             box[i, 3 + a] = _max(box[i, 3 + a], bbox[k, 3 + a])
-        value = -(((s - 1.0) / SHAPE_SIGMA) ** 2) + _bounds(box[i], pbox)
+        value = -(((s - 1.0) / sigma) ** 2) + _bounds(box[i], pbox)
         delta[k] = value - ll[i]
         sim[i] = s
         ll[i] = value

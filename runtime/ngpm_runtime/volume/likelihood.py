@@ -114,11 +114,13 @@ def check_box(box: Any, name: str) -> Box:
 
 class VoxelLikelihood(Likelihood):
     """Equation 1 against a VolumeTarget (volume/target.py), on a VoxelCanvas of the
-    target's grid; the bounds terms against the program's 3D box."""
+    target's grid; the bounds terms against the program's 3D box. `sigma` is the equation's
+    0.02 (a larger one tempers the likelihood: the exactness tests use one)."""
 
     needs_canvas = True
 
-    def __init__(self, target: Any, box: Box) -> None:
+    def __init__(self, target: Any, box: Box, sigma: float = SHAPE_SIGMA) -> None:
+        self.sigma = float(sigma)
         self.grid = VoxelGrid.of_target(target)
         self.source = target
         t = np.asarray(target.occupancy, dtype=bool)
@@ -150,13 +152,14 @@ class VoxelLikelihood(Likelihood):
             self.gain,
             batch.bbox,
             self._box,
+            self.sigma,
         )
         return delta
 
     def full(self, occupancy: np.ndarray, bbox: np.ndarray) -> float:
         """Log-likelihood of one finished grid from scratch."""
         s = volume_similarity(occupancy, self.target)
-        return float(-(((s - 1.0) / SHAPE_SIGMA) ** 2) + volume_bounds_penalty(bbox, self.box))
+        return float(-(((s - 1.0) / self.sigma) ** 2) + volume_bounds_penalty(bbox, self.box))
 
     def blank_loglik(self, height: int, width: int) -> float | None:
         """The empty grid's value (the arguments, a 2D canvas's size, are not used)."""
