@@ -129,6 +129,10 @@ def pack(prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     but the kind and the colour), polygon vertices (m, 3), each primitive's first vertex
     (n + 1,)."""
     n = len(prims)
+    if n and all(p[0] == "seg3" for p in prims):  # the common case: one row each
+        seg = np.zeros((n, _N_PAR))
+        seg[:, :7] = np.array([p[1:8] for p in prims], dtype=np.float64)
+        return np.zeros(n, dtype=np.int8), seg, _NO_VERTS, np.zeros(n + 1, dtype=np.intp)
     codes = np.empty(n, dtype=np.int8)
     par = np.zeros((n, _N_PAR))
     verts: list[np.ndarray] = []
