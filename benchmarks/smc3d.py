@@ -7,7 +7,9 @@ the grammar's box: a crown on a trunk, a cone, and the envelope of one prior tre
 voxels within 2 of a forward sample's, seed 99: a shape the grammar can fill). Runs are
 interleaved (per seed, per target, every N in turn); printed per N: median ms per SMC step
 (CPU and wall), median seconds per run (CPU and wall), median steps and the similarity of
-the best particle per target (mean over seeds).
+the best particle per target (mean over seeds). "features N=10" is the first N with the 3D
+feature rows computed for every site visit and given to a proposal that draws from the
+prior (`PriorWithFeatures`): what the features add to a guided run, without its networks.
 
 --features: the 3D feature rows' cost per row batch (FeatureMaker3D, one kernel call and
 the site columns) for the 3x3x3 window ("cube", 216 window columns) and the 7-cell one
@@ -82,35 +84,50 @@ def dilate(occ: np.ndarray, steps: int) -> np.ndarray:
     return out
 
 
+class PriorWithFeatures:
+    """The prior as a proposal that asks for the 3D feature rows (as a guide does) and
+    ignores them: what the features add to a step, without a guide's networks."""
+
+    uses_features = True
+
+    def propose(self, site: Any, args: np.ndarray, feats: Any, rng: Any) -> Any:
+        from ngpm_runtime.inference.distributions import prior_draw
+
+        return prior_draw(site, args, rng)
+
+
 def step_table(program: Any, ts: list[Any], ns: list[int], seeds: int) -> None:
-    """Unguided grow() at each N, interleaved; one line per N."""
+    """grow() at each N (unguided), and at the first N with the features computed,
+    interleaved; one line per configuration."""
     from ngpm_runtime.grow import grow
 
-    runs: dict[int, list[tuple[float, float, int, float]]] = {n: [] for n in ns}
-    sims: dict[tuple[int, str], list[float]] = {}
-    grow(program, ts[0], None, 2, seed=0)  # compile/load the kernels outside the timings
+    configs = [(f"unguided N={n}", n, None) for n in ns]
+    configs.insert(1, (f"features N={ns[0]}", ns[0], PriorWithFeatures()))
+    runs: dict[str, list[tuple[float, float, int, float]]] = {c[0]: [] for c in configs}
+    sims: dict[tuple[str, str], list[float]] = {}
+    grow(program, ts[0], PriorWithFeatures(), 2, seed=0)  # compile the kernels first
     for seed in range(seeds):
         for t in ts:
-            for n in ns:
+            for label, n, proposal in configs:
                 c0, w0 = time.process_time(), time.perf_counter()
-                res = grow(program, t, None, n, seed=seed)
+                res = grow(program, t, proposal, n, seed=seed)
                 cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-                runs[n].append((cpu, wall, res.smc.steps, res.similarity))
-                sims.setdefault((n, t.name), []).append(res.similarity)
+                runs[label].append((cpu, wall, res.smc.steps, res.similarity))
+                sims.setdefault((label, t.name), []).append(res.similarity)
     print(
         f"{'config':<16}{'ms/step cpu':>12}{'ms/step wall':>13}{'s/run cpu':>10}"
         f"{'s/run wall':>11}{'steps':>7}" + "".join(f"{'sim ' + t.name:>14}" for t in ts)
     )
-    for n in ns:
-        r = runs[n]
+    for label, _, _ in configs:
+        r = runs[label]
         per_cpu = statistics.median(c / max(s, 1) * 1e3 for c, _, s, _ in r)
         per_wall = statistics.median(w / max(s, 1) * 1e3 for _, w, s, _ in r)
         print(
-            f"{'unguided N=' + str(n):<16}{per_cpu:>12.2f}{per_wall:>13.2f}"
+            f"{label:<16}{per_cpu:>12.2f}{per_wall:>13.2f}"
             f"{statistics.median(c for c, *_ in r):>10.2f}"
             f"{statistics.median(w for _, w, *_ in r):>11.2f}"
             f"{statistics.median(s for *_, s, _ in r):>7.0f}"
-            + "".join(f"{statistics.fmean(sims[n, t.name]):>14.3f}" for t in ts)
+            + "".join(f"{statistics.fmean(sims[label, t.name]):>14.3f}" for t in ts)
         )
 
 
