@@ -42,6 +42,7 @@ def test_api_md_examples_run(tmp_path: Path, monkeypatch) -> None:
         img.verify()
     assert (tmp_path / "prior.svg").read_text().startswith("<svg")
     assert re.search(r"^\d+ vertices, \d+ triangles$", text, re.M), text
+    assert re.search(r"^crown: similarity -?[\d.]+, \d+ primitives$", text, re.M), text
     for name in ("plant.glb", "plant.obj", "plant.mtl", "plant.ply", "plant.png", "plant.gif"):
         assert (tmp_path / name).stat().st_size > 0, name
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from ngpm_runtime.program import Program, require_2d
 
 if TYPE_CHECKING:  # targets loads PIL: only when a target is made
     from ngpm_runtime.image.targets import Target
+    from ngpm_runtime.volume.target import VolumeTarget
 
 LIKELIHOODS = ("shape", "circuit")
 DEFAULT_CANVAS = (50, 50)  # raster size when there is no target
@@ -47,7 +48,7 @@ class GrowResult:
     seconds: float  # time in SMC (not counting the final raster)
     particles: int
     primitives: list[Prim]
-    image: np.ndarray  # (H, W) uint8 raster of the best particle
+    image: np.ndarray  # (H, W) uint8 raster of the best particle; 3D: its (R, R, R) voxels
     smc: SMCResult
 
 
@@ -77,7 +78,7 @@ def make_likelihood(kind: str, program: Program, target: Target | None = None) -
 
 def grow(
     program: Program,
-    target: Target | None = None,
+    target: Target | VolumeTarget | None = None,
     guide: Proposal | None = None,
     n_particles: int = 10,
     seed: int = 0,
@@ -85,7 +86,7 @@ def grow(
     *,
     observers: Sequence[SMCObserver] = (),
     trace: TraceRecording = TraceRecording.NONE,
-    start: tuple[float, float, float] | None = None,
+    start: tuple[float, ...] | None = None,
     canvas_size: tuple[int, int] | None = None,
     max_modules: int | None = None,
 ) -> GrowResult:
@@ -99,7 +100,24 @@ def grow(
     canvas_size (default: the target's size) and max_modules (the grammar's "max modules"
     cap, overridden) go to `smc`, which resamples as the guide's settings say
     (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
+
+    A 3D grammar grows into a `VolumeTarget` (volume/target.py) with the voxel likelihood
+    ("shape" only; canvas_size is not used; start may be (x, y, z, heading)).
     """
+    if program.dim == 3:
+        return _grow3d(
+            program,
+            target,
+            guide,
+            n_particles,
+            seed,
+            likelihood,
+            observers,
+            trace,
+            start,
+            max_modules,
+        )
+    target = cast("Target | None", target)  # a 2D grammar: a picture's Target
     viewport = _viewport(program)
     like: Likelihood = make_likelihood(likelihood, program, target)
     mask = target.mask if target is not None else None
@@ -123,3 +141,43 @@ def grow(
     image = rasterize(prims, viewport, *canvas_size)
     sim = float(similarity(image, mask)) if mask is not None else float("nan")
     return GrowResult(sim, seconds, n_particles, prims, image, result)
+
+
+def _grow3d(
+    program: Program,
+    target: Any,
+    guide: Proposal | None,
+    n_particles: int,
+    seed: int,
+    likelihood: str,
+    observers: Sequence[SMCObserver],
+    trace: TraceRecording,
+    start: tuple[float, ...] | None,
+    max_modules: int | None,
+) -> GrowResult:
+    """grow() of a 3D grammar into a VolumeTarget: similarity and image are the best
+    particle's voxels on the target's grid."""
+    from ngpm_runtime.volume.likelihood import volume_similarity
+    from ngpm_runtime.volume.raster import VoxelGrid, voxelize
+    from ngpm_runtime.volume.run import start_pose, volume_likelihood
+
+    if likelihood != "shape":
+        raise NgpmError(f"a 3D grammar grows with the shape likelihood only, not {likelihood!r}")
+    if target is None or not hasattr(target, "occupancy"):
+        raise NgpmError(f"{printable(program.name)} is a 3D grammar: it grows into a 3D target")
+    like = volume_likelihood(program, target)
+    t0 = time.perf_counter()
+    options = SMCOptions(
+        seed=seed,
+        ess_from_proposal=True,
+        trace=trace,
+        start=start_pose(program, target) if start is None else start,
+        max_modules=max_modules,
+        volume=target,
+    )
+    result = smc(program, like, n_particles, guide, options, observers)
+    seconds = time.perf_counter() - t0
+    prims = list(result.best.primitives)
+    voxels = voxelize(prims, VoxelGrid.of_target(target))
+    sim = volume_similarity(voxels, target.occupancy)
+    return GrowResult(sim, seconds, n_particles, prims, voxels, result)

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from itertools import chain
-from typing import Any, Protocol, cast, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
 
 import numpy as np
 
@@ -48,7 +48,10 @@ from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBa
 from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
 from ngpm_runtime.inference.resample import SCHEMES
 from ngpm_runtime.inference.resample import resample as draw_ancestors
-from ngpm_runtime.program import Program, Site, require_2d
+from ngpm_runtime.program import Program, Site
+
+if TYPE_CHECKING:
+    from ngpm_runtime.volume.target import VolumeTarget
 
 
 class SMCOptionError(NgpmError):
@@ -70,19 +73,22 @@ class SMCOptions:
     ess_threshold * N (None: every step); ess_from_proposal: use the proposal's own
     `settings.ess_threshold` instead (a tuned Guide carries one; a proposal without settings
     resamples every step). max_primitives overrides `program.max_primitives`, max_modules
-    `program.max_modules` (modules one particle may expand or interpret in one step)."""
+    `program.max_modules` (modules one particle may expand or interpret in one step).
+    A 3D grammar: start may be (x, y, z, heading), volume is the 3D target the features
+    read (a VolumeTarget; canvas_size and target_mask are 2D only)."""
 
     seed: int = 0
     resample: str = "residual"
     ess_threshold: float | None = None
     ess_from_proposal: bool = False
     trace: TraceRecording = TraceRecording.NONE
-    start: tuple[float, float, float] | None = None
+    start: tuple[float, ...] | None = None
     canvas_size: tuple[int, int] = (50, 50)
     target_mask: np.ndarray | None = None
     max_steps: int | None = None
     max_primitives: int | None = None
     max_modules: int | None = None
+    volume: VolumeTarget | None = None
 
 
 class SMCState:
@@ -320,10 +326,8 @@ class _Run:
             if likelihood is not None and self.canvas is not None
             else None
         )
-        x0, y0, h0 = program.start if options.start is None else options.start
         self.deriver = Deriver(program, max_modules=module_cap(program, options.max_modules))
-        turtle = (float(x0), float(y0), float(h0), 1.0)
-        self.pop = Population([self.deriver.start(turtle) for _ in range(n)])
+        self.pop = Population(start_particles(self.deriver, program, options.start, n))
         self.state = SMCState(n, self.pop.log_lik)
         self.order = SiteOrder()
         # log prior of weighted (categorical) sites per (site, weights)
@@ -341,8 +345,12 @@ class _Run:
         maker (for a proposal that reads features, or full traces)."""
         program, likelihood = self.program, self.likelihood
         need_features = self.use_features or self.trace is TraceRecording.FULL
-        if likelihood is not None or need_features:
-            require_2d(program, "SMC with a likelihood, a guide or full traces")
+        self.trim = 0  # context columns to cut from the rows the proposal is given
+        if program.dim == 3:  # voxel canvas, likelihood and features (volume/, issue #26)
+            self._make_volume(options, need_features)
+            return
+        if options.volume is not None:
+            raise SMCOptionError(f"{program.name} is a 2D grammar: a 3D target is for 3D ones")
         self.canvas = None
         if need_features or (likelihood is not None and likelihood.needs_canvas):
             if program.viewport is None:
@@ -357,7 +365,6 @@ class _Run:
                 self.n, int(height), int(width), program.viewport, pyramid=need_features
             )
         self.fmaker = None
-        self.trim = 0  # context columns to cut from the rows the proposal is given
         if need_features:
             from ngpm_runtime.image.features import FeatureMaker
 
@@ -371,6 +378,21 @@ class _Run:
                 from ngpm_runtime.image.features import N_CONTEXT
 
                 self.trim = N_CONTEXT
+
+    def _make_volume(self, options: SMCOptions, need_features: bool) -> None:
+        """A 3D grammar's voxel canvas and FeatureMaker3D (volume/run.py); they have the
+        interface of the 2D ones that the run uses."""
+        from ngpm_runtime.volume.run import canvas_and_features
+
+        canvas, fmaker = canvas_and_features(
+            self.program,
+            self.likelihood,
+            self.n,
+            options.volume,
+            need_features,
+            options.target_mask,
+        )
+        self.canvas, self.fmaker = cast(Any, canvas), cast(Any, fmaker)
 
     def step(self, ess_threshold: float | None) -> None:
         """Every live particle to its next drawn primitive; weights; maybe resampling."""
@@ -744,14 +766,16 @@ class SiteOrder:
 def replay(
     program: Program,
     values: list[tuple[int, float]],
-    start: tuple[float, float, float] | None = None,
+    start: tuple[float, ...] | None = None,
     canvas_size: tuple[int, int] = (50, 50),
     target_mask: np.ndarray | None = None,
     max_primitives: int | None = None,
     max_modules: int | None = None,
+    volume: VolumeTarget | None = None,
 ) -> FinalParticle:
     """The one derivation that makes the given (site, value) choices, with its full trace
-    (features as a run with `TraceRecording.FULL` computes them); no likelihood."""
+    (features as a run with `TraceRecording.FULL` computes them); no likelihood. A 3D
+    grammar's features read `volume` (its start may be (x, y, z, heading))."""
     from ngpm_runtime.inference.proposals import ReplayProposal
 
     proposal = ReplayProposal(values)
@@ -762,6 +786,7 @@ def replay(
         target_mask=target_mask,
         max_primitives=max_primitives,
         max_modules=max_modules,
+        volume=volume,
     )
     res = smc(program, None, 1, proposal, options)
     proposal.check_used()
@@ -869,6 +894,22 @@ def check_run_options(n_particles: object, seed: object, max_modules: object) ->
         or max_modules < 1
     ):
         raise SMCOptionError(f"max_modules must be an integer >= 1, got {max_modules!r}")
+
+
+def start_particles(
+    deriver: Deriver, program: Program, start: Sequence[float] | None, n: int
+) -> list[Particle]:
+    """n new particles at the start pose (x, y, heading), default the program's; a 3D
+    program's may be (x, y, z, heading)."""
+    pose = tuple(program.start if start is None else start)
+    if len(pose) != (4 if program.dim == 3 and len(pose) == 4 else 3):
+        raise SMCOptionError(f"start must be (x, y, heading) or, in 3D, (x, y, z, heading): {pose}")
+    turtle = (float(pose[0]), float(pose[1]), float(pose[-1]), 1.0)
+    parts = [deriver.start(turtle) for _ in range(n)]
+    if len(pose) == 4:  # the 3D turtle starts at z = 0: move it
+        for p in parts:
+            p.turtle = (p.turtle[0], p.turtle[1], float(pose[2])) + p.turtle[3:]
+    return parts
 
 
 def module_cap(program: Program, max_modules: int | None = None) -> int:

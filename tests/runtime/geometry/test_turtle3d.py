@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 from fixtures.tiny_programs import make_program
-from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.errors import NgpmError, ProgramError
 from ngpm_runtime.geometry.derive import Deriver
 from ngpm_runtime.geometry.turtle import prim_bbox
 from ngpm_runtime.geometry.turtle3d import (
@@ -292,13 +292,18 @@ def test_header_tropism_reaches_the_turtle() -> None:
 
 
 def test_3d_runs_into_a_picture_are_one_line_errors() -> None:
+    """A 3D grammar grows into a 3D target (volume/, tests/runtime/volume): a picture's
+    likelihood, or features without a 3D viewport to lay voxels over, are one-line errors."""
     prog = make_program({}, axiom=[("F", 1.0)], dim=3, viewport=(-1, 1, -1, 1))
-    for run_it in (
-        lambda: smc(prog, CircuitLikelihood((-1, 1, -1, 1)), 2),
-        lambda: smc(prog, None, 2, options=SMCOptions(trace=TraceRecording.FULL)),
+    for run_it, says in (
+        (lambda: smc(prog, CircuitLikelihood((-1, 1, -1, 1)), 2), "is a 2D likelihood"),
+        (
+            lambda: smc(prog, None, 2, options=SMCOptions(trace=TraceRecording.FULL)),
+            "no 3D viewport",
+        ),
     ):
-        with pytest.raises(ProgramError) as err:
+        with pytest.raises(NgpmError) as err:
             run_it()
-        assert "3D grammar" in str(err.value) and "issue #26" in str(err.value)
+        assert "3D" in str(err.value) and says in str(err.value)
         assert "\n" not in str(err.value)
     assert smc(prog, None, 3).particles[0].primitives  # forward sampling works

@@ -1,0 +1,95 @@
+"""3D guide features (volume/features.py): the compiled rows against the numpy reference
+(windows of the target's and the canvas's pyramids from scratch), for both windows, with
+and without a target or a canvas; the cached rows equal fresh ones; the layout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fixtures.volume3d import GRID, ball_target, random_prim3
+from ngpm_runtime.program import Program, Site
+from ngpm_runtime.volume.features import WINDOWS, FeatureMaker3D
+from ngpm_runtime.volume.raster import VoxelCanvas
+from reference import volume as ref
+
+pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
+SITE = Site(index=0, id="A/0/normal0", kind="normal", module="A", arity=2)
+PROGRAM = Program(name="t", sites=[SITE], axiom=lambda ctx: [], productions={}, derivation_length=6)
+
+
+def _turtles(rng: np.random.Generator, n: int) -> list[tuple]:
+    """3D turtle tuples: mostly in the grid, some outside it or not finite."""
+    top = np.array(GRID.lo) + GRID.extent()
+    out = []
+    for _ in range(n):
+        pos = rng.uniform(np.array(GRID.lo) - 1.5, top + 1.5)
+        if rng.random() < 0.1:
+            pos[rng.integers(3)] = rng.choice([np.nan, np.inf, -np.inf, 1e300])
+        frame = np.linalg.qr(rng.normal(size=(3, 3)))[0].T.reshape(-1)
+        out.append((*pos, *frame, float(rng.uniform(0.1, 3)), 0, None))
+    return out
+
+
+@pytest.mark.parametrize("window", list(WINDOWS))
+@pytest.mark.parametrize(
+    ("with_target", "with_canvas"), [(True, True), (False, True), (True, False)]
+)
+def test_rows_match_the_reference(window: str, with_target: bool, with_canvas: bool) -> None:
+    rng = np.random.default_rng(len(window) + 2 * with_target + with_canvas)
+    target = ball_target(GRID, (-1.0, 2.5, -0.5), 2.2) if with_target else None
+    fm = FeatureMaker3D(PROGRAM, GRID, target, window=window)
+    n = 6
+    canvas = VoxelCanvas(n, GRID) if with_canvas else None
+    if canvas is not None:
+        for _ in range(8):
+            canvas.draw(np.arange(n), [random_prim3(rng) for _ in range(n)])
+    turtles = _turtles(rng, n)
+    depths = rng.integers(0, 6, size=n).astype(float)
+    params, args = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
+    got = fm.features(SITE, canvas, np.arange(n), turtles, depths, params, args)
+    want = ref.feature_rows(
+        fm,
+        None if canvas is None else canvas.voxels,
+        turtles,
+        depths,
+        None if target is None else target.occupancy,
+    )
+    lay = fm.layout(SITE)
+    assert got.shape == (n, fm.n_features(SITE)) and lay["partial"].stop == got.shape[1]
+    np.testing.assert_array_equal(got[:, :14], want[:, :14])
+    np.testing.assert_array_equal(got[:, 14:16], params.astype(np.float32))
+    np.testing.assert_array_equal(got[:, 16:18], args.astype(np.float32))
+    np.testing.assert_array_equal(got[:, lay["target"]], want[:, 14 : 14 + fm.n_window])
+    np.testing.assert_array_equal(got[:, lay["partial"]], want[:, 14 + fm.n_window :])
+    if with_canvas:  # the canvas windows saw drawn voxels
+        assert (got[:, lay["partial"]] > 0).any()
+
+
+def test_window_sizes_and_cached_rows() -> None:
+    target = ball_target(GRID, (0.0, 2.0, -0.5), 2.0)
+    cube = FeatureMaker3D(PROGRAM, GRID, target)
+    cross = FeatureMaker3D(PROGRAM, GRID, target, window="cross")
+    assert (cube.n_window, cross.n_window) == (2 * 27 * 4 // 2, 7 * 4)
+    assert cube.n_features(SITE) == 14 + 2 + 2 + 216
+    rng = np.random.default_rng(5)
+    canvas = VoxelCanvas(5, GRID)
+    canvas.draw(np.arange(5), [random_prim3(rng) for _ in range(5)])
+    turtles = _turtles(rng, 5)
+    args = [rng.normal(size=(2, 2)), rng.normal(size=(3, 2))]
+    pars = [rng.normal(size=(2, 2)), rng.normal(size=(3, 2))]
+    idx = [4, 0, 1, 3, 2]
+    for depths in ([1.0, 2.0, 3.0, 4.0, 5.0], [0.0, 0.0, 2.0, 2.0, 1.0]):  # the second: cached
+        rows = cube.features_cached([SITE, SITE], canvas, idx, turtles, depths, pars, args)
+        for j, (lo, hi) in enumerate(((0, 2), (2, 5))):
+            fresh = cube.features(
+                SITE,
+                canvas,
+                np.array(idx[lo:hi]),
+                turtles[lo:hi],
+                np.array(depths[lo:hi]),
+                pars[j],
+                args[j],
+            )
+            np.testing.assert_array_equal(rows[j], fresh)
+    with pytest.raises(ValueError, match="unknown window"):
+        FeatureMaker3D(PROGRAM, GRID, None, window="sphere")
