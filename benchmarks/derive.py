@@ -1,0 +1,156 @@
+"""The deriver's cost per SMC step: time inside `Deriver.advance` (the per-particle Python
+derivation: productions, memo tables, turtle), apart from the numeric kernels.
+
+    python benchmarks/derive.py [--seeds 4] [--json PATH]
+    python benchmarks/derive.py --compare OLD_RUNTIME_DIR [--rounds 3] [--seeds 4]
+
+Runs on the bundled vines program, one core, each case in turn per seed:
+- guided N=10: `grow` with the bundled guide into the four demo targets (`ngpmc grow
+  runtime/ngpm_runtime/data/demo_horse.png -N 10` and the three others);
+- unguided N=600: `grow` without a guide into the same targets;
+- traces: a trace job's SMC (600 particles, values recorded, unguided; `ngpmc traces`).
+Printed per case: microseconds in the deriver per SMC step and per particle-step, advance
+calls per step and the deriver's share of the run's time. The timer around each `advance`
+call (two perf_counter calls) is counted in, the same for every version.
+
+--compare runs this script alternately with OLD_RUNTIME_DIR's `ngpm_runtime` (for example
+`git archive <commit> runtime | tar -x -C /tmp/old`, then /tmp/old/runtime) and with this
+checkout's, `--rounds` times each, and prints the medians of both and after/before: one
+interleaved run, so both versions see the same machine load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core
+
+HERE = Path(__file__).resolve().parent
+CASES = ("guided N=10", "unguided N=600", "traces N=600")
+TARGETS = ("horse", "glyph", "heart", "spiral")
+
+
+def measure(seeds: int) -> dict[str, dict[str, float]]:
+    """Deriver time, SMC steps, particle-steps, advance calls and run time per case, summed
+    over the targets and seeds."""
+    from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_target_path
+    from ngpm_runtime.geometry.derive import Deriver
+    from ngpm_runtime.grow import grow
+    from ngpm_runtime.image.targets import load_target
+    from ngpm_runtime.inference.smc import TraceRecording
+
+    program = bundled_program()
+    guide = bundled_guide(program)
+    targets = [load_target(demo_target_path(name)) for name in TARGETS]
+    inside = [0.0, 0]
+    advance = Deriver.advance
+
+    def timed(self: Any, p: Any) -> int:
+        t = time.perf_counter()
+        code = advance(self, p)
+        inside[0] += time.perf_counter() - t
+        inside[1] += 1
+        return code
+
+    Deriver.advance = timed  # type: ignore[method-assign]
+    runs = {
+        "guided N=10": {"guide": guide, "n": 10},
+        "unguided N=600": {"guide": None, "n": 600},
+        "traces N=600": {"guide": None, "n": 600, "trace": TraceRecording.VALUES},
+    }
+    grow(program, targets[0], guide, 10, 99)  # warm-up: imports, memo tables
+    out = {c: {"derive": 0.0, "steps": 0.0, "psteps": 0.0, "calls": 0.0, "run": 0.0} for c in runs}
+    for seed in range(seeds):
+        for target in targets:
+            for case, kw in runs.items():
+                inside[:] = [0.0, 0]
+                t0 = time.perf_counter()
+                res = grow(program, target, kw["guide"], kw["n"], seed, trace=kw.get("trace", TraceRecording.NONE))
+                row = out[case]
+                row["run"] += time.perf_counter() - t0
+                row["derive"] += inside[0]
+                row["calls"] += inside[1]
+                row["steps"] += res.smc.steps
+                row["psteps"] += res.smc.info["particle_steps"]
+    return out
+
+
+def figures(row: dict[str, float]) -> dict[str, float]:
+    return {
+        "us/step": 1e6 * row["derive"] / row["steps"],
+        "us/particle-step": 1e6 * row["derive"] / row["psteps"],
+        "calls/step": row["calls"] / row["steps"],
+        "share": row["derive"] / row["run"],
+    }
+
+
+def show(out: dict[str, dict[str, float]]) -> None:
+    print(f"{'':16s} {'us/step':>9s} {'us/particle-step':>16s} {'calls/step':>10s} {'share':>6s}")
+    for case, row in out.items():
+        f = figures(row)
+        print(
+            f"{case:16s} {f['us/step']:9.1f} {f['us/particle-step']:16.2f} "
+            f"{f['calls/step']:10.1f} {f['share']:6.2f}"
+        )
+
+
+def compare(old: str, rounds: int, seeds: int) -> None:
+    """This checkout against OLD's runtime, run in turn (alternating which goes first)."""
+    got: dict[str, list[dict[str, dict[str, float]]]] = {"before": [], "after": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            for which in ("before", "after") if r % 2 == 0 else ("after", "before"):
+                env = dict(os.environ)
+                if which == "before":
+                    rest = env.get("PYTHONPATH", "")
+                    env["PYTHONPATH"] = str(Path(old).resolve()) + (os.pathsep + rest if rest else "")
+                path = Path(tmp) / f"{which}{r}.json"
+                cmd = [sys.executable, __file__, "--seeds", str(seeds), "--json", str(path)]
+                subprocess.run(cmd, env=env, check=True, stdout=subprocess.DEVNULL)
+                got[which].append(json.loads(path.read_text()))
+    print(
+        f"deriver us per SMC step, median of {rounds} rounds (before and after in turn, "
+        f"{seeds} seeds x {len(TARGETS)} demo targets each)"
+    )
+    print(f"{'':16s} {'before':>9s} {'after':>9s} {'after/before':>12s}   per particle-step")
+    for case in CASES:
+        med = {
+            w: {k: statistics.median(figures(o[case])[k] for o in got[w]) for k in ("us/step",)}
+            for w in got
+        }
+        per = {w: statistics.median(figures(o[case])["us/particle-step"] for o in got[w]) for w in got}
+        b, a = med["before"]["us/step"], med["after"]["us/step"]
+        print(
+            f"{case:16s} {b:9.1f} {a:9.1f} {a / b:12.2f}   "
+            f"{per['before']:.2f} -> {per['after']:.2f} us"
+        )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--json", help="write the sums per case to this file")
+    ap.add_argument("--compare", metavar="OLD_RUNTIME_DIR")
+    ap.add_argument("--rounds", type=int, default=3)
+    args = ap.parse_args()
+    if args.compare:
+        compare(args.compare, args.rounds, args.seeds)
+        return
+    out = measure(args.seeds)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out))
+    show(out)
+
+
+if __name__ == "__main__":
+    main()
