@@ -58,7 +58,8 @@ class NeedSite(BaseException):
 
 
 class ReplayCtx:
-    """The `ctx` a production receives: answers from the values already chosen."""
+    """The `ctx` a production receives: answers from the values already chosen (each method
+    reads the next one itself: a production's random calls are the hottest calls there)."""
 
     __slots__ = ("values", "sites", "pos")
 
@@ -67,32 +68,50 @@ class ReplayCtx:
         self.sites: tuple[int, ...] = ()
         self.pos = 0
 
-    def _next(self, site: int, args: Args) -> float:
+    def _impure(self, site: int, args: Args) -> float:
+        """The next value is not one for `site`: ProgramError; past the values: NeedSite."""
         pos = self.pos
         if pos < len(self.values):
-            if self.sites[pos] != site:
-                raise ProgramError(
-                    f"generated code is not pure: replay asked for site {site}, "
-                    f"recorded site {self.sites[pos]}"
-                )
-            self.pos = pos + 1
-            return self.values[pos]
+            raise ProgramError(
+                f"generated code is not pure: replay asked for site {site}, "
+                f"recorded site {self.sites[pos]}"
+            )
         raise NeedSite(site, args)
 
     def normal(self, site: int, mu: float, sigma: float) -> float:
-        return self._next(site, (mu, sigma))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (mu, sigma))
 
     def uniform(self, site: int, a: float, b: float) -> float:
-        return self._next(site, (a, b))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (a, b))
 
     def bernoulli(self, site: int, p: float) -> float:
-        return self._next(site, (p,))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (p,))
 
     def categorical(self, site: int, weights: Args) -> float:
-        return self._next(site, tuple(weights))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, tuple(weights))
 
     def choose(self, site: int, probs: Args) -> int:
-        return int(self._next(site, tuple(probs)))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return int(self.values[pos])
+        return int(self._impure(site, tuple(probs)))
 
 
 class Particle:
@@ -159,14 +178,11 @@ class Particle:
 _new_particle = object.__new__
 
 
-class _Need:
-    """A production's request for a value (the memoizable form of NeedSite)."""
+class _Need(tuple):  # type: ignore[type-arg]
+    """A production's request for a value, `(site, prior args)` (the memoizable form of
+    NeedSite): a tuple, so that it becomes the particle's `need` as it is."""
 
-    __slots__ = ("site", "args")
-
-    def __init__(self, site: int, args: Args) -> None:
-        self.site = site
-        self.args = args
+    __slots__ = ()
 
 
 _MISS = object()
@@ -242,7 +258,7 @@ class Deriver:
             succ = fn(ctx, *mod[1:])
         except NeedSite as need:
             self._check_prior(need, fn, kind, mod)
-            return _Need(need.site, need.args)
+            return _Need((need.site, need.args))
         except ProgramError as err:
             raise ProgramError(f"{self._where(fn, kind, mod)}: {err}") from None
         except RecursionError:
@@ -364,7 +380,7 @@ class Deriver:
                         if res.__class__ is _Need:
                             p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                             p.turtle, p.tstack, p.poly = turtle, tstack, poly
-                            p.need = (res.site, res.args)
+                            p.need = res
                             return DRAWN if drew else NEED
                         if values:
                             p.values, p.sites, p.cont = (), (), False
@@ -379,7 +395,7 @@ class Deriver:
                     if res.__class__ is _Need:
                         p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                         p.turtle, p.tstack, p.poly = turtle, tstack, poly
-                        p.need = (res.site, res.args)
+                        p.need = res
                         return DRAWN if drew else NEED
                     if res is not None:
                         if i < n:
