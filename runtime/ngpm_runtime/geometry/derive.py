@@ -18,16 +18,8 @@ from typing import Any
 
 from ngpm_runtime.errors import ProgramError, printable
 from ngpm_runtime.geometry.cons import Cons
-from ngpm_runtime.geometry.turtle import (
-    CUT,
-    DRAWING,
-    HALT,
-    TURTLE_SYMBOLS,
-    Prim,
-    Turtle,
-    interpret,
-)
-from ngpm_runtime.geometry.turtle3d import TURTLE3D_SYMBOLS, Turtle3, interpret3d, start3d
+from ngpm_runtime.geometry.turtle import CUT, DRAWING, HALT, TURTLE_OPS, Prim, Turtle
+from ngpm_runtime.geometry.turtle3d import TURTLE3D_OPS, Turtle3, start3d
 from ngpm_runtime.program import Module, Program, prior_problem
 
 MAX_INTERP_DEPTH = 64
@@ -45,9 +37,10 @@ MAX_PRIMITIVES = 100_000
 # advance() outcomes
 DRAWN, NEED, DONE, LIMIT = 1, 2, 3, 4
 
-# dispatch codes per module name
-_IGNORE, _PROD, _INTERP, _TURTLE, _CUT, _HALT = 0, 1, 2, 3, 4, 5
+# dispatch codes per module name (a turtle symbol that may draw: _DRAW, a resampling point)
+_IGNORE, _PROD, _INTERP, _CUT, _HALT, _TURTLE, _DRAW = 0, 1, 2, 3, 4, 5, 6
 
+Entry = tuple[int, Any]  # a dispatch table entry: (code, production or turtle function)
 Node = tuple[Module, int, int, Any]  # a stack node (module, depth, ilevel, rest: Node | None)
 Args = tuple[float, ...]  # a site's prior arguments
 # A production's outcome: a successor list, a _Need or None. Any: the hot loop tells them
@@ -65,7 +58,8 @@ class NeedSite(BaseException):
 
 
 class ReplayCtx:
-    """The `ctx` a production receives: answers from the values already chosen."""
+    """The `ctx` a production receives: answers from the values already chosen (each method
+    reads the next one itself: a production's random calls are the hottest calls there)."""
 
     __slots__ = ("values", "sites", "pos")
 
@@ -74,32 +68,50 @@ class ReplayCtx:
         self.sites: tuple[int, ...] = ()
         self.pos = 0
 
-    def _next(self, site: int, args: Args) -> float:
+    def _impure(self, site: int, args: Args) -> float:
+        """The next value is not one for `site`: ProgramError; past the values: NeedSite."""
         pos = self.pos
         if pos < len(self.values):
-            if self.sites[pos] != site:
-                raise ProgramError(
-                    f"generated code is not pure: replay asked for site {site}, "
-                    f"recorded site {self.sites[pos]}"
-                )
-            self.pos = pos + 1
-            return self.values[pos]
+            raise ProgramError(
+                f"generated code is not pure: replay asked for site {site}, "
+                f"recorded site {self.sites[pos]}"
+            )
         raise NeedSite(site, args)
 
     def normal(self, site: int, mu: float, sigma: float) -> float:
-        return self._next(site, (mu, sigma))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (mu, sigma))
 
     def uniform(self, site: int, a: float, b: float) -> float:
-        return self._next(site, (a, b))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (a, b))
 
     def bernoulli(self, site: int, p: float) -> float:
-        return self._next(site, (p,))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, (p,))
 
     def categorical(self, site: int, weights: Args) -> float:
-        return self._next(site, tuple(weights))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return self.values[pos]
+        return self._impure(site, tuple(weights))
 
     def choose(self, site: int, probs: Args) -> int:
-        return int(self._next(site, tuple(probs)))
+        pos = self.pos
+        if pos < len(self.values) and self.sites[pos] == site:
+            self.pos = pos + 1
+            return int(self.values[pos])
+        return int(self._impure(site, tuple(probs)))
 
 
 class Particle:
@@ -166,14 +178,11 @@ class Particle:
 _new_particle = object.__new__
 
 
-class _Need:
-    """A production's request for a value (the memoizable form of NeedSite)."""
+class _Need(tuple):  # type: ignore[type-arg]
+    """A production's request for a value, `(site, prior args)` (the memoizable form of
+    NeedSite): a tuple, so that it becomes the particle's `need` as it is."""
 
-    __slots__ = ("site", "args")
-
-    def __init__(self, site: int, args: Args) -> None:
-        self.site = site
-        self.args = args
+    __slots__ = ()
 
 
 _MISS = object()
@@ -194,10 +203,11 @@ def _where(program: Program, base: str, kind: str, mod: Module) -> str:
 
 
 class Deriver:
-    """Steps particles of one program. Holds the program's lookup tables, one replay ctx
-    and memo tables: a production is pure, so its outcome (successor or the next request)
-    depends only on the module and the values replayed; outcomes are memoized while those
-    values are all discrete."""
+    """Steps particles of one program. Holds the program's dispatch table (module name ->
+    what to do with it: its production, interpretation rule or turtle symbol function), one
+    replay ctx and memo tables: a production is pure, so its outcome (successor or the next
+    request) depends only on the module and the values replayed; outcomes are memoized
+    while those values are all discrete."""
 
     def __init__(
         self, program: Program, max_modules: int = DEFAULT_MAX_MODULES, max_work: int | None = None
@@ -218,10 +228,14 @@ class Deriver:
             )
         # the turtle: 2D (turtle.py) or 3D (turtle3d.py), the same calling convention
         self.dim = program.dim
-        self.interpret = interpret3d if self.dim == 3 else interpret
-        self.symbols = TURTLE3D_SYMBOLS if self.dim == 3 else TURTLE_SYMBOLS
+        self.ops = TURTLE3D_OPS if self.dim == 3 else TURTLE_OPS
         self.ctx = ReplayCtx()
-        self.dispatch: dict[str, int] = {}
+        # name -> (code, function): how `advance` treats a module first; `after`: once its
+        # production does not apply (interpreted only, too deep, or its conditions all false)
+        self.table: dict[Any, Entry] = {}
+        self.after: dict[Any, Entry] = {}
+        for name in list(self.prods) + list(self.interp) + list(self.ops) + [CUT, HALT]:
+            self._entry(name)
         self.pcache: dict[object, Outcome] = {}
         self.icache: dict[object, Outcome] = {}
 
@@ -244,7 +258,7 @@ class Deriver:
             succ = fn(ctx, *mod[1:])
         except NeedSite as need:
             self._check_prior(need, fn, kind, mod)
-            return _Need(need.site, need.args)
+            return _Need((need.site, need.args))
         except ProgramError as err:
             raise ProgramError(f"{self._where(fn, kind, mod)}: {err}") from None
         except RecursionError:
@@ -253,9 +267,9 @@ class Deriver:
             raise ProgramError(
                 f"{self._where(fn, kind, mod)}: {type(err).__name__}: {err}"
             ) from None
-        if succ is None:
-            return None
-        if type(succ) is not list:
+        if succ.__class__ is not list:
+            if succ is None:
+                return None
             if not isinstance(succ, list | tuple):
                 raise ProgramError(
                     f"{self._where(fn, kind, mod)}: returned "
@@ -263,7 +277,7 @@ class Deriver:
                 )
             succ = list(succ)
         for m in succ:
-            if type(m) is not tuple or not m or type(m[0]) is not str:
+            if m.__class__ is not tuple or not m or m[0].__class__ is not str:
                 raise ProgramError(
                     f"{self._where(fn, kind, mod)}: successor {m!r} is not a module tuple"
                 )
@@ -313,94 +327,88 @@ class Deriver:
         `p.stack` is None), and still returns DRAWN; done before resampling, this work is
         shared by the copies.
 
-        Long because it is the derivation's hot loop: productions, interpretation rules and
-        memoization are inlined; every turtle symbol goes through the program's one turtle
-        semantics, `turtle.interpret` (2D) or `turtle3d.interpret3d` (3D)."""
-        prods, interp, dlen = self.prods, self.interp, self.dlen
-        pcache, icache, memo = self.pcache, self.icache, self._memo
-        dispatch = self.dispatch
-        turtle_step = self.interpret
+        Long because it is the derivation's hot loop: one look-up in the dispatch table per
+        module, productions, interpretation rules and memoization inlined; every turtle
+        symbol goes through its function of the program's one turtle semantics
+        (`turtle.TURTLE_OPS` in 2D, `turtle3d.TURTLE3D_OPS` in 3D)."""
+        table, pcache = self.table, self.pcache
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
-        max_ops = min(self.max_modules, self.max_work - p.work)
-        angle = self.angle
+        max_ops = self.max_work - p.work
+        if max_ops > self.max_modules:
+            max_ops = self.max_modules
+        # the successor being read: seq[i:] at depth sdepth, level slevel, then `stack`
+        seq: list[Module] | tuple[()] = ()
+        i = n = sdepth = slevel = 0
+        node: Node | None = None  # the stack node `mod` came from; None: from seq
         mod: Module = ()
         res: Outcome
         drew = False
         try:
-            while stack is not None:
+            while True:
+                if i < n:
+                    mod = seq[i]
+                    i += 1
+                    depth, ilevel, node = sdepth, slevel, None
+                elif stack is not None:
+                    node = stack
+                    mod, depth, ilevel, stack = node
+                else:
+                    break
                 ops += 1
                 if ops > max_ops:
                     if p.work + ops > self.max_work:
                         raise self._runaway(
                             f"expanded or interpreted more than {self.max_work} modules"
                         )
-                    p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
+                    p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                    p.turtle, p.tstack, p.poly = turtle, tstack, poly
                     return DRAWN if drew else LIMIT
-                mod, depth, ilevel, rest = stack
-                name = mod[0]
-                code = dispatch.get(name)
-                if code is None:
-                    code = self._code(name)
+                code, fn = table.get(mod[0]) or self._entry(mod[0])
                 if code == _PROD:
-                    if ilevel == 0 and depth < dlen and not p.in_interp:
+                    if ilevel == 0 and depth < self.dlen and not p.in_interp:
                         # memoized outcome while the replay values are all discrete
+                        values = p.values
                         if p.cont:
-                            key = None
-                            res = _MISS
+                            res = self._call(p, fn, "production", mod)
                         else:
-                            key = (mod, p.values) if p.values else mod
+                            key = (mod, values) if values else mod
                             res = pcache.get(key, _MISS)
-                        if res is _MISS:
-                            res = memo(p, prods[name], "production", mod, pcache, key)
+                            if res is _MISS:
+                                res = self._memo(p, fn, "production", mod, pcache, key)
                         if res.__class__ is _Need:
-                            p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                            p.need = (res.site, res.args)
+                            p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                            p.turtle, p.tstack, p.poly = turtle, tstack, poly
+                            p.need = res
                             return DRAWN if drew else NEED
-                        if p.values:
+                        if values:
                             p.values, p.sites, p.cont = (), (), False
-                        if res is not None:
-                            depth += 1
-                            for m in reversed(res):
-                                rest = (m, depth, 0, rest)
-                            stack = rest
+                        if res is not None:  # read the successor next
+                            if i < n:
+                                stack = _spill(seq, i, sdepth, slevel, stack)
+                            seq, i, n, sdepth, slevel = res, 0, len(res), depth + 1, 0
                             continue
-                    code = _INTERP if name in interp else self._turtle_code(name)
+                    code, fn = self.after[mod[0]]
                 if code == _INTERP:
-                    if ilevel >= MAX_INTERP_DEPTH:
-                        raise ProgramError(
-                            f"interpretation rules recurse deeper than {MAX_INTERP_DEPTH} "
-                            f"levels (at module {name})"
-                        )
-                    if p.cont:
-                        res = memo(p, interp[name], "interpretation", mod, icache, None)
-                    else:
-                        key = (mod, p.values) if p.values else mod
-                        res = icache.get(key, _MISS)
-                        if res is _MISS:
-                            res = memo(p, interp[name], "interpretation", mod, icache, key)
+                    res = self._interpret(p, fn, mod, ilevel)
                     if res.__class__ is _Need:
-                        p.in_interp = True
-                        p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
-                        p.need = (res.site, res.args)
+                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                        p.turtle, p.tstack, p.poly = turtle, tstack, poly
+                        p.need = res
                         return DRAWN if drew else NEED
-                    p.in_interp = False
-                    if p.values:
-                        p.values, p.sites, p.cont = (), (), False
                     if res is not None:
-                        ilevel += 1
-                        for m in reversed(res):
-                            rest = (m, depth, ilevel, rest)
-                        stack = rest
+                        if i < n:
+                            stack = _spill(seq, i, sdepth, slevel, stack)
+                        seq, i, n, sdepth, slevel = res, 0, len(res), depth, ilevel + 1
                         continue
-                    code = self._turtle_code(name)
-                if code == _TURTLE:
-                    if drew and name in DRAWING:
-                        p.stack, p.turtle, p.tstack, p.poly = stack, turtle, tstack, poly
+                    code, fn = self._turtle_entry(mod[0])
+                if code >= _TURTLE:
+                    if drew and code == _DRAW:
+                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                        p.turtle, p.tstack, p.poly = turtle, tstack, poly
                         return DRAWN
-                    stack = rest
-                    turtle, tstack, poly, prim = turtle_step(mod, turtle, tstack, poly, angle)
+                    turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, self.angle)
                     if prim is None:
                         continue
                     p.last = prim
@@ -409,18 +417,39 @@ class Deriver:
                     if p.n_prims > self.max_prims:
                         raise self._runaway(f"drew more than {self.max_prims} primitives")
                     drew = True
-                    continue
-                stack = rest
-                if code == _CUT:
-                    stack = _cut(stack)
+                elif code == _CUT:
+                    stack = _cut(_spill(seq, i, sdepth, slevel, stack))
+                    seq, i, n = (), 0, 0
                 elif code == _HALT:
-                    stack = None
+                    stack, seq, i, n = None, (), 0, 0
         except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
             raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
         finally:
             p.work += ops
         p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
         return DRAWN if drew else DONE
+
+    def _interpret(self, p: Particle, fn: Callable[..., Any], mod: Module, ilevel: int) -> Outcome:
+        """The outcome of `mod`'s interpretation rule (memoized as productions are)."""
+        if ilevel >= MAX_INTERP_DEPTH:
+            raise ProgramError(
+                f"interpretation rules recurse deeper than {MAX_INTERP_DEPTH} "
+                f"levels (at module {mod[0]})"
+            )
+        if p.cont:
+            res = self._call(p, fn, "interpretation", mod)
+        else:
+            key = (mod, p.values) if p.values else mod
+            res = self.icache.get(key, _MISS)
+            if res is _MISS:
+                res = self._memo(p, fn, "interpretation", mod, self.icache, key)
+        if res.__class__ is _Need:
+            p.in_interp = True
+            return res
+        p.in_interp = False
+        if p.values:
+            p.values, p.sites, p.cont = (), (), False
+        return res
 
     def _runaway(self, what: str) -> ProgramError:
         name = printable(self.base or self.program.name)
@@ -430,21 +459,29 @@ class Deriver:
             "length:' or 'max primitives:')"
         )
 
-    def _code(self, name: str) -> int:
-        """How `advance` treats a module name first (memoized in `dispatch`)."""
-        if name in self.prods:
-            code = _PROD
-        elif name in self.interp:
-            code = _INTERP
-        else:
-            code = self._turtle_code(name)
-        self.dispatch[name] = code
-        return code
+    def _entry(self, name: Any) -> Entry:
+        """How `advance` treats a module name (then kept in `table`), and what it does once
+        the name's production does not apply (kept in `after`)."""
+        after = (_INTERP, self.interp[name]) if name in self.interp else self._turtle_entry(name)
+        self.after[name] = after
+        entry = (_PROD, self.prods[name]) if name in self.prods else after
+        self.table[name] = entry
+        return entry
 
-    def _turtle_code(self, name: str) -> int:
-        if name in self.symbols:
-            return _TURTLE
-        return {CUT: _CUT, HALT: _HALT}.get(name, _IGNORE)
+    def _turtle_entry(self, name: Any) -> Entry:
+        op = self.ops.get(name)
+        if op is not None:
+            return (_DRAW if name in DRAWING else _TURTLE, op)
+        return ({CUT: _CUT, HALT: _HALT}.get(name, _IGNORE), None)
+
+
+def _spill(
+    seq: list[Module] | tuple[()], i: int, depth: int, ilevel: int, stack: Node | None
+) -> Node | None:
+    """The stack with the modules `seq[i:]` (at `depth` and `ilevel`) pushed on top."""
+    for k in range(len(seq) - 1, i - 1, -1):
+        stack = (seq[k], depth, ilevel, stack)
+    return stack
 
 
 def _cut(stack: Node | None) -> Node | None:

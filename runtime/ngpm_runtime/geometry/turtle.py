@@ -8,6 +8,7 @@ shared, never copied. Primitives are the plain tuples of section 8.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -31,62 +32,128 @@ HALT = "halt"
 _RAD = math.pi / 180.0
 
 
+Step = tuple[Turtle, Cons | None, Cons | None, Prim | None]  # what a symbol returns
+
+
 def interpret(
     mod: Module, turtle: Turtle, tstack: Cons | None, poly: Cons | None, angle: float
 ) -> tuple[Turtle, Cons | None, Cons | None, Prim | None]:
     """Apply one turtle symbol; returns (turtle, tstack, poly, primitive drawn or None).
 
     `poly` is a cons list of open polygons, each a cons list of vertices (newest first).
+    Each symbol's semantics is one function of TURTLE_OPS (the deriver calls them directly,
+    from its dispatch table); any other module leaves the turtle as it is.
     """
-    name = mod[0]
-    x, y, h, w = turtle
-    if name == "F":
-        step = mod[1] if len(mod) > 1 else 1.0
-        x1 = x + step * math.cos(h * _RAD)
-        y1 = y + step * math.sin(h * _RAD)
-        return (x1, y1, h, w), tstack, poly, ("seg", x, y, x1, y1, w)
-    if name == "+":
-        return (x, y, h + (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
-    if name == "-":
-        return (x, y, h - (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
-    if name == "[":
-        return turtle, (turtle, tstack), poly, None
-    if name == "]":
-        if tstack is None:
-            raise ProgramError("turtle: ']' without a matching '['")
-        return tstack[0], tstack[1], poly, None
-    if name == "!":
-        return (x, y, h, float(mod[1]) if len(mod) > 1 else w), tstack, poly, None
-    if name == "f":
-        step = mod[1] if len(mod) > 1 else 1.0
-        return (
-            (x + step * math.cos(h * _RAD), y + step * math.sin(h * _RAD), h, w),
-            tstack,
-            poly,
-            None,
-        )
-    if name == "~l":
-        length = float(mod[1]) if len(mod) > 1 else 1.0
-        width = float(mod[2]) if len(mod) > 2 else 1.0
-        return turtle, tstack, poly, ("leaf", x, y, h, length, width)
-    if name == "@O":
-        r = float(mod[1]) if len(mod) > 1 else 1.0
-        return turtle, tstack, poly, ("disk", x, y, r)
-    if name == "|":
-        return (x, y, h + 180.0, w), tstack, poly, None
-    if name == "{":
-        return turtle, tstack, (None, poly), None
-    if name == ".":
-        if poly is None:
-            return turtle, tstack, poly, None  # a vertex outside a polygon records nothing
-        return turtle, tstack, (((x, y), poly[0]), poly[1]), None
-    if name == "}":
-        if poly is None:
-            raise ProgramError("turtle: '}' without a matching '{'")
-        verts = cons_to_list(poly[0])
-        prim = ("poly", tuple(verts)) if len(verts) >= 3 else None
-        return turtle, tstack, poly[1], prim
-    return turtle, tstack, poly, None
+    op = TURTLE_OPS.get(mod[0])
+    if op is None:
+        return turtle, tstack, poly, None
+    return op(mod, turtle, tstack, poly, angle)
+
+
+def _forward(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`F`: draw a segment of the current width; move forward."""
+    x, y, h, w = t
+    step = mod[1] if len(mod) > 1 else 1.0
+    x1 = x + step * math.cos(h * _RAD)
+    y1 = y + step * math.sin(h * _RAD)
+    return (x1, y1, h, w), tstack, poly, ("seg", x, y, x1, y1, w)
+
+
+def _left(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, angle: float) -> Step:
+    """`+`: turn left (counter-clockwise) by `a` degrees (default `angle`)."""
+    return (t[0], t[1], t[2] + (mod[1] if len(mod) > 1 else angle), t[3]), tstack, poly, None
+
+
+def _right(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, angle: float) -> Step:
+    """`-`: turn right by `a` degrees (default `angle`)."""
+    return (t[0], t[1], t[2] - (mod[1] if len(mod) > 1 else angle), t[3]), tstack, poly, None
+
+
+def _push(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`[`: push the turtle state."""
+    return t, (t, tstack), poly, None
+
+
+def _pop(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`]`: pop the turtle state."""
+    if tstack is None:
+        raise ProgramError("turtle: ']' without a matching '['")
+    return tstack[0], tstack[1], poly, None
+
+
+def _width(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`!(w)`: set the width."""
+    return (t[0], t[1], t[2], float(mod[1]) if len(mod) > 1 else t[3]), tstack, poly, None
+
+
+def _move(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`f`: move forward without drawing."""
+    x, y, h, w = t
+    step = mod[1] if len(mod) > 1 else 1.0
+    return (
+        (x + step * math.cos(h * _RAD), y + step * math.sin(h * _RAD), h, w),
+        tstack,
+        poly,
+        None,
+    )
+
+
+def _leaf(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`~l(length, width)`: a leaf, base at the turtle, along the heading."""
+    length = float(mod[1]) if len(mod) > 1 else 1.0
+    width = float(mod[2]) if len(mod) > 2 else 1.0
+    return t, tstack, poly, ("leaf", t[0], t[1], t[2], length, width)
+
+
+def _disk(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`@O(r)`: a disk at the turtle."""
+    r = float(mod[1]) if len(mod) > 1 else 1.0
+    return t, tstack, poly, ("disk", t[0], t[1], r)
+
+
+def _around(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`|`: turn around."""
+    return (t[0], t[1], t[2] + 180.0, t[3]), tstack, poly, None
+
+
+def _open(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`{`: start a polygon."""
+    return t, tstack, (None, poly), None
+
+
+def _vertex(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`.`: record a vertex of the open polygon (outside a polygon: nothing)."""
+    if poly is None:
+        return t, tstack, poly, None
+    return t, tstack, (((t[0], t[1]), poly[0]), poly[1]), None
+
+
+def _close(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
+    """`}`: close and fill the polygon (>= 3 vertices)."""
+    if poly is None:
+        raise ProgramError("turtle: '}' without a matching '{'")
+    verts = cons_to_list(poly[0])
+    prim = ("poly", tuple(verts)) if len(verts) >= 3 else None
+    return t, tstack, poly[1], prim
+
+
+# symbol -> its semantics: (mod, turtle, tstack, poly, angle) -> (turtle, tstack, poly, prim)
+TURTLE_OPS: dict[str, Callable[[Module, Turtle, Any, Any, float], Step]] = {
+    "F": _forward,
+    "f": _move,
+    "+": _left,
+    "-": _right,
+    "|": _around,
+    "[": _push,
+    "]": _pop,
+    "!": _width,
+    "~l": _leaf,
+    "@O": _disk,
+    "{": _open,
+    ".": _vertex,
+    "}": _close,
+}
+assert frozenset(TURTLE_OPS) == TURTLE_SYMBOLS
 
 
 def prim_bbox(prim: Prim) -> tuple[float, float, float, float]:

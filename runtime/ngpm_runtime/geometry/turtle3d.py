@@ -21,6 +21,7 @@ Primitives (plain tuples, world coordinates; the colour is an int index):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError
@@ -86,33 +87,50 @@ def interpret3d(
     """Apply one turtle symbol; returns (turtle, tstack, poly, primitive drawn or None), as
     `turtle.interpret` does in 2D. Rotations by `a` degrees (default `angle`): `+`/`-` about
     U (+ turns H toward L), `&`/`^` about L (& pitches H toward -U), `/`/`\\` about H (/ rolls
-    L toward U)."""
-    name = mod[0]
-    if name == "F":
-        return _forward(mod, turtle, tstack, poly)
-    if name in _AXES:
-        a = (mod[1] if len(mod) > 1 else angle) * _RAD
-        return _rotate(turtle, name, a), tstack, poly, None
-    if name == "[":
-        return turtle, (turtle, tstack), poly, None
-    if name == "]":
-        if tstack is None:
-            raise ProgramError("turtle: ']' without a matching '['")
-        return tstack[0], tstack[1], poly, None
-    if name == "f":
-        step = mod[1] if len(mod) > 1 else 1.0
-        t = turtle
-        return (
-            (t[0] + step * t[3], t[1] + step * t[4], t[2] + step * t[5]) + t[3:],
-            tstack,
-            poly,
-            None,
-        )
-    return _other(mod, turtle, tstack, poly)
+    L toward U). Each symbol's semantics is one function of TURTLE3D_OPS (the deriver calls
+    them directly); any other module leaves the turtle as it is."""
+    op = TURTLE3D_OPS.get(mod[0])
+    if op is None:
+        return turtle, tstack, poly, None
+    return op(mod, turtle, tstack, poly, angle)
+
+
+Step3 = tuple[Turtle3, Cons | None, Cons | None, Prim | None]  # what a symbol returns
+
+
+def _turn_op(
+    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, angle: float
+) -> Step3:
+    """`+ - & ^ / \\`: a rotation about one frame axis (`_AXES`)."""
+    a = (mod[1] if len(mod) > 1 else angle) * _RAD
+    return _rotate(turtle, mod[0], a), tstack, poly, None
+
+
+def _push(mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, _: float) -> Step3:
+    """`[`: push the turtle state."""
+    return turtle, (turtle, tstack), poly, None
+
+
+def _pop(mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, _: float) -> Step3:
+    """`]`: pop the turtle state."""
+    if tstack is None:
+        raise ProgramError("turtle: ']' without a matching '['")
+    return tstack[0], tstack[1], poly, None
+
+
+def _move(mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None, _: float) -> Step3:
+    """`f`: move along H without drawing."""
+    step = mod[1] if len(mod) > 1 else 1.0
+    return (
+        (t[0] + step * t[3], t[1] + step * t[4], t[2] + step * t[5]) + t[3:],
+        tstack,
+        poly,
+        None,
+    )
 
 
 def _forward(
-    mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None
+    mod: Module, t: Turtle3, tstack: Cons | None, poly: Cons | None, _: float = 0.0
 ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
     """`F`: a segment from the turtle along H; then tropism bends the frame (ABOP p.58)."""
     step = mod[1] if len(mod) > 1 else 1.0
@@ -163,7 +181,7 @@ def _turn(
 
 
 def _other(
-    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None
+    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, _: float = 0.0
 ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
     """The symbols other than moves, turns and brackets."""
     name = mod[0]
@@ -193,6 +211,13 @@ def _other(
         d = t[14][:3] if t[14] is not None else GRAVITY
         return t[:14] + (d + (float(mod[1]),),), tstack, poly, None
     return t, tstack, poly, None
+
+
+# symbol -> its semantics: (mod, turtle, tstack, poly, angle) -> (turtle, tstack, poly, prim)
+TURTLE3D_OPS: dict[str, Callable[[Module, Turtle3, Any, Any, float], Step3]] = {
+    name: _turn_op if name in _AXES else _other for name in TURTLE3D_SYMBOLS
+}
+TURTLE3D_OPS.update({"F": _forward, "f": _move, "[": _push, "]": _pop})
 
 
 def _color(mod: Module, color: int) -> int:

@@ -294,6 +294,45 @@ def test_replay_asks_sites_one_at_a_time() -> None:
     assert d.advance(q) == DRAWN and q.last[3] == 5.0 and q.n_prims == 2
 
 
+def test_a_stop_inside_a_successor_keeps_its_rest_on_the_stack() -> None:
+    """The deriver reads a successor in place; where a particle stops inside one (a drawn
+    primitive, a request), the rest of it is on its stack as (module, depth, level) nodes,
+    the waiting module on top (SMC reads its parameters and depth for the features)."""
+    sites = [Site(index=0, id="B/0/normal0", kind="normal", module="B", arity=1)]
+    prog = make_program(
+        {
+            "A": lambda ctx: [("+", 10.0), ("F", 1.0), ("B", 2.0), ("F", 3.0)],
+            "B": lambda ctx, w: [("F", ctx.normal(0, w, 1.0))],
+        }
+    )
+    prog.sites.extend(sites)
+    d = Deriver(prog)
+    p = d.start((0.0, 0.0, 0.0, 1.0))
+    assert d.advance(p) == DRAWN and p.last[0] == "seg" and p.n_prims == 1
+    # the look-ahead stopped at B's request: B on top at depth 1, then F(3)
+    assert p.need == (0, (2.0, 1.0))
+    assert p.stack[:3] == (("B", 2.0), 1, 0)
+    assert p.stack[3][:3] == (("F", 3.0), 1, 0) and p.stack[3][3] is None
+    p.values += (4.0,)
+    p.sites += (0,)
+    assert d.advance(p) == DRAWN and p.n_prims == 2
+    assert p.stack[:3] == (("F", 3.0), 1, 0)  # a drawing symbol after a drawing: stop
+    assert d.advance(p) == DRAWN and p.stack is None and p.n_prims == 3
+
+
+def test_turtle_tables_cover_the_turtle_symbols() -> None:
+    from ngpm_runtime.geometry.turtle import TURTLE_OPS, TURTLE_SYMBOLS, interpret
+    from ngpm_runtime.geometry.turtle3d import TURTLE3D_OPS, TURTLE3D_SYMBOLS, interpret3d
+
+    assert frozenset(TURTLE_OPS) == TURTLE_SYMBOLS
+    assert frozenset(TURTLE3D_OPS) == TURTLE3D_SYMBOLS
+    turtle = (1.0, 2.0, 30.0, 0.5)
+    assert interpret(("Q", 1.0), turtle, None, None, 90.0) == (turtle, None, None, None)
+    assert interpret(("+",), turtle, None, None, 90.0)[0] == (1.0, 2.0, 120.0, 0.5)
+    t3 = (0.0,) * 14 + (None,)
+    assert interpret3d(("Q",), t3, None, None, 90.0) == (t3, None, None, None)
+
+
 def test_axiom_may_draw_random_values() -> None:
     sites = [Site(index=0, id="axiom/normal0", kind="normal")]
     prog = make_program({}, axiom=lambda ctx: [("F", ctx.normal(0, 2.0, 0.0))], sites=sites)
