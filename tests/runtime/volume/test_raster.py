@@ -103,6 +103,5 @@ def test_grids_of_boxes_and_bad_targets() -> None:
     g = VoxelGrid.of_box((-600, 600, -20, 1150, -600, 600), 32)
     assert g.shape == (32, 32, 32) and g.voxel == pytest.approx(1200 / 32)
     assert g.lo[1] + 16 * g.voxel == pytest.approx(565.0)  # centred on the box
-    bad = VolumeTarget(np.ones((4, 4)), np.zeros(3), 1.0, np.zeros(3), "flat")
-    with pytest.raises(TargetError, match="must be 3D"):
-        VoxelGrid.of_target(bad)
+    with pytest.raises(TargetError, match=r"occupancy must be \(R, R, R\)"):
+        VoxelGrid.of_target(VolumeTarget(np.ones((4, 4)), np.zeros(3), 1.0, np.zeros(3), "flat"))
