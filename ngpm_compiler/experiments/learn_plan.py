@@ -1,0 +1,222 @@
+"""The budget plan of `ngpmc learn`: from the time budget and measured costs, how many
+traces per round, how many particles, how many expert-iteration rounds, how many validation
+targets, which tuning grid and which N values for the report's curve. Pure functions, no
+clock and no files: `learn.py` measures, these decide.
+
+Costs are seconds per SMC particle on one worker (a run of N particles costs about N times
+that), so every stage's estimate is a sum of runs divided by the workers. The shares follow
+the project's recipe (scripts/train_vines_guide.sh): 600 unguided particles for round 0,
+200 guided particles in the later rounds, 12 validation targets per set run twice, the
+tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapness.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
+GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
+MIN_PARTICLES = 20
+MAX_ROUNDS = 4  # guided rounds after round 0
+MIN_TRACES = 150  # a round with fewer traces is not worth its validation: fewer rounds
+MAX_TRACES = 2000  # per round
+FEW_TRACES = 20  # below this, round 0 runs fewer particles to get more traces
+VAL_N = 10  # validation particles (the guides' working N)
+STAGE_SECONDS = 2.0  # what starting a stage's worker processes costs
+TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints, export)
+GUIDED_FACTOR = 4.0  # guided SMC's cost per particle over unguided, until measured
+TRAIN_SECONDS = 0.2  # training seconds per trace (all epochs), until measured
+# (targets per validation set, runs per target), largest first
+VAL_CHOICES = ((12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
+# tune grids (choice temperatures, ESS thresholds), largest first: `ngpmc tune`'s default
+TUNE_CHOICES: tuple[tuple[tuple[float, ...], tuple[float | None, ...]], ...] = (
+    ((1.0, 0.7, 0.5, 0.3, 0.2), (None, 0.5)),
+    ((1.0, 0.5, 0.3), (None,)),
+)
+CURVE_GUIDED = (1, 3, 10, 30)
+CURVE_UNGUIDED = (10, 30, 100, 300, 1000)
+# shares of the budget each evaluation stage may take
+VAL_SHARE, TUNE_SHARE, CURVE_SHARE = 0.10, 0.10, 0.08
+
+
+@dataclass(frozen=True)
+class Costs:
+    unguided: float  # seconds per particle of one unguided SMC run, one worker
+    guided: float = 0.0  # the same, guided (0: GUIDED_FACTOR x unguided)
+    train: float = TRAIN_SECONDS  # training seconds per trace
+    workers: int = 1
+    sets: int = 2  # validation sets
+
+    def run(self, n: int, guided: bool) -> float:
+        """Seconds of one SMC run of n particles on one worker."""
+        per = (self.guided or GUIDED_FACTOR * self.unguided) if guided else self.unguided
+        return n * per
+
+    def runs(self, k: int, repeats: int, ns: tuple[int, ...], guided: bool) -> float:
+        """Wall seconds of runs at each N of `ns` on k targets of every set, `repeats` each."""
+        total = sum(self.run(n, guided) for n in ns)
+        return self.sets * k * repeats * total / max(1, self.workers)
+
+
+@dataclass(frozen=True)
+class Plan:
+    budget: float  # seconds planned for (what was left when planning)
+    unguided_particles: int
+    guided_particles: int
+    traces: int  # kept traces per round, all training directories together
+    rounds: int  # guided rounds after round 0
+    val_targets: int  # per validation set
+    val_repeats: int
+    choice_temperatures: tuple[float, ...]  # the tune grid; () = no tuning
+    ess: tuple[float | None, ...]
+    curve_guided: tuple[int, ...]
+    curve_unguided: tuple[int, ...]
+    estimates: dict[str, float] = field(default_factory=dict)  # stage -> seconds
+    reasons: tuple[str, ...] = ()
+
+
+def validation_seconds(costs: Costs, k: int, repeats: int) -> float:
+    """Scoring one guide at N = VAL_N (the unguided baseline is run once, not counted)."""
+    return STAGE_SECONDS + costs.runs(k, repeats, (VAL_N,), True)
+
+
+def round_seconds(
+    costs: Costs, traces: int, particles: int, guided: bool, trained_on: int, val: float
+) -> float:
+    """One round: its traces, training on `trained_on` traces, scoring the guide."""
+    record = traces * costs.run(particles, guided) / max(1, costs.workers)
+    return record + TRAIN_FIXED + costs.train * trained_on + val
+
+
+def _validation(costs: Costs, budget: float) -> tuple[int, int, float, str]:
+    for k, rep in VAL_CHOICES:
+        v = validation_seconds(costs, k, rep)
+        if v * (1 + MAX_ROUNDS) <= VAL_SHARE * budget:
+            return k, rep, v, f"{k} targets per set, {rep} run(s) each: fits {VAL_SHARE:.0%}"
+    k, rep = VAL_CHOICES[-1]
+    return k, rep, validation_seconds(costs, k, rep), f"{k} target per set (the least)"
+
+
+def _tune(
+    val: float, budget: float
+) -> tuple[tuple[float, ...], tuple[float | None, ...], float, str]:
+    for temps, ess in TUNE_CHOICES:
+        g = len(temps) * len(ess)
+        if g * val <= TUNE_SHARE * budget:
+            return temps, ess, g * val, f"{g} proposal settings: fits {TUNE_SHARE:.0%}"
+    return (), (), 0.0, "no tuning: even 3 settings would take over its share"
+
+
+def _curve(
+    costs: Costs, k: int, rep: int, budget: float
+) -> tuple[tuple[int, ...], tuple[int, ...], float]:
+    guided, unguided = list(CURVE_GUIDED), list(CURVE_UNGUIDED)
+
+    def cost() -> float:
+        runs = costs.runs(k, rep, tuple(guided), True) + costs.runs(k, rep, tuple(unguided), False)
+        return STAGE_SECONDS * len(guided) + runs
+
+    while cost() > CURVE_SHARE * budget and (len(guided) > 2 or len(unguided) > 2):
+        # drop the dearer of the two largest N
+        if len(unguided) > 2 and (
+            len(guided) <= 2 or costs.run(unguided[-1], False) >= costs.run(guided[-1], True)
+        ):
+            unguided.pop()
+        else:
+            guided.pop()
+    return tuple(guided), tuple(unguided), cost()
+
+
+def _traces(costs: Costs, budget: float, val: float) -> tuple[int, int, int, int, float, str]:
+    """(rounds, traces per round, unguided particles, guided particles, seconds, why)."""
+
+    def total(rounds: int, n: int, p0: int, pg: int) -> float:
+        out = round_seconds(costs, n, p0, False, n, val)
+        for r in range(1, rounds + 1):
+            out += round_seconds(costs, n, pg, True, n * (r + 1), val)
+        return out
+
+    def most(rounds: int, p0: int, pg: int) -> int:
+        per = total(rounds, 1, p0, pg) - (rounds + 1) * val  # seconds per trace of a round
+        return int(max(0.0, budget - (rounds + 1) * val) / per) if per > 0 else MAX_TRACES
+
+    p0, pg = UNGUIDED_PARTICLES, GUIDED_PARTICLES
+    for rounds in range(MAX_ROUNDS, 0, -1):
+        n = most(rounds, p0, pg)
+        if n >= MIN_TRACES:
+            n = min(n, MAX_TRACES)
+            why = f"{rounds} guided rounds of {n} traces: more rounds would have < {MIN_TRACES}"
+            return rounds, n, p0, pg, total(rounds, n, p0, pg), why
+    n = most(0, p0, pg)
+    while n < FEW_TRACES and p0 > MIN_PARTICLES:  # a small budget: fewer particles
+        p0 = max(MIN_PARTICLES, p0 // 2)
+        n = most(0, p0, pg)
+    pg = min(pg, p0)
+    n = max(2, min(n, MAX_TRACES))
+    why = (
+        f"no guided round: one round of {n} traces at {p0} particles is what fits "
+        f"(a guided round needs {MIN_TRACES} traces per round)"
+    )
+    return 0, n, p0, pg, total(0, n, p0, pg), why
+
+
+def plan(budget: float, costs: Costs) -> Plan:
+    """The plan for `budget` seconds at `costs`: evaluation first sized to its shares, the
+    rest to traces and training (the most guided rounds whose rounds keep MIN_TRACES)."""
+    k, rep, val, why_val = _validation(costs, budget)
+    temps, ess, tune_s, why_tune = _tune(val, budget)
+    cg, cu, curve_s = _curve(costs, k, rep, budget)
+    left = max(0.0, budget - tune_s - curve_s)
+    rounds, n, p0, pg, trace_s, why_traces = _traces(costs, left, val)
+    reasons = (
+        f"validation: {why_val}",
+        f"rounds: {why_traces}",
+        f"tune: {why_tune}",
+        f"curve: guided N {', '.join(map(str, cg))}; unguided N {', '.join(map(str, cu))}",
+    )
+    return Plan(
+        budget=budget,
+        unguided_particles=p0,
+        guided_particles=pg,
+        traces=n,
+        rounds=rounds,
+        val_targets=k,
+        val_repeats=rep,
+        choice_temperatures=temps,
+        ess=ess,
+        curve_guided=cg,
+        curve_unguided=cu,
+        estimates={"rounds": trace_s, "tune": tune_s, "curve": curve_s},
+        reasons=reasons,
+    )
+
+
+def next_round_fits(last_round: float, growth: float, left: float, reserve: float) -> bool:
+    """Whether one more round, estimated as the last round's measured seconds times `growth`
+    (training on more traces), fits in the `left` seconds with `reserve` kept for tuning
+    and the curve."""
+    return math.isfinite(last_round) and last_round * growth <= left - reserve
+
+
+def parse_budget(text: str) -> float:
+    """'45m', '2h', '90s', '1h30m' or plain seconds -> seconds; ValueError otherwise."""
+    t = text.strip().lower()
+    units = {"h": 3600.0, "m": 60.0, "s": 1.0}
+    if t.replace(".", "", 1).isdigit():
+        seconds = float(t)
+    else:
+        seconds, number = 0.0, ""
+        for ch in t:
+            if ch.isdigit() or ch == ".":
+                number += ch
+            elif ch in units and number:
+                seconds += float(number) * units[ch]
+                number = ""
+            else:
+                raise ValueError(f"not a duration: {text!r}")
+        if number or not t:
+            raise ValueError(f"not a duration: {text!r}")
+    if not math.isfinite(seconds) or seconds <= 0:
+        raise ValueError(f"not a positive duration: {text!r}")
+    return seconds
