@@ -38,9 +38,11 @@ from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.experiments.learn_plan import (
     TRAIN_SECONDS,
+    UNGUIDED_PARTICLES,
     Costs,
     Plan,
     plan,
+    replan,
     round_seconds,
 )
 from ngpm_compiler.progress import Log
@@ -51,7 +53,7 @@ FEATURES = "all+context"
 TRAIN_DATASETS = ("scribbles", "varied")
 VALIDATION = {"varied": ("varied", 1), "shapes": ("shapes", 101)}  # name: (dataset, seed)
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
-MEASURE_PARTICLES = 100
+MEASURE_SMALL = 100  # particles of the measured jobs when the budget is under 10 minutes
 
 
 class LearnError(NgpmError):
@@ -251,20 +253,26 @@ def targets_stage(run: Run) -> dict[str, Any]:
     return {"train": train, "validation": validation}
 
 
-def measure_stage(run: Run, grammar: str, train: list[str]) -> dict[str, Any]:
-    """Seconds per particle of unguided trace jobs: two jobs per worker, in this process."""
+def measure_stage(
+    run: Run, grammar: str, train: list[str], particles: int, guide: str | None = None
+) -> float:
+    """Seconds per particle of trace jobs (unguided, or guided by `guide`): two jobs at
+    `particles`, in this process."""
+    from ngpm_runtime.inference.guide import Guide
+
     from ngpm_compiler.language.compile import load_grammar
     from ngpm_compiler.learning.trace_jobs import job_spec, load_targets, run_job
 
     program = load_grammar(grammar)
+    proposal = Guide.load(guide, program) if guide else None
     targets = [t for d in train for t in load_targets(d, 50, False)]
     per: list[float] = []
     for j in range(2):
         ti, seed = job_spec(run.cfg.seed + 7, j, len(targets))
         t0 = time.perf_counter()
-        run_job(program, targets[ti], seed, MEASURE_PARTICLES)
-        per.append((time.perf_counter() - t0) / MEASURE_PARTICLES)
-    return {"unguided": float(sum(per) / len(per)), "particles": MEASURE_PARTICLES}
+        run_job(program, targets[ti], seed, particles, guide=proposal)
+        per.append((time.perf_counter() - t0) / particles)
+    return float(sum(per) / len(per))
 
 
 def _costs(run: Run) -> Costs:
@@ -273,6 +281,7 @@ def _costs(run: Run) -> Costs:
     return Costs(
         unguided=float(c["unguided"]),
         guided=float(c.get("guided", 0.0)),
+        val_run=float(c.get("val_run", 0.0)),
         train=float(c.get("train", TRAIN_SECONDS)),
         workers=run.cfg.workers,
         sets=sets,
@@ -286,6 +295,27 @@ def plan_stage(run: Run) -> dict[str, Any]:
     return asdict(p)
 
 
+def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
+    """After round 0: measure guided trace jobs (round 0's guide teaching) and a guided
+    validation run (round 0's validation), then plan the guided rounds anew."""
+    r0 = run.state["stages"]["round_00"]["result"]
+    d = run.state["stages"]["diagnose"]["result"]
+    train = run.state["stages"]["targets"]["result"]["train"]
+    costs = run.state["costs"]
+    guided = measure_stage(run, d["grammar"], train, p.guided_particles, r0["guide"])
+    c = _costs(run)
+    # the workers ran slower than the jobs measured alone (a loaded machine): scale by that
+    alone = r0["traces"] * c.trace(p.unguided_particles, False) / max(1, c.workers)
+    costs["slowdown"] = max(1.0, r0["seconds"]["traces"] / max(alone, 1e-9))
+    costs["guided"] = guided * costs["slowdown"]
+    runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
+    costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
+    costs["train"] = r0["train_seconds_per_trace"]
+    q = replan(p, max(0.0, run.clock.left()), _costs(run), r0["traces"])
+    run.log(f"plan: {q.reasons[-1]}")
+    return asdict(q)
+
+
 def load_plan(d: dict[str, Any]) -> Plan:
     tuples = ("choice_temperatures", "ess", "curve_guided", "curve_unguided", "reasons")
     fields: dict[str, Any] = {k: tuple(v) if k in tuples else v for k, v in d.items()}
@@ -295,7 +325,7 @@ def load_plan(d: dict[str, Any]) -> Plan:
 # --------------------------------------------------------------------------- rounds
 
 
-def _rounds_config(run: Run, p: Plan) -> Any:
+def _rounds_config(run: Run, p: Plan, guided: bool) -> Any:
     from ngpm_compiler.learning.rounds import RoundsConfig
 
     t = run.state["stages"]["targets"]["result"]
@@ -305,7 +335,7 @@ def _rounds_config(run: Run, p: Plan) -> Any:
         validation=t["validation"],
         out=str(run.out / "rounds"),
         rounds=p.rounds,
-        n=p.traces,
+        n=p.guided_traces if guided else p.traces,
         particles=p.guided_particles,
         unguided_particles=p.unguided_particles,
         val_targets=p.val_targets,
@@ -389,7 +419,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     on every round's traces, validation at N = 10 under default proposal settings."""
     from ngpm_compiler.learning.rounds import validate
 
-    rc = _rounds_config(run, p)
+    rc = _rounds_config(run, p, r > 0)
     rows = _rounds(run)
     best = max(rows, key=lambda x: x["validation"]) if rows else None
     teacher = best["guide"] if best else None
@@ -440,13 +470,13 @@ def write_guide(run: Run) -> str | None:
 
 
 def run_rounds(run: Run, p: Plan) -> None:
-    """Round 0, then guided rounds while the plan has them and the next one fits (its cost
-    estimated from the measured rounds, keeping tuning's and the curve's share)."""
+    """The guided rounds while the plan has them and the next one fits (its cost estimated
+    from the measured rounds, keeping tuning's and the curve's share)."""
     reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
-    for r in range(p.rounds + 1):
+    for r in range(1, p.rounds + 1):
         name = f"round_{r:02d}"
-        if r > 0 and name not in run.state["stages"]:
-            est = _next_round_estimate(run, p, r)
+        if name not in run.state["stages"]:
+            est = _next_round_estimate(run, p)
             if est > run.clock.left() - reserve:
                 run.log(
                     f"round {r}: skipped: it would take about {_minutes(est)}, "
@@ -461,7 +491,8 @@ def run_rounds(run: Run, p: Plan) -> None:
         write_guide(run)
 
 
-def _next_round_estimate(run: Run, p: Plan, r: int) -> float:
+def _next_round_estimate(run: Run, p: Plan) -> float:
+    """The next guided round's seconds at the costs the last rounds measured."""
     from ngpm_compiler.experiments.learn_plan import validation_seconds
 
     rows = _rounds(run)
@@ -470,11 +501,12 @@ def _next_round_estimate(run: Run, p: Plan, r: int) -> float:
     guided = [x["seconds_per_particle"] for x in rows if x["round"] > 0]
     costs = replace(
         costs,
-        guided=guided[-1] if guided else 0.0,
+        guided=guided[-1] if guided else costs.guided,
         train=last["train_seconds_per_trace"],
     )
     val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
-    return round_seconds(costs, p.traces, p.guided_particles, True, p.traces * (r + 1), val)
+    trained = last["traces"] + p.guided_traces
+    return round_seconds(costs, p.guided_traces, p.guided_particles, True, trained, val)
 
 
 # --------------------------------------------------------------------------- tune, curve
@@ -591,9 +623,16 @@ def _stages(run: Run) -> None:
         run.log(f"grammar: {d['grammar']}, with the proposed viewport (use it with the guide)")
     t = run.stage("targets", lambda: targets_stage(run))
     run.clock.check("measuring")
-    m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"]))
-    run.state.setdefault("costs", {}).update(unguided=m["unguided"])
+    small = run.cfg.budget < 600
+    particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES
+    m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"], particles))
+    run.state.setdefault("costs", {}).update(unguided=m)
     p = load_plan(run.stage("plan", lambda: plan_stage(run)))
+    run.stage("round_00", lambda: round_stage(run, p, 0))
+    write_guide(run)
+    if p.rounds > 0:
+        run.clock.check("measuring guided SMC")
+        p = load_plan(run.stage("replan", lambda: replan_stage(run, p)))
     run_rounds(run, p)
     run.clock.check("tuning")
     if p.estimates.get("tune", 0.0) > run.clock.left():

@@ -13,7 +13,7 @@ tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapnes
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
@@ -22,10 +22,14 @@ MAX_ROUNDS = 4  # guided rounds after round 0
 MIN_TRACES = 150  # a round with fewer traces is not worth its validation: fewer rounds
 MAX_TRACES = 2000  # per round
 FEW_TRACES = 20  # below this, round 0 runs fewer particles to get more traces
+ROUND0_SHARE = 0.3  # of the time for traces, when guided rounds fit too
 VAL_N = 10  # validation particles (the guides' working N)
 STAGE_SECONDS = 2.0  # what starting a stage's worker processes costs
 TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints, export)
-GUIDED_FACTOR = 4.0  # guided SMC's cost per particle over unguided, until measured
+# until measured (ivy of the README on the 2-core test machine: unguided 1.1 ms per particle
+# at 600, guided 24 ms at 200; a guided run at N = 10 about 3x its particles' share)
+GUIDED_FACTOR = 20.0  # guided SMC's seconds per particle over unguided (features, networks)
+SMALL_N = 3.0  # a run of a few particles over its per-particle share (per-step overhead)
 TRAIN_SECONDS = 0.2  # training seconds per trace (all epochs), until measured
 # (targets per validation set, runs per target), largest first
 VAL_CHOICES = ((12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
@@ -42,16 +46,29 @@ VAL_SHARE, TUNE_SHARE, CURVE_SHARE = 0.10, 0.10, 0.08
 
 @dataclass(frozen=True)
 class Costs:
-    unguided: float  # seconds per particle of one unguided SMC run, one worker
-    guided: float = 0.0  # the same, guided (0: GUIDED_FACTOR x unguided)
+    """Seconds on one worker: per particle of a trace job (unguided, guided), and of one
+    guided run at N = VAL_N (validation, tuning, the curve), each 0 until measured."""
+
+    unguided: float
+    guided: float = 0.0  # 0: GUIDED_FACTOR x unguided
+    val_run: float = 0.0  # 0: SMALL_N x VAL_N x guided
     train: float = TRAIN_SECONDS  # training seconds per trace
     workers: int = 1
     sets: int = 2  # validation sets
 
+    def per_particle(self, guided: bool) -> float:
+        return (self.guided or GUIDED_FACTOR * self.unguided) if guided else self.unguided
+
+    def trace(self, n: int, guided: bool) -> float:
+        """Seconds of one trace job of n particles."""
+        return n * self.per_particle(guided)
+
     def run(self, n: int, guided: bool) -> float:
-        """Seconds of one SMC run of n particles on one worker."""
-        per = (self.guided or GUIDED_FACTOR * self.unguided) if guided else self.unguided
-        return n * per
+        """Seconds of one evaluation run of n particles (a few cost as VAL_N: overhead)."""
+        if not guided:
+            return SMALL_N * max(n, VAL_N) * self.unguided
+        unit = self.val_run or SMALL_N * VAL_N * self.per_particle(True)
+        return unit * max(n, VAL_N) / VAL_N
 
     def runs(self, k: int, repeats: int, ns: tuple[int, ...], guided: bool) -> float:
         """Wall seconds of runs at each N of `ns` on k targets of every set, `repeats` each."""
@@ -64,8 +81,9 @@ class Plan:
     budget: float  # seconds planned for (what was left when planning)
     unguided_particles: int
     guided_particles: int
-    traces: int  # kept traces per round, all training directories together
+    traces: int  # round 0's kept traces, all training directories together
     rounds: int  # guided rounds after round 0
+    guided_traces: int  # kept traces per guided round
     val_targets: int  # per validation set
     val_repeats: int
     choice_temperatures: tuple[float, ...]  # the tune grid; () = no tuning
@@ -85,7 +103,7 @@ def round_seconds(
     costs: Costs, traces: int, particles: int, guided: bool, trained_on: int, val: float
 ) -> float:
     """One round: its traces, training on `trained_on` traces, scoring the guide."""
-    record = traces * costs.run(particles, guided) / max(1, costs.workers)
+    record = traces * costs.trace(particles, guided) / max(1, costs.workers)
     return record + TRAIN_FIXED + costs.train * trained_on + val
 
 
@@ -128,37 +146,59 @@ def _curve(
     return tuple(guided), tuple(unguided), cost()
 
 
-def _traces(costs: Costs, budget: float, val: float) -> tuple[int, int, int, int, float, str]:
-    """(rounds, traces per round, unguided particles, guided particles, seconds, why)."""
-
-    def total(rounds: int, n: int, p0: int, pg: int) -> float:
-        out = round_seconds(costs, n, p0, False, n, val)
-        for r in range(1, rounds + 1):
-            out += round_seconds(costs, n, pg, True, n * (r + 1), val)
-        return out
-
-    def most(rounds: int, p0: int, pg: int) -> int:
-        per = total(rounds, 1, p0, pg) - (rounds + 1) * val  # seconds per trace of a round
-        return int(max(0.0, budget - (rounds + 1) * val) / per) if per > 0 else MAX_TRACES
-
-    p0, pg = UNGUIDED_PARTICLES, GUIDED_PARTICLES
-    for rounds in range(MAX_ROUNDS, 0, -1):
-        n = most(rounds, p0, pg)
-        if n >= MIN_TRACES:
-            n = min(n, MAX_TRACES)
-            why = f"{rounds} guided rounds of {n} traces: more rounds would have < {MIN_TRACES}"
-            return rounds, n, p0, pg, total(rounds, n, p0, pg), why
-    n = most(0, p0, pg)
-    while n < FEW_TRACES and p0 > MIN_PARTICLES:  # a small budget: fewer particles
-        p0 = max(MIN_PARTICLES, p0 // 2)
-        n = most(0, p0, pg)
-    pg = min(pg, p0)
-    n = max(2, min(n, MAX_TRACES))
-    why = (
-        f"no guided round: one round of {n} traces at {p0} particles is what fits "
-        f"(a guided round needs {MIN_TRACES} traces per round)"
+def guided_rounds(
+    costs: Costs, room: float, val: float, trained: int, particles: int
+) -> tuple[int, int, int, float] | None:
+    """The guided rounds that fit `room` seconds after `trained` traces: (rounds, traces per
+    round, particles, seconds) with the most rounds of at least MIN_TRACES traces, at
+    `particles` or, when none fits, at a half or a quarter of them; None when none fits."""
+    options = sorted(
+        {particles, max(MIN_PARTICLES, particles // 2), max(MIN_PARTICLES, particles // 4)},
+        reverse=True,
     )
-    return 0, n, p0, pg, total(0, n, p0, pg), why
+    for pg in options:
+        per_job = costs.trace(pg, True) / max(1, costs.workers)
+        for rounds in range(MAX_ROUNDS, 0, -1):
+            fixed = rounds * (TRAIN_FIXED + val + costs.train * trained)
+            per_trace = rounds * per_job + costs.train * rounds * (rounds + 1) / 2
+            n = min(MAX_TRACES, int((room - fixed) / per_trace))
+            if n >= MIN_TRACES:
+                return rounds, n, pg, fixed + n * per_trace
+    return None
+
+
+def _traces(costs: Costs, budget: float, val: float) -> tuple[int, int, int, int, int, float, str]:
+    """(rounds, round 0's traces, guided traces per round, unguided particles, guided
+    particles, seconds, why): round 0 takes up to ROUND0_SHARE of `budget`, the guided
+    rounds the rest; without room for a guided round, round 0 takes it all."""
+    p0 = UNGUIDED_PARTICLES
+
+    def most(room: float, p: int) -> int:
+        per = costs.trace(p, False) / max(1, costs.workers) + costs.train
+        return min(MAX_TRACES, int(max(0.0, room - TRAIN_FIXED - val) / per))
+
+    n0 = max(MIN_TRACES, most(ROUND0_SHARE * budget, p0))
+    first = round_seconds(costs, n0, p0, False, n0, val)
+    g = guided_rounds(costs, budget - first, val, n0, GUIDED_PARTICLES)
+    if g is not None:
+        rounds, ng, pg, secs = g
+        why = (
+            f"round 0: {n0} traces ({ROUND0_SHARE:.0%} of the time for traces); "
+            f"{rounds} guided round(s) of {ng} traces at {pg} particles: more rounds would "
+            f"have fewer than {MIN_TRACES}"
+        )
+        return rounds, n0, ng, p0, pg, first + secs, why
+    n0 = most(budget, p0)
+    while n0 < FEW_TRACES and p0 > MIN_PARTICLES:  # a small budget: fewer particles
+        p0 = max(MIN_PARTICLES, p0 // 2)
+        n0 = most(budget, p0)
+    n0 = max(2, n0)
+    why = (
+        f"no guided round: one round of {n0} traces at {p0} particles is what fits "
+        f"(a guided round needs {MIN_TRACES} traces)"
+    )
+    pg = min(GUIDED_PARTICLES, p0)
+    return 0, n0, n0, p0, pg, round_seconds(costs, n0, p0, False, n0, val), why
 
 
 def plan(budget: float, costs: Costs) -> Plan:
@@ -168,7 +208,7 @@ def plan(budget: float, costs: Costs) -> Plan:
     temps, ess, tune_s, why_tune = _tune(val, budget)
     cg, cu, curve_s = _curve(costs, k, rep, budget)
     left = max(0.0, budget - tune_s - curve_s)
-    rounds, n, p0, pg, trace_s, why_traces = _traces(costs, left, val)
+    rounds, n, ng, p0, pg, trace_s, why_traces = _traces(costs, left, val)
     reasons = (
         f"validation: {why_val}",
         f"rounds: {why_traces}",
@@ -181,6 +221,7 @@ def plan(budget: float, costs: Costs) -> Plan:
         guided_particles=pg,
         traces=n,
         rounds=rounds,
+        guided_traces=ng,
         val_targets=k,
         val_repeats=rep,
         choice_temperatures=temps,
@@ -192,11 +233,30 @@ def plan(budget: float, costs: Costs) -> Plan:
     )
 
 
-def next_round_fits(last_round: float, growth: float, left: float, reserve: float) -> bool:
-    """Whether one more round, estimated as the last round's measured seconds times `growth`
-    (training on more traces), fits in the `left` seconds with `reserve` kept for tuning
-    and the curve."""
-    return math.isfinite(last_round) and last_round * growth <= left - reserve
+def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
+    """After round 0, with measured guided costs: the tune grid and the curve sized anew to
+    their shares of the plan's budget, then the guided rounds that fit what is `left`."""
+    val = validation_seconds(costs, p.val_targets, p.val_repeats)
+    temps, ess, tune_s, why_tune = _tune(val, p.budget)
+    cg, cu, curve_s = _curve(costs, p.val_targets, p.val_repeats, p.budget)
+    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, GUIDED_PARTICLES)
+    rounds, ng, pg, secs = g if g is not None else (0, 0, p.guided_particles, 0.0)
+    if g is None:
+        why = f"no guided round: one of {MIN_TRACES} traces would not fit the time left"
+    else:
+        why = f"{rounds} guided round(s) of {ng} traces at {pg} particles (measured costs)"
+    return replace(
+        p,
+        rounds=rounds,
+        guided_traces=ng,
+        guided_particles=pg,
+        choice_temperatures=temps,
+        ess=ess,
+        curve_guided=cg,
+        curve_unguided=cu,
+        estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
+        reasons=(*p.reasons, f"after round 0: {why}; tune: {why_tune}"),
+    )
 
 
 def parse_budget(text: str) -> float:

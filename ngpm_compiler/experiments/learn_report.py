@@ -36,15 +36,29 @@ def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
     return lines
 
 
+def measured(c: dict[str, Any]) -> str:
+    """The measured costs, in words."""
+    out = f"Measured: unguided trace jobs {1000 * c.get('unguided', 0):.2f} ms per particle"
+    if "guided" in c:
+        out += f", guided {1000 * c['guided']:.2f} ms"
+    if "slowdown" in c:
+        out += f" (x {c['slowdown']:.2f}: the workers ran slower than one job alone)"
+    if "val_run" in c:
+        out += f"; a guided run at N = 10 {c['val_run']:.2f} s"
+    if "train" in c:
+        out += f"; training {c['train']:.3f} s per trace"
+    return out + " (one worker)."
+
+
 def plan_lines(state: dict[str, Any]) -> list[str]:
-    p = state["stages"].get("plan", {}).get("result")
+    stages = state["stages"]
+    p = (stages.get("replan") or stages.get("plan") or {}).get("result")
     if p is None:
         return ["No plan was made (the run stopped before)."]
     c = state.get("costs", {})
     lines = [
         f"Planned for {_min(p['budget'])} (what was left after the diagnosis, the "
-        f"targets and the measurement). Measured: unguided SMC costs "
-        f"{1000 * c.get('unguided', 0):.2f} ms per particle on one worker.",
+        f"targets and the measurement). {measured(c)}",
         "",
         f"- round 0: {p['traces']} traces from unguided SMC with {p['unguided_particles']} "
         f"particles; then up to {p['rounds']} guided round(s) of {p['traces']} traces with "

@@ -25,6 +25,7 @@ TINY = Plan(
     guided_particles=10,
     traces=5,
     rounds=1,
+    guided_traces=5,
     val_targets=1,
     val_repeats=1,
     choice_temperatures=(1.0, 0.5),
@@ -36,9 +37,14 @@ TINY = Plan(
 )
 
 
+def use_tiny_plan(monkeypatch):
+    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
+    monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: TINY)
+
+
 @pytest.fixture()
 def tiny_plan(monkeypatch):
-    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
+    use_tiny_plan(monkeypatch)
 
 
 def small(tmp_path: Path, budget: float = 600.0, grammar: str = CHAIN) -> LearnConfig:
@@ -68,7 +74,8 @@ def test_cli_learn_writes_a_guide_and_a_report(tmp_path, capsys, tiny_plan):
     onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
     done = stages(out)
     assert list(done) == [
-        *("diagnose", "targets", "measure", "plan", "round_00", "round_01", "tune", "curve")
+        *("diagnose", "targets", "measure", "plan", "round_00", "replan", "round_01"),
+        *("tune", "curve"),
     ]
     assert done["round_01"]["result"]["teacher"] == "guided N=10 by round 0"
     assert done["round_01"]["result"]["traces"] == 10  # trained on both rounds' traces
@@ -116,7 +123,7 @@ def test_an_interrupted_run_resumes_without_redoing_finished_stages(
     spent = json.loads((out / "learn.json").read_text())["spent"]
     assert spent > 0
     monkeypatch.undo()
-    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
+    use_tiny_plan(monkeypatch)
     logs: list[str] = []
     res = learn(cfg, log=logs.append)
     assert not any(m.startswith("round_00: started") for m in logs)
@@ -174,7 +181,7 @@ def test_a_stop_during_traces_keeps_the_finished_jobs(tmp_path, monkeypatch, tin
     manifest = json.loads((traces / "manifest.json").read_text())
     assert manifest["jobs_done"] == 4  # written although the round did not finish
     monkeypatch.undo()
-    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
+    use_tiny_plan(monkeypatch)
     logs: list[str] = []
     learn(cfg, log=logs.append)
     assert "round_00" in stages(Path(cfg.out))
