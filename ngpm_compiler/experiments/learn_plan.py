@@ -129,20 +129,23 @@ def _tune(
 def _curve(
     costs: Costs, k: int, rep: int, budget: float
 ) -> tuple[tuple[int, ...], tuple[int, ...], float]:
+    """The curve's N: guided and unguided, fewer until they fit their share; guided keeps
+    1 and VAL_N (the guide's working N), unguided its two smallest."""
     guided, unguided = list(CURVE_GUIDED), list(CURVE_UNGUIDED)
+    droppable = [n for n in reversed(guided) if n not in (1, VAL_N)]  # largest first
 
     def cost() -> float:
         runs = costs.runs(k, rep, tuple(guided), True) + costs.runs(k, rep, tuple(unguided), False)
         return STAGE_SECONDS * len(guided) + runs
 
-    while cost() > CURVE_SHARE * budget and (len(guided) > 2 or len(unguided) > 2):
-        # drop the dearer of the two largest N
+    while cost() > CURVE_SHARE * budget and (droppable or len(unguided) > 2):
+        # drop the dearer of the largest droppable guided N and the largest unguided N
         if len(unguided) > 2 and (
-            len(guided) <= 2 or costs.run(unguided[-1], False) >= costs.run(guided[-1], True)
+            not droppable or costs.run(unguided[-1], False) >= costs.run(droppable[0], True)
         ):
             unguided.pop()
         else:
-            guided.pop()
+            guided.remove(droppable.pop(0))
     return tuple(guided), tuple(unguided), cost()
 
 

@@ -67,7 +67,7 @@ def test_a_tiny_budget_shrinks_particles_and_drops_tuning():
     assert p.rounds == 0
     assert p.unguided_particles < UNGUIDED_PARTICLES
     assert p.choice_temperatures == ()
-    assert len(p.curve_guided) == 2 and len(p.curve_unguided) == 2
+    assert p.curve_guided == (1, 10) and len(p.curve_unguided) == 2  # guided keeps N = 10
     assert (p.val_targets, p.val_repeats) == (1, 1)
     assert "no guided round" in p.reasons[1]
 
