@@ -20,7 +20,7 @@ def budget(text: str) -> float:
         return parse_budget(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"not a duration such as 45m, 2h or 90s: {text!r}"
+            f"not a duration such as 45m, 2h or 90s (at most 7 days): {text!r}"
         ) from None
 
 

@@ -12,7 +12,6 @@ tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapnes
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
@@ -31,6 +30,7 @@ TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints
 GUIDED_FACTOR = 20.0  # guided SMC's seconds per particle over unguided (features, networks)
 SMALL_N = 3.0  # a run of a few particles over its per-particle share (per-step overhead)
 TRAIN_SECONDS = 0.2  # training seconds per trace (all epochs), until measured
+MAX_BUDGET = 7 * 24 * 3600.0  # seconds: `--budget` at most a week
 # (targets per validation set, runs per target), largest first
 VAL_CHOICES = ((12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
 # tune grids (choice temperatures, ESS thresholds), largest first: `ngpmc tune`'s default
@@ -263,7 +263,8 @@ def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
 
 
 def parse_budget(text: str) -> float:
-    """'45m', '2h', '90s', '1h30m' or plain seconds -> seconds; ValueError otherwise."""
+    """'45m', '2h', '90s', '1h30m' or plain seconds -> seconds (at most MAX_BUDGET);
+    ValueError otherwise."""
     t = text.strip().lower()
     units = {"h": 3600.0, "m": 60.0, "s": 1.0}
     if t.replace(".", "", 1).isdigit():
@@ -280,6 +281,6 @@ def parse_budget(text: str) -> float:
                 raise ValueError(f"not a duration: {text!r}")
         if number or not t:
             raise ValueError(f"not a duration: {text!r}")
-    if not math.isfinite(seconds) or seconds <= 0:
-        raise ValueError(f"not a positive duration: {text!r}")
+    if not 0 < seconds <= MAX_BUDGET:  # nan fails too
+        raise ValueError(f"not a duration from 1 s to 7 days: {text!r}")
     return seconds

@@ -115,7 +115,7 @@ def test_parse_budget(text, seconds):
     assert parse_budget(text) == seconds
 
 
-@pytest.mark.parametrize("text", ["", "m", "5x", "-3m", "0s", "nan", "10m5", "inf"])
+@pytest.mark.parametrize("text", ["", "m", "5x", "-3m", "0s", "nan", "10m5", "inf", "8d", "200h"])
 def test_parse_budget_refuses(text):
     with pytest.raises(ValueError):
         parse_budget(text)
