@@ -5,14 +5,15 @@ Stages, each finished one recorded in OUT/learn.json (with its wall time) and sk
 the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
 explodes or cannot get a viewport; copy the grammar into OUT, with the proposed viewport
 when it has none), `targets` (training: scribbles + varied, mirrored, or --targets;
-validation: varied and procedural shapes of other seeds), `measure` (a few unguided trace
-jobs: seconds per particle), `plan` (learn_plan.py), then `round_0` (unguided traces,
-training, validation), `round_1`... (traces from SMC guided by the best round so far,
-training on every round's traces, validation: expert iteration as learning/rounds.py,
-rounds scored under equal, default proposal settings), `tune` (learning/tune.py on the best
-round), `curve` (similarity vs N, guided and unguided, on the validation targets) and
-`report` (report.md, curve.png). OUT/guide.onnx is written after every round that is the
-best so far and after tuning.
+validation: varied and procedural shapes of other seeds), `measure` (two unguided trace
+jobs per worker, run as the rounds run them: seconds per particle), `plan`
+(learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
+trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
+by the best round so far, training on every round's traces, validation: expert iteration
+as learning/rounds.py, rounds scored under equal, default proposal settings), `tune`
+(learning/tune.py on the best round), `curve` (similarity vs N, guided and unguided, on the
+validation targets), then OUT/report.md and curve.png. OUT/guide.onnx is written after
+every round and after tuning.
 
 Inside a stage the library's own resumption holds: trace shards, a training checkpoint
 and the validation run cache, so Ctrl-C loses only the unfinished part. The budget counts
@@ -37,6 +38,7 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.experiments.learn_plan import (
+    GUIDED_PARTICLES,
     TRAIN_SECONDS,
     UNGUIDED_PARTICLES,
     Costs,
@@ -254,25 +256,28 @@ def targets_stage(run: Run) -> dict[str, Any]:
 
 
 def measure_stage(
-    run: Run, grammar: str, train: list[str], particles: int, guide: str | None = None
+    run: Run, grammar: str, train: str, particles: int, guide: str | None = None
 ) -> float:
-    """Seconds per particle of trace jobs (unguided, or guided by `guide`): two jobs at
-    `particles`, in this process."""
-    from ngpm_runtime.inference.guide import Guide
+    """Seconds per particle of trace jobs (unguided, or guided by `guide`): two jobs per
+    worker on the first training directory, run as the rounds run them (the workers side
+    by side), in OUT/measure/."""
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
-    from ngpm_compiler.language.compile import load_grammar
-    from ngpm_compiler.learning.trace_jobs import job_spec, load_targets, run_job
-
-    program = load_grammar(grammar)
-    proposal = Guide.load(guide, program) if guide else None
-    targets = [t for d in train for t in load_targets(d, 50, False)]
-    per: list[float] = []
-    for j in range(2):
-        ti, seed = job_spec(run.cfg.seed + 7, j, len(targets))
-        t0 = time.perf_counter()
-        run_job(program, targets[ti], seed, particles, guide=proposal)
-        per.append((time.perf_counter() - t0) / particles)
-    return float(sum(per) / len(per))
+    tc = TraceConfig(
+        grammar=grammar,
+        targets=train,
+        n=2 * run.cfg.workers,
+        particles=particles,
+        seed=run.cfg.seed + 7,
+        workers=run.cfg.workers,
+        mirror=True,
+        min_primitives=MIN_PRIMITIVES,
+        guide=guide,
+    )
+    out = run.out / "measure" / ("guided" if guide else "unguided")
+    m = generate_traces(tc, out, progress=False, on_job=lambda _j: run.clock.check("measuring"))
+    secs = m["job_seconds"]
+    return float(sum(secs) / max(1, len(secs)) / particles)
 
 
 def _costs(run: Run) -> Costs:
@@ -302,12 +307,8 @@ def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
     d = run.state["stages"]["diagnose"]["result"]
     train = run.state["stages"]["targets"]["result"]["train"]
     costs = run.state["costs"]
-    guided = measure_stage(run, d["grammar"], train, p.guided_particles, r0["guide"])
+    costs["guided"] = measure_stage(run, d["grammar"], train[0], GUIDED_PARTICLES, r0["guide"])
     c = _costs(run)
-    # the workers ran slower than the jobs measured alone (a loaded machine): scale by that
-    alone = r0["traces"] * c.trace(p.unguided_particles, False) / max(1, c.workers)
-    costs["slowdown"] = max(1.0, r0["seconds"]["traces"] / max(alone, 1e-9))
-    costs["guided"] = guided * costs["slowdown"]
     runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
     costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
     costs["train"] = r0["train_seconds_per_trace"]
@@ -625,7 +626,7 @@ def _stages(run: Run) -> None:
     run.clock.check("measuring")
     small = run.cfg.budget < 600
     particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES
-    m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"], particles))
+    m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"][0], particles))
     run.state.setdefault("costs", {}).update(unguided=m)
     p = load_plan(run.stage("plan", lambda: plan_stage(run)))
     run.stage("round_00", lambda: round_stage(run, p, 0))

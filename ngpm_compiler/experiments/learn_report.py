@@ -41,8 +41,6 @@ def measured(c: dict[str, Any]) -> str:
     out = f"Measured: unguided trace jobs {1000 * c.get('unguided', 0):.2f} ms per particle"
     if "guided" in c:
         out += f", guided {1000 * c['guided']:.2f} ms"
-    if "slowdown" in c:
-        out += f" (x {c['slowdown']:.2f}: the workers ran slower than one job alone)"
     if "val_run" in c:
         out += f"; a guided run at N = 10 {c['val_run']:.2f} s"
     if "train" in c:
@@ -61,7 +59,7 @@ def plan_lines(state: dict[str, Any]) -> list[str]:
         f"targets and the measurement). {measured(c)}",
         "",
         f"- round 0: {p['traces']} traces from unguided SMC with {p['unguided_particles']} "
-        f"particles; then up to {p['rounds']} guided round(s) of {p['traces']} traces with "
+        f"particles; then up to {p['rounds']} guided round(s) of {p['guided_traces']} traces with "
         f"{p['guided_particles']} particles, each trained on every round's traces",
         f"- validation: {p['val_targets']} targets per set, {p['val_repeats']} run(s) each",
         "- tune grid: "
