@@ -31,6 +31,7 @@ import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +40,7 @@ from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.experiments.learn_plan import (
     GUIDED_PARTICLES,
+    TRAIN_FIXED,
     TRAIN_SECONDS,
     UNGUIDED_PARTICLES,
     Costs,
@@ -46,6 +48,8 @@ from ngpm_compiler.experiments.learn_plan import (
     plan,
     replan,
     round_seconds,
+    trace_allowance,
+    validation_seconds,
 )
 from ngpm_compiler.progress import Log
 
@@ -60,6 +64,10 @@ MEASURE_SMALL = 100  # particles of the measured jobs when the budget is under 1
 
 class LearnError(NgpmError):
     """`ngpmc learn` cannot go on (a grammar it cannot train for, a budget too small)."""
+
+
+class TracesTimeUp(Exception):
+    """A round's traces used their share of the budget: the round trains on what it has."""
 
 
 class BudgetSpent(Exception):
@@ -347,15 +355,23 @@ def _rounds_config(run: Run, p: Plan, guided: bool) -> Any:
     )
 
 
-def record(run: Run, rc: Any, r: int, teacher: str | None) -> tuple[list[str], float]:
-    """Round r's traces (one directory per training directory); (dirs, seconds per
-    particle of its jobs)."""
+def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tuple[list[str], float]:
+    """Round r's traces (one directory per training directory), each directory stopped
+    at its share of `allow` seconds; (dirs, seconds per particle of their jobs)."""
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     dirs, per = [], []
     share = math.ceil(rc.n / len(rc.targets))
     where = f"round {r}'s traces"
+    t0 = time.perf_counter()
+
+    def on_job(_job: int, *, until: float) -> None:
+        run.clock.check(where)
+        if time.perf_counter() > until:
+            raise TracesTimeUp
+
     for i, targets in enumerate(rc.targets):
+        until = t0 + allow * (i + 1) / len(rc.targets)
         out = Path(rc.out) / f"round_{r}" / f"traces_{i}"
         tc = TraceConfig(
             grammar=rc.grammar,
@@ -368,17 +384,26 @@ def record(run: Run, rc: Any, r: int, teacher: str | None) -> tuple[list[str], f
             min_primitives=MIN_PRIMITIVES,
             guide=teacher,
         )
-        m = generate_traces(
-            tc, out, progress=run.cfg.progress, on_job=lambda _j: run.clock.check(where)
-        )
+        try:
+            m = generate_traces(
+                tc, out, progress=run.cfg.progress, on_job=partial(on_job, until=until)
+            )
+        except TracesTimeUp:
+            m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+            run.log(f"round {r}: {out}: traces stopped at their share of the budget")
+            run.state.setdefault("notes", []).append(
+                f"round {r}: {out.name} stopped at its share of the budget: "
+                f"{m['kept']} of {share} traces"
+            )
         secs = m["job_seconds"]
-        per.append(sum(secs) / max(1, len(secs)) / tc.particles)
+        if secs:
+            per.append(sum(secs) / len(secs) / tc.particles)
         run.log(
             f"round {r}: {out}: {m['kept']} traces ({m['dropped']} dropped), "
             f"{m['seconds']:.0f} s, {'guided by ' + teacher if teacher else 'unguided'}"
         )
         dirs.append(str(out))
-    return dirs, sum(per) / len(per)
+    return dirs, sum(per) / max(1, len(per))
 
 
 def train(run: Run, rc: Any, r: int, trace_dirs: list[str]) -> tuple[str, dict[str, Any]]:
@@ -425,7 +450,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     best = max(rows, key=lambda x: x["validation"]) if rows else None
     teacher = best["guide"] if best else None
     t0 = time.perf_counter()
-    dirs, per_particle = record(run, rc, r, teacher)
+    dirs, per_particle = record(run, rc, r, teacher, _allowance(run, p, rc, rows, teacher))
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
     t1 = time.perf_counter()
     path, summary = train(run, rc, r, trace_dirs)
@@ -446,6 +471,23 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         "train_seconds_per_trace": (t2 - t1) / max(1, summary["traces"]),
         "seconds": {"traces": t1 - t0, "train": t2 - t1, "validation": time.perf_counter() - t2},
     }
+
+
+def _allowance(
+    run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]], teacher: str | None
+) -> float:
+    """Seconds this round's traces may take (learn_plan.trace_allowance)."""
+    costs = _costs(run)
+    particles = rc.particles if teacher else rc.unguided_particles
+    planned = rc.n * costs.trace(particles, teacher is not None) / max(1, costs.workers)
+    trained = (rows[-1]["traces"] if rows else 0) + rc.n
+    after = (
+        TRAIN_FIXED
+        + costs.train * trained
+        + validation_seconds(costs, rc.val_targets, rc.val_repeats)
+    )
+    reserve = after + p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    return trace_allowance(planned, run.clock.left(), reserve)
 
 
 def _rounds(run: Run) -> list[dict[str, Any]]:
@@ -494,8 +536,6 @@ def run_rounds(run: Run, p: Plan) -> None:
 
 def _next_round_estimate(run: Run, p: Plan) -> float:
     """The next guided round's seconds at the costs the last rounds measured."""
-    from ngpm_compiler.experiments.learn_plan import validation_seconds
-
     rows = _rounds(run)
     last = rows[-1]
     costs = _costs(run)

@@ -24,6 +24,8 @@ FEW_TRACES = 20  # below this, round 0 runs fewer particles to get more traces
 ROUND0_SHARE = 0.3  # of the time for traces, when guided rounds fit too
 VAL_N = 10  # validation particles (the guides' working N)
 STAGE_SECONDS = 2.0  # what starting a stage's worker processes costs
+TRACE_SLACK = 1.5  # a round's traces may take this times their estimate (plus
+TRACE_GRACE = 30.0  # these seconds: starting the workers), then the round trains
 TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints, export)
 # until measured (ivy of the README on the 2-core test machine: unguided 1.1 ms per particle
 # at 600, guided 24 ms at 200; a guided run at N = 10 about 3x its particles' share)
@@ -260,6 +262,13 @@ def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
         estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
         reasons=(*p.reasons, f"after round 0: {why}; tune: {why_tune}"),
     )
+
+
+def trace_allowance(planned: float, left: float, reserve: float) -> float:
+    """Seconds a round may spend on traces before it trains on what it has: TRACE_SLACK
+    times the `planned` seconds plus TRACE_GRACE, but never into the `reserve` (its
+    training and validation, tuning, the curve) of the `left` seconds."""
+    return max(0.0, min(TRACE_SLACK * planned + TRACE_GRACE, left - reserve))
 
 
 def parse_budget(text: str) -> float:

@@ -215,3 +215,15 @@ def test_another_configuration_in_the_same_folder_is_refused(tmp_path):
     cfg.seed = 1
     with pytest.raises(LearnError, match="holds a learn run of another configuration .*seed"):
         learn_mod.open_run(cfg, lambda _m: None)
+
+
+def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatch, tiny_plan):
+    """Traces slower than measured: the round stops recording at its share of the budget
+    and still trains, validates and writes a guide (it is not lost at the budget's end)."""
+    monkeypatch.setattr(learn_mod, "trace_allowance", lambda planned, left, reserve: 0.0)
+    cfg = small(tmp_path)
+    res = learn(cfg, log=lambda _m: None)
+    done = stages(Path(cfg.out))
+    assert 1 <= done["round_00"]["result"]["traces"] < TINY.traces
+    assert any("stopped at its share of the budget" in n for n in res["state"]["notes"])
+    onnx.checker.check_model(onnx.load(res["guide"]))

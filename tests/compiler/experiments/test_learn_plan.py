@@ -12,6 +12,8 @@ from ngpm_compiler.experiments.learn_plan import (
     GUIDED_PARTICLES,
     MIN_PARTICLES,
     MIN_TRACES,
+    TRACE_GRACE,
+    TRACE_SLACK,
     TRAIN_FIXED,
     TUNE_CHOICES,
     UNGUIDED_PARTICLES,
@@ -20,6 +22,7 @@ from ngpm_compiler.experiments.learn_plan import (
     plan,
     replan,
     round_seconds,
+    trace_allowance,
 )
 
 # measured on the 2-core test machine (vines, ivy): unguided trace jobs about 1 ms per
@@ -119,3 +122,9 @@ def test_parse_budget(text, seconds):
 def test_parse_budget_refuses(text):
     with pytest.raises(ValueError):
         parse_budget(text)
+
+
+def test_trace_allowance_keeps_the_reserve():
+    assert trace_allowance(100.0, 1000.0, 200.0) == pytest.approx(100.0 * TRACE_SLACK + TRACE_GRACE)
+    assert trace_allowance(100.0, 250.0, 200.0) == pytest.approx(50.0)  # the reserve first
+    assert trace_allowance(100.0, 150.0, 200.0) == 0.0
