@@ -22,7 +22,7 @@ stage, keeps the best finished round's guide, and writes the report.
 
 Short traces are kept as data (`MIN_PRIMITIVES` 1, not the paper's 10): a best particle
 with few primitives is still the SMC's answer for its target, and dropping it threw away
-its whole run (measured on vines: 21% of unguided 600-particle jobs, 5% of the time).
+its whole run (benchmarks/short_traces.py, vines: 21% of unguided 600-particle jobs).
 """
 
 from __future__ import annotations
