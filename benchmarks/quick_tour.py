@@ -5,7 +5,7 @@ folder holding the tour's grammar and the demo's horse as `my_picture.png`), the
 horse with seeds 0, 1 and 2 with each `grow` line of the tour (the tuned guide and the
 prior), and writes a Markdown report: seconds per command, the similarities, and the
 machine's load while it ran (the machine may be shared: compare the load, not just the
-seconds).
+seconds); the tour's `ngpmc learn` report is copied beside it (quick_tour_learn.md).
 
 Usage: python benchmarks/quick_tour.py [-o docs/results/quick_tour.md] [--work DIR]
 """
@@ -51,6 +51,19 @@ def grow_table(work: Path, grows: list[list[str]]) -> list[str]:
     return rows
 
 
+def copy_learn_report(steps: list[tour.Step], work: Path, results: Path) -> None:
+    """The tour's `ngpmc learn` report (and its plot) beside the results page:
+    quick_tour_learn.md, quick_tour_curve.png."""
+    for s in steps:
+        if s.argv[0] == "learn":
+            out = work / s.argv[s.argv.index("-o") + 1]
+            text = (out / "report.md").read_text(encoding="utf-8")
+            if (out / "curve.png").is_file():
+                atomic_write(results / "quick_tour_curve.png", (out / "curve.png").read_bytes())
+                text = text.replace("(curve.png)", "(quick_tour_curve.png)")
+            atomic_write(results / "quick_tour_learn.md", text.encode("utf-8"))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--out", default=str(REPO / "docs" / "results" / "quick_tour.md"))
@@ -67,6 +80,7 @@ def main() -> int:
             raise SystemExit(f"tour command failed: ngpmc {' '.join(failed[0].argv)}")
         grows = [s.argv for s in steps if s.argv[0] == "grow"]
         table = grow_table(work, grows)
+        copy_learn_report(steps, work, Path(args.out).parent)
         total, load1 = time.perf_counter() - t0, os.getloadavg()[0]
     lines = [
         "# The README's quick tour, measured",

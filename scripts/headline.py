@@ -73,12 +73,12 @@ def tour() -> dict[str, str]:
     out = {"cores": _find(r"^Machine: (\d+) cores", text, src).group(1)}
     load = _find(r"load average ([\d.]+) at the start, ([\d.]+) at the end", text, src)
     out["load0"], out["load1"] = load.groups()
-    for cmd in ("traces", "train", "tune"):
-        out[cmd] = _find(rf"^\| `ngpmc {cmd} .*` \| ([\d.]+) \|$", text, src).group(1)
+    learn = _find(r"^\| `ngpmc learn .* --budget (\w+)` \| ([\d.]+) \|$", text, src)
+    out["budget"], out["learn"] = learn.groups()
     out["total"] = _find(r"^\| \*\*the tour, in all\*\* \| \*\*([\d.]+)\*\* \|$", text, src).group(
         1
     )
-    for key, guide in (("tuned", r"out/\w+_tuned\.onnx"), ("prior", "none")):
+    for key, guide in (("tuned", r"out/learn/guide\.onnx"), ("prior", "none")):
         row = _find(rf"^\| `--guide {guide}` \| (.*) \|$", text, src).group(1).split(" | ")
         out[key + "_list"] = _list([_two(x) for x in row[:-2]])
         out[key + "_mean"] = _two(row[-2])
@@ -106,10 +106,11 @@ def readme_tour_time() -> str:
     t = tour()
     return (
         f"On the project's {t['cores']}-core test machine, shared with other jobs (load "
-        f"average {t['load0']} to {t['load1']}), the traces took {float(t['traces']):.0f} s "
-        f"and training {float(t['train']):.0f} s; the whole tour took "
+        f"average {t['load0']} to {t['load1']}), `ngpmc learn` took "
+        f"{float(t['learn']) / 60:.1f} minutes of its {t['budget']} budget and the whole tour "
         f"{float(t['total']) / 60:.1f} minutes (`python benchmarks/quick_tour.py` runs it as "
-        "written and times it: [docs/results/quick_tour.md](docs/results/quick_tour.md))."
+        "written and times it: [docs/results/quick_tour.md](docs/results/quick_tour.md); "
+        "the run's report: [docs/results/quick_tour_learn.md](docs/results/quick_tour_learn.md))."
     )
 
 
@@ -118,11 +119,10 @@ def readme_tour_grow() -> str:
     return (
         "With the demo's horse as `my_picture.png` (`runtime/ngpm_runtime/data/demo_horse.png`"
         " and its sidecar `demo_horse.txt`, copied), 10 particles and seeds 0, 1, 2, this "
-        f"small tuned guide reached similarity {t['tuned_list']} (mean {t['tuned_mean']}) "
+        f"guide reached similarity {t['tuned_list']} (mean {t['tuned_mean']}) "
         f"where the prior reached {t['prior_list']} (mean {t['prior_mean']}); the bundled "
         f"vines guide reaches {_two(min(horse))} to {_two(max(horse))} on the same picture "
-        f"([docs/results/demo.md](docs/results/demo.md)); tune took "
-        f"{float(t['tune']):.0f} s of the tour."
+        f"([docs/results/demo.md](docs/results/demo.md))."
     )
 
 

@@ -12,6 +12,9 @@
 # 4. ngpmc tune: the proposal settings (choice and mixture temperatures, ESS threshold) that
 #    score best on the validation targets, written into the shipped guide's metadata.
 # Usage: bash scripts/train_vines_guide.sh [WORKDIR]   (about 3 hours on 2 busy cores)
+# The same recipe, planned to a time budget and resumable, for any grammar:
+#   ngpmc learn grammars/vines.lsys -o work/vines_learn --budget 3h
+# (not yet shown to reproduce the bundled guide's quality: issue #23).
 set -euo pipefail
 W=${1:-work/vines}
 mkdir -p "$W"

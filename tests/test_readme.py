@@ -22,8 +22,6 @@ SETUP = [
     "pip install torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu && "
     'pip install -e ".[train,eval,dev,web]" && python3 -m pytest',
 ]
-# the tour, scaled down so that it runs in seconds
-SMALLER = {"--count": "3", "-n": "3", "--particles": "8"}
 
 
 def blocks(lang: str, text: str = README) -> list[str]:
@@ -56,17 +54,7 @@ def test_every_ngpmc_command_parses() -> None:
             pytest.fail(f"README command does not parse ({err}): {line}")
         assert getattr(args, "handler", None), line
         used.add(argv[0])
-    assert {
-        "demo",
-        "grow",
-        "check",
-        "compile",
-        "sample",
-        "targets",
-        "traces",
-        "train",
-        "export",
-    } <= used
+    assert {"demo", "grow", "check", "compile", "sample", "learn"} <= used
 
 
 def test_links_and_named_files_exist() -> None:
@@ -122,42 +110,47 @@ def test_readme_python_runs(monkeypatch) -> None:
     assert m and int(m.group(1)) >= 10, out.getvalue()  # a grown vine, not an empty one
 
 
-def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
+def test_quick_tour_runs_scaled_down(tmp_path: Path, monkeypatch) -> None:
+    from dataclasses import replace
+
+    from ngpm_compiler.experiments import learn
+
     assert [argv[0] for argv in tour.tour_commands(README)] == [
         "check",
         "compile",
         "sample",
-        "targets",
-        "traces",
-        "train",
-        "export",
-        "targets",
-        "tune",
+        "learn",
         "grow",
         "grow",
     ]
+    # `learn` with a plan of a few seconds (its planner is tested in tests/compiler)
+    real = learn.plan
+
+    def tiny(budget, costs):
+        p = real(budget, costs)
+        return replace(
+            p,
+            unguided_particles=8,
+            guided_particles=8,
+            traces=4,
+            guided_traces=4,
+            rounds=1,
+            val_targets=1,
+            val_repeats=1,
+            choice_temperatures=(1.0, 0.5),
+            ess=(None,),
+            curve_guided=(1, 3),
+            curve_unguided=(3, 10),
+        )
+
+    monkeypatch.setattr(learn, "plan", tiny)
+    monkeypatch.setattr(learn, "replan", lambda p, left, costs, trained: p)
 
     def smaller(argv: list[str]) -> list[str]:
-        argv = [SMALLER.get(argv[i - 1], a) if i else a for i, a in enumerate(argv)]
-        return argv + {
-            "traces": ["--workers", "1"],
-            "train": ["--epochs", "2"],
-            "tune": [
-                "--targets",
-                "2",
-                "--repeats",
-                "1",
-                "--choice-temperatures",
-                "1,0.5",
-                "--ess",
-                "none",
-                "--workers",
-                "1",
-            ],
-        }.get(argv[0], [])
+        return argv + {"learn": ["--workers", "1"]}.get(argv[0], [])
 
     steps = tour.run_tour(README, tmp_path, smaller)
-    assert [s.code for s in steps] == [0] * 11, steps[-1]
+    assert [s.code for s in steps] == [0] * 6, steps[-1]
     out = "".join(s.output for s in steps)
     assert "(guided)" in out and "(unguided)" in out
     assert tour.similarity(steps[-1].output) is not None
@@ -166,8 +159,8 @@ def test_quick_tour_runs_scaled_down(tmp_path: Path, capsys) -> None:
         "sample.png",
         f"{stem}.png",
         f"{stem}_prior.png",
-        f"out/{stem}_guide.onnx",
-        f"out/{stem}_tuned.onnx",
+        "out/learn/guide.onnx",
+        "out/learn/report.md",
     ):
         assert (tmp_path / out).is_file(), out
 

@@ -17,6 +17,7 @@ from ngpm_compiler.cli.extras import missing_extra
 COMMAND_MODULES = [
     "ngpm_compiler.cli.grammar",  # compile, check, sample
     "ngpm_compiler.cli.guide",  # traces, train, iterate, export, tune
+    "ngpm_compiler.cli.learn",  # learn
     "ngpm_compiler.cli.grow",  # grow
     "ngpm_compiler.cli.targets",  # targets build, list, show
     "ngpm_compiler.cli.evaluate",  # eval

@@ -82,6 +82,7 @@ def bases(tmp: Path) -> dict[tuple[str, ...], list[str]]:
         ("sample",): ["sample", f"{gone}.lsys", "-o", str(tmp / "s.png")],
         ("traces",): ["traces", f"{gone}.lsys", "--targets", gone, "-o", str(tmp / "tr")],
         ("train",): ["train", gone, "-o", str(tmp / "m.pt")],
+        ("learn",): ["learn", f"{gone}.lsys", "-o", str(tmp / "learn")],
         ("iterate",): [
             "iterate",
             f"{gone}.lsys",

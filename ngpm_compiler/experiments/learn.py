@@ -1,0 +1,684 @@
+"""`ngpmc learn`: the project's guide-training recipe (scripts/train_vines_guide.sh) as one
+resumable, budget-aware run for any 2D grammar.
+
+Stages, each finished one recorded in OUT/learn.json (with its wall time) and skipped when
+the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
+explodes or cannot get a viewport; copy the grammar into OUT, with the proposed viewport
+when it has none), `targets` (training: scribbles + varied, mirrored, or --targets;
+validation: varied and procedural shapes of other seeds), `measure` (two unguided trace
+jobs per worker, run as the rounds run them: seconds per particle), `plan`
+(learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
+trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
+by the best round so far, training on every round's traces, validation: expert iteration
+as learning/rounds.py, rounds scored under equal, default proposal settings), `tune`
+(learning/tune.py on the best round), `curve` (similarity vs N, guided and unguided, on the
+validation targets), then OUT/report.md and curve.png. OUT/guide.onnx is written after
+every round and after tuning.
+
+Inside a stage the library's own resumption holds: trace shards, a training checkpoint
+and the validation run cache, so Ctrl-C loses only the unfinished part. The budget counts
+the wall time of every run on OUT; past it the run stops at the next trace, epoch or
+stage, keeps the best finished round's guide, and writes the report.
+
+Short traces are kept as data (`MIN_PRIMITIVES` 1, not the paper's 10): a best particle
+with few primitives is still the SMC's answer for its target, and dropping it threw away
+its whole run (benchmarks/short_traces.py, vines: 21% of unguided 600-particle jobs).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.files import atomic_write
+
+from ngpm_compiler.experiments.learn_plan import (
+    GUIDED_PARTICLES,
+    TRAIN_FIXED,
+    TRAIN_SECONDS,
+    UNGUIDED_PARTICLES,
+    Costs,
+    Plan,
+    plan,
+    replan,
+    round_seconds,
+    trace_allowance,
+    validation_seconds,
+)
+from ngpm_compiler.progress import Log
+
+STATE_FORMAT = "ngpm-learn/1"
+MIN_PRIMITIVES = 1  # keep short traces (see the module docstring)
+FEATURES = "all+context"
+TRAIN_DATASETS = ("scribbles", "varied")
+VALIDATION = {"varied": ("varied", 1), "shapes": ("shapes", 101)}  # name: (dataset, seed)
+VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
+MEASURE_SMALL = 100  # particles of the measured jobs when the budget is under 10 minutes
+
+
+class LearnError(NgpmError):
+    """`ngpmc learn` cannot go on (a grammar it cannot train for, a budget too small)."""
+
+
+class TracesTimeUp(Exception):
+    """A round's traces used their share of the budget: the round trains on what it has."""
+
+
+class BudgetSpent(Exception):
+    """The budget ran out; `where` names what was running."""
+
+    def __init__(self, where: str) -> None:
+        super().__init__(where)
+        self.where = where
+
+
+@dataclass
+class LearnConfig:
+    grammar: str  # .lsys file
+    out: str
+    budget: float = 45 * 60.0  # seconds
+    likelihood: str = "shape"
+    targets: list[str] = field(default_factory=list)  # training directories ([]: build)
+    validation: dict[str, str] = field(default_factory=dict)  # name -> dir ({}: build)
+    workers: int = 2
+    seed: int = 0
+    progress: bool = True
+
+
+class Clock:
+    """The budget: seconds spent on OUT before this run plus this run's."""
+
+    def __init__(self, budget: float, before: float) -> None:
+        self.budget, self.before, self.t0 = budget, before, time.perf_counter()
+
+    def spent(self) -> float:
+        return self.before + time.perf_counter() - self.t0
+
+    def left(self) -> float:
+        return self.budget - self.spent()
+
+    def check(self, where: str) -> None:
+        if self.left() <= 0:
+            raise BudgetSpent(where)
+
+
+@dataclass
+class Run:
+    """One `learn` call: its configuration, state (learn.json), clock and log."""
+
+    cfg: LearnConfig
+    state: dict[str, Any]
+    clock: Clock
+    log: Log
+
+    @property
+    def out(self) -> Path:
+        return Path(self.cfg.out)
+
+    def save(self) -> None:
+        self.state["spent"] = round(self.clock.spent(), 3)
+        atomic_write(self.out / "learn.json", json.dumps(self.state, indent=1) + "\n")
+
+    def stage(self, name: str, fn: Any) -> Any:
+        """fn()'s result, or the recorded one when the stage finished before."""
+        done = self.state["stages"].get(name)
+        if done is not None:
+            return done["result"]
+        self.log(f"{name}: started ({_minutes(self.clock.left())} of the budget left)")
+        t0 = time.perf_counter()
+        result = fn()
+        seconds = round(time.perf_counter() - t0, 3)
+        self.state["stages"][name] = {"seconds": seconds, "result": result}
+        self.save()
+        self.log(f"{name}: done in {_minutes(seconds)}")
+        return result
+
+
+def _minutes(seconds: float) -> str:
+    if seconds < 120:
+        return f"{max(seconds, 0):.0f} s"
+    return f"{seconds / 60:.1f} min"
+
+
+def _key(cfg: LearnConfig) -> dict[str, Any]:
+    import hashlib
+
+    text = Path(cfg.grammar).read_bytes()
+    return {
+        "grammar": Path(cfg.grammar).name,
+        "grammar_sha": hashlib.sha256(text).hexdigest(),
+        "likelihood": cfg.likelihood,
+        "seed": cfg.seed,
+        "targets": [str(Path(t).resolve()) for t in cfg.targets],
+        "validation": {k: str(Path(v).resolve()) for k, v in sorted(cfg.validation.items())},
+    }
+
+
+def open_run(cfg: LearnConfig, log: Log) -> Run:
+    """The run on cfg.out: a new one, or the one there (refused if of another config)."""
+    out = Path(cfg.out)
+    if out.exists() and not out.is_dir():
+        raise LearnError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    key = _key(cfg)
+    path = out / "learn.json"
+    state: dict[str, Any] = {"format": STATE_FORMAT, "key": key, "spent": 0.0, "stages": {}}
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+        except ValueError:
+            raise LearnError(f"{path}: not valid JSON; remove it or use another -o") from None
+        if old.get("format") != STATE_FORMAT or old.get("key") != key:
+            diff = sorted(k for k in key if old.get("key", {}).get(k) != key[k])
+            raise LearnError(
+                f"{out}: holds a learn run of another configuration (differs in "
+                f"{', '.join(diff) or 'format'}); use another -o"
+            )
+        state = old
+        log(f"resuming {out}: {len(state['stages'])} stages done, {_minutes(state['spent'])} spent")
+    run = Run(cfg, state, Clock(cfg.budget, float(state.get("spent", 0.0))), log)
+    run.save()
+    return run
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def diagnose_stage(run: Run) -> dict[str, Any]:
+    """Check the grammar (one-line errors) and copy it into OUT, with the proposed viewport
+    when it has none; the estimates' lines for the report."""
+    from ngpm_compiler.evaluation.diagnose import diagnose, sample_lines, viewport_line
+    from ngpm_compiler.language.compile import compile_grammar
+
+    cfg = run.cfg
+    compiled = compile_grammar(Path(cfg.grammar), filename=cfg.grammar)
+    program = compiled.program()
+    if program.dim != 2:
+        raise LearnError(f"{cfg.grammar}: a 3D grammar; ngpmc learn trains guides of 2D ones")
+    quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look
+    diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=3 * quick)
+    _refuse_exploding(cfg.grammar, diag)
+    text = compiled.source_text
+    proposed = None
+    if program.viewport is None:
+        if diag.viewport is None:
+            raise LearnError(
+                f"{cfg.grammar}: no 'viewport:' line, and its samples draw nothing to "
+                "propose one from; add one (e.g. 'viewport: -12 12 -22 2')"
+            )
+        proposed = list(diag.viewport)
+        text = f"{viewport_line(diag.viewport)}  # proposed by ngpmc learn\n{text}"
+    grammar = run.out / Path(cfg.grammar).name
+    atomic_write(grammar, text.encode("utf-8"))
+    return {
+        "grammar": str(grammar),
+        "viewport_proposed": proposed,
+        "smc_seconds": diag.timing.seconds if diag.timing else None,
+        "lines": sample_lines(diag),
+    }
+
+
+def _refuse_exploding(filename: str, diag: Any) -> None:
+    """LearnError when forward samples run to a cap: a supercritical rule (named), or a
+    grammar that does not end by itself."""
+    from ngpm_compiler.evaluation.diagnose import warning_lines
+
+    s = diag.samples
+    if s is None or not s.capped:
+        return
+    if diag.branching:
+        b = diag.branching[0]
+        raise LearnError(
+            f"{filename}:{b.line}: rule {b.pred} branches supercritically ({b.rate:.2f} "
+            f"per generation) and {s.capped} of {s.n} samples ran to a cap: every SMC run "
+            "would draw to the cap; make it fork less often or end its chains (ngpmc check)"
+        )
+    if s.capped * 2 > s.n:
+        first = warning_lines(diag)[0].removeprefix("warning: ")
+        raise LearnError(first)
+
+
+def targets_stage(run: Run) -> dict[str, Any]:
+    """Training and validation target directories (built under OUT/targets)."""
+    from ngpm_compiler.datasets.build import build_dataset
+
+    cfg, root = run.cfg, run.out / "targets"
+    train = list(cfg.targets)
+    if not train:
+        count = 300 if cfg.budget >= 1800 else max(8, min(300, int(cfg.budget / 6)))
+        for i, name in enumerate(TRAIN_DATASETS):
+            build_dataset(name, root / name, count=count, seed=cfg.seed + i, mirror=True)
+            train.append(str(root / name))
+    validation = dict(cfg.validation)
+    if not validation:
+        for name, (dataset, seed) in VALIDATION.items():
+            build_dataset(dataset, root / f"val_{name}", count=VAL_COUNT, seed=seed)
+            validation[name] = str(root / f"val_{name}")
+    return {"train": train, "validation": validation}
+
+
+def measure_stage(
+    run: Run, grammar: str, train: str, particles: int, guide: str | None = None
+) -> float:
+    """Seconds per particle of trace jobs (unguided, or guided by `guide`): two jobs per
+    worker on the first training directory, run as the rounds run them (the workers side
+    by side), in OUT/measure/."""
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
+
+    tc = TraceConfig(
+        grammar=grammar,
+        targets=train,
+        n=2 * run.cfg.workers,
+        particles=particles,
+        seed=run.cfg.seed + 7,
+        workers=run.cfg.workers,
+        mirror=True,
+        min_primitives=MIN_PRIMITIVES,
+        guide=guide,
+    )
+    out = run.out / "measure" / ("guided" if guide else "unguided")
+    m = generate_traces(tc, out, progress=False, on_job=lambda _j: run.clock.check("measuring"))
+    secs = m["job_seconds"]
+    return float(sum(secs) / max(1, len(secs)) / particles)
+
+
+def _costs(run: Run) -> Costs:
+    c = run.state.get("costs", {})
+    sets = len(run.state["stages"]["targets"]["result"]["validation"])
+    return Costs(
+        unguided=float(c["unguided"]),
+        guided=float(c.get("guided", 0.0)),
+        val_run=float(c.get("val_run", 0.0)),
+        train=float(c.get("train", TRAIN_SECONDS)),
+        workers=run.cfg.workers,
+        sets=sets,
+    )
+
+
+def plan_stage(run: Run) -> dict[str, Any]:
+    p = plan(max(1.0, run.clock.left()), _costs(run))
+    for line in p.reasons:
+        run.log(f"plan: {line}")
+    return asdict(p)
+
+
+def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
+    """After round 0: measure guided trace jobs (round 0's guide teaching) and a guided
+    validation run (round 0's validation), then plan the guided rounds anew."""
+    r0 = run.state["stages"]["round_00"]["result"]
+    d = run.state["stages"]["diagnose"]["result"]
+    train = run.state["stages"]["targets"]["result"]["train"]
+    costs = run.state["costs"]
+    costs["guided"] = measure_stage(run, d["grammar"], train[0], GUIDED_PARTICLES, r0["guide"])
+    c = _costs(run)
+    runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
+    costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
+    costs["train"] = r0["train_seconds_per_trace"]
+    q = replan(p, max(0.0, run.clock.left()), _costs(run), r0["traces"])
+    run.log(f"plan: {q.reasons[-1]}")
+    return asdict(q)
+
+
+def load_plan(d: dict[str, Any]) -> Plan:
+    tuples = ("choice_temperatures", "ess", "curve_guided", "curve_unguided", "reasons")
+    fields: dict[str, Any] = {k: tuple(v) if k in tuples else v for k, v in d.items()}
+    return Plan(**fields)
+
+
+# --------------------------------------------------------------------------- rounds
+
+
+def _rounds_config(run: Run, p: Plan, guided: bool) -> Any:
+    from ngpm_compiler.learning.rounds import RoundsConfig
+
+    t = run.state["stages"]["targets"]["result"]
+    return RoundsConfig(
+        grammar=run.state["stages"]["diagnose"]["result"]["grammar"],
+        targets=t["train"],
+        validation=t["validation"],
+        out=str(run.out / "rounds"),
+        rounds=p.rounds,
+        n=p.guided_traces if guided else p.traces,
+        particles=p.guided_particles,
+        unguided_particles=p.unguided_particles,
+        val_targets=p.val_targets,
+        val_repeats=p.val_repeats,
+        feature_set=FEATURES,
+        workers=run.cfg.workers,
+        seed=run.cfg.seed,
+    )
+
+
+def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tuple[list[str], float]:
+    """Round r's traces (one directory per training directory), each directory stopped
+    at its share of `allow` seconds; (dirs, seconds per particle of their jobs)."""
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
+
+    dirs, per = [], []
+    share = math.ceil(rc.n / len(rc.targets))
+    where = f"round {r}'s traces"
+    t0 = time.perf_counter()
+
+    def on_job(_job: int, *, until: float) -> None:
+        run.clock.check(where)
+        if time.perf_counter() > until:
+            raise TracesTimeUp
+
+    for i, targets in enumerate(rc.targets):
+        until = t0 + allow * (i + 1) / len(rc.targets)
+        out = Path(rc.out) / f"round_{r}" / f"traces_{i}"
+        tc = TraceConfig(
+            grammar=rc.grammar,
+            targets=targets,
+            n=share,
+            particles=rc.particles if teacher else rc.unguided_particles,
+            seed=rc.seed + 1000 * r + i,
+            workers=rc.workers,
+            mirror=True,
+            min_primitives=MIN_PRIMITIVES,
+            guide=teacher,
+        )
+        try:
+            m = generate_traces(
+                tc, out, progress=run.cfg.progress, on_job=partial(on_job, until=until)
+            )
+        except TracesTimeUp:
+            m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+            run.log(f"round {r}: {out}: traces stopped at their share of the budget")
+            run.state.setdefault("notes", []).append(
+                f"round {r}: {out.name} stopped at its share of the budget: "
+                f"{m['kept']} of {share} traces"
+            )
+        secs = m["job_seconds"]
+        if secs:
+            per.append(sum(secs) / len(secs) / tc.particles)
+        run.log(
+            f"round {r}: {out}: {m['kept']} traces ({m['dropped']} dropped), "
+            f"{m['seconds']:.0f} s, {'guided by ' + teacher if teacher else 'unguided'}"
+        )
+        dirs.append(str(out))
+    return dirs, sum(per) / max(1, len(per))
+
+
+def train(run: Run, rc: Any, r: int, trace_dirs: list[str]) -> tuple[str, dict[str, Any]]:
+    """Train round r's guide on every round's traces (checkpointed, stopped by the budget
+    between epochs) and export it; (onnx path, training summary)."""
+    from ngpm_compiler.learning.export import write_onnx
+    from ngpm_compiler.learning.rounds import merge_traces
+    from ngpm_compiler.learning.trace_data import load_traces
+    from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
+
+    ts = merge_traces([load_traces(d) for d in trace_dirs])
+    if not ts.data:
+        raise LearnError(f"round {r}: the traces hold no site visits to train on")
+    folder = Path(rc.out) / f"round_{r}"
+    where = f"round {r}'s training"
+    model = train_guide(
+        ts.sites,
+        ts.layouts,
+        ts.data,
+        TrainConfig(feature_set=rc.feature_set, K=rc.K, epochs=rc.epochs, seed=rc.seed),
+        grammar=ts.manifest["key"]["grammar"],
+        grammar_hash=ts.manifest["grammar_hash"],
+        checkpoint=folder / "model.pt.ckpt",
+        progress=run.cfg.progress,
+        on_epoch=lambda _row: run.clock.check(where),
+    )
+    save_model(model, folder / "model.pt")
+    (folder / "model.pt.ckpt").unlink(missing_ok=True)
+    s = model.summary
+    run.log(
+        f"round {r}: trained on {s['traces']} traces, validation NLL {s['val_nll']:.2f}, "
+        f"{s['seconds']:.0f} s"
+    )
+    return str(write_onnx(model, folder / "guide.onnx")), s
+
+
+def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
+    """Round r: traces (round 0 unguided, then guided by the best round so far), training
+    on every round's traces, validation at N = 10 under default proposal settings."""
+    from ngpm_compiler.learning.rounds import validate
+
+    rc = _rounds_config(run, p, r > 0)
+    rows = _rounds(run)
+    best = max(rows, key=lambda x: x["validation"]) if rows else None
+    teacher = best["guide"] if best else None
+    t0 = time.perf_counter()
+    dirs, per_particle = record(run, rc, r, teacher, _allowance(run, p, rc, rows, teacher))
+    trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
+    t1 = time.perf_counter()
+    path, summary = train(run, rc, r, trace_dirs)
+    t2 = time.perf_counter()
+    run.clock.check(f"round {r}'s validation")
+    score = validate(rc, f"round_{r}", path, run.log)
+    return {
+        "round": r,
+        "teacher": f"guided N={rc.particles} by round {best['round']}"
+        if best
+        else f"unguided N={rc.unguided_particles}",
+        "traces": summary["traces"],
+        "val_nll": round(float(summary["val_nll"]), 3),
+        "validation": round(score, 4),
+        "guide": path,
+        "traces_dirs": dirs,
+        "seconds_per_particle": per_particle,
+        "train_seconds_per_trace": (t2 - t1) / max(1, summary["traces"]),
+        "seconds": {"traces": t1 - t0, "train": t2 - t1, "validation": time.perf_counter() - t2},
+    }
+
+
+def _allowance(
+    run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]], teacher: str | None
+) -> float:
+    """Seconds this round's traces may take (learn_plan.trace_allowance)."""
+    costs = _costs(run)
+    particles = rc.particles if teacher else rc.unguided_particles
+    planned = rc.n * costs.trace(particles, teacher is not None) / max(1, costs.workers)
+    trained = (rows[-1]["traces"] if rows else 0) + rc.n
+    after = (
+        TRAIN_FIXED
+        + costs.train * trained
+        + validation_seconds(costs, rc.val_targets, rc.val_repeats)
+    )
+    reserve = after + p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    return trace_allowance(planned, run.clock.left(), reserve)
+
+
+def _rounds(run: Run) -> list[dict[str, Any]]:
+    stages = run.state["stages"]
+    return [stages[k]["result"] for k in sorted(stages) if k.startswith("round_")]
+
+
+def best_round(run: Run) -> dict[str, Any] | None:
+    rows = _rounds(run)
+    return max(rows, key=lambda x: (x["validation"], -x["round"])) if rows else None
+
+
+def write_guide(run: Run) -> str | None:
+    """OUT/guide.onnx: the tuned guide when tuning finished, else the best round's."""
+    tuned = run.state["stages"].get("tune")
+    best = best_round(run)
+    src = tuned["result"]["guide"] if tuned and tuned["result"] else (best or {}).get("guide")
+    if src is None:
+        return None
+    dst = run.out / "guide.onnx"
+    atomic_write(dst, Path(src).read_bytes())
+    return str(dst)
+
+
+def run_rounds(run: Run, p: Plan) -> None:
+    """The guided rounds while the plan has them and the next one fits (its cost estimated
+    from the measured rounds, keeping tuning's and the curve's share)."""
+    reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    for r in range(1, p.rounds + 1):
+        name = f"round_{r:02d}"
+        if name not in run.state["stages"]:
+            est = _next_round_estimate(run, p)
+            if est > run.clock.left() - reserve:
+                run.log(
+                    f"round {r}: skipped: it would take about {_minutes(est)}, "
+                    f"{_minutes(run.clock.left() - reserve)} are left before tuning"
+                )
+                run.state.setdefault("notes", []).append(
+                    f"round {r} skipped: estimated {_minutes(est)}, "
+                    f"{_minutes(run.clock.left() - reserve)} left before tuning and the curve"
+                )
+                break
+        run.stage(name, lambda r=r: round_stage(run, p, r))
+        write_guide(run)
+
+
+def _next_round_estimate(run: Run, p: Plan) -> float:
+    """The next guided round's seconds at the costs the last rounds measured."""
+    rows = _rounds(run)
+    last = rows[-1]
+    costs = _costs(run)
+    guided = [x["seconds_per_particle"] for x in rows if x["round"] > 0]
+    costs = replace(
+        costs,
+        guided=guided[-1] if guided else costs.guided,
+        train=last["train_seconds_per_trace"],
+    )
+    val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
+    trained = last["traces"] + p.guided_traces
+    return round_seconds(costs, p.guided_traces, p.guided_particles, True, trained, val)
+
+
+# --------------------------------------------------------------------------- tune, curve
+
+
+def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
+    """learning/tune.py on the best round's guide (None: no grid in the plan)."""
+    from ngpm_runtime.inference.sitekinds import KINDS
+
+    from ngpm_compiler.language.compile import load_grammar
+    from ngpm_compiler.learning.tune import grid, tune
+
+    best = best_round(run)
+    if not p.choice_temperatures or best is None:
+        return None
+    t = run.state["stages"]["targets"]["result"]
+    grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
+    sites = load_grammar(grammar).sites
+    if any(not KINDS[s.kind].continuous for s in sites):
+        settings = grid((1.0,), p.choice_temperatures, p.ess)
+    else:  # no choices to sharpen: the same number of continuous temperatures
+        settings = grid(p.choice_temperatures, (1.0,), p.ess)
+    res = tune(
+        grammar,
+        best["guide"],
+        t["validation"],
+        run.out / "work" / "tuned.onnx",
+        run.out / "work" / "tune",
+        settings,
+        k=p.val_targets,
+        repeats=p.val_repeats,
+        workers=run.cfg.workers,
+        seed=run.cfg.seed,
+        log=run.log,
+    )
+    return {
+        "guide": str(run.out / "work" / "tuned.onnx"),
+        "round": best["round"],
+        "setting": res["best"].label(),
+        "table": res["table"],
+    }
+
+
+def curve_stage(run: Run, p: Plan) -> list[dict[str, Any]]:
+    """Similarity vs N of OUT/guide.onnx and of unguided SMC on the validation targets
+    (every run cached, so a stop in the middle resumes)."""
+    from ngpm_compiler.evaluation.heldout import run_heldout
+    from ngpm_compiler.evaluation.runs import summarize
+
+    t = run.state["stages"]["targets"]["result"]
+    grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
+    rows: dict[tuple[Any, ...], dict[str, Any]] = {}
+    ns = sorted(set(p.curve_guided))
+    for i, n in enumerate(ns):
+        run.clock.check("the curve")
+        extra = tuple(x for x in p.curve_unguided if x not in ns) if i == len(ns) - 1 else ()
+        res = run_heldout(
+            run.out / "work" / "curve",
+            grammar,
+            t["validation"],
+            {"guide": str(run.out / "guide.onnx")},
+            k=p.val_targets,
+            repeats=p.val_repeats,
+            guided_n=n,
+            unguided_ns=extra,
+            workers=run.cfg.workers,
+            seed=run.cfg.seed + 1,
+            log=lambda _m: None,
+        )
+        for row in res["rows"]:
+            rows[(row["model"], row["dataset"], row["target"], row["n"], row["repeat"])] = row
+    return summarize(list(rows.values()), "validation")
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def learn(cfg: LearnConfig, log: Log = print) -> dict[str, Any]:
+    """Run (or resume) every stage; returns {"guide", "report", "stopped", "state"}.
+    "stopped" is None, or where the budget ran out (the best finished guide is written)."""
+    from ngpm_compiler.experiments.learn_report import write_report
+
+    if cfg.likelihood != "shape":
+        raise LearnError(
+            f"--likelihood {cfg.likelihood}: ngpmc learn trains shape guides only so far "
+            "(circuit guides: ngpmc eval --stages circuit)"
+        )
+    run = open_run(cfg, log)
+    stopped = None
+    try:
+        _stages(run)
+    except BudgetSpent as stop:
+        stopped = stop.where
+        run.state.setdefault("notes", []).append(f"budget spent during {stop.where}")
+        log(f"budget of {_minutes(cfg.budget)} spent during {stop.where}")
+    finally:
+        run.save()
+    guide = write_guide(run)
+    if guide is None:
+        raise LearnError(
+            f"the budget of {_minutes(cfg.budget)} was spent during {stopped} before a guide "
+            f"was trained; rerun with a larger --budget (the run resumes in {cfg.out})"
+        )
+    report = write_report(run.out, run.state, stopped)
+    run.save()
+    return {"guide": guide, "report": str(report), "stopped": stopped, "state": run.state}
+
+
+def _stages(run: Run) -> None:
+    d = run.stage("diagnose", lambda: diagnose_stage(run))
+    for line in d["lines"]:
+        run.log(line)
+    if d["viewport_proposed"]:
+        run.log(f"grammar: {d['grammar']}, with the proposed viewport (use it with the guide)")
+    t = run.stage("targets", lambda: targets_stage(run))
+    run.clock.check("measuring")
+    small = run.cfg.budget < 600
+    particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES
+    m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"][0], particles))
+    run.state.setdefault("costs", {}).update(unguided=m)
+    p = load_plan(run.stage("plan", lambda: plan_stage(run)))
+    run.stage("round_00", lambda: round_stage(run, p, 0))
+    write_guide(run)
+    if p.rounds > 0:
+        run.clock.check("measuring guided SMC")
+        p = load_plan(run.stage("replan", lambda: replan_stage(run, p)))
+    run_rounds(run, p)
+    run.clock.check("tuning")
+    if p.estimates.get("tune", 0.0) > run.clock.left():
+        run.state.setdefault("notes", []).append("tuning skipped: too little budget left")
+    else:
+        run.stage("tune", lambda: tune_stage(run, p))
+        write_guide(run)
+    run.stage("curve", lambda: curve_stage(run, p))

@@ -1,0 +1,295 @@
+"""The budget plan of `ngpmc learn`: from the time budget and measured costs, how many
+traces per round, how many particles, how many expert-iteration rounds, how many validation
+targets, which tuning grid and which N values for the report's curve. Pure functions, no
+clock and no files: `learn.py` measures, these decide.
+
+Costs are seconds per SMC particle on one worker (a run of N particles costs about N times
+that), so every stage's estimate is a sum of runs divided by the workers. The shares follow
+the project's recipe (scripts/train_vines_guide.sh): 600 unguided particles for round 0,
+200 guided particles in the later rounds, 12 validation targets per set run twice, the
+tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapness.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
+GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
+MIN_PARTICLES = 20
+MAX_ROUNDS = 4  # guided rounds after round 0
+MIN_TRACES = 150  # a round with fewer traces is not worth its validation: fewer rounds
+MAX_TRACES = 2000  # per round
+FEW_TRACES = 20  # below this, round 0 runs fewer particles to get more traces
+ROUND0_SHARE = 0.3  # of the time for traces, when guided rounds fit too
+VAL_N = 10  # validation particles (the guides' working N)
+STAGE_SECONDS = 2.0  # what starting a stage's worker processes costs
+TRACE_SLACK = 1.5  # a round's traces may take this times their estimate (plus
+TRACE_GRACE = 30.0  # these seconds: starting the workers), then the round trains
+TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints, export)
+# until measured (ivy of the README on the 2-core test machine: unguided 1.1 ms per particle
+# at 600, guided 24 ms at 200; a guided run at N = 10 about 3x its particles' share)
+GUIDED_FACTOR = 20.0  # guided SMC's seconds per particle over unguided (features, networks)
+SMALL_N = 3.0  # a run of a few particles over its per-particle share (per-step overhead)
+TRAIN_SECONDS = 0.2  # training seconds per trace (all epochs), until measured
+MAX_BUDGET = 7 * 24 * 3600.0  # seconds: `--budget` at most a week
+# (targets per validation set, runs per target), largest first
+VAL_CHOICES = ((12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
+# tune grids (choice temperatures, ESS thresholds), largest first: `ngpmc tune`'s default
+TUNE_CHOICES: tuple[tuple[tuple[float, ...], tuple[float | None, ...]], ...] = (
+    ((1.0, 0.7, 0.5, 0.3, 0.2), (None, 0.5)),
+    ((1.0, 0.5, 0.3), (None,)),
+)
+CURVE_GUIDED = (1, 3, 10, 30)
+CURVE_UNGUIDED = (10, 30, 100, 300, 1000)
+# shares of the budget each evaluation stage may take
+VAL_SHARE, TUNE_SHARE, CURVE_SHARE = 0.10, 0.10, 0.08
+
+
+@dataclass(frozen=True)
+class Costs:
+    """Seconds on one worker: per particle of a trace job (unguided, guided), and of one
+    guided run at N = VAL_N (validation, tuning, the curve), each 0 until measured."""
+
+    unguided: float
+    guided: float = 0.0  # 0: GUIDED_FACTOR x unguided
+    val_run: float = 0.0  # 0: SMALL_N x VAL_N x guided
+    train: float = TRAIN_SECONDS  # training seconds per trace
+    workers: int = 1
+    sets: int = 2  # validation sets
+
+    def per_particle(self, guided: bool) -> float:
+        return (self.guided or GUIDED_FACTOR * self.unguided) if guided else self.unguided
+
+    def trace(self, n: int, guided: bool) -> float:
+        """Seconds of one trace job of n particles."""
+        return n * self.per_particle(guided)
+
+    def run(self, n: int, guided: bool) -> float:
+        """Seconds of one evaluation run of n particles (a few cost as VAL_N: overhead)."""
+        if not guided:
+            return SMALL_N * max(n, VAL_N) * self.unguided
+        unit = self.val_run or SMALL_N * VAL_N * self.per_particle(True)
+        return unit * max(n, VAL_N) / VAL_N
+
+    def runs(self, k: int, repeats: int, ns: tuple[int, ...], guided: bool) -> float:
+        """Wall seconds of runs at each N of `ns` on k targets of every set, `repeats` each."""
+        total = sum(self.run(n, guided) for n in ns)
+        return self.sets * k * repeats * total / max(1, self.workers)
+
+
+@dataclass(frozen=True)
+class Plan:
+    budget: float  # seconds planned for (what was left when planning)
+    unguided_particles: int
+    guided_particles: int
+    traces: int  # round 0's kept traces, all training directories together
+    rounds: int  # guided rounds after round 0
+    guided_traces: int  # kept traces per guided round
+    val_targets: int  # per validation set
+    val_repeats: int
+    choice_temperatures: tuple[float, ...]  # the tune grid; () = no tuning
+    ess: tuple[float | None, ...]
+    curve_guided: tuple[int, ...]
+    curve_unguided: tuple[int, ...]
+    estimates: dict[str, float] = field(default_factory=dict)  # stage -> seconds
+    reasons: tuple[str, ...] = ()
+
+
+def validation_seconds(costs: Costs, k: int, repeats: int) -> float:
+    """Scoring one guide at N = VAL_N (the unguided baseline is run once, not counted)."""
+    return STAGE_SECONDS + costs.runs(k, repeats, (VAL_N,), True)
+
+
+def round_seconds(
+    costs: Costs, traces: int, particles: int, guided: bool, trained_on: int, val: float
+) -> float:
+    """One round: its traces, training on `trained_on` traces, scoring the guide."""
+    record = traces * costs.trace(particles, guided) / max(1, costs.workers)
+    return record + TRAIN_FIXED + costs.train * trained_on + val
+
+
+def _validation(costs: Costs, budget: float) -> tuple[int, int, float, str]:
+    for k, rep in VAL_CHOICES:
+        v = validation_seconds(costs, k, rep)
+        if v * (1 + MAX_ROUNDS) <= VAL_SHARE * budget:
+            return k, rep, v, f"{k} targets per set, {rep} run(s) each: fits {VAL_SHARE:.0%}"
+    k, rep = VAL_CHOICES[-1]
+    return k, rep, validation_seconds(costs, k, rep), f"{k} target per set (the least)"
+
+
+def _tune(
+    val: float, budget: float
+) -> tuple[tuple[float, ...], tuple[float | None, ...], float, str]:
+    for temps, ess in TUNE_CHOICES:
+        g = len(temps) * len(ess)
+        if g * val <= TUNE_SHARE * budget:
+            return temps, ess, g * val, f"{g} proposal settings: fits {TUNE_SHARE:.0%}"
+    return (), (), 0.0, "no tuning: even 3 settings would take over its share"
+
+
+def _curve(
+    costs: Costs, k: int, rep: int, budget: float
+) -> tuple[tuple[int, ...], tuple[int, ...], float]:
+    """The curve's N: guided and unguided, fewer until they fit their share; guided keeps
+    1 and VAL_N (the guide's working N), unguided its two smallest."""
+    guided, unguided = list(CURVE_GUIDED), list(CURVE_UNGUIDED)
+    droppable = [n for n in reversed(guided) if n not in (1, VAL_N)]  # largest first
+
+    def cost() -> float:
+        runs = costs.runs(k, rep, tuple(guided), True) + costs.runs(k, rep, tuple(unguided), False)
+        return STAGE_SECONDS * len(guided) + runs
+
+    while cost() > CURVE_SHARE * budget and (droppable or len(unguided) > 2):
+        # drop the dearer of the largest droppable guided N and the largest unguided N
+        if len(unguided) > 2 and (
+            not droppable or costs.run(unguided[-1], False) >= costs.run(droppable[0], True)
+        ):
+            unguided.pop()
+        else:
+            guided.remove(droppable.pop(0))
+    return tuple(guided), tuple(unguided), cost()
+
+
+def guided_rounds(
+    costs: Costs, room: float, val: float, trained: int, particles: int
+) -> tuple[int, int, int, float] | None:
+    """The guided rounds that fit `room` seconds after `trained` traces: (rounds, traces per
+    round, particles, seconds) with the most rounds of at least MIN_TRACES traces, at
+    `particles` or, when none fits, at a half or a quarter of them; None when none fits."""
+    options = sorted(
+        {particles, max(MIN_PARTICLES, particles // 2), max(MIN_PARTICLES, particles // 4)},
+        reverse=True,
+    )
+    for pg in options:
+        per_job = costs.trace(pg, True) / max(1, costs.workers)
+        for rounds in range(MAX_ROUNDS, 0, -1):
+            fixed = rounds * (TRAIN_FIXED + val + costs.train * trained)
+            per_trace = rounds * per_job + costs.train * rounds * (rounds + 1) / 2
+            n = min(MAX_TRACES, int((room - fixed) / per_trace))
+            if n >= MIN_TRACES:
+                return rounds, n, pg, fixed + n * per_trace
+    return None
+
+
+def _traces(costs: Costs, budget: float, val: float) -> tuple[int, int, int, int, int, float, str]:
+    """(rounds, round 0's traces, guided traces per round, unguided particles, guided
+    particles, seconds, why): round 0 takes up to ROUND0_SHARE of `budget`, the guided
+    rounds the rest; without room for a guided round, round 0 takes it all."""
+    p0 = UNGUIDED_PARTICLES
+
+    def most(room: float, p: int) -> int:
+        per = costs.trace(p, False) / max(1, costs.workers) + costs.train
+        return min(MAX_TRACES, int(max(0.0, room - TRAIN_FIXED - val) / per))
+
+    n0 = max(MIN_TRACES, most(ROUND0_SHARE * budget, p0))
+    first = round_seconds(costs, n0, p0, False, n0, val)
+    g = guided_rounds(costs, budget - first, val, n0, GUIDED_PARTICLES)
+    if g is not None:
+        rounds, ng, pg, secs = g
+        why = (
+            f"round 0: {n0} traces ({ROUND0_SHARE:.0%} of the time for traces); "
+            f"{rounds} guided round(s) of {ng} traces at {pg} particles: more rounds would "
+            f"have fewer than {MIN_TRACES}"
+        )
+        return rounds, n0, ng, p0, pg, first + secs, why
+    n0 = most(budget, p0)
+    while n0 < FEW_TRACES and p0 > MIN_PARTICLES:  # a small budget: fewer particles
+        p0 = max(MIN_PARTICLES, p0 // 2)
+        n0 = most(budget, p0)
+    n0 = max(2, n0)
+    why = (
+        f"no guided round: one round of {n0} traces at {p0} particles is what fits "
+        f"(a guided round needs {MIN_TRACES} traces)"
+    )
+    pg = min(GUIDED_PARTICLES, p0)
+    return 0, n0, n0, p0, pg, round_seconds(costs, n0, p0, False, n0, val), why
+
+
+def plan(budget: float, costs: Costs) -> Plan:
+    """The plan for `budget` seconds at `costs`: evaluation first sized to its shares, the
+    rest to traces and training (the most guided rounds whose rounds keep MIN_TRACES)."""
+    k, rep, val, why_val = _validation(costs, budget)
+    temps, ess, tune_s, why_tune = _tune(val, budget)
+    cg, cu, curve_s = _curve(costs, k, rep, budget)
+    left = max(0.0, budget - tune_s - curve_s)
+    rounds, n, ng, p0, pg, trace_s, why_traces = _traces(costs, left, val)
+    reasons = (
+        f"validation: {why_val}",
+        f"rounds: {why_traces}",
+        f"tune: {why_tune}",
+        f"curve: guided N {', '.join(map(str, cg))}; unguided N {', '.join(map(str, cu))}",
+    )
+    return Plan(
+        budget=budget,
+        unguided_particles=p0,
+        guided_particles=pg,
+        traces=n,
+        rounds=rounds,
+        guided_traces=ng,
+        val_targets=k,
+        val_repeats=rep,
+        choice_temperatures=temps,
+        ess=ess,
+        curve_guided=cg,
+        curve_unguided=cu,
+        estimates={"rounds": trace_s, "tune": tune_s, "curve": curve_s},
+        reasons=reasons,
+    )
+
+
+def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
+    """After round 0, with measured guided costs: the tune grid and the curve sized anew to
+    their shares of the plan's budget, then the guided rounds that fit what is `left`."""
+    val = validation_seconds(costs, p.val_targets, p.val_repeats)
+    temps, ess, tune_s, why_tune = _tune(val, p.budget)
+    cg, cu, curve_s = _curve(costs, p.val_targets, p.val_repeats, p.budget)
+    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, GUIDED_PARTICLES)
+    rounds, ng, pg, secs = g if g is not None else (0, 0, p.guided_particles, 0.0)
+    if g is None:
+        why = f"no guided round: one of {MIN_TRACES} traces would not fit the time left"
+    else:
+        why = f"{rounds} guided round(s) of {ng} traces at {pg} particles (measured costs)"
+    return replace(
+        p,
+        rounds=rounds,
+        guided_traces=ng,
+        guided_particles=pg,
+        choice_temperatures=temps,
+        ess=ess,
+        curve_guided=cg,
+        curve_unguided=cu,
+        estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
+        reasons=(*p.reasons, f"after round 0: {why}; tune: {why_tune}"),
+    )
+
+
+def trace_allowance(planned: float, left: float, reserve: float) -> float:
+    """Seconds a round may spend on traces before it trains on what it has: TRACE_SLACK
+    times the `planned` seconds plus TRACE_GRACE, but never into the `reserve` (its
+    training and validation, tuning, the curve) of the `left` seconds."""
+    return max(0.0, min(TRACE_SLACK * planned + TRACE_GRACE, left - reserve))
+
+
+def parse_budget(text: str) -> float:
+    """'45m', '2h', '90s', '1h30m' or plain seconds -> seconds (at most MAX_BUDGET);
+    ValueError otherwise."""
+    t = text.strip().lower()
+    units = {"h": 3600.0, "m": 60.0, "s": 1.0}
+    if t.replace(".", "", 1).isdigit():
+        seconds = float(t)
+    else:
+        seconds, number = 0.0, ""
+        for ch in t:
+            if ch.isdigit() or ch == ".":
+                number += ch
+            elif ch in units and number:
+                seconds += float(number) * units[ch]
+                number = ""
+            else:
+                raise ValueError(f"not a duration: {text!r}")
+        if number or not t:
+            raise ValueError(f"not a duration: {text!r}")
+    if not 0 < seconds <= MAX_BUDGET:  # nan fails too
+        raise ValueError(f"not a duration from 1 s to 7 days: {text!r}")
+    return seconds

@@ -1,0 +1,229 @@
+"""`ngpmc learn` end to end on the chain grammar (one site, 12 links) with a budget of
+seconds: the guide and report, resumption after an interrupted stage, the stop at the budget
+with the best guide so far, and the grammar checks before any compute."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import onnx
+import pytest
+from fixtures.datasets import CHAIN, make_dataset
+from fixtures.grammars import EXPLODING, EXPLODING_LINE
+
+from ngpm_compiler.cli import main
+from ngpm_compiler.experiments import learn as learn_mod
+from ngpm_compiler.experiments.learn import BudgetSpent, LearnConfig, LearnError, learn
+from ngpm_compiler.experiments.learn_plan import Plan
+
+# a few seconds of work whatever the budget (the planner has its own tests): so that these
+# tests do not depend on the machine's speed, they run this plan under a budget of minutes
+TINY = Plan(
+    budget=600.0,
+    unguided_particles=20,
+    guided_particles=10,
+    traces=5,
+    rounds=1,
+    guided_traces=5,
+    val_targets=1,
+    val_repeats=1,
+    choice_temperatures=(1.0, 0.5),
+    ess=(None,),
+    curve_guided=(1, 3),
+    curve_unguided=(3, 10),
+    estimates={"rounds": 10.0, "tune": 1.0, "curve": 1.0},
+    reasons=("a fixed plan for the tests",),
+)
+
+
+def use_tiny_plan(monkeypatch):
+    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
+    monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: TINY)
+
+
+@pytest.fixture()
+def tiny_plan(monkeypatch):
+    use_tiny_plan(monkeypatch)
+
+
+def small(tmp_path: Path, budget: float = 600.0, grammar: str = CHAIN) -> LearnConfig:
+    """A learn run on 3 bar targets, validated on 2 others (no datasets built)."""
+    train = make_dataset(tmp_path / "train", 3)
+    val = make_dataset(tmp_path / "val", 2)
+    return LearnConfig(
+        grammar=grammar,
+        out=str(tmp_path / "out"),
+        budget=budget,
+        targets=[str(train)],
+        validation={"bars": str(val)},
+        workers=1,
+        progress=False,
+    )
+
+
+def stages(out: Path) -> dict:
+    return json.loads((out / "learn.json").read_text())["stages"]
+
+
+def test_cli_learn_writes_a_guide_and_a_report(tmp_path, capsys, tiny_plan):
+    data = make_dataset(tmp_path / "data", 3)
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "10m", "--targets", str(data)]
+    assert main([*argv, "--workers", "1"]) == 0
+    onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
+    done = stages(out)
+    assert list(done) == [
+        *("diagnose", "targets", "measure", "plan", "round_00", "replan", "round_01"),
+        *("tune", "curve"),
+    ]
+    assert done["round_01"]["result"]["teacher"] == "guided N=10 by round 0"
+    assert done["round_01"]["result"]["traces"] == 10  # trained on both rounds' traces
+    tuned = done["tune"]["result"]
+    assert (out / "guide.onnx").read_bytes() == Path(tuned["guide"]).read_bytes()
+    report = (out / "report.md").read_text()
+    for part in ("## Rounds", "## Budget plan", "## Wall time per stage", "| round_01 |"):
+        assert part in report
+    assert "| 10 |  | " in report  # the curve: unguided alone at N = 10
+    assert (out / "curve.png").is_file() and "![similarity vs N](curve.png)" in report
+    assert (out / "chain.lsys").read_text() == Path(CHAIN).read_text()
+    # validation sets were built: varied and shapes strokes of other seeds
+    assert sorted(done["targets"]["result"]["validation"]) == ["shapes", "varied"]
+    assert capsys.readouterr().out.rstrip().endswith(f"(report: {out / 'report.md'})")
+
+
+@pytest.mark.slow
+def test_cli_learn_fits_a_budget_of_seconds(tmp_path, capsys):
+    """The real planner: a 30 s budget gives a guide (round 0 at least) and stops in time."""
+    data = make_dataset(tmp_path / "data", 3)
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "30s", "--targets", str(data)]
+    assert main([*argv, "--workers", "1"]) == 0
+    onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
+    state = json.loads((out / "learn.json").read_text())
+    assert state["spent"] < 30 + 15  # the stop comes at the next trace, epoch or stage
+    assert "round_00" in state["stages"]
+    assert (out / "report.md").is_file()
+
+
+def test_an_interrupted_run_resumes_without_redoing_finished_stages(
+    tmp_path, monkeypatch, tiny_plan
+):
+    cfg = small(tmp_path)
+
+    def interrupted(run, p):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(learn_mod, "tune_stage", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        learn(cfg, log=lambda _m: None)
+    out = Path(cfg.out)
+    first = stages(out)
+    assert "round_00" in first and "tune" not in first
+    spent = json.loads((out / "learn.json").read_text())["spent"]
+    assert spent > 0
+    monkeypatch.undo()
+    use_tiny_plan(monkeypatch)
+    logs: list[str] = []
+    res = learn(cfg, log=logs.append)
+    assert not any(m.startswith("round_00: started") for m in logs)
+    assert any(m.startswith("tune: started") for m in logs)
+    again = stages(out)
+    assert again["round_00"] == first["round_00"]  # the finished round is kept as it was
+    assert res["state"]["spent"] >= spent
+    onnx.checker.check_model(onnx.load(res["guide"]))
+
+
+def test_the_budget_stop_keeps_the_best_finished_guide(tmp_path, monkeypatch, tiny_plan):
+    cfg = small(tmp_path)
+
+    def spends_the_budget(run, p):
+        run.clock.before += run.clock.budget
+        run.clock.check("tuning")
+
+    monkeypatch.setattr(learn_mod, "tune_stage", spends_the_budget)
+    res = learn(cfg, log=lambda _m: None)
+    out = Path(cfg.out)
+    assert res["stopped"] == "tuning"
+    round_0 = stages(out)["round_00"]["result"]["guide"]
+    assert (out / "guide.onnx").read_bytes() == Path(round_0).read_bytes()
+    assert "The budget ran out during tuning" in (out / "report.md").read_text()
+
+
+def test_a_budget_too_small_for_one_guide_is_one_line(tmp_path, capsys):
+    data = make_dataset(tmp_path / "data", 3)
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "0.01s", "--targets", str(data)]
+    assert main([*argv, "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("ngpmc: error: the budget of 0 s was spent during ")
+    assert "before a guide was trained; rerun with a larger --budget" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (out / "guide.onnx").exists()
+
+
+def test_a_stop_during_traces_keeps_the_finished_jobs(tmp_path, monkeypatch, tiny_plan):
+    cfg = small(tmp_path)
+    calls: list[str] = []
+    real = learn_mod.Clock.check
+
+    def check(self, where):
+        if "traces" in where:
+            calls.append(where)
+            if len(calls) == 4:
+                raise BudgetSpent(where)
+        real(self, where)
+
+    monkeypatch.setattr(learn_mod.Clock, "check", check)
+    with pytest.raises(LearnError, match="spent during round 0's traces before a guide"):
+        learn(cfg, log=lambda _m: None)
+    traces = Path(cfg.out) / "rounds" / "round_0" / "traces_0"
+    manifest = json.loads((traces / "manifest.json").read_text())
+    assert manifest["jobs_done"] == 4  # written although the round did not finish
+    monkeypatch.undo()
+    use_tiny_plan(monkeypatch)
+    logs: list[str] = []
+    learn(cfg, log=logs.append)
+    assert "round_00" in stages(Path(cfg.out))
+
+
+def test_an_exploding_grammar_is_refused_naming_the_rule(tmp_path):
+    grammar = tmp_path / "explode.lsys"
+    grammar.write_text(EXPLODING)
+    with pytest.raises(LearnError, match=f"explode.lsys:{EXPLODING_LINE}: rule A branches"):
+        learn(small(tmp_path, grammar=str(grammar)), log=lambda _m: None)
+
+
+def test_a_grammar_without_a_viewport_gets_the_proposed_one(tmp_path):
+    text = "\n".join(
+        line for line in Path(CHAIN).read_text().splitlines() if not line.startswith("viewport:")
+    )
+    grammar = tmp_path / "chain.lsys"
+    grammar.write_text(text + "\n")
+    cfg = small(tmp_path)
+    cfg.grammar = str(grammar)
+    res = learn_mod.open_run(cfg, lambda _m: None)
+    d = learn_mod.diagnose_stage(res)
+    assert d["viewport_proposed"] is not None
+    copy = Path(d["grammar"]).read_text()
+    assert copy.startswith("viewport: ") and copy.endswith(text + "\n")
+
+
+def test_another_configuration_in_the_same_folder_is_refused(tmp_path):
+    cfg = small(tmp_path)
+    learn_mod.open_run(cfg, lambda _m: None)
+    cfg.seed = 1
+    with pytest.raises(LearnError, match="holds a learn run of another configuration .*seed"):
+        learn_mod.open_run(cfg, lambda _m: None)
+
+
+def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatch, tiny_plan):
+    """Traces slower than measured: the round stops recording at its share of the budget
+    and still trains, validates and writes a guide (it is not lost at the budget's end)."""
+    monkeypatch.setattr(learn_mod, "trace_allowance", lambda planned, left, reserve: 0.0)
+    cfg = small(tmp_path)
+    res = learn(cfg, log=lambda _m: None)
+    done = stages(Path(cfg.out))
+    assert 1 <= done["round_00"]["result"]["traces"] < TINY.traces
+    assert any("stopped at its share of the budget" in n for n in res["state"]["notes"])
+    onnx.checker.check_model(onnx.load(res["guide"]))

@@ -1,0 +1,130 @@
+"""The budget planner of `ngpmc learn` (experiments/learn_plan.py): pure functions."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+
+from ngpm_compiler.experiments.learn_plan import (
+    CURVE_GUIDED,
+    GUIDED_FACTOR,
+    GUIDED_PARTICLES,
+    MIN_PARTICLES,
+    MIN_TRACES,
+    TRACE_GRACE,
+    TRACE_SLACK,
+    TRAIN_FIXED,
+    TUNE_CHOICES,
+    UNGUIDED_PARTICLES,
+    Costs,
+    parse_budget,
+    plan,
+    replan,
+    round_seconds,
+    trace_allowance,
+)
+
+# measured on the 2-core test machine (vines, ivy): unguided trace jobs about 1 ms per
+# particle, guided 22 ms, a guided validation run at N = 10 0.7 s, training 0.05 s a trace
+VINES = Costs(unguided=0.001, guided=0.022, val_run=0.7, train=0.05, workers=2, sets=2)
+
+
+def planned_seconds(p, costs: Costs) -> float:
+    return sum(p.estimates.values())
+
+
+def test_a_large_budget_gets_the_recipe():
+    p = plan(2 * 3600, VINES)
+    assert (p.unguided_particles, p.guided_particles) == (UNGUIDED_PARTICLES, GUIDED_PARTICLES)
+    assert p.rounds >= 2 and p.traces >= MIN_TRACES
+    assert (p.val_targets, p.val_repeats) == (12, 2)
+    temps, ess = TUNE_CHOICES[0]
+    assert (p.choice_temperatures, p.ess) == (temps, ess)
+    assert p.curve_guided == CURVE_GUIDED
+    assert planned_seconds(p, VINES) <= 2 * 3600
+    assert "guided round(s) of" in p.reasons[1]
+
+
+@pytest.mark.parametrize("minutes", [5, 15, 45, 120, 480])
+def test_the_plan_fits_the_budget(minutes):
+    p = plan(minutes * 60, VINES)
+    assert planned_seconds(p, VINES) <= minutes * 60
+    assert p.traces >= 2 and MIN_PARTICLES <= p.guided_particles <= p.unguided_particles
+
+
+@pytest.mark.parametrize("minutes", [2, 15, 45, 120])
+def test_the_plan_uses_most_of_the_budget(minutes):
+    assert sum(plan(minutes * 60, VINES).estimates.values()) >= 0.8 * minutes * 60
+
+
+def test_more_budget_never_plans_fewer_rounds_or_round_0_traces():
+    plans = [plan(m * 60, VINES) for m in (1, 5, 15, 45, 120)]
+    assert [p.rounds for p in plans] == sorted(p.rounds for p in plans)
+    big = [p for p in plans if p.unguided_particles == UNGUIDED_PARTICLES]
+    assert len(big) == len(plans)
+
+
+def test_a_tiny_budget_shrinks_particles_and_drops_tuning():
+    p = plan(15, VINES)
+    assert p.rounds == 0
+    assert p.unguided_particles < UNGUIDED_PARTICLES
+    assert p.choice_temperatures == ()
+    assert p.curve_guided == (1, 10) and len(p.curve_unguided) == 2  # guided keeps N = 10
+    assert (p.val_targets, p.val_repeats) == (1, 1)
+    assert "no guided round" in p.reasons[1]
+
+
+def test_replan_sizes_the_guided_rounds_to_measured_costs():
+    p = plan(45 * 60, Costs(unguided=0.001, workers=2))
+    left = 30 * 60
+    cheap = replan(p, left, VINES, p.traces)
+    dear = replan(p, left, replace(VINES, guided=0.1), p.traces)
+    assert cheap.traces == dear.traces == p.traces  # round 0 is done
+    assert 0 < dear.rounds * dear.guided_traces * dear.guided_particles
+    assert dear.rounds * dear.guided_traces * dear.guided_particles < (
+        cheap.rounds * cheap.guided_traces * cheap.guided_particles
+    )
+    assert sum(cheap.estimates.values()) <= left
+    assert cheap.reasons[-1].startswith("after round 0: ")
+    none = replan(p, 60, VINES, p.traces)
+    assert none.rounds == 0 and "no guided round" in none.reasons[-1]
+
+
+def test_dearer_guided_runs_plan_fewer_rounds():
+    cheap = plan(45 * 60, VINES)
+    dear = plan(45 * 60, replace(VINES, guided=0.08))
+    assert dear.rounds < cheap.rounds or dear.traces < cheap.traces
+
+
+def test_round_seconds_adds_traces_training_and_validation():
+    c = Costs(unguided=0.01, guided=0.03, train=0.5, workers=2)
+    # 100 traces of 200 guided particles on 2 workers, training on 300 traces, validation 7 s
+    assert round_seconds(c, 100, 200, True, 300, 7.0) == pytest.approx(
+        100 * 200 * 0.03 / 2 + TRAIN_FIXED + 150 + 7
+    )
+    assert c.trace(10, False) == pytest.approx(0.1)
+    assert Costs(unguided=0.01).trace(10, True) == pytest.approx(10 * 0.01 * GUIDED_FACTOR)
+    # evaluation runs: a few particles cost as VAL_N (per-step overhead), guided from val_run
+    assert replace(c, val_run=0.7).run(1, True) == replace(c, val_run=0.7).run(10, True) == 0.7
+    assert replace(c, val_run=0.7).run(30, True) == pytest.approx(2.1)
+
+
+@pytest.mark.parametrize(
+    "text, seconds",
+    [("45m", 2700), ("2h", 7200), ("90s", 90), ("1h30m", 5400), ("120", 120), ("1.5h", 5400)],
+)
+def test_parse_budget(text, seconds):
+    assert parse_budget(text) == seconds
+
+
+@pytest.mark.parametrize("text", ["", "m", "5x", "-3m", "0s", "nan", "10m5", "inf", "8d", "200h"])
+def test_parse_budget_refuses(text):
+    with pytest.raises(ValueError):
+        parse_budget(text)
+
+
+def test_trace_allowance_keeps_the_reserve():
+    assert trace_allowance(100.0, 1000.0, 200.0) == pytest.approx(100.0 * TRACE_SLACK + TRACE_GRACE)
+    assert trace_allowance(100.0, 250.0, 200.0) == pytest.approx(50.0)  # the reserve first
+    assert trace_allowance(100.0, 150.0, 200.0) == 0.0
