@@ -33,7 +33,7 @@ from ngpm_runtime.image.raster import (
 from ngpm_runtime.program import Program, Site
 
 # _context_geometry's answer (its docstring names the parts)
-ContextGeometry = tuple[np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, float]
+ContextGeometry = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
@@ -312,8 +312,7 @@ class FeatureMaker:
         target_flat = _NO_TARGET if self.target_levels is None else self._padded_target()
         rows = _NO_CANVAS if canvas is None else canvas.padded
         if self.context and self.target_levels is not None and canvas is not None:
-            cells, t, total, base, wp, hl, wl, rays, aspect = self._context_geometry(h, w)
-            geom = np.array([total, base, wp, hl, wl, aspect])
+            cells, t, rays, geom = self._context_geometry(h, w)
         else:
             cells, t, rays, geom = _NO_CELLS, _NO_TARGET, _NO_CTX, _NO_GEOM
         self._k.feature_windows(
@@ -336,10 +335,10 @@ class FeatureMaker:
         return out
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
-        """Per canvas size: the fill level's cells in the padded row, the target there and
-        its sum; the look-ahead level's first cell (start + padding), padded width, height
-        and width; the 15 look-ahead (angle, distance) pairs (15, 2) and the viewport's
-        aspect."""
+        """Per canvas size: the fill level's cells in the padded row, the target there, the
+        15 look-ahead (angle, distance) pairs (15, 2) and the kernel's `ctx_geom`: the
+        target's sum there; the look-ahead level's first cell (start + padding), padded
+        width, height and width; the viewport's aspect."""
         key = (h, w)
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
@@ -360,15 +359,7 @@ class FeatureMaker:
                 ]
             )
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            self._context_geom[key] = (
-                np.ascontiguousarray(cells, dtype=np.intp),
-                t,
-                max(float(t.sum()), 1e-6),
-                base,
-                int(wp[lv]),
-                h >> lv,
-                w >> lv,
-                rays,
-                aspect,
-            )
+            geom = [max(float(t.sum()), 1e-6), base, int(wp[lv]), h >> lv, w >> lv, aspect]
+            cells = np.ascontiguousarray(cells, dtype=np.intp)
+            self._context_geom[key] = (cells, t, rays, np.array(geom, dtype=np.float64))
         return self._context_geom[key]

@@ -154,7 +154,12 @@ class Guide:
         for i, net in self.nets.items():
             if 0 <= i < len(self._n_out):
                 self._n_out[i] = int(net["n_out"])
+        self._widest = int(self._n_out.max(initial=1))
+        from ngpm_runtime import kernels  # numba loads with the guide (its checks run nets)
+
+        self._k = kernels
         self._mixture = [dist.kind_of(s).head == MIXTURE for s in program.sites]
+        self._temps: tuple[ProposalSettings, np.ndarray] | None = None
 
     @property
     def numpy_nets(self) -> dict[int, NumpyNet]:
@@ -279,18 +284,16 @@ class Guide:
         others), tempering and, when `out` has rows, draws (prior arguments args[k,
         :n_args[k]]); fills params (n, widest). Returns the first row with bad prior
         arguments, or -1."""
-        from ngpm_runtime import kernels  # numba loads with the first guided round
-
         nets, w, cols = self._tables()
         return int(
-            kernels.guide_round(
+            self._k.guide_round(
                 x,
                 site,
                 nets,
                 w,
                 cols,
                 self._kinds_code,
-                np.array([self.settings.temperature, self.settings.choice_temperature]),
+                self._temperatures(),
                 params,
                 self._n_out[site],
                 args,
@@ -300,6 +303,13 @@ class Guide:
                 out,
             )
         )
+
+    def _temperatures(self) -> np.ndarray:
+        """(temperature, choice temperature) of the settings, for the kernel."""
+        st = self.settings
+        if self._temps is None or self._temps[0] is not st:
+            self._temps = (st, np.array([st.temperature, st.choice_temperature]))
+        return self._temps[1]
 
     def _temper(self, site: int, params: np.ndarray) -> np.ndarray:
         st = self.settings
@@ -324,20 +334,19 @@ class Guide:
             )
         return x
 
-    def params_round(
-        self, sites: list[int], features: list[np.ndarray | None], ns: list[int]
-    ) -> list[np.ndarray]:
-        """`params` of several site networks (distinct sites): one call per site's own
-        session (onnxruntime's cost is per graph node, so one run of the whole file, which
-        also runs every other net on an empty batch, costs more: benchmarks/smc.py --nets),
-        or one whole-file call when the file could not be split."""
+    def _onnx_round(self, sites: list[int], xs: list[np.ndarray]) -> list[np.ndarray]:
+        """onnxruntime's outputs (float64, not tempered) of several site networks (distinct
+        sites) for their checked rows `xs`: one call per site's own session (onnxruntime's
+        cost is per graph node, so one run of the whole file, which also runs every other
+        net on an empty batch, costs more: benchmarks/smc.py --nets), or one whole-file call
+        when the file could not be split."""
         if self.site_sessions or len(sites) == 1:
-            return [self.params(s, f, n) for s, f, n in zip(sites, features, ns, strict=True)]
+            return [self._onnx_params(s, x) for s, x in zip(sites, xs, strict=True)]
         feeds = dict(self._empty)
-        for s, f, n in zip(sites, features, ns, strict=True):
-            feeds[input_name(s)] = self._input(s, f, n)
+        for s, x in zip(sites, xs, strict=True):
+            feeds[input_name(s)] = x
         outs = self.session.run([output_name(s) for s in sites], feeds)
-        return [self._temper(s, o.astype(np.float64)) for s, o in zip(sites, outs, strict=True)]
+        return [np.asarray(o, dtype=np.float64) for o in outs]
 
     def propose_round(
         self,
@@ -364,15 +373,19 @@ class Guide:
         counts = [len(prior_args[j]) for j in net]
         x, rows, args, n_args = self._round_rows(sites, prior_args, features, net, counts)
         n = len(rows)
-        params = np.empty((n, int(self._n_out.max(initial=1))))
-        pos = 0
-        for j, m in zip(net, counts, strict=True):
-            s = sites[j].index
-            if s not in self._numpy_nets:  # onnxruntime serves this net
-                params[pos : pos + m, : self._n_out[s]] = self._onnx_params(s, x[pos : pos + m])
-            pos += m
+        params = np.empty((n, self._widest))
+        starts = np.cumsum([0, *counts]).tolist()
+        onnx = [k for k, j in enumerate(net) if sites[j].index not in self._numpy_nets]
+        if onnx:  # onnxruntime serves these nets; the kernel tempers and draws
+            got = self._onnx_round(
+                [sites[net[k]].index for k in onnx],
+                [x[starts[k] : starts[k + 1], : self.nets[sites[net[k]].index]["n_f"]] for k in onnx],
+            )
+            for k, o in zip(onnx, got, strict=True):
+                params[starts[k] : starts[k + 1], : o.shape[1]] = o
         u = rng.random(n)
-        z = rng.standard_normal(n) if any(self._mixture[sites[j].index] for j in net) else _NO_ROWS
+        mixture = [self._mixture[sites[j].index] for j in net]
+        z = rng.standard_normal(n) if True in mixture else _NO_ROWS
         res = np.empty((n, 3))
         bad = self._kernel(x, rows, params, args, n_args, res, u, z)
         pos = 0
@@ -403,7 +416,8 @@ class Guide:
             args = prior_args[net[0]]
             if not (args.dtype == np.float64 and args.flags.c_contiguous and args.flags.writeable):
                 args = np.array(args, dtype=np.float64)  # one compiled signature
-            return xs[0], np.repeat(index, counts), args, np.full(counts[0], args.shape[1])
+            n = counts[0]
+            return xs[0], np.full(n, index[0]), args, np.full(n, args.shape[1], dtype=np.int64)
         n = sum(counts)
         x = np.zeros((n, max(a.shape[1] for a in xs)), dtype=np.float32)
         width = [prior_args[j].shape[1] for j in net]
@@ -413,7 +427,7 @@ class Guide:
             x[pos : pos + m, : xj.shape[1]] = xj
             args[pos : pos + m, : prior_args[j].shape[1]] = prior_args[j]
             pos += m
-        return x, np.repeat(index, counts), args, np.repeat(np.array(width), counts)
+        return x, np.repeat(index, counts), args, np.repeat(np.array(width, np.int64), counts)
 
     def propose(
         self,

@@ -168,6 +168,34 @@ def test_propose_round_matches_propose(tmp_path):
         np.testing.assert_allclose(q, want, rtol=1e-12, atol=1e-12)
 
 
+def test_propose_round_engines_agree(tmp_path):
+    """A round served by onnxruntime (per-site sessions, or the whole file as without the
+    `onnx` package) draws what the kernel's own nets draw from the same generator: the
+    same values and log q to float32 rounding, log prior alike."""
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    rng = np.random.default_rng(16)
+    sites = [SITES[0], SITES[1], SITES[2], SITES[3]]
+    args = [
+        np.tile([2.0, 3.0], (6, 1)),
+        np.tile([-1.0, 4.0], (2, 1)),
+        np.full((4, 1), 0.3),
+        np.tile([1.0, 2.0, 1.0], (5, 1)),
+    ]
+    feats = [rng.normal(size=(len(a), N_F)).astype(np.float32) for a in args]
+    kernel = Guide.load(path, fake_program())
+    split = Guide.load(path, fake_program())
+    split.numpy_nets = {}
+    whole = Guide.load(path, fake_program())
+    whole.site_sessions = whole.numpy_nets = {}
+    want = kernel.propose_round(sites, args, feats, np.random.default_rng(3))
+    for g in (split, whole):
+        got = g.propose_round(sites, args, feats, np.random.default_rng(3))
+        for a, b in zip(got, want, strict=True):
+            assert len(a) == len(b)
+            for x, y in zip(a, b, strict=True):
+                np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5)
+
+
 def test_propose_round_of_one_site_equals_propose(tmp_path):
     """A round of one site (propose_round's short path) draws what propose draws, bit for
     bit, for a site with a net and for a fallback site."""
