@@ -705,8 +705,8 @@ def _lse(a: np.ndarray, n: int) -> float:
     s = np.zeros(n)
     for i in range(n):
         s[i] = math.exp(a[i] - m)
-    total = _row_sum(s, 0, n)
-    return m + _log(total)
+    total: float = m + _log(_row_sum(s, 0, n))
+    return total
 
 
 # tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9] in float32 (the rational form onnxruntime's MLAS

@@ -11,7 +11,6 @@ from itertools import accumulate
 from typing import Protocol
 
 import numpy as np
-
 from ngpm_runtime.errors import ProgramError
 
 LOG_2PI = float(np.log(2.0 * np.pi))

@@ -17,6 +17,8 @@ which lie on image axes, these turn with the turtle.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ngpm_runtime.errors import TargetError
@@ -221,9 +223,9 @@ class FeatureMaker:
         self,
         sites: list[Site],
         canvas: Canvas | None,
-        idx: np.ndarray,
-        turtle: np.ndarray,
-        depth: np.ndarray,
+        idx: np.ndarray | Sequence[int],
+        turtle: np.ndarray | Sequence[Sequence[float]],
+        depth: np.ndarray | Sequence[float],
         params: list[np.ndarray],
         prior_args: list[np.ndarray],
     ) -> list[np.ndarray]:
@@ -246,9 +248,9 @@ class FeatureMaker:
         self,
         sites: list[Site],
         canvas: Canvas | None,
-        idx: np.ndarray | list[int],
-        turtle: np.ndarray | list,
-        depth: np.ndarray | list[float],
+        idx: np.ndarray | Sequence[int],
+        turtle: np.ndarray | Sequence[Sequence[float]],
+        depth: np.ndarray | Sequence[float],
         params: list[np.ndarray],
         prior_args: list[np.ndarray],
     ) -> np.ndarray:

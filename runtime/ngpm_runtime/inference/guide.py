@@ -5,18 +5,19 @@ site table) and, in guide_checks, everything else it reads: the metadata's schem
 network parameters (finite, in range) and a probe run of every network; a damaged or hostile
 file is one GuideError, never a traceback or a silently different proposal.
 
-`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): one
-onnxruntime call per propose (one small session per site net when the `onnx` package can
-split the file), then sampling with distributions.proposal_draw. Sites without a network
-(unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): the
+site's network (see Engines), then sampling with distributions.proposal_draw. Sites without
+a network (unseen in training) fall back to the prior; they are listed in
+`Guide.fallback_sites`.
 
-`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
-one network call per waiting site, then one proposal_draw per group of sites with the same
-kind and parameter layout (the rows of all of them at once).
+`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round
+with one compiled call (kernels.guide_round) over the rows of all of them: networks,
+tempering, draws, log q and log prior.
 
 Engines (`Guide.engine` says which serves a site): with the `onnx` package (the compiler's
-installs), every site net that reads features runs in numpy (`NumpyNet`: the file's own
-weights, read by the names in guide_format, float32 like onnxruntime); a feature-free net
+installs), every site net that reads features runs in the compiled kernel (`NumpyNet`, the
+"numpy" engine: the file's own weights, read by the names in guide_format, float32 like
+onnxruntime); a feature-free net
 (feature set `const`), or every net when `Guide.numpy_nets` is emptied, runs in its own
 onnxruntime session cut from the file. Without `onnx` (the runtime installed alone) the
 whole file runs in one onnxruntime session. The load checks that both engines give the same
@@ -26,7 +27,8 @@ the site and the cause, never a silent switch to the other engine.
 
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
-values (distributions.temper, applied to every network output, so weights stay exact) and
+values (distributions.temper, in the kernel, applied to every network output, so weights
+stay exact) and
 the ESS fraction below which guided SMC resamples (`smc` reads it).
 """
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields
+from itertools import accumulate
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -374,12 +377,16 @@ class Guide:
         x, rows, args, n_args = self._round_rows(sites, prior_args, features, net, counts)
         n = len(rows)
         params = np.empty((n, self._widest))
-        starts = np.cumsum([0, *counts]).tolist()
         onnx = [k for k, j in enumerate(net) if sites[j].index not in self._numpy_nets]
         if onnx:  # onnxruntime serves these nets; the kernel tempers and draws
+            starts = [0, *accumulate(counts)]
+            which = [sites[net[k]].index for k in onnx]
             got = self._onnx_round(
-                [sites[net[k]].index for k in onnx],
-                [x[starts[k] : starts[k + 1], : self.nets[sites[net[k]].index]["n_f"]] for k in onnx],
+                which,
+                [
+                    x[starts[k] : starts[k + 1], : self.nets[s]["n_f"]]
+                    for k, s in zip(onnx, which, strict=True)
+                ],
             )
             for k, o in zip(onnx, got, strict=True):
                 params[starts[k] : starts[k + 1], : o.shape[1]] = o
@@ -388,6 +395,9 @@ class Guide:
         z = rng.standard_normal(n) if True in mixture else _NO_ROWS
         res = np.empty((n, 3))
         bad = self._kernel(x, rows, params, args, n_args, res, u, z)
+        if len(net) == 1 and bad < 0:
+            out[net[0]] = (res[:, 0], res[:, 1], res[:, 2])
+            return out
         pos = 0
         for j, m in zip(net, counts, strict=True):
             if pos <= bad < pos + m:  # the error naming the site and the cause
@@ -411,13 +421,13 @@ class Guide:
             self._input(sites[j].index, None if features is None else features[j], m)
             for j, m in zip(net, counts, strict=True)
         ]
-        index = np.array([sites[j].index for j in net], dtype=np.int64)
         if len(net) == 1:
             args = prior_args[net[0]]
             if not (args.dtype == np.float64 and args.flags.c_contiguous and args.flags.writeable):
                 args = np.array(args, dtype=np.float64)  # one compiled signature
-            n = counts[0]
-            return xs[0], np.full(n, index[0]), args, np.full(n, args.shape[1], dtype=np.int64)
+            n, s = counts[0], sites[net[0]].index
+            return xs[0], np.full(n, s, np.int64), args, np.full(n, args.shape[1], np.int64)
+        index = np.array([sites[j].index for j in net], dtype=np.int64)
         n = sum(counts)
         x = np.zeros((n, max(a.shape[1] for a in xs)), dtype=np.float32)
         width = [prior_args[j].shape[1] for j in net]

@@ -105,7 +105,7 @@ class SiteKind:
         """One value per row from the proposal and its log density (`proposal_logpdf` of
         it, to rounding), by the compiled kernel (kernels.guide_round): one uniform per
         row, then, for mixtures, one standard normal per row."""
-        n = args.shape[0]
+        n = int(args.shape[0])
         p = self.checked_params(params, n)
         u = rng.random(n)
         z = rng.standard_normal(n) if self.head == MIXTURE else _NO_ROWS
