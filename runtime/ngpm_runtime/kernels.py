@@ -423,18 +423,23 @@ def feature_windows(
     ctx_geom: np.ndarray,
     cells: np.ndarray,
     cell_t: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
 ) -> None:
-    """FeatureMaker's site-independent columns of n particles into out (n, n_common)
-    float32: turtle columns, target and partial 3x3 windows at the 4 levels (target (T,)
-    and canvas (N, T) padded pyramids; an empty array: that group is 0), and, when `ctx`
-    (the lookahead's 15 (angle, distance) pairs) is not empty, the context group.
+    """FeatureMaker's rows of n particles into out (n, >= 7 + e + 72 [+ 17]) float32: turtle
+    columns, the row's e = n_extra[k] extra columns extra[k, :e] (module parameters and
+    prior arguments), target and partial 3x3 windows at the 4 levels (target (T,) and
+    canvas (N, T) padded pyramids; an empty one: that group is view[5] or view[6]) and,
+    when `ctx` (the look-ahead's 15 (angle, distance) pairs) is not empty, the context group
+    (else zeros to the end of the row).
 
-    view = (xmin, ymax, xmax - xmin, -(ymax - ymin), derivation length); size (3, L) level
-    heights, widths and padded widths; offs (L, 9) window offsets; ctx_geom = (total,
-    base, padded width, height, width of the look-ahead level, aspect); cells, cell_t: the
-    fill level's cells and the target there."""
+    view = (xmin, ymax, xmax - xmin, -(ymax - ymin), derivation length, target fill, canvas
+    fill); size (3, L) level heights, widths and padded widths (L == 0: no image, every
+    window cell is its fill); offs (L, 9) window offsets; ctx_geom = (total, base, padded
+    width, height, width of the look-ahead level, aspect); cells, cell_t: the fill level's
+    cells and the target there."""
     n = idx.shape[0]
-    nl, nw = 7, 9 * N_LEVELS
+    nw = 9 * N_LEVELS
     for k in range(n):
         u = (turtle[k, 0] - view[0]) / view[2]
         v = (turtle[k, 1] - view[1]) / view[3]
@@ -447,18 +452,25 @@ def feature_windows(
         out[k, 4] = math.cos(rad)
         out[k, 5] = turtle[k, 3]
         out[k, 6] = depth[k] / view[4]
+        e = n_extra[k]
+        for q in range(e):
+            out[k, 7 + q] = extra[k, q]
+        nl = 7 + e
         if canvas.shape[1] and not 0 <= idx[k] < canvas.shape[0]:
             raise IndexError("features: particle index out of range")
         if not (math.isfinite(u) and math.isfinite(v)):
             u, v = _unit(u), _unit(v)
+        if size.shape[1] == 0:
+            out[k, nl : nl + nw] = view[5]
+            out[k, nl + nw : nl + 2 * nw] = view[6]
         for lv in range(size.shape[1]):
             row = _min(_max(math.floor(v * size[0, lv]), -2.0), size[0, lv] + 1)
             col = _min(_max(math.floor(u * size[1, lv]), -2.0), size[1, lv] + 1)
             at0 = int(row * size[2, lv] + col)
             for q in range(9):
                 at = at0 + offs[lv, q]
-                out[k, nl + 9 * lv + q] = target[at] if target.shape[0] else 0.0
-                out[k, nl + nw + 9 * lv + q] = canvas[idx[k], at] if canvas.shape[1] else 0.0
+                out[k, nl + 9 * lv + q] = target[at] if target.shape[0] else view[5]
+                out[k, nl + nw + 9 * lv + q] = canvas[idx[k], at] if canvas.shape[1] else view[6]
         if out.shape[1] > nl + 2 * nw and not ctx.shape[0]:
             out[k, nl + 2 * nw :] = 0.0
         elif ctx.shape[0]:
@@ -654,3 +666,384 @@ def take_rows(
             image_out[k, j] = image[src, j]
         for j in range(padded.shape[1]):
             padded_out[k, j] = padded[src, j]
+
+
+# site kinds (sitekinds.SiteKind.code) and guide network heads of `guide_round`
+NORMAL, UNIFORM, BERNOULLI, CATEGORICAL = 0, 1, 2, 3
+HEAD_MIXTURE, HEAD_SIGMOID, HEAD_SOFTMAX = 0, 1, 2
+LOG_2PI = float(np.log(2.0 * np.pi))  # as sitekinds.LOG_2PI
+# columns of the network table `nets` (S, NET_COLS) of `guide_round`, one row per site
+(NET_ON, NET_IN, NET_HIDDEN, NET_OUT, NET_HEAD, NET_K) = range(6)
+(NET_W1, NET_B1, NET_W2, NET_B2, NET_BOUNDS, NET_COLS_AT) = range(6, 12)
+NET_COLS = 12
+
+
+@jit
+def _log(v: float) -> float:
+    """np.log of one float: 0 -> -inf, negative or NaN -> NaN."""
+    if v > 0:
+        return math.log(v)
+    return -np.inf if v == 0 else np.nan
+
+
+@jit
+def _row_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of a[lo:lo + n] (a float64 vector), in numpy's order."""
+    if n <= 128:
+        return _block_sum(a, lo, n)
+    return _pairwise_sum(a[lo : lo + n])
+
+
+@jit
+def _lse(a: np.ndarray, n: int) -> float:
+    """sitekinds._logsumexp_rows of a[:n]: max (0 if not finite) + log sum exp(a - max)."""
+    m = a[0]
+    for i in range(1, n):
+        m = _max(m, a[i])
+    if not math.isfinite(m):
+        m = 0.0
+    s = np.zeros(n)
+    for i in range(n):
+        s[i] = math.exp(a[i] - m)
+    total: float = m + _log(_row_sum(s, 0, n))
+    return total
+
+
+# tanh(x) ~ x P(x^2) / Q(x^2) on [-9, 9] in float32 (the rational form onnxruntime's MLAS
+# and Eigen use; within 4e-7 of tanh): a loop numba vectorizes, unlike the C library's tanhf
+TANH_P = np.array(
+    [-2.76076847742355e-16, 2.00018790482477e-13, -8.60467152213735e-11, 5.12229709037114e-08,
+     1.48572235717979e-05, 6.37261928875436e-04, 4.89352455891786e-03],
+    dtype=np.float32,
+)  # fmt: skip
+TANH_Q = np.array(
+    [1.19825839466702e-06, 1.18534705686654e-04, 2.26843463243900e-03, 4.89352518554385e-03],
+    dtype=np.float32,
+)
+
+
+@jit
+def _tanh(v: np.ndarray, n: int) -> None:
+    """v[:n] = tanh(v[:n]) in float32 (the rational approximation above; NaN stays NaN)."""
+    lo, hi = np.float32(-9.0), np.float32(9.0)
+    p0, p1, p2, p3, p4, p5, p6 = TANH_P
+    q0, q1, q2, q3 = TANH_Q
+    for i in range(n):
+        x = v[i]
+        x = hi if x > hi else (lo if x < lo else x)
+        x2 = x * x
+        p = ((((((x2 * p0 + p1) * x2 + p2) * x2 + p3) * x2 + p4) * x2 + p5) * x2 + p6) * x
+        q = ((x2 * q0 + q1) * x2 + q2) * x2 + q3
+        v[i] = p / q
+
+
+@jit
+def _net(
+    x: np.ndarray,
+    r: int,
+    t: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    out: np.ndarray,
+    xg: np.ndarray,
+    h: np.ndarray,
+    o: np.ndarray,
+) -> None:
+    """One site network on feature row x[r] (float32, as onnxruntime): tanh(x[cols] @ w1'
+    + b1), bounds * tanh(h @ w2' + b2), then its head; into out[:n_out] (xg, h, o: float32
+    buffers of at least the input, hidden and output widths)."""
+    n_in, hid, n_out, head, k = t[NET_IN], t[NET_HIDDEN], t[NET_OUT], t[NET_HEAD], t[NET_K]
+    at_c, at_w = t[NET_COLS_AT], t[NET_W1]
+    for i in range(n_in):  # the columns it reads, gathered first (the loop below is faster)
+        xg[i] = x[r, cols[at_c + i]]
+    h[:hid] = 0.0
+    for i in range(n_in):
+        xi = xg[i]
+        wr = w[at_w + i * hid : at_w + (i + 1) * hid]
+        for j in range(hid):
+            h[j] += xi * wr[j]
+    b1 = w[t[NET_B1] : t[NET_B1] + hid]
+    for j in range(hid):
+        h[j] += b1[j]
+    _tanh(h, hid)
+    o[:n_out] = 0.0
+    at_w = t[NET_W2]
+    for j in range(hid):
+        hj = h[j]
+        wr = w[at_w + j * n_out : at_w + (j + 1) * n_out]
+        for q in range(n_out):
+            o[q] += hj * wr[q]
+    b2 = w[t[NET_B2] : t[NET_B2] + n_out]
+    for q in range(n_out):
+        o[q] += b2[q]
+    _tanh(o, n_out)
+    bounds = w[t[NET_BOUNDS] : t[NET_BOUNDS] + n_out]
+    for q in range(n_out):
+        o[q] *= bounds[q]
+    _head(o, n_out, head, k)
+    for q in range(n_out):
+        out[q] = np.float64(o[q])
+
+
+@jit
+def _head(o: np.ndarray, n_out: int, head: int, k: int) -> None:
+    """A network's last operation on o[:n_out] (float32), in place: log-softmax over the
+    first k (mixtures), sigmoid, or softmax."""
+    if head == HEAD_MIXTURE:
+        top = o[0]
+        for q in range(1, k):
+            top = max(top, o[q])
+        s = np.float32(0.0)
+        for q in range(k):
+            o[q] = o[q] - top
+            s += np.exp(o[q])
+        ls = np.log(s)
+        for q in range(k):
+            o[q] = o[q] - ls
+    elif head == HEAD_SIGMOID:
+        for q in range(n_out):
+            o[q] = np.float32(1.0) / (np.float32(1.0) + np.exp(-o[q]))
+    else:
+        top = o[0]
+        for q in range(1, n_out):
+            top = max(top, o[q])
+        s = np.float32(0.0)
+        for q in range(n_out):
+            o[q] = np.exp(o[q] - top)
+            s += o[q]
+        for q in range(n_out):
+            o[q] = o[q] / s
+
+
+@jit
+def _temper(kind: int, p: np.ndarray, m: int, temp: float, choice_temp: float) -> None:
+    """sitekinds' tempering of one row of guide outputs p[:m], in place: mixtures' log
+    weights / temp and log sds + log(temp) / 2; choices' probabilities ** (1 / choice_temp),
+    renormalized (rows without a finite result: clipped, else unchanged)."""
+    if kind == NORMAL or kind == UNIFORM:
+        if temp != 1.0:
+            k = m // 3
+            for q in range(k):
+                p[q] = p[q] / temp
+            for q in range(2 * k, 3 * k):
+                p[q] = p[q] + 0.5 * math.log(temp)
+        return
+    if choice_temp == 1.0:
+        return
+    two = kind == BERNOULLI  # the probability of 1, and of 0
+    c = 2 if two else m
+    pr = np.empty(c)
+    for q in range(m):
+        v = p[q]
+        v = v if (v >= 0.0 or v != v) else 0.0
+        if two and v > 1.0:
+            v = 1.0
+        pr[q] = v
+    if two:
+        pr[1] = 1.0 - pr[0]
+    lp = np.empty(c)
+    for q in range(c):
+        lp[q] = _log(pr[q]) / choice_temp
+    s = _lse(lp, c)
+    finite = False
+    for q in range(c):
+        lp[q] = lp[q] - s
+        finite = finite or math.isfinite(lp[q])
+    for q in range(m):  # rows left without a finite log probability stay as they were
+        p[q] = math.exp(lp[q]) if finite else pr[q]
+
+
+@jit
+def _normal_lp(x: float, mean: float, sd: float) -> float:
+    """sitekinds._normal_logpdf of one value (sd == 0: a point mass; NaN -> -inf)."""
+    if sd == 0.0:
+        return 0.0 if x == mean else -np.inf
+    z = (x - mean) / sd
+    out = -0.5 * z * z - math.log(sd) - 0.5 * LOG_2PI if sd > 0 else np.nan
+    return -np.inf if out != out else out
+
+
+@jit
+def _mixture_draw(
+    p: np.ndarray, k: int, mu: float, sigma: float, u: float, z: float, x: float, has_x: bool
+) -> tuple[float, float]:
+    """A normal mixture on mu + sigma * (means), sds sigma * exp(log sds) (sitekinds'
+    _normal_mixture, _mixture_sample, _mixture_logpdf): the drawn value (or x when has_x)
+    and its log density."""
+    lw = np.empty(k)
+    for q in range(k):
+        lw[q] = p[q]
+    s = _lse(lw, k)
+    cum = 0.0
+    c = 0
+    cums = np.empty(k)
+    for q in range(k):
+        lw[q] = lw[q] - s
+        cum += math.exp(lw[q])
+        cums[q] = cum
+    if not has_x:
+        at = u * cums[k - 1]
+        for q in range(k):
+            if cums[q] <= at:
+                c += 1
+        c = min(c, k - 1)
+        x = (mu + sigma * p[k + c]) + (sigma * math.exp(p[2 * k + c])) * z
+    comp = np.empty(k)
+    for q in range(k):
+        comp[q] = lw[q] + _normal_lp(x, mu + sigma * p[k + q], sigma * math.exp(p[2 * k + q]))
+    return x, _lse(comp, k)
+
+
+@jit
+def _choice_draw(p: np.ndarray, m: int, u: float) -> tuple[float, float]:
+    """A categorical proposal over p[:m] (sitekinds.Categorical.proposal_draw): the index
+    drawn and its log probability."""
+    ok = True
+    for q in range(m):
+        if not p[q] >= 0.0:
+            ok = False
+    total = _row_sum(p, 0, m)
+    pr = np.empty(m)
+    if ok and total > 0:
+        for q in range(m):
+            pr[q] = p[q]
+    else:  # _probs: clipped at 0, normalized, uniform where the sum is not positive
+        for q in range(m):
+            pr[q] = p[q] if (p[q] >= 0.0 or p[q] != p[q]) else 0.0
+        t2 = _row_sum(pr, 0, m)
+        for q in range(m):
+            pr[q] = pr[q] / t2 if t2 > 0 else 1.0 / m
+        total = 1.0
+    cum = np.empty(m)
+    acc = 0.0
+    for q in range(m):
+        acc += pr[q]
+        cum[q] = acc
+    at = u * cum[m - 1]
+    c = 0
+    for q in range(m):
+        if cum[q] <= at:
+            c += 1
+    c = min(c, m - 1)
+    q_c = pr[c] / total if ok else pr[c]
+    return float(c), _log(q_c)
+
+
+@jit
+def _prior_lp(kind: int, a: np.ndarray, na: int, x: float) -> float:
+    """sitekinds' prior_logpdf of value x under prior arguments a[:na]."""
+    if kind == NORMAL:
+        return _normal_lp(x, a[0], abs(a[1]))
+    if kind == UNIFORM:
+        lo, hi = _min(a[0], a[1]), _max(a[0], a[1])
+        width = hi - lo
+        if not (lo <= x <= hi) or not (width > 0 or x == lo):
+            return -np.inf
+        return -math.log(width) if width > 0 else 0.0
+    if kind == BERNOULLI:
+        pb = _min(_max(a[0], 0.0), 1.0)
+        if x == 1.0:
+            return _log(pb)
+        if x == 0.0:
+            return _log(1.0 - pb)
+        return -np.inf
+    if not (x >= 0 and x < na and x == math.floor(x)):
+        return -np.inf
+    return _log(a[int(x)] / _row_sum(a, 0, na))
+
+
+@jit
+def _args_ok(kind: int, a: np.ndarray, na: int) -> bool:
+    """Prior arguments distributions accepts: finite (categorical: finite, >= 0, with a
+    positive sum)."""
+    for q in range(na):
+        if not math.isfinite(a[q]):
+            return False
+        if kind == CATEGORICAL and a[q] < 0:
+            return False
+    return kind != CATEGORICAL or _row_sum(a, 0, na) > 0
+
+
+@jit
+def guide_round(
+    x: np.ndarray,
+    site: np.ndarray,
+    nets: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    kinds: np.ndarray,
+    temps: np.ndarray,
+    params: np.ndarray,
+    n_par: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+) -> int:
+    """A guided SMC round over n rows: row r at site s = site[r] gets its proposal
+    parameters params[r, :n_par[r]] (float64), from the site's network on feature row x[r]
+    when nets[s, NET_ON] (else as given), tempered by temps = (temperature, choice
+    temperature); then, when out has rows, a value drawn from that proposal with the
+    uniform u[r] and the standard normal z[r] (mixtures), and out[r] = (value, log q,
+    log prior) (prior arguments args[r, :n_args[r]]). kinds[s]: the site's kind code.
+    Returns the first row whose prior arguments are not valid, else -1 (its log prior is
+    not meaningful)."""
+    n = site.shape[0]
+    draw = out.shape[0] > 0
+    bad = -1
+    width = 1
+    for s in range(nets.shape[0]):
+        width = max(width, nets[s, NET_IN], nets[s, NET_HIDDEN], nets[s, NET_OUT])
+    xg = np.empty(width, dtype=np.float32)
+    h = np.empty(width, dtype=np.float32)
+    o = np.empty(width, dtype=np.float32)
+    for r in range(n):
+        s = site[r]
+        t = nets[s]
+        p = params[r]
+        if t[NET_ON]:
+            _net(x, r, t, w, cols, p, xg, h, o)
+        kind, m = kinds[s], n_par[r]
+        _temper(kind, p, m, temps[0], temps[1])
+        if not draw:
+            continue
+        a = args[r]
+        if n_args[r] < (2 if kind <= UNIFORM else 1) or a.shape[0] < n_args[r]:
+            bad = r if bad < 0 else bad
+            out[r, 0], out[r, 1], out[r, 2] = np.nan, np.nan, np.nan
+            continue
+        if bad < 0 and not _args_ok(kind, a, n_args[r]):
+            bad = r
+        if kind == NORMAL:
+            v, lq = _mixture_draw(p, m // 3, a[0], abs(a[1]), u[r], z[r], 0.0, False)
+        elif kind == UNIFORM:
+            lo, hi = _min(a[0], a[1]), _max(a[0], a[1])
+            zz, _ = _mixture_draw(p, m // 3, 0.0, 1.0, u[r], z[r], 0.0, False)
+            v = lo + (hi - lo) / (1.0 + math.exp(-zz))
+            lq = _uniform_lq(p, m // 3, lo, hi, v)
+        elif kind == BERNOULLI:
+            pb = p[0] if p[0] != p[0] else _min(_max(p[0], 0.0), 1.0)
+            v = 1.0 if u[r] < pb else 0.0
+            q1 = pb if v == 1.0 else 1.0 - pb
+            lq = _log(q1)
+        else:
+            v, lq = _choice_draw(p, m, u[r])
+        out[r, 0] = v
+        out[r, 1] = lq
+        out[r, 2] = _prior_lp(kind, a, n_args[r], v)
+    return bad
+
+
+@jit
+def _uniform_lq(p: np.ndarray, k: int, lo: float, hi: float, v: float) -> float:
+    """Log density of v under the logit-normal mixture proposal on (lo, hi)
+    (sitekinds.Uniform.proposal_logpdf)."""
+    width = hi - lo
+    uu = (v - lo) / width if width != 0 else np.nan
+    if not (width > 0 and 0 < uu < 1):
+        return -np.inf
+    zz = math.log(uu) - math.log1p(-uu)
+    _, lz = _mixture_draw(p, k, 0.0, 1.0, 0.0, 0.0, zz, True)
+    out = lz - (math.log(width) + math.log(uu) + math.log1p(-uu))
+    return -np.inf if out != out else out

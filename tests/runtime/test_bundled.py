@@ -230,33 +230,3 @@ def test_guided_runs_repeat_bit_for_bit_and_weights_are_importance_weights() -> 
             log_q += float(proposal_logpdf(site, args, params, np.array([value]))[0])
         want = p.log_prior + p.log_likelihood - log_q
         assert p.log_weight == pytest.approx(want, abs=1e-4)
-
-
-def test_guided_run_with_remembered_feature_rows_equals_fresh_rows(monkeypatch) -> None:
-    """SMC's per-step feature row cache (FeatureMaker.features_cached) changes nothing: a
-    guided vines run where every round computes its rows afresh (features_round) gives the
-    same weights, primitives and trace feature rows, bit for bit."""
-    from ngpm_runtime.image.features import FeatureMaker
-
-    program = bundled.bundled_program()
-    guide = bundled.bundled_guide(program)
-    target = bundled.demo_targets()[0]
-
-    def run():
-        return _guided_vines(program, guide, target, seed=5, max_steps=15, ess_from_proposal=True)
-
-    cached = run()
-
-    def fresh(self, sites, canvas, idx, turtles, depths, params, prior_args):
-        return self.features_round(
-            sites, canvas, np.array(idx), np.array(turtles), np.array(depths), params, prior_args
-        )
-
-    monkeypatch.setattr(FeatureMaker, "features_cached", fresh)
-    plain = run()
-    np.testing.assert_array_equal(cached.log_weights, plain.log_weights)
-    for p, q in zip(cached.particles, plain.particles, strict=True):
-        assert p.primitives == q.primitives
-        assert [(s, v) for s, _, v in p.trace] == [(s, v) for s, _, v in q.trace]
-        for (_, f, _), (_, g, _) in zip(p.trace, q.trace, strict=True):
-            np.testing.assert_array_equal(f, g)

@@ -197,6 +197,119 @@ def test_feature_rows_without_an_image() -> None:
         np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("context", [False, True])
+@pytest.mark.parametrize("seed", range(4))
+def test_site_rows_of_a_round_match_numpy(seed: int, context: bool) -> None:
+    """features_round (one kernel call for several sites: the module parameters and prior
+    arguments written between the turtle and window columns) gives the numpy reference's
+    rows, arguments of other widths (truncated or zero-padded) and empty images included."""
+    rng = np.random.default_rng(300 + seed)
+    h, w = [(50, 50), (37, 23)][seed % 2]
+    n = 8
+    canvas = Canvas(n, h, w, VP)
+    for _ in range(10):
+        canvas.draw(np.arange(n), [random_prim(rng) for _ in range(n)])
+    program = SimpleNamespace(derivation_length=40)
+    sites = [
+        SimpleNamespace(arity=1, n_args=lambda: 2),
+        SimpleNamespace(arity=0, n_args=lambda: 3),
+        SimpleNamespace(arity=2, n_args=lambda: 1),
+    ]
+    target = _target(rng, h, w) if seed % 3 else None
+    ms = [3, 4, 2]
+    params = [rng.normal(size=(3, 1)), np.zeros((4, 0)), rng.normal(size=(2, 3))]  # 3: cut
+    args = [rng.normal(size=(3, 2)), rng.random((4, 3)), rng.normal(size=(2, 0))]  # 0: pad
+    for cv in (canvas, None):
+        a = FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        idx = rng.integers(0, n, sum(ms))
+        turtle, depth = _turtles(rng, sum(ms)), rng.integers(-1, 40, sum(ms)).astype(np.float64)
+        got = a.features_round(sites, cv, idx, turtle, depth, params, args)  # type: ignore[arg-type]
+        want = b.features_round(sites, cv, idx, turtle, depth, params, args)  # type: ignore[arg-type]
+        for g, wnt in zip(got, want, strict=True):
+            assert g.shape == wnt.shape and g.dtype == np.float32
+            trig = [3, 4]
+            np.testing.assert_array_max_ulp(g[:, trig], wnt[:, trig], maxulp=1)
+            g = g.copy()
+            g[:, trig] = wnt[:, trig]
+            np.testing.assert_array_equal(g, wnt)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_guide_round_log_prior_matches_prior_logpdf() -> None:
+    """guide_round's log prior of its draws equals distributions.prior_logpdf (odd prior
+    arguments included: point masses, a == b, zero weights) and it names the first row
+    whose arguments a prior cannot take."""
+    from ngpm_runtime.inference.distributions import prior_logpdf
+    from ngpm_runtime.inference.sitekinds import KINDS
+    from ngpm_runtime.program import Site
+
+    rng = np.random.default_rng(9)
+    n = 300
+    cases = {
+        "normal": np.column_stack([rng.normal(size=n), rng.choice([0.0, 0.5, 3.0, -2.0], n)]),
+        "uniform": np.column_stack([rng.normal(size=n), rng.choice([0.0, 1.0, -1.0], n)]),
+        "bernoulli": rng.choice([0.0, 0.3, 1.0], (n, 1)),
+        "categorical": rng.choice([0.0, 1.0, 2.5], (n, 4)) + np.eye(4)[rng.integers(0, 4, n)],
+    }
+    cases["uniform"][:, 1] += cases["uniform"][:, 0]
+    for kind, args in cases.items():
+        table = KINDS[kind]
+        site = Site(index=0, id=kind, kind=kind, k=4)
+        params = rng.normal(size=(n, 9)) if table.head == "mixture" else rng.random((n, 4))
+        out = np.empty((n, 3))
+        bad = kernels.guide_round(
+            np.zeros((0, 0), np.float32),
+            np.zeros(n, np.int64),
+            np.zeros((1, kernels.NET_COLS), np.int64),
+            np.zeros(0, np.float32),
+            np.zeros(0, np.int64),
+            np.array([table.code]),
+            np.ones(2),
+            params.copy(),
+            np.full(n, params.shape[1] if kind != "bernoulli" else 1),
+            args,
+            np.full(n, args.shape[1]),
+            rng.random(n),
+            rng.standard_normal(n),
+            out,
+        )
+        assert bad == -1
+        np.testing.assert_array_equal(out[:, 2], prior_logpdf(site, args, out[:, 0]))
+    args = np.ones((5, 4))
+    args[3] = [0.0, -1.0, 2.0, 1.0]
+    out = np.empty((5, 3))
+    bad = kernels.guide_round(
+        np.zeros((0, 0), np.float32),
+        np.zeros(5, np.int64),
+        np.zeros((1, kernels.NET_COLS), np.int64),
+        np.zeros(0, np.float32),
+        np.zeros(0, np.int64),
+        np.array([KINDS["categorical"].code]),
+        np.ones(2),
+        np.full((5, 4), 0.25),
+        np.full(5, 4),
+        args,
+        np.full(5, 4),
+        rng.random(5),
+        np.zeros(0),
+        out,
+    )
+    assert bad == 3
+
+
+def test_kind_codes_match_the_kernels() -> None:
+    from ngpm_runtime.inference.sitekinds import KINDS
+
+    codes = {k: t.code for k, t in KINDS.items()}
+    assert codes == {
+        "normal": kernels.NORMAL,
+        "uniform": kernels.UNIFORM,
+        "bernoulli": kernels.BERNOULLI,
+        "categorical": kernels.CATEGORICAL,
+    }
+
+
 def test_resampling_matches_numpy() -> None:
     rng = np.random.default_rng(11)
     for trial in range(300):

@@ -17,10 +17,11 @@ which lie on image axes, these turn with the turtle.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from ngpm_runtime.errors import TargetError
-from ngpm_runtime.geometry.turtle import Turtle
 from ngpm_runtime.image.raster import (
     N_LEVELS,
     PAD,
@@ -34,7 +35,7 @@ from ngpm_runtime.image.raster import (
 from ngpm_runtime.program import Program, Site
 
 # _context_geometry's answer (its docstring names the parts)
-ContextGeometry = tuple[np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, float]
+ContextGeometry = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
@@ -80,6 +81,38 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
     return out
 
 
+def _extra_columns(
+    sites: list[Site], params: list[np.ndarray], prior_args: list[np.ndarray], n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's module parameters and prior arguments (fitted to the site's arity and
+    argument count) as (n, widest) float64, and each row's width."""
+    blocks = []
+    widths = []
+    for site, par, args in zip(sites, params, prior_args, strict=True):
+        m = len(args)
+        a, k = int(site.arity), int(site.n_args())
+        blocks.append(
+            np.concatenate((_fit_columns(par, m, a), _fit_columns(args, m, k)), axis=1)
+            if a
+            else _fit_columns(args, m, k)
+        )
+        widths.append(a + k)
+    counts = [len(b) for b in blocks]
+    if sum(counts) != n:
+        raise ValueError(f"features: {n} particles, {sum(counts)} rows of arguments")
+    if len(blocks) == 1:
+        b = blocks[0]
+        if not (b.flags.c_contiguous and b.flags.writeable):  # one compiled signature
+            b = b.copy()
+        return b, np.full(n, widths[0], dtype=np.int64)
+    extra = np.zeros((n, max(widths)))
+    pos = 0
+    for b, w in zip(blocks, widths, strict=True):
+        extra[pos : pos + len(b), :w] = b
+        pos += len(b)
+    return extra, np.repeat(np.array(widths, dtype=np.int64), counts)
+
+
 class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
@@ -101,13 +134,16 @@ class FeatureMaker:
         self._target_flat: np.ndarray | None = None
         self._geom: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._context_geom: dict[tuple[int, int], ContextGeometry] = {}
-        # features_cached: particle -> turtle state of its site-independent row in _block
-        self._rows: dict[int, Turtle] = {}
-        self._block = np.empty((0, self.n_common), dtype=np.float32)
         xmin, xmax, ymin, ymax = self.viewport
         self._span = np.array([xmax - xmin, -(ymax - ymin)])  # (y - ymax) / -(...) = v
-        # the feature kernel's (origin x, origin y, span x, span y, derivation length)
-        self._view = np.array([xmin, ymax, *self._span, self.derivation_length])
+        # the feature kernel's (origin x, origin y, span x, span y, derivation length, fill
+        # of absent target windows, of absent canvas windows), by (target?, canvas?) when
+        # there is no image (windows -1 where the group exists), else [False, False]
+        self._view_fill = {
+            (t, c): np.array([xmin, ymax, *self._span, self.derivation_length, -1.0 * t, -1.0 * c])
+            for t in (False, True)
+            for c in (False, True)
+        }
         from ngpm_runtime import kernels  # numba loads when features are made
 
         self._k = kernels
@@ -185,133 +221,81 @@ class FeatureMaker:
         self,
         sites: list[Site],
         canvas: Canvas | None,
-        idx: np.ndarray,
-        turtle: np.ndarray,
-        depth: np.ndarray,
+        idx: np.ndarray | Sequence[int],
+        turtle: np.ndarray | Sequence[Sequence[float]],
+        depth: np.ndarray | Sequence[float],
         params: list[np.ndarray],
         prior_args: list[np.ndarray],
     ) -> list[np.ndarray]:
         """Feature rows for several sites at once: `idx`, `turtle` (n, 4) and `depth` (n,)
         list the particles of every site one after the other (`len(params[j])` of them at
-        `sites[j]`); returns one array per site. The turtle and window columns are computed
-        for all n rows in one pass; each row is the one `features` gives alone."""
+        `sites[j]`); returns one array per site (views of `rows`' answer). Each row is the
+        one `features` gives alone."""
+        rows = self.rows(sites, canvas, idx, turtle, depth, params, prior_args)
+        if len(sites) == 1:
+            return [rows]
+        out = []
+        pos = 0
+        for site, args in zip(sites, prior_args, strict=True):
+            m = len(args)
+            out.append(rows[pos : pos + m, : self.n_features(site)])
+            pos += m
+        return out
+
+    def rows(
+        self,
+        sites: list[Site],
+        canvas: Canvas | None,
+        idx: np.ndarray | Sequence[int],
+        turtle: np.ndarray | Sequence[Sequence[float]],
+        depth: np.ndarray | Sequence[float],
+        params: list[np.ndarray],
+        prior_args: list[np.ndarray],
+    ) -> np.ndarray:
+        """`features_round`'s rows in one float32 array (n, widest row): row k of a site
+        with w = n_features(site) columns is rows[k, :w] (one kernel call)."""
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
-        common = self._common(
+        extra, n_extra = _extra_columns(sites, params, prior_args, n)
+        return self._rows(
             canvas,
             idx,
             np.ascontiguousarray(turtle, dtype=np.float64).reshape(n, 4),
             np.ascontiguousarray(depth, dtype=np.float64).reshape(n),
+            extra,
+            n_extra,
         )
-        return self._site_rows(sites, common, params, prior_args)
-
-    def forget(self) -> None:
-        """Drop the rows `features_cached` remembers (call it whenever a canvas row, the
-        particle indices or the target change: SMC calls it at the start of every step)."""
-        self._rows.clear()
-
-    def features_cached(
-        self,
-        sites: list[Site],
-        canvas: Canvas | None,
-        idx: list[int],
-        turtles: list[Turtle],
-        depths: list[float],
-        params: list[np.ndarray],
-        prior_args: list[np.ndarray],
-    ) -> list[np.ndarray]:
-        """`features_round` with the site-independent columns remembered per particle: a
-        particle asked again at the same turtle state (and, until `forget`, the same canvas
-        row) reuses its turtle and window columns (only its depth column is written anew);
-        the others are computed in one pass. Every row equals the one `features_round`
-        gives (tests/runtime/image/test_features.py)."""
-        known = self._rows  # particle -> the turtle state its row in `_block` is for
-        n = len(idx)
-        miss = [
-            j
-            for j, (i, turtle) in enumerate(zip(idx, turtles, strict=True))
-            if known.get(i) != turtle
-        ]
-        ia = np.array(idx, dtype=np.intp)
-        top = max(idx) + 1
-        if self._block.shape[0] < top:
-            grown = np.empty(
-                (max(top, 2 * self._block.shape[0]), self._block.shape[1]), dtype=np.float32
-            )
-            grown[: self._block.shape[0]] = self._block
-            self._block = grown
-        if len(miss) == n:
-            common = self._common(
-                canvas,
-                ia,
-                np.array(turtles, dtype=np.float64).reshape(n, 4),
-                np.array(depths, dtype=np.float64),
-            )
-            self._block[ia] = common
-        else:
-            if miss:
-                sel = ia[miss]
-                self._block[sel] = self._common(
-                    canvas,
-                    sel,
-                    np.array([turtles[j] for j in miss], dtype=np.float64).reshape(-1, 4),
-                    np.zeros(len(miss)),
-                )
-            common = self._block[ia]
-            # the depth column differs between a particle's sites at one turtle state
-            common[:, 6] = np.array(depths, dtype=np.float64) / self.derivation_length
-        for j in miss:
-            known[idx[j]] = turtles[j]
-        return self._site_rows(sites, common, params, prior_args)
-
-    def _site_rows(
-        self,
-        sites: list[Site],
-        common: np.ndarray,
-        params: list[np.ndarray],
-        prior_args: list[np.ndarray],
-    ) -> list[np.ndarray]:
-        """Each site's rows: the common columns with its module parameters and prior
-        arguments put in after the first N_LOCAL_BASE."""
-        n = len(common)
-        out = []
-        pos = 0
-        for site, par, args in zip(sites, params, prior_args, strict=True):
-            m = len(args)
-            a, k = int(site.arity), int(site.n_args())
-            block = common[pos : pos + m]
-            rows = np.concatenate(
-                (
-                    block[:, :N_LOCAL_BASE],
-                    _fit_columns(par, m, a),
-                    _fit_columns(args, m, k),
-                    block[:, N_LOCAL_BASE:],
-                ),
-                axis=1,
-                dtype=np.float32,
-            )
-            out.append(rows)
-            pos += m
-        if pos != n:
-            raise ValueError(f"features: {n} particles, {pos} rows of arguments")
-        return out
 
     def _common(
         self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray, depth: np.ndarray
     ) -> np.ndarray:
         """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
-        target and partial windows, context) of every particle, in few numpy calls (SMC's
-        batches are small)."""
+        target and partial windows, context) of every particle."""
         n = len(idx)
-        out = np.empty((n, self.n_common), dtype=np.float32)
+        return self._rows(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
+
+    def _rows(
+        self,
+        canvas: Canvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        extra: np.ndarray,
+        n_extra: np.ndarray,
+    ) -> np.ndarray:
+        """The rows: turtle columns, extra[k, :n_extra[k]], windows and context, by
+        kernels.feature_windows."""
+        n = len(idx)
+        out = np.empty((n, self.n_common + extra.shape[1]), dtype=np.float32)
         h, w = self._shape(canvas)
         if h == 0 or w == 0:  # no image: the turtle columns, windows all 0 or -1
+            view = self._view_fill[self.target_levels is not None, canvas is not None]
             self._k.feature_windows(
                 out,
                 turtle,
                 depth,
                 idx,
-                self._view,
+                view,
                 _NO_SIZE,
                 _NO_OFFS,
                 _NO_TARGET,
@@ -320,29 +304,41 @@ class FeatureMaker:
                 _NO_GEOM,
                 _NO_CELLS,
                 _NO_TARGET,
+                extra,
+                n_extra,
             )
-            nl = N_LOCAL_BASE
-            out[:, nl : nl + N_WINDOW] = 0.0 if self.target_levels is None else -1.0
-            out[:, nl + N_WINDOW : nl + 2 * N_WINDOW] = 0.0 if canvas is None else -1.0
             return out
         size, offs = self._windows(h, w)
         target_flat = _NO_TARGET if self.target_levels is None else self._padded_target()
         rows = _NO_CANVAS if canvas is None else canvas.padded
         if self.context and self.target_levels is not None and canvas is not None:
-            cells, t, total, base, wp, hl, wl, rays, aspect = self._context_geometry(h, w)
-            geom = np.array([total, base, wp, hl, wl, aspect])
+            cells, t, rays, geom = self._context_geometry(h, w)
         else:
             cells, t, rays, geom = _NO_CELLS, _NO_TARGET, _NO_CTX, _NO_GEOM
         self._k.feature_windows(
-            out, turtle, depth, idx, self._view, size, offs, target_flat, rows, rays, geom, cells, t
+            out,
+            turtle,
+            depth,
+            idx,
+            self._view_fill[False, False],
+            size,
+            offs,
+            target_flat,
+            rows,
+            rays,
+            geom,
+            cells,
+            t,
+            extra,
+            n_extra,
         )
         return out
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
-        """Per canvas size: the fill level's cells in the padded row, the target there and
-        its sum; the look-ahead level's first cell (start + padding), padded width, height
-        and width; the 15 look-ahead (angle, distance) pairs (15, 2) and the viewport's
-        aspect."""
+        """Per canvas size: the fill level's cells in the padded row, the target there, the
+        15 look-ahead (angle, distance) pairs (15, 2) and the kernel's `ctx_geom`: the
+        target's sum there; the look-ahead level's first cell (start + padding), padded
+        width, height and width; the viewport's aspect."""
         key = (h, w)
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
@@ -363,15 +359,7 @@ class FeatureMaker:
                 ]
             )
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            self._context_geom[key] = (
-                np.ascontiguousarray(cells, dtype=np.intp),
-                t,
-                max(float(t.sum()), 1e-6),
-                base,
-                int(wp[lv]),
-                h >> lv,
-                w >> lv,
-                rays,
-                aspect,
-            )
+            geom = [max(float(t.sum()), 1e-6), base, int(wp[lv]), h >> lv, w >> lv, aspect]
+            cells = np.ascontiguousarray(cells, dtype=np.intp)
+            self._context_geom[key] = (cells, t, rays, np.array(geom, dtype=np.float64))
         return self._context_geom[key]

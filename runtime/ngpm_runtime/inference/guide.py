@@ -5,18 +5,19 @@ site table) and, in guide_checks, everything else it reads: the metadata's schem
 network parameters (finite, in range) and a probe run of every network; a damaged or hostile
 file is one GuideError, never a traceback or a silently different proposal.
 
-`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): one
-onnxruntime call per propose (one small session per site net when the `onnx` package can
-split the file), then sampling with distributions.proposal_draw. Sites without a network
-(unseen in training) fall back to the prior; they are listed in `Guide.fallback_sites`.
+`Guide.propose` implements the Proposal protocol (docs/architecture.md section 5): the
+site's network (see Engines), then sampling with distributions.proposal_draw. Sites without
+a network (unseen in training) fall back to the prior; they are listed in
+`Guide.fallback_sites`.
 
-`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round:
-one network call per waiting site, then one proposal_draw per group of sites with the same
-kind and parameter layout (the rows of all of them at once).
+`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round
+with one compiled call (kernels.guide_round) over the rows of all of them: networks,
+tempering, draws, log q and log prior.
 
 Engines (`Guide.engine` says which serves a site): with the `onnx` package (the compiler's
-installs), every site net that reads features runs in numpy (`NumpyNet`: the file's own
-weights, read by the names in guide_format, float32 like onnxruntime); a feature-free net
+installs), every site net that reads features runs in the compiled kernel (`NumpyNet`, the
+"numpy" engine: the file's own weights, read by the names in guide_format, float32 like
+onnxruntime); a feature-free net
 (feature set `const`), or every net when `Guide.numpy_nets` is emptied, runs in its own
 onnxruntime session cut from the file. Without `onnx` (the runtime installed alone) the
 whole file runs in one onnxruntime session. The load checks that both engines give the same
@@ -26,7 +27,8 @@ the site and the cause, never a silent switch to the other engine.
 
 Settings (`ProposalSettings`, the file's optional `proposal` metadata written by `ngpmc
 tune`, or `Guide.load(..., settings=)`): a temperature for choices and one for continuous
-values (distributions.temper, applied to every network output, so weights stay exact) and
+values (distributions.temper, in the kernel, applied to every network output, so weights
+stay exact) and
 the ESS fraction below which guided SMC resamples (`smc` reads it).
 """
 
@@ -34,13 +36,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, fields
+from itertools import accumulate
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import onnxruntime as ort
 
-from ngpm_runtime.errors import GuideError
+from ngpm_runtime.errors import GuideError, ProgramError
 from ngpm_runtime.image.features import N_CONTEXT
 from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.inference import guide_checks as checks
@@ -51,9 +54,15 @@ from ngpm_runtime.inference.guide_format import (
     output_name,
     param_name,
 )
-from ngpm_runtime.inference.sitekinds import MIXTURE, SIGMOID
+from ngpm_runtime.inference.sitekinds import MIXTURE, SIGMOID, SOFTMAX
 from ngpm_runtime.program import Program, Site
 
+_NO_ROWS = np.zeros(0)
+_NO_ARGS = np.zeros((0, 0))
+_NO_OUT = np.zeros((0, 3))
+# a network head's number in the kernel (kernels.HEAD_MIXTURE, ...) and a kind with it
+_HEADS = {MIXTURE: 0, SIGMOID: 1, SOFTMAX: 2}
+_HEAD_KIND = {MIXTURE: 0, SIGMOID: 2, SOFTMAX: 3}
 PROPOSAL_KEY = "proposal"  # optional metadata: ProposalSettings as JSON
 SITE_KEYS = ("id", "kind", "k")  # what must agree between the guide's and program's sites
 
@@ -140,9 +149,37 @@ class Guide:
         }
         # one small session per site net when the `onnx` package can split the file
         self.site_sessions: dict[int, ort.InferenceSession] = {}
-        # the same nets evaluated in numpy (every net that reads features, with `onnx`);
-        # they answer instead of onnxruntime (empty this dict to use onnxruntime only)
+        # the same nets evaluated by the compiled kernel (every net that reads features,
+        # with `onnx`); they answer instead of onnxruntime (set {} to use onnxruntime only)
         self.numpy_nets: dict[int, NumpyNet] = {}
+        self._kinds_code = np.array([dist.kind_of(s).code for s in program.sites], np.int64)
+        self._n_out = np.zeros(len(program.sites), dtype=np.int64)  # outputs per site net
+        for i, net in self.nets.items():
+            if 0 <= i < len(self._n_out):
+                self._n_out[i] = int(net["n_out"])
+        self._widest = int(self._n_out.max(initial=1))
+        from ngpm_runtime import kernels  # numba loads with the guide (its checks run nets)
+
+        self._k = kernels
+        self._mixture = [dist.kind_of(s).head == MIXTURE for s in program.sites]
+        self._temps: tuple[ProposalSettings, np.ndarray] | None = None
+
+    @property
+    def numpy_nets(self) -> dict[int, NumpyNet]:
+        """The site nets the compiled kernel evaluates, by site (assign a new dict to
+        change them)."""
+        return self._numpy_nets
+
+    @numpy_nets.setter
+    def numpy_nets(self, nets: dict[int, NumpyNet]) -> None:
+        self._numpy_nets = nets
+        self._packed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def _tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's network table (sites, kernels.NET_COLS), weights and columns."""
+        if self._packed is None:
+            self._packed = pack_nets(self._numpy_nets, len(self.program.sites))
+        return self._packed
 
     @classmethod
     def load(
@@ -216,9 +253,16 @@ class Guide:
     def params(self, site: int, features: np.ndarray | None, n: int | None = None) -> np.ndarray:
         """The site network's proposal parameters `(n, n_out)` (float64) for feature rows."""
         x = self._input(site, features, n or 0)
-        numpy_net = self.numpy_nets.get(site)
-        if numpy_net is not None:
-            return self._temper(site, numpy_net(x))
+        if site in self._numpy_nets:
+            m = len(x)
+            params = np.empty((m, self.nets[site]["n_out"]))
+            rows = np.full(m, site, dtype=np.int64)
+            self._kernel(x, rows, params, _NO_ARGS, np.zeros(m, np.int64), _NO_OUT)
+            return params
+        return self._temper(site, self._onnx_params(site, x))
+
+    def _onnx_params(self, site: int, x: np.ndarray) -> np.ndarray:
+        """The site network's outputs from onnxruntime (float64, not tempered)."""
         sess = self.site_sessions.get(site)
         if sess is not None:
             (out,) = sess.run(None, {input_name(site): x})
@@ -226,7 +270,49 @@ class Guide:
             feeds = dict(self._empty)
             feeds[input_name(site)] = x
             (out,) = self.session.run([output_name(site)], feeds)
-        return self._temper(site, out.astype(np.float64))
+        return np.asarray(out, dtype=np.float64)
+
+    def _kernel(
+        self,
+        x: np.ndarray,
+        site: np.ndarray,
+        params: np.ndarray,
+        args: np.ndarray,
+        n_args: np.ndarray,
+        out: np.ndarray,
+        u: np.ndarray = _NO_ROWS,
+        z: np.ndarray = _NO_ROWS,
+    ) -> int:
+        """kernels.guide_round over rows at sites `site`: networks (params given for the
+        others), tempering and, when `out` has rows, draws (prior arguments args[k,
+        :n_args[k]]); fills params (n, widest). Returns the first row with bad prior
+        arguments, or -1."""
+        nets, w, cols = self._tables()
+        return int(
+            self._k.guide_round(
+                x,
+                site,
+                nets,
+                w,
+                cols,
+                self._kinds_code,
+                self._temperatures(),
+                params,
+                self._n_out[site],
+                args,
+                n_args,
+                u,
+                z,
+                out,
+            )
+        )
+
+    def _temperatures(self) -> np.ndarray:
+        """(temperature, choice temperature) of the settings, for the kernel."""
+        st = self.settings
+        if self._temps is None or self._temps[0] is not st:
+            self._temps = (st, np.array([st.temperature, st.choice_temperature]))
+        return self._temps[1]
 
     def _temper(self, site: int, params: np.ndarray) -> np.ndarray:
         st = self.settings
@@ -251,20 +337,19 @@ class Guide:
             )
         return x
 
-    def params_round(
-        self, sites: list[int], features: list[np.ndarray | None], ns: list[int]
-    ) -> list[np.ndarray]:
-        """`params` of several site networks (distinct sites): one call per site's own
-        session (onnxruntime's cost is per graph node, so one run of the whole file, which
-        also runs every other net on an empty batch, costs more: benchmarks/smc.py --nets),
-        or one whole-file call when the file could not be split."""
+    def _onnx_round(self, sites: list[int], xs: list[np.ndarray]) -> list[np.ndarray]:
+        """onnxruntime's outputs (float64, not tempered) of several site networks (distinct
+        sites) for their checked rows `xs`: one call per site's own session (onnxruntime's
+        cost is per graph node, so one run of the whole file, which also runs every other
+        net on an empty batch, costs more: benchmarks/smc.py --nets), or one whole-file call
+        when the file could not be split."""
         if self.site_sessions or len(sites) == 1:
-            return [self.params(s, f, n) for s, f, n in zip(sites, features, ns, strict=True)]
+            return [self._onnx_params(s, x) for s, x in zip(sites, xs, strict=True)]
         feeds = dict(self._empty)
-        for s, f, n in zip(sites, features, ns, strict=True):
-            feeds[input_name(s)] = self._input(s, f, n)
+        for s, x in zip(sites, xs, strict=True):
+            feeds[input_name(s)] = x
         outs = self.session.run([output_name(s) for s in sites], feeds)
-        return [self._temper(s, o.astype(np.float64)) for s, o in zip(sites, outs, strict=True)]
+        return [np.asarray(o, dtype=np.float64) for o in outs]
 
     def propose_round(
         self,
@@ -272,49 +357,87 @@ class Guide:
         prior_args: list[np.ndarray],
         features: list[np.ndarray] | None,
         rng: np.random.Generator,
-    ) -> list[tuple[np.ndarray, np.ndarray]]:
-        """`propose` for every site waiting in an SMC round (proposals.RoundProposal): one
-        network call for all of them, one draw per group of like sites."""
-        if len(sites) == 1:  # the usual round (the same calls as below, less bookkeeping)
-            site, args = sites[0], prior_args[0]
-            if site.index not in self.nets:
-                return [self.propose(site, args, None, rng)]
-            params = self.params(site.index, None if features is None else features[0], len(args))
-            return [dist.proposal_draw(site, args, params, rng)]
+    ) -> list[tuple[np.ndarray, ...]]:
+        """`propose` for every site waiting in an SMC round (proposals.RoundProposal):
+        sites without a network draw from their prior; the rows of all others are one
+        kernel call (kernels.guide_round: networks, or onnxruntime's outputs for the nets
+        it serves, tempering, draws, log q and log prior) with one uniform per row, then
+        one standard normal per row when a site is a mixture. Those sites' answers are
+        (values, log q, log prior)."""
         out: list[Any] = [None] * len(sites)
-        net = [j for j, site in enumerate(sites) if site.index in self.nets]
+        net = []
         for j, site in enumerate(sites):
-            if site.index not in self.nets:
+            if site.index in self.nets:
+                net.append(j)
+            else:
                 out[j] = self.propose(site, prior_args[j], None, rng)
         if not net:
             return out
-        site_params = self.params_round(
-            [sites[j].index for j in net],
-            [None if features is None else features[j] for j in net],
-            [len(prior_args[j]) for j in net],
-        )
-        groups: dict[tuple[str, int, int], list[int]] = {}
-        for j, p in zip(net, site_params, strict=True):
-            key = (sites[j].kind, p.shape[1], prior_args[j].shape[1])
-            groups.setdefault(key, []).append(j)
-        by_site = dict(zip(net, site_params, strict=True))
-        for js in groups.values():
-            group_args = [prior_args[j] for j in js]
-            if len(js) > 1:
-                a = np.concatenate(group_args)
-                if np.isfinite(a).all():  # else per site, for the error naming its site
-                    values, log_q = dist.proposal_draw(
-                        sites[js[0]], a, np.concatenate([by_site[j] for j in js]), rng
-                    )
-                    cut = np.cumsum([len(x) for x in group_args])[:-1]
-                    for j, v, q in zip(
-                        js, np.split(values, cut), np.split(log_q, cut), strict=True
-                    ):
-                        out[j] = (v, q)
-                    continue
-            for j in js:
-                out[j] = dist.proposal_draw(sites[j], prior_args[j], by_site[j], rng)
+        counts = [len(prior_args[j]) for j in net]
+        x, rows, args, n_args = self._round_rows(sites, prior_args, features, net, counts)
+        n = len(rows)
+        params = np.empty((n, self._widest))
+        onnx = [k for k, j in enumerate(net) if sites[j].index not in self._numpy_nets]
+        if onnx:  # onnxruntime serves these nets; the kernel tempers and draws
+            starts = [0, *accumulate(counts)]
+            which = [sites[net[k]].index for k in onnx]
+            got = self._onnx_round(
+                which,
+                [
+                    x[starts[k] : starts[k + 1], : self.nets[s]["n_f"]]
+                    for k, s in zip(onnx, which, strict=True)
+                ],
+            )
+            for k, o in zip(onnx, got, strict=True):
+                params[starts[k] : starts[k + 1], : o.shape[1]] = o
+        u = rng.random(n)
+        mixture = [self._mixture[sites[j].index] for j in net]
+        z = rng.standard_normal(n) if True in mixture else _NO_ROWS
+        res = np.empty((n, 3))
+        bad = self._kernel(x, rows, params, args, n_args, res, u, z)
+        if len(net) == 1 and bad < 0:
+            out[net[0]] = (res[:, 0], res[:, 1], res[:, 2])
+            return out
+        pos = 0
+        for j, m in zip(net, counts, strict=True):
+            if pos <= bad < pos + m:  # the error naming the site and the cause
+                _bad_args(sites[j], prior_args[j])
+            part = res[pos : pos + m]
+            out[j] = (part[:, 0], part[:, 1], part[:, 2])
+            pos += m
         return out
+
+    def _round_rows(
+        self,
+        sites: list[Site],
+        prior_args: list[np.ndarray],
+        features: list[np.ndarray] | None,
+        net: list[int],
+        counts: list[int],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The kernel's rows of the sites `net` (indices into `sites`): feature rows
+        (float32, checked), site per row, prior arguments and their count per row."""
+        xs = [
+            self._input(sites[j].index, None if features is None else features[j], m)
+            for j, m in zip(net, counts, strict=True)
+        ]
+        if len(net) == 1:
+            args = prior_args[net[0]]
+            if not (args.dtype == np.float64 and args.flags.c_contiguous and args.flags.writeable):
+                args = np.array(args, dtype=np.float64)  # one compiled signature
+            n, s = counts[0], sites[net[0]].index
+            return xs[0], np.full(n, s, np.int64), args, np.full(n, args.shape[1], np.int64)
+        index = np.array([sites[j].index for j in net], dtype=np.int64)
+        n = sum(counts)
+        x = np.zeros((n, max(a.shape[1] for a in xs)), dtype=np.float32)
+        width = [prior_args[j].shape[1] for j in net]
+        args = np.zeros((n, max(width)))
+        pos = 0
+        for j, xj, m in zip(net, xs, counts, strict=True):
+            x[pos : pos + m, : xj.shape[1]] = xj
+            args[pos : pos + m, : prior_args[j].shape[1]] = prior_args[j]
+            pos += m
+        return x, np.repeat(index, counts), args, np.repeat(np.array(width, np.int64), counts)
 
     def propose(
         self,
@@ -396,17 +519,20 @@ def _numpy_nets(
 
 
 class NumpyNet:
-    """One site network evaluated in numpy, float32 like onnxruntime, from the parameters of
-    the ONNX file, read by name (guide_format): `tanh(x[:, cols] @ w1' + b1)`, then
-    `bounds * tanh(h @ w2' + b2)`, then the site kind's head (sitekinds: log-softmax over
-    the first K mixture columns, sigmoid or softmax): the graph
+    """One site network evaluated by the compiled kernel (kernels.guide_round; the name is
+    the engine's, "numpy", from before the kernel), float32 like onnxruntime, from the
+    parameters of the ONNX file, read by name (guide_format): `tanh(x[:, cols] @ w1' +
+    b1)`, then `bounds * tanh(h @ w2' + b2)`, then the site kind's head (sitekinds:
+    log-softmax over the first K mixture columns, sigmoid or softmax): the graph
     ngpm_compiler/learning/export.py writes.
 
-    Why: SMC's batches are small, and there a call costs a few numpy operations where
-    onnxruntime's per-call overhead dominates (benchmarks/smc.py --nets prints both, from 1
-    to 1000 rows); one engine for every batch size keeps a particle's proposal independent
-    of how many particles share its round. Guide.load checks it against onnxruntime on the
-    probe rows; tests/runtime/inference/test_guide.py on many more, to 1e-5."""
+    Why: SMC's batches are small, and there onnxruntime's per-call overhead dominates
+    (benchmarks/smc.py --nets prints both, from 1 to 1000 rows); one engine for every batch
+    size keeps a particle's proposal independent of how many particles share its round. A
+    guided round runs every site's net in one kernel call with the draws (`Guide` packs
+    them: `pack_nets`). Guide.load checks it against onnxruntime on the probe rows;
+    tests/runtime/inference/test_guide.py on many more, to 1e-5; tests/reference/guide.py
+    keeps the numpy code it replaced."""
 
     def __init__(
         self,
@@ -473,25 +599,79 @@ class NumpyNet:
             )
         return cls(n_f, cols, w1, b1, w2, b2, bounds, head, K if head == MIXTURE else 0)
 
+    def packed(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This net for kernels.guide_round: its row of the network table (offsets from 0),
+        its float32 weights (w1', b1, w2', b2, bounds) and its input columns."""
+        from ngpm_runtime import kernels
+
+        n_in, hid = self.w1t.shape
+        n_out = self.w2t.shape[1]
+        w = np.concatenate(
+            [self.w1t.reshape(-1), self.b1, self.w2t.reshape(-1), self.b2, self.bounds]
+        ).astype(np.float32)
+        row = np.zeros(kernels.NET_COLS, dtype=np.int64)
+        row[: kernels.NET_W1] = (1, n_in, hid, n_out, _HEADS[self.head], self.k)
+        at = np.cumsum([0, n_in * hid, hid, hid * n_out, n_out])
+        row[kernels.NET_W1 : kernels.NET_COLS_AT] = at
+        cols = np.arange(n_in) if self.cols is None else self.cols
+        return row, w, cols.astype(np.int64)
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """(n, n_out) float64 proposal parameters for float32 feature rows (n, n_f)."""
-        h = (x if self.cols is None else x[:, self.cols]) @ self.w1t
-        h += self.b1
-        np.tanh(h, out=h)
-        o = h @ self.w2t
-        o += self.b2
-        np.tanh(o, out=o)
-        o *= self.bounds
-        if self.head == MIXTURE:
-            lw = o[:, : self.k]
-            d = lw - lw.max(axis=1, keepdims=True)
-            lw[:] = d - np.log(np.exp(d).sum(axis=1, keepdims=True))
-        elif self.head == SIGMOID:
-            o = 1 / (1 + np.exp(-o))
-        else:
-            o = np.exp(o - o.max(axis=1, keepdims=True))
-            o /= o.sum(axis=1, keepdims=True)
-        return o.astype(np.float64)
+        from ngpm_runtime import kernels
+
+        nets, w, cols = pack_nets({0: self}, 1)
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        n = len(x)
+        out = np.empty((n, self.w2t.shape[1]))
+        kernels.guide_round(
+            x,
+            np.zeros(n, dtype=np.int64),
+            nets,
+            w,
+            cols,
+            np.array([_HEAD_KIND[self.head]], dtype=np.int64),
+            np.ones(2),
+            out,
+            np.full(n, out.shape[1], dtype=np.int64),
+            _NO_ARGS,
+            np.zeros(n, dtype=np.int64),
+            _NO_ROWS,
+            _NO_ROWS,
+            _NO_OUT,
+        )
+        return out
+
+
+def pack_nets(nets: dict[int, NumpyNet], n_sites: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """kernels.guide_round's network table (n_sites, kernels.NET_COLS) for the site nets
+    `nets` (a site without one: a row of zeros), all weights in one float32 array and
+    all input columns in one int64 array."""
+    from ngpm_runtime import kernels
+
+    table = np.zeros((n_sites, kernels.NET_COLS), dtype=np.int64)
+    ws, cs = [], []
+    at_w = at_c = 0
+    for site, net in sorted(nets.items()):
+        row, w, cols = net.packed()
+        row[kernels.NET_W1 : kernels.NET_COLS_AT] += at_w
+        row[kernels.NET_COLS_AT] = at_c
+        table[site] = row
+        ws.append(w)
+        cs.append(cols)
+        at_w += len(w)
+        at_c += len(cols)
+    w_all = np.concatenate(ws) if ws else np.zeros(0, dtype=np.float32)
+    c_all = np.concatenate(cs) if cs else np.zeros(0, dtype=np.int64)
+    return table, w_all, c_all
+
+
+def _bad_args(site: Site, args: np.ndarray) -> NoReturn:
+    """The ProgramError for prior arguments the site's prior cannot take."""
+    dist.prior_logpdf(site, args, np.zeros(len(args)))  # raises the error naming the cause
+    raise ProgramError(
+        f"site {site.id} (line {site.line}): prior arguments a {site.kind} prior cannot take"
+    )
 
 
 def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:

@@ -40,7 +40,8 @@ class RoundProposal(Protocol):
     """A proposal that also serves every site waiting in an SMC round with one call (a
     learned Guide: one network evaluation for all of them). `smc()` then hands it all
     waiting sites at once, in ascending site order, each with its particles in index order;
-    it returns one (values, log q) pair per site, as `propose` would."""
+    it returns per site (values, log q), as `propose` would, or (values, log q, log prior)
+    when it computed the log prior of the values with them (SMC then uses that)."""
 
     uses_features: bool
 
@@ -50,7 +51,7 @@ class RoundProposal(Protocol):
         prior_args: list[np.ndarray],
         features: list[np.ndarray] | None,
         rng: np.random.Generator,
-    ) -> list[tuple[np.ndarray, np.ndarray]]: ...
+    ) -> list[tuple[np.ndarray, ...]]: ...
 
 
 class PriorProposal:

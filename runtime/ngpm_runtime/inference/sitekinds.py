@@ -32,8 +32,8 @@ from ngpm_runtime.errors import ProgramError
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 MIXTURE, SIGMOID, SOFTMAX = "mixture", "sigmoid", "softmax"  # the heads of guide networks
-_SMALL = 16  # rows up to which the categorical draw runs in plain Python
-_SMALL_NORMAL = 4  # the same for the normal mixture (its rows cost more)
+_NO_ROWS = np.zeros(0)
+_NO_OUT = np.zeros((0, 3))
 
 
 class SiteRef(Protocol):
@@ -50,6 +50,7 @@ class SiteKind:
     """One kind of site: its prior, its guide network's outputs and their proposal."""
 
     name = ""
+    code = -1  # the kind's number in the compiled kernels (kernels.NORMAL, ...)
     n_fixed: int | None = None  # prior arguments; None: one weight per category (k)
     continuous = False  # a float value (else an index or 0/1)
     head = SOFTMAX  # the guide network's last operation (MIXTURE, SIGMOID or SOFTMAX)
@@ -92,7 +93,7 @@ class SiteKind:
         self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
     ) -> np.ndarray:
         """One value per row from the proposal that `params` (guide outputs) describe."""
-        raise NotImplementedError
+        return self.proposal_draw(args, params, rng)[0]
 
     def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Log density of values `x` under the proposal that `params` describe."""
@@ -101,15 +102,44 @@ class SiteKind:
     def proposal_draw(
         self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:
-        """`proposal_sample` and the drawn values' `proposal_logpdf` in one pass."""
-        v = self.proposal_sample(args, params, rng)
-        return v, self.proposal_logpdf(args, params, v)
+        """One value per row from the proposal and its log density (`proposal_logpdf` of
+        it, to rounding), by the compiled kernel (kernels.guide_round): one uniform per
+        row, then, for mixtures, one standard normal per row."""
+        n = int(args.shape[0])
+        p = self.checked_params(params, n)
+        u = rng.random(n)
+        z = rng.standard_normal(n) if self.head == MIXTURE else _NO_ROWS
+        out = np.empty((n, 3))
+        _run_rows(self.code, p, args, u, z, out, 1.0, 1.0)
+        return out[:, 0].copy(), out[:, 1].copy()
 
     def temper(
         self, params: np.ndarray, temperature: float, choice_temperature: float
     ) -> np.ndarray:
-        """Guide outputs of a sharper (< 1) or flatter (> 1) proposal, same layout."""
-        raise NotImplementedError
+        """Guide outputs of a sharper (< 1) or flatter (> 1) proposal, same layout
+        (mixtures: log weights / temperature, log sds + log(temperature) / 2; choices:
+        probabilities ** (1 / choice_temperature), renormalized), by the compiled kernel;
+        `params` itself when nothing changes."""
+        t = float(temperature) if self.head == MIXTURE else 1.0
+        tc = 1.0 if self.head == MIXTURE else float(choice_temperature)
+        if t == 1.0 and tc == 1.0:
+            return params
+        p = self.checked_params(params, np.shape(params)[0])
+        _run_rows(self.code, p, np.zeros((len(p), 0)), _NO_ROWS, _NO_ROWS, _NO_OUT, t, tc)
+        return p
+
+    def checked_params(self, params: np.ndarray, n: int) -> np.ndarray:
+        """`params` as a new (n, m) float64 array of a width this kind reads (ValueError
+        otherwise)."""
+        p = np.array(params, dtype=np.float64, order="C", ndmin=2)
+        m = p.shape[1] if p.ndim == 2 else 0
+        ok = m % 3 == 0 and m > 0 if self.head == MIXTURE else m >= 1
+        if p.ndim != 2 or p.shape[0] != n or not ok:
+            raise ValueError(
+                f"{self.name} proposal params must be (n, {'3K' if self.head == MIXTURE else 'k'})"
+                f" for {n} rows, got shape {p.shape}"
+            )
+        return p
 
     def output_problem(self, out: np.ndarray, K: int, tol: float) -> str:
         """Why finite network outputs `out` are not proposal parameters ("" if they are)."""
@@ -133,19 +163,6 @@ class _Mixture(SiteKind):
     def columns(self, K: int, k: int) -> tuple[tuple[str, int], ...]:
         return (("logw", K), ("mean", K), ("logsd", K))
 
-    def temper(
-        self, params: np.ndarray, temperature: float, choice_temperature: float
-    ) -> np.ndarray:
-        """Log weights `/ temperature`, sds `* sqrt(temperature)` (each component's
-        density to the power `1 / temperature`)."""
-        if temperature == 1.0:
-            return params
-        out = np.array(params, dtype=np.float64)
-        k = out.shape[1] // 3
-        out[:, :k] /= temperature
-        out[:, 2 * k :] += 0.5 * math.log(temperature)
-        return out
-
     def output_problem(self, out: np.ndarray, K: int, tol: float) -> str:
         total = np.logaddexp.reduce(out[:, :K], axis=1)
         return "" if np.abs(total).max() < tol else "mixture weights that do not sum to 1"
@@ -155,6 +172,7 @@ class Normal(_Mixture):
     """gauss(mu, sigma): prior arguments (mu, sigma); sigma == 0 is a point mass."""
 
     name = "normal"
+    code = 0
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
         if vals[1] < 0 or (constant and vals[1] == 0):
@@ -174,26 +192,8 @@ class Normal(_Mixture):
     def prior_logpdf(self, site: SiteRef, args: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _normal_logpdf(x, args[:, 0], np.abs(args[:, 1]))
 
-    def proposal_sample(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
-        return _mixture_sample(*_normal_mixture(args, params), rng)
-
     def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _mixture_logpdf(x, *_normal_mixture(args, params))
-
-    def proposal_draw(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        if args.shape[0] <= _SMALL_NORMAL:
-            out = _small_normal_draw(args, params, rng)
-        else:
-            out = _lean_normal_draw(args, params, rng)
-        if out is not None:
-            return out
-        logw, mean, sd = _normal_mixture(args, params)
-        v = _mixture_sample(logw, mean, sd, rng)
-        return v, _mixture_logpdf(v, logw, mean, sd)
 
     def to_z(
         self, values: np.ndarray, args: np.ndarray, eps: float
@@ -208,6 +208,7 @@ class Uniform(_Mixture):
     logit-normal: x = a + (b - a) sigmoid(z), z a normal mixture."""
 
     name = "uniform"
+    code = 1
     z_sd0 = 1.7  # logit-normal(0, 1.7) is close to uniform(0, 1)
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
@@ -230,15 +231,6 @@ class Uniform(_Mixture):
         dens = np.where(width > 0, -_log(np.where(width > 0, width, 1.0)), 0.0)
         point_ok = (width > 0) | (x == a)
         out: np.ndarray = np.where(inside & point_ok, dens, -np.inf)
-        return out
-
-    def proposal_sample(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
-        logw, m, s = _mixture(params)
-        z = _mixture_sample(logw, m, np.exp(s), rng)
-        a, b = _uniform_bounds(args)
-        out: np.ndarray = a + (b - a) / (1.0 + np.exp(-z))
         return out
 
     def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -278,30 +270,12 @@ class _Choice(SiteKind):
             return "probabilities that do not sum to 1"
         return ""
 
-    def temper(
-        self, params: np.ndarray, temperature: float, choice_temperature: float
-    ) -> np.ndarray:
-        """Probabilities `p ** (1 / choice_temperature)`, renormalized."""
-        if choice_temperature == 1.0:
-            return params
-        two = self.head == SIGMOID  # the probability of 1, and of 0
-        p = np.clip(np.asarray(params, dtype=np.float64), 0.0, 1.0 if two else None)
-        if two:
-            p = np.concatenate([p[:, :1], 1.0 - p[:, :1]], axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            logp = np.log(p) / choice_temperature
-            logp -= _logsumexp_rows(logp)[:, None]
-        q = np.exp(logp)
-        empty = ~np.isfinite(logp).any(axis=1)  # all-zero rows stay as they were
-        q[empty] = p[empty]
-        out: np.ndarray = q[:, :1] if two else q
-        return out
-
 
 class Bernoulli(_Choice):
     """flip(p): prior argument (p,); values 0.0 and 1.0."""
 
     name = "bernoulli"
+    code = 2
     n_fixed = 1
     head = SIGMOID
 
@@ -318,22 +292,8 @@ class Bernoulli(_Choice):
     def prior_logpdf(self, site: SiteRef, args: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _bernoulli_logpmf(args[:, 0], x)
 
-    def proposal_sample(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
-        p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
-        out: np.ndarray = (rng.random(args.shape[0]) < p).astype(np.float64)
-        return out
-
     def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _bernoulli_logpmf(np.asarray(params, dtype=np.float64)[:, 0], x)
-
-    def proposal_draw(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        p = np.clip(np.asarray(params, dtype=np.float64)[:, 0], 0.0, 1.0)
-        v = (rng.random(args.shape[0]) < p).astype(np.float64)
-        return v, _log(np.where(v == 1.0, p, 1.0 - p))
 
 
 class Categorical(_Choice):
@@ -341,6 +301,7 @@ class Categorical(_Choice):
     arguments are the k weights, normalized; values are indices 0..k-1."""
 
     name = "categorical"
+    code = 3
     finite_args = False  # _categorical_probs checks the weights
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
@@ -371,35 +332,8 @@ class Categorical(_Choice):
             )
         return _categorical_logpmf(_categorical_probs(site, args), x)
 
-    def proposal_sample(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> np.ndarray:
-        return _categorical_sample(_probs(params), rng)
-
     def proposal_logpdf(self, args: np.ndarray, params: np.ndarray, x: np.ndarray) -> np.ndarray:
         return _categorical_logpmf(_probs(params), x)
-
-    def proposal_draw(
-        self, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        n = args.shape[0]
-        p = np.asarray(params, dtype=np.float64)
-        if n <= _SMALL and p.shape[1] < 8:
-            out = _small_categorical_draw(p, rng)
-            if out is not None:
-                return out
-        if (p >= 0).all():
-            total = p.sum(axis=1)
-            if (total > 0).all():
-                cum = np.cumsum(p, axis=1)
-                u = rng.random(n) * cum[:, -1]
-                k = np.minimum((cum <= u[:, None]).sum(axis=1), p.shape[1] - 1)
-                rows = np.arange(n)
-                # the same arithmetic as _probs, so log q equals proposal_logpdf's
-                return k.astype(np.float64), _log(p[rows, k] / total)
-        probs = _probs(p)
-        v = _categorical_sample(probs, rng)
-        return v, _log(probs[np.arange(n), v.astype(np.intp)])
 
 
 KINDS: dict[str, SiteKind] = {k.name: k for k in (Normal(), Uniform(), Bernoulli(), Categorical())}
@@ -504,15 +438,6 @@ def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
     return out
 
 
-def _mixture_sample(
-    logw: np.ndarray, mean: np.ndarray, sd: np.ndarray, rng: np.random.Generator
-) -> np.ndarray:
-    comp = _categorical_sample(np.exp(logw), rng).astype(np.intp)
-    rows = np.arange(logw.shape[0])
-    out: np.ndarray = mean[rows, comp] + sd[rows, comp] * rng.standard_normal(logw.shape[0])
-    return out
-
-
 def _mixture_logpdf(
     x: np.ndarray, logw: np.ndarray, mean: np.ndarray, sd: np.ndarray
 ) -> np.ndarray:
@@ -538,112 +463,41 @@ def _probs(params: np.ndarray) -> np.ndarray:
     return out
 
 
-def _small_categorical_draw(
-    p: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The categorical branch of `proposal_draw` for a few rows and fewer than 8 categories,
-    in plain Python with numpy's arithmetic (numpy's row sums, sequential cumulative sums
-    as np.cumsum, the same divisions and log), so the results are identical; None when
-    some row has a
-    negative, non-finite or all-zero weight (the general path handles those)."""
-    rows = p.tolist()
-    totals = p.sum(axis=1).tolist()  # numpy's summation order, as in _probs
-    cums = []
-    for row, total in zip(rows, totals, strict=True):
-        if not (0.0 < total < math.inf) or min(row) < 0.0:
-            return None
-        cums.append(list(accumulate(row)))
-    last = len(rows[0]) - 1
-    us = rng.random(len(rows)).tolist()
-    ks = []
-    qs = []
-    for row, cum, total, u in zip(rows, cums, totals, us, strict=True):
-        x = u * cum[-1]
-        k = 0
-        for c in cum:
-            if c <= x:
-                k += 1
-        k = min(k, last)
-        ks.append(float(k))
-        qs.append(row[k] / total)
-    q = np.array(qs)
-    return np.array(ks), (np.log(q) if min(qs) > 0.0 else _log(q))
+def _run_rows(
+    code: int,
+    params: np.ndarray,
+    args: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+    temperature: float,
+    choice_temperature: float,
+) -> None:
+    """kernels.guide_round over rows of one kind without a network: params tempered in
+    place; with `out` rows, values and log q drawn into out[:, :2]."""
+    from ngpm_runtime import kernels  # numba loads at the first draw
+
+    n, m = params.shape
+    a = np.ascontiguousarray(args, dtype=np.float64)
+    kernels.guide_round(
+        _NO_X,
+        np.zeros(n, dtype=np.int64),
+        _NO_NET,
+        _NO_W,
+        _NO_COLS,
+        np.array([code], dtype=np.int64),
+        np.array([temperature, choice_temperature]),
+        params,
+        np.full(n, m, dtype=np.int64),
+        a,
+        np.full(n, a.shape[1] if a.ndim == 2 else 0, dtype=np.int64),
+        u,
+        z,
+        out,
+    )
 
 
-def _lean_normal_draw(
-    args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The normal-mixture branch of `proposal_draw` with fewer numpy calls, for finite
-    parameters and positive sds: the same draws from `rng` (one uniform per row for the
-    component, then one standard normal per row) and the same formulas as the general
-    path (`_normal_mixture`, `_mixture_sample`, `_mixture_logpdf`); None otherwise."""
-    p = np.asarray(params, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] % 3 != 0 or p.shape[1] == 0 or not np.isfinite(p).all():
-        return None
-    n, k = p.shape[0], p.shape[1] // 3
-    sigma = np.abs(args[:, 1:2])
-    sd = sigma * np.exp(p[:, 2 * k :])
-    if not sd.min() > 0.0:
-        return None
-    lw = p[:, :k]
-    top = lw.max(axis=1, keepdims=True)
-    logw = lw - (top + np.log(np.exp(lw - top).sum(axis=1, keepdims=True)))
-    mean = args[:, 0:1] + sigma * p[:, k : 2 * k]
-    cum = np.cumsum(np.exp(logw), axis=1)
-    u = rng.random(n) * cum[:, -1]
-    at = np.minimum((cum <= u[:, None]).sum(axis=1), k - 1) + np.arange(n) * k
-    v = mean.reshape(-1)[at] + sd.reshape(-1)[at] * rng.standard_normal(n)
-    z = (v[:, None] - mean) / sd
-    comp = logw + (-0.5 * z * z - np.log(sd) - 0.5 * LOG_2PI)
-    top = comp.max(axis=1, keepdims=True)
-    return v, (top + np.log(np.exp(comp - top).sum(axis=1, keepdims=True)))[:, 0]
-
-
-def _small_normal_draw(
-    args: np.ndarray, params: np.ndarray, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The normal-mixture branch of `proposal_draw` for a few rows, in plain Python: the
-    same draws from `rng` (one uniform per row for the component, then one standard normal
-    per row) and the same formulas as the array path, equal to it up to rounding; None
-    when a row has non-finite numbers or a zero sd (the array path handles those)."""
-    p = np.asarray(params, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] % 3 != 0 or p.shape[1] == 0:
-        return None
-    k = p.shape[1] // 3
-    rows = p.tolist()
-    mus = args[:, 0].tolist()
-    sigmas = np.abs(args[:, 1]).tolist()
-    mixes = []
-    exp, log = math.exp, math.log
-    for row, mu, sigma in zip(rows, mus, sigmas, strict=True):
-        lw = row[:k]
-        top = max(lw)
-        if not (math.isfinite(top) and sigma > 0.0 and math.isfinite(math.fsum(row))):
-            return None
-        lse = top + log(sum(exp(x - top) for x in lw))
-        lw = [x - lse for x in lw]
-        means = [mu + sigma * m for m in row[k : 2 * k]]
-        sds = [sigma * exp(x) for x in row[2 * k :]]
-        if min(sds) <= 0.0 or not all(math.isfinite(x) for x in sds + means):
-            return None
-        mixes.append((lw, means, sds))
-    us = rng.random(len(rows)).tolist()
-    zs = rng.standard_normal(len(rows)).tolist()
-    values = []
-    log_q = []
-    for (lw, means, sds), u, z in zip(mixes, us, zs, strict=True):
-        cum = list(accumulate(exp(x) for x in lw))
-        x = u * cum[-1]
-        c = min(sum(1 for y in cum if y <= x), k - 1)
-        v = means[c] + sds[c] * z
-        comp = [
-            w - 0.5 * ((v - m) / sd) ** 2 - log(sd) - 0.5 * LOG_2PI
-            for w, m, sd in zip(lw, means, sds, strict=True)
-        ]
-        top = max(comp)
-        if top == -math.inf:
-            log_q.append(-math.inf)
-        else:
-            log_q.append(top + log(sum(exp(y - top) for y in comp)))
-        values.append(v)
-    return np.array(values), np.array(log_q)
+_NO_X = np.zeros((0, 0), dtype=np.float32)
+_NO_NET = np.zeros((1, 12), dtype=np.int64)  # one site without a network (kernels.NET_COLS)
+_NO_W = np.zeros(0, dtype=np.float32)
+_NO_COLS = np.zeros(0, dtype=np.int64)

@@ -434,8 +434,6 @@ class _Run:
         rounds; returns (particles that drew, particles that ended having drawn nothing)."""
         parts = self.pop.parts
         advance = self.deriver.advance
-        if self.fmaker is not None:
-            self.fmaker.forget()  # the canvas rows changed (or were resampled)
         order = self.order
         drawn: list[int] = []
         empty: list[int] = []
@@ -520,14 +518,13 @@ class _Run:
                     objs[0], args_list[0], None if given is None else given[0], self.rng
                 )
             ]
-        for j, (values, log_q) in enumerate(answers):
+        for j, answer in enumerate(answers):
             self._weigh_site(
                 objs[j],
                 groups[j],
                 rows_list[j],
                 args_list[j],
-                values,
-                log_q,
+                answer,
                 None if feats is None else feats[j],
             )
 
@@ -537,21 +534,24 @@ class _Run:
         idx: list[int],
         rows: list[Args],
         args: np.ndarray,
-        values: np.ndarray,
-        log_q: np.ndarray,
+        answer: tuple[np.ndarray, ...],
         feats: np.ndarray | None,
     ) -> None:
-        """Weights (log prior - log q), trace and replay values of one served site. The
-        weight changes wait in `pending` (`_flush` applies them once per step, in order)."""
+        """Weights (log prior - log q), trace and replay values of one served site from the
+        proposal's answer (values, log q[, log prior]). The weight changes wait in
+        `pending` (`_flush` applies them once per step, in order)."""
         ia = np.asarray(idx, dtype=np.intp)
-        values = np.asarray(values, dtype=np.float64)
+        values = np.asarray(answer[0], dtype=np.float64)
         vals = values.tolist()
+        log_q = answer[1]
         if self.is_prior:  # log q = log prior: the weight does not change
             self.pending.append((ia, None, log_q))
         else:
             log_q = np.asarray(log_q, dtype=np.float64)
             log_p = None
-            if kind_of(site).weighted:  # often one weight tuple for all rows: a table
+            if len(answer) > 2:  # the proposal computed the log prior with its draws
+                log_p = np.asarray(answer[2], dtype=np.float64)
+            elif kind_of(site).weighted:  # often one weight tuple for all rows: a table
                 log_p = _weights_logp(site, rows, args, vals, self.tables)
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
@@ -580,11 +580,10 @@ class _Run:
     def _features(
         self, sites: list[Site], groups: list[list[int]], args_list: list[np.ndarray]
     ) -> list[np.ndarray]:
-        """Feature rows of the waiting particles, one array per site, in one pass."""
+        """Feature rows of the waiting particles, one array per site, in one kernel call."""
         parts = self.pop.parts
-        idx = [i for g in groups for i in g]
+        idx = groups[0] if len(groups) == 1 else [i for g in groups for i in g]
         ps = [parts[i] for i in idx]
-        turtles = [p.turtle for p in ps]
         tops = [p.stack for p in ps]
         # the axiom pseudo-module has depth -1
         depths = [float(max(t[1], 0)) for t in tops]  # type: ignore[index]  # waiting: a stack
@@ -597,8 +596,8 @@ class _Run:
             params_list.append(params)
             pos += len(g)
         assert self.fmaker is not None
-        return self.fmaker.features_cached(
-            sites, self.canvas, idx, turtles, depths, params_list, args_list
+        return self.fmaker.features_round(
+            sites, self.canvas, idx, [p.turtle for p in ps], depths, params_list, args_list
         )
 
     def _observe(self, drawn: list[int], empty: list[int]) -> None:

@@ -81,8 +81,9 @@ def test_settings_travel_in_the_guide_file(tmp_path: Path) -> None:
     target = Target(np.pad(np.ones((30, 12), bool), ((10, 10), (19, 19))), (0.5, 0.8, 0, -1))
     tuned = grow(program, target, g, 10, seed=1).smc
     every = grow(program, target, plain, 10, seed=1).smc
-    assert tuned.info["resamples"] < 0.8 * tuned.steps
-    assert every.info["resamples"] > 0.8 * every.steps
+    # every step but the last resamples without a threshold; with it, some steps do not
+    assert every.info["resamples"] >= every.steps - 1
+    assert tuned.info["resamples"] < tuned.steps - 2
 
 
 def test_corrupt_settings_are_a_one_line_error(tmp_path: Path) -> None:

@@ -156,60 +156,6 @@ def test_features_round_rows_equal_features_per_site() -> None:
         np.testing.assert_array_equal(rows, want)
 
 
-@pytest.mark.parametrize("context", [False, True])
-def test_cached_rows_equal_fresh_rows(context: bool) -> None:
-    """features_cached (rows remembered per particle and turtle state, depth written anew)
-    gives exactly features_round's rows, over rounds mixing hits, misses and new depths."""
-    rng = np.random.default_rng(5)
-    prog = _program()
-    target = np.zeros((50, 50), dtype=bool)
-    target[5:30, 10:40] = True
-    n = 6
-    canvas = Canvas(n, 50, 50, VP, pyramid=True)
-    canvas.draw(
-        np.arange(n), [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0) for _ in range(n)]
-    )
-    fm = FeatureMaker(prog, VP, target, context=context)
-    turtles = [
-        (
-            float(rng.uniform(-14, 14)),
-            float(rng.uniform(-24, 4)),
-            float(rng.uniform(-400, 400)),
-            float(rng.uniform(0.1, 1)),
-        )
-        for _ in range(n)
-    ]
-    hits = 0
-    for step in range(3):
-        fm.forget()
-        if step:
-            canvas.draw(
-                np.arange(n),
-                [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 1.0) for _ in range(n)],
-            )
-        for _ in range(8):
-            idx = sorted(rng.choice(n, size=int(rng.integers(1, n + 1)), replace=False))
-            for i in idx:
-                if rng.random() < 0.3:  # this particle turned
-                    t = turtles[i]
-                    turtles[i] = (t[0], t[1], t[2] + 25.0, t[3])
-            ts = [turtles[i] for i in idx]
-            hits += sum(fm._rows.get(i) == turtles[i] for i in idx)
-            depths = [float(d) for d in rng.integers(0, 40, len(idx))]
-            m0 = len(idx) // 2
-            sites = [prog.sites[0], prog.sites[1]]
-            params = [rng.normal(size=(m0, 1)), np.zeros((len(idx) - m0, 0))]
-            args = [rng.normal(size=(m0, 2)), np.tile([0.2, 0.3, 0.5], (len(idx) - m0, 1))]
-            got = fm.features_cached(sites, canvas, idx, ts, depths, params, args)
-            want = fm.features_round(
-                sites, canvas, np.array(idx), np.array(ts), np.array(depths), params, args
-            )
-            for a, b in zip(got, want, strict=True):
-                assert a.dtype == np.float32
-                np.testing.assert_array_equal(a, b)
-    assert hits > 10  # the cache was exercised
-
-
 def test_layout_slices() -> None:
     prog = _program()
     fm = FeatureMaker(prog, VP, None)

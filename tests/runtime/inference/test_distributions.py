@@ -11,6 +11,7 @@ from ngpm_runtime.inference.distributions import (
     proposal_sample,
     temper,
 )
+from ngpm_runtime.inference.sitekinds import KINDS, MIXTURE
 from ngpm_runtime.program import Site
 
 NORMAL = Site(index=0, id="n", kind="normal")
@@ -202,75 +203,57 @@ def test_categorical_prior_logpdf_shared_rows() -> None:
     assert shared[4] == -np.inf and shared[5] == -np.inf
 
 
-def test_small_categorical_draw_matches_the_array_path() -> None:
-    """Few rows take a plain-Python path: the same values and log q as many rows."""
+def _odd_params(r: np.random.Generator, site: Site, n: int) -> np.ndarray:
+    """Proposal parameters of the site's kind, some rows odd (zero, negative, huge or NaN
+    probabilities; huge, NaN or -inf log weights and log sds)."""
+    if site.kind in ("normal", "uniform"):
+        p = r.normal(size=(n, 9)) * 2
+        p[r.random(n) < 0.1, 0] = -np.inf
+        p[r.random(n) < 0.05, 7] = 800.0
+        p[r.random(n) < 0.05, 4] = np.nan
+        return p
+    k = 1 if site.kind == "bernoulli" else 5
+    p = r.random((n, k)) * r.choice([1e-3, 1.0, 1e3], size=(n, 1))
+    p[r.random(n) < 0.1] = 0.0
+    p[r.random(n) < 0.05, 0] = -0.5
+    p[r.random(n) < 0.05, 0] = np.nan
+    p[r.random(n) < 0.05, 0] = 1.5
+    return p
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.parametrize("site", [NORMAL, UNIFORM, BERN, CAT], ids=lambda s: s.kind)
+def test_compiled_draws_match_the_numpy_reference(site: Site) -> None:
+    """The kernel's draws (kernels.guide_round) against the numpy code they replaced
+    (tests/reference/sitekinds.py), from the same generator state: the same values (to
+    1e-12: the numpy path's few-row branches round differently), log q and tempering to
+    1e-12, odd parameters included; per row, so rows drawn 4 at a time give what 200 at
+    once give."""
+    from reference import sitekinds as ref
+
     r = rng(11)
-    for k in (1, 2, 3, 5, 7):
-        params = r.random((200, k)) * r.choice([1e-3, 1.0, 1e3], size=(200, 1))
-        params[::7, 0] = 0.0
-        big_v, big_q = proposal_draw(CAT, np.ones((200, k)), params, rng(5))
+    n = 200
+    args = {
+        "normal": np.column_stack([r.normal(size=n) * 10, r.random(n) * 5]),
+        "uniform": np.column_stack([-r.random(n), r.random(n) * 2]),
+        "bernoulli": r.random((n, 1)),
+        "categorical": np.ones((n, 5)),
+    }[site.kind]
+    table, old = KINDS[site.kind], ref.KINDS[site.kind]
+    for _ in range(5):
+        params = _odd_params(r, site, n)
+        v, q = proposal_draw(site, args, params, rng(5))
+        rv, rq = old.proposal_draw(args, params, rng(5))
+        np.testing.assert_allclose(v, rv, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(q, rq, rtol=1e-12, atol=1e-12)
         g = rng(5)
-        parts = [
-            proposal_draw(CAT, np.ones((4, k)), params[i : i + 4], g) for i in range(0, 200, 4)
-        ]
-        g2 = rng(5)
-        small_v = np.concatenate([p[0] for p in parts])
-        small_q = np.concatenate([p[1] for p in parts])
-        np.testing.assert_array_equal(
-            small_q, proposal_logpdf(CAT, np.ones((200, k)), params, small_v)
-        )
-        # the same uniforms, drawn in pieces: the same values
-        u = np.concatenate([g2.random(4) for _ in range(50)])
-        assert np.array_equal(u, rng(5).random(200))
-        np.testing.assert_array_equal(small_v, big_v)
-        np.testing.assert_array_equal(small_q, big_q)
-
-
-def test_small_normal_draw_matches_the_array_path() -> None:
-    """Few rows take a plain-Python path: the same values, log q equal up to rounding."""
-    r = rng(12)
-    for n in (1, 2, 3, 4):
-        for _ in range(50):
-            args = np.column_stack([r.normal(size=n) * 10, r.random(n) * 5 + 0.01])
-            params = r.normal(size=(n, 9)) * 2
-            v, q = proposal_draw(NORMAL, args, params, rng(4))
+        parts = [proposal_draw(site, args[i : i + 4], params[i : i + 4], g) for i in range(0, n, 4)]
+        if table.head != MIXTURE:  # a mixture draws its normals after its uniforms
+            np.testing.assert_array_equal(np.concatenate([p[0] for p in parts]), v)
+        for t, tc in ((0.5, 0.3), (2.0, 4.0)):
             np.testing.assert_allclose(
-                v, proposal_sample(NORMAL, args, params, rng(4)), rtol=1e-13, atol=1e-13
+                table.temper(params, t, tc), old.temper(params, t, tc), rtol=1e-12, atol=1e-12
             )
-            np.testing.assert_allclose(
-                q, proposal_logpdf(NORMAL, args, params, v), rtol=1e-12, atol=1e-12
-            )
-    # a zero sd takes the array path (a point mass)
-    v, q = proposal_draw(NORMAL, np.array([[1.0, 0.0]]), np.zeros((1, 3)), rng(0))
-    assert v[0] == 1.0 and q[0] == 0.0
-
-
-def test_lean_normal_draw_matches_the_general_path() -> None:
-    """More than a few rows take `_lean_normal_draw`: the general path's values and log q
-    (the same formulas in the same order), and None for what it does not handle."""
-    from ngpm_runtime.inference.sitekinds import (
-        _lean_normal_draw,
-        _mixture_logpdf,
-        _mixture_sample,
-        _normal_mixture,
-    )
-
-    r = rng(13)
-    for n in (5, 9, 40):
-        for _ in range(20):
-            args = np.column_stack([r.normal(size=n) * 10, r.random(n) * 5 + 0.01])
-            params = r.normal(size=(n, 12)) * 2
-            out = _lean_normal_draw(args, params, rng(3))
-            assert out is not None
-            mix = _normal_mixture(args, params)
-            want_v = _mixture_sample(*mix, rng(3))
-            np.testing.assert_array_equal(out[0], want_v)
-            np.testing.assert_array_equal(out[1], _mixture_logpdf(want_v, *mix))
-    args = np.tile([0.0, 1.0], (6, 1))
-    bad = np.zeros((6, 12))
-    bad[2, 0] = np.inf
-    assert _lean_normal_draw(args, bad, rng(0)) is None
-    assert _lean_normal_draw(np.tile([0.0, 0.0], (6, 1)), np.zeros((6, 12)), rng(0)) is None
 
 
 def test_temper_choices_raise_probabilities_to_a_power() -> None:

@@ -12,6 +12,7 @@ from fixtures.guides import N_F, SITES, fake_program, random_model
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide
 from ngpm_runtime.inference.smc import SMCOptions, smc
+from reference.guide import numpy_forward
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.learning.export import write_onnx
@@ -110,7 +111,10 @@ def test_bundled_guide_engines_agree():
         for n, scale in ((1, 1.0), (4, 3.0), (50, 1.0), (500, 0.5)):
             x = (rng.uniform(-1, 1, size=(n, net["n_f"])) * scale).astype(np.float32)
             (want,) = g.site_sessions[s].run(None, {input_name(s): x})
-            np.testing.assert_allclose(g.numpy_nets[s](x), want, rtol=1e-5, atol=1e-5)
+            got = g.numpy_nets[s](x)
+            np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+            # the numpy code the kernel replaced (tests/reference/guide.py)
+            np.testing.assert_allclose(got, numpy_forward(g.numpy_nets[s], x), rtol=1e-5, atol=1e-6)
 
 
 def test_engine_names_the_path(tmp_path):
@@ -149,15 +153,47 @@ def test_propose_round_matches_propose(tmp_path):
     feats = [rng.normal(size=(n, N_F)).astype(np.float32) for n in ns]
     a = g.propose_round(sites, args, feats, np.random.default_rng(1))
     b = g.propose_round(sites, args, feats, np.random.default_rng(1))
-    for site, n, arg, f, (v, q), (v2, q2) in zip(sites, ns, args, feats, a, b, strict=True):
+    for site, n, arg, f, (v, q, *lp), (v2, q2, *_) in zip(
+        sites, ns, args, feats, a, b, strict=True
+    ):
         assert v.shape == q.shape == (n,)
         np.testing.assert_array_equal(v, v2)
         np.testing.assert_array_equal(q, q2)
         if site.index in g.nets:
             want = proposal_logpdf(site, arg, g.params(site.index, f), v)
+            # the kernel's log prior, drawn with the values
+            np.testing.assert_allclose(lp[0], prior_logpdf(site, arg, v), rtol=1e-12)
         else:
             want = prior_logpdf(site, arg, v)
         np.testing.assert_allclose(q, want, rtol=1e-12, atol=1e-12)
+
+
+def test_propose_round_engines_agree(tmp_path):
+    """A round served by onnxruntime (per-site sessions, or the whole file as without the
+    `onnx` package) draws what the kernel's own nets draw from the same generator: the
+    same values and log q to float32 rounding, log prior alike."""
+    path = write_onnx(random_model(4, "all", skip=(2,)), tmp_path / "g.onnx")
+    rng = np.random.default_rng(16)
+    sites = [SITES[0], SITES[1], SITES[2], SITES[3]]
+    args = [
+        np.tile([2.0, 3.0], (6, 1)),
+        np.tile([-1.0, 4.0], (2, 1)),
+        np.full((4, 1), 0.3),
+        np.tile([1.0, 2.0, 1.0], (5, 1)),
+    ]
+    feats = [rng.normal(size=(len(a), N_F)).astype(np.float32) for a in args]
+    kernel = Guide.load(path, fake_program())
+    split = Guide.load(path, fake_program())
+    split.numpy_nets = {}
+    whole = Guide.load(path, fake_program())
+    whole.site_sessions = whole.numpy_nets = {}
+    want = kernel.propose_round(sites, args, feats, np.random.default_rng(3))
+    for g in (split, whole):
+        got = g.propose_round(sites, args, feats, np.random.default_rng(3))
+        for a, b in zip(got, want, strict=True):
+            assert len(a) == len(b)
+            for x, y in zip(a, b, strict=True):
+                np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5)
 
 
 def test_propose_round_of_one_site_equals_propose(tmp_path):
@@ -172,7 +208,7 @@ def test_propose_round_of_one_site_equals_propose(tmp_path):
         (SITES[3], np.tile([1.0, 1.0, 1.0], (5, 1))),
     ):
         f = rng.normal(size=(5, N_F)).astype(np.float32)
-        ((v, q),) = g.propose_round([site], [arg], [f], np.random.default_rng(2))
+        ((v, q, *_),) = g.propose_round([site], [arg], [f], np.random.default_rng(2))
         v2, q2 = g.propose(site, arg, f, np.random.default_rng(2))
         np.testing.assert_array_equal(v, v2)
         np.testing.assert_array_equal(q, q2)
