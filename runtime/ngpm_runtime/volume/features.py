@@ -56,7 +56,7 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
 
 class FeatureMaker3D:
     """Builds the float32 feature rows of a 3D grammar's site visits (the interface of
-    image/features.FeatureMaker that smc() uses: features_cached, forget, layout)."""
+    image/features.FeatureMaker that smc() uses: features_round, layout)."""
 
     context = False  # no context group in 3D
 
@@ -128,6 +128,22 @@ class FeatureMaker3D:
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         common = self._common(canvas, idx, _turtle_rows(turtles), np.asarray(depth, float))
         return self._site_rows([site], common, [params], [prior_args])[0]
+
+    def features_round(
+        self,
+        sites: list[Site],
+        canvas: VoxelCanvas | None,
+        idx: list[int],
+        turtles: list[Any],
+        depths: list[float],
+        params: list[np.ndarray],
+        prior_args: list[np.ndarray],
+    ) -> list[np.ndarray]:
+        """Rows for several sites at once (particles of `sites[j]` one after the other), as
+        image/features.FeatureMaker.features_round, the call SMC makes in every round (the
+        canvases may have changed since the last: nothing remembered is used)."""
+        self.forget()
+        return self.features_cached(sites, canvas, idx, turtles, depths, params, prior_args)
 
     def features_cached(
         self,
