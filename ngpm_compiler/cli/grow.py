@@ -1,5 +1,6 @@
 """`ngpmc grow`: grow a grammar (by default the bundled vines, with its guide) into a target
-image with SMC, and write the best particle's render (PNG or SVG, optionally an animation)."""
+image with SMC, and write the best particle's render (PNG or SVG, optionally an animation).
+A 3D target (a mesh) or a 3D grammar grows in 3D (grow3d.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import TYPE_CHECKING
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program, require_2d
 
-from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli import argtypes, grow3d
 from ngpm_compiler.cli.grammar import GRAMMAR_HELP
 
 if TYPE_CHECKING:
@@ -41,7 +42,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         nargs="?",
         metavar="IMAGE",
         help="target image; a .txt sidecar beside it gives the start "
-        "(`x y` then `dx dy`), else it is found automatically",
+        "(`x y` then `dx dy`), else it is found automatically; or a 3D target: a mesh "
+        "(.obj, .stl, .ply, .glb) or .npz, grown by a 3D grammar (default: the bundled "
+        "topiary3d and its guide) into -o tree.glb",
     )
     p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
     p.add_argument(
@@ -88,6 +91,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="also write an animation of the growth (default path: the -o file with .gif)",
     )
     argtypes.add_max_modules(p)
+    grow3d.add_arguments(p)
     p.set_defaults(handler=cmd_grow)
 
 
@@ -172,15 +176,20 @@ def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_compiler.language.compile import load_grammar
 
     grammar, image = _grow_inputs(args)
+    loaded = None
+    if grammar is not None and Path(grammar).is_file():
+        loaded = load_grammar(grammar)
+    if grow3d.wants_3d(args, image, loaded):
+        return grow3d.cmd_grow3d(args, image, loaded)
     if image is None and args.likelihood == "shape":
         raise NgpmError("give a target image: ngpmc grow IMAGE -o vine.png")
     out, svg, gif = _grow_outputs(args)
     if grammar is None:
         program = bundled.bundled_program()
     else:
-        if not Path(grammar).is_file():
+        if loaded is None:
             raise NgpmError(f"{grammar}: no such grammar file")
-        program = load_grammar(grammar)
+        program = loaded
     require_2d(program, "growing into a picture")  # before the target and the guide
     target = load_target(image, size=args.size) if image is not None else None
     fit = target.fit_note() if target is not None else None
