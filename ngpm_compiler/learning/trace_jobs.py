@@ -161,7 +161,7 @@ def run_job(
 
 def site_layouts(program: Program, target: Any = None) -> dict[int, dict[str, slice]]:
     """FeatureMaker.layout for every site (traces record the context group too); a 3D
-    grammar's: FeatureMaker3D.layout on the target's grid (no context group)."""
+    grammar's: FeatureMaker3D.layout on the target's grid (its context group empty)."""
     from ngpm_runtime.image.features import FeatureMaker
 
     if program.dim == 3:
@@ -169,7 +169,10 @@ def site_layouts(program: Program, target: Any = None) -> dict[int, dict[str, sl
         from ngpm_runtime.volume.raster import VoxelGrid
 
         fm3 = FeatureMaker3D(program, VoxelGrid.of_target(target))
-        return {s.index: fm3.layout(s) for s in program.sites}
+        out = {s.index: fm3.layout(s) for s in program.sites}
+        for lay in out.values():  # every traces manifest has the group: empty in 3D
+            lay["context"] = slice(lay["partial"].stop, lay["partial"].stop)
+        return out
     target_mask = target.mask if target is not None else None
 
     fm = FeatureMaker(program, viewport(program), target_mask, context=True)
