@@ -97,7 +97,10 @@ def report(rows: list[dict[str, Any]], ns: list[int], load_avg: str) -> str:
 
     summary = summarize(rows, "revolved")
     lines = [
-        f"| model | N | mean similarity (95% CI) | CPU s per run | {load_avg}",
+        f"held-out `revolved`, {len({r['target'] for r in rows})} targets, one core, "
+        f"{load_avg} at the end",
+        "",
+        "| model | N | mean similarity (95% CI) | CPU s per run |",
         "|---|---|---|---|",
     ]
     for s in summary:
@@ -157,7 +160,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     rows = measure(program, guide, targets, ns, args.repeats)
     write_csv(out / "eval3d_runs.csv", rows, FIELDS)
-    load_avg = f"load average {os.getloadavg()[0]:.1f} |"
+    load_avg = f"load average {os.getloadavg()[0]:.1f}"
     text = report(rows, ns, load_avg)
     print(text)
     from ngpm_runtime.files import atomic_write

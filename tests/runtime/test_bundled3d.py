@@ -66,10 +66,10 @@ def test_missing_3d_files_are_one_line_errors(tmp_path: Path, monkeypatch) -> No
 
 
 def test_grow_a_mesh_with_no_grammar_uses_the_bundled_3d_guide(tmp_path: Path, capsys) -> None:
-    from ngpm_compiler.cli import main
-
     from fixtures.volume3d import box_target
     from ngpm_runtime.volume.raster import VoxelGrid
+
+    from ngpm_compiler.cli import main
 
     target = tmp_path / "box.npz"
     grid = VoxelGrid((0.0, 0.0, 0.0), 1 / 16, (16, 16, 16))
