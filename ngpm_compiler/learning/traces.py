@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from ngpm_runtime.program import Program
@@ -140,7 +140,8 @@ def _check_module_cap(cfg: TraceConfig, program: Program, target: Target) -> Non
     sample = forward(
         program,
         seed=cfg.seed,
-        start=start_of(program, target),
+        # a 3D start is (x, y, z, heading): forward hands it to SMCOptions as it is
+        start=cast("tuple[float, float, float]", start_of(program, target)),
         max_modules=cfg.max_modules,
     )
     if sample.limit == "max modules" and len(sample.primitives) < cfg.min_primitives:
