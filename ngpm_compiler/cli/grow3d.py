@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.program import Program
 
+from ngpm_compiler.cli import argtypes
+
 if TYPE_CHECKING:
     from ngpm_runtime.volume.target import VolumeTarget
 
@@ -23,9 +25,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """grow's options for 3D targets."""
     p.add_argument(
         "--extrude",
-        type=float,
+        type=argtypes.positive_number(4.0),
         metavar="DEPTH",
-        help="3D: make the picture a slab DEPTH picture sides deep (e.g. 0.25)",
+        help="3D: make the picture a slab DEPTH picture sides deep, above 0 and at most 4 "
+        "(e.g. 0.25; default: not extruded)",
     )
     p.add_argument(
         "--revolve",
@@ -34,14 +37,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--resolution",
-        type=int,
+        type=argtypes.integer(4, 256),
         default=32,
         help="3D: voxels a side of the target grid (default 32, 4 to 256)",
     )
     p.add_argument(
         "--png",
+        type=argtypes.path,
         metavar="PATH",
-        help="3D: also write a picture, the target's voxels beside the grown tree",
+        help="3D: also write a picture, the target's voxels beside the grown tree (default: none)",
     )
 
 
