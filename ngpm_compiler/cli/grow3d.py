@@ -102,7 +102,12 @@ def _target(args: argparse.Namespace, image: str, program: Program) -> VolumeTar
 
 def cmd_grow3d(args: argparse.Namespace, image: str | None, program: Program | None) -> int:
     """grow a 3D grammar into a 3D target; prints the similarity, writes the files."""
-    from ngpm_compiler.cli.grow import LOW_SIMILARITY, SIMILARITY_SCALE, _grow_guide, _step_ticks
+    from ngpm_compiler.cli.grow_common import (
+        LOW_SIMILARITY,
+        SIMILARITY_SCALE,
+        _grow_guide,
+        _step_ticks,
+    )
     from ngpm_compiler.progress import Progress
 
     if image is None:
