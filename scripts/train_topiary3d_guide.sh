@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates the bundled 3D guide (topiary3d) with the project's own pipeline, the paper's
 # recipe in 3D: 3D training targets (blobs3d, extruded) -> unguided SMC traces (100
-# particles) -> train (features all) -> export -> tune on validation targets (blobs3d and
+# particles, 400 per set) -> train (features all) -> export -> tune on validation targets (blobs3d and
 # extruded of another seed; never the held-out `revolved` set).
 # Usage: bash scripts/train_topiary3d_guide.sh [WORKDIR]   (about 30 min on 2 busy cores)
 # then: cp WORKDIR/topiary3d_guide.onnx runtime/ngpm_runtime/data/
@@ -13,7 +13,7 @@ for s in blobs3d extruded; do
     ngpmc targets build "$s" -o "$W/val_$s" --count 8 --seed 1
 done
 for s in blobs3d extruded; do
-    ngpmc traces grammars/topiary3d.lsys --targets "$W/$s" -n 150 --particles 100 \
+    ngpmc traces grammars/topiary3d.lsys --targets "$W/$s" -n 400 --particles 100 \
         -o "$W/traces_$s" --workers 2 --seed 0
 done
 ngpmc train "$W/traces_blobs3d,$W/traces_extruded" -o "$W/model_all.pt" --features all
