@@ -1,31 +1,25 @@
 """`ngpmc grow`: grow a grammar (by default the bundled vines, with its guide) into a target
-image with SMC, and write the best particle's render (PNG or SVG, optionally an animation)."""
+image with SMC, and write the best particle's render (PNG or SVG, optionally an animation).
+A 3D target (a mesh) or a 3D grammar grows in 3D (grow3d.py)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from ngpm_runtime.errors import NgpmError
-from ngpm_runtime.program import Program, require_2d
+from ngpm_runtime.program import require_2d
 
-from ngpm_compiler.cli import argtypes
+from ngpm_compiler.cli import argtypes, grow3d
 from ngpm_compiler.cli.grammar import GRAMMAR_HELP
-
-if TYPE_CHECKING:
-    from ngpm_runtime.inference.guide import Guide
-    from ngpm_runtime.inference.smc import SMCObserver
-
-    from ngpm_compiler.progress import Progress
-
+from ngpm_compiler.cli.grow_common import (
+    LOW_SIMILARITY,
+    SIMILARITY_SCALE,
+    _grow_guide,
+    _step_ticks,
+)
 
 GROW_SUFFIX = "_grown"  # ngpmc grow heart.png writes heart_grown.png by default
-SIMILARITY_SCALE = (
-    "1 = the target exactly, 0 = no better than a blank canvas, below 0 = "
-    "worse than blank (more drawn outside the shape than inside)"
-)
-LOW_SIMILARITY = 0.2  # below it, grow explains the scale
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -41,7 +35,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         nargs="?",
         metavar="IMAGE",
         help="target image; a .txt sidecar beside it gives the start "
-        "(`x y` then `dx dy`), else it is found automatically",
+        "(`x y` then `dx dy`), else it is found automatically; or a 3D target: a mesh "
+        "(.obj, .stl, .ply, .glb) or .npz, grown by a 3D grammar (default: the bundled "
+        "topiary3d and its guide) into -o tree.glb",
     )
     p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
     p.add_argument(
@@ -88,6 +84,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="also write an animation of the growth (default path: the -o file with .gif)",
     )
     argtypes.add_max_modules(p)
+    grow3d.add_arguments(p)
     p.set_defaults(handler=cmd_grow)
 
 
@@ -132,39 +129,6 @@ def _grow_outputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | N
     return paths
 
 
-def _grow_guide(choice: str | None, program: Program, likelihood: str) -> Guide | None:
-    """The guide to use: a file, 'none', or by default the bundled guide for this grammar
-    and likelihood (none bundled: unguided, saying so)."""
-    from ngpm_runtime import bundled
-    from ngpm_runtime.inference.guide import Guide
-
-    if choice is not None and choice.lower() == "none":
-        return None
-    if choice is not None:
-        return Guide.load(choice, program)
-    guide = bundled.default_guide(program, likelihood)
-    if guide is None:
-        print(
-            f"no bundled guide for grammar {program.name} with the {likelihood} "
-            "likelihood: unguided SMC (train one with ngpmc traces, train and export; "
-            "pass it with --guide)"
-        )
-    return guide
-
-
-def _step_ticks(bar: Progress) -> SMCObserver:
-    """An SMC observer that ticks `bar` once per step that drew (imported late: the CLI
-    starts without the SMC modules)."""
-    from ngpm_runtime.inference.smc import SMCObserver, SMCState
-
-    class StepTicks(SMCObserver):
-        def step_done(self, state: SMCState) -> None:
-            if state.drawn:
-                bar.update(1)
-
-    return StepTicks()
-
-
 def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_runtime import bundled
     from ngpm_runtime.image.targets import load_target
@@ -172,15 +136,20 @@ def cmd_grow(args: argparse.Namespace) -> int:
     from ngpm_compiler.language.compile import load_grammar
 
     grammar, image = _grow_inputs(args)
+    loaded = None
+    if grammar is not None and Path(grammar).is_file():
+        loaded = load_grammar(grammar)
+    if grow3d.wants_3d(args, image, loaded):
+        return grow3d.cmd_grow3d(args, image, loaded)
     if image is None and args.likelihood == "shape":
         raise NgpmError("give a target image: ngpmc grow IMAGE -o vine.png")
     out, svg, gif = _grow_outputs(args)
     if grammar is None:
         program = bundled.bundled_program()
     else:
-        if not Path(grammar).is_file():
+        if loaded is None:
             raise NgpmError(f"{grammar}: no such grammar file")
-        program = load_grammar(grammar)
+        program = loaded
     require_2d(program, "growing into a picture")  # before the target and the guide
     target = load_target(image, size=args.size) if image is not None else None
     fit = target.fit_note() if target is not None else None

@@ -43,6 +43,7 @@ from ngpm_compiler.progress import Log
 
 if TYPE_CHECKING:  # targets loads PIL: only when targets are loaded
     from ngpm_runtime.image.targets import Target
+    from ngpm_runtime.program import Program
 
 RUNS_FILE = "heldout_runs.csv"
 HASH_FIELDS = ("guide_sha", "target_sha", "grammar_sha")
@@ -60,10 +61,18 @@ def parse_pairs(text: str) -> dict[str, str]:
     return out
 
 
-def load_sets(sets: dict[str, str], k: int) -> dict[str, list[Target]]:
-    """k targets of each set, spread evenly over the set's sorted files (no mirrors)."""
+def load_sets(sets: dict[str, str], k: int, program: Program | None = None) -> dict[str, list[Any]]:
+    """k targets of each set, spread evenly over the set's sorted files (no mirrors); for
+    a 3D `program`, 3D target sets (`ngpmc targets build`) placed in its box."""
     from ngpm_runtime.image.targets import load_dataset
 
+    if program is not None and program.dim == 3:
+        from ngpm_runtime.volume.load import load_volume_dataset
+
+        return {
+            name: pick([t for t in load_volume_dataset(d, program) if not t.name.endswith("_m")], k)
+            for name, d in sets.items()
+        }
     return {
         name: pick([t for t in load_dataset(d, size=50) if not t.name.endswith("_m")], k)
         for name, d in sets.items()
@@ -97,9 +106,11 @@ def short_hash(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def target_hash(target: Target) -> str:
-    """Content hash of a loaded target: what a run sees of it, its mask and start."""
-    mask = np.ascontiguousarray(target.mask, dtype=bool)
+def target_hash(target: Any) -> str:
+    """Content hash of a loaded target: what a run sees of it, its mask (a 3D target's
+    occupancy) and start."""
+    grid = getattr(target, "occupancy", None)
+    mask = np.ascontiguousarray(target.mask if grid is None else grid, dtype=bool)
     shape_start = repr((mask.shape, tuple(float(v) for v in target.start))).encode()
     return short_hash(shape_start + np.packbits(mask).tobytes())
 
@@ -158,7 +169,9 @@ def run_heldout(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
-    targets = load_sets(sets, k)
+    from ngpm_compiler.language.compile import load_grammar
+
+    targets = load_sets(sets, k, load_grammar(grammar))
     tasks = heldout_tasks(targets, list(guides), guided_n, unguided_ns, repeats, seed)
     ids = run_ids(tasks, targets, grammar, guides)
     have = {_key(r): r for r in read_runs(runs_path, HELDOUT_FIELDS, log)}

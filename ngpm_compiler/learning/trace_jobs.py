@@ -3,12 +3,15 @@ the job id), the SMC run that keeps the best particle's trace (`run_job`) and th
 it is stored as (`job_arrays`). Shard / pending npz arrays: `jobs, kept, n_prims, target,
 seed` (one entry per job; n_prims is -1 when SMC failed: every particle died, so the job is
 dropped) and per visited site `i`: `f_<i>` (m, n_f) float32 features, `v_<i>` (m,) values,
-`j_<i>` (m,) job ids."""
+`j_<i>` (m,) job ids.
+
+A 3D grammar (Program.dim == 3) records into a 3D target set (`ngpmc targets build`,
+VolumeTarget): its rows are volume/features.py's (local, target, partial; no context)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from ngpm_runtime.program import Program
@@ -17,12 +20,24 @@ from ngpm_compiler.learning.shards import TraceError
 
 if TYPE_CHECKING:
     from ngpm_runtime.image.raster import Viewport
-    from ngpm_runtime.image.targets import Target
     from ngpm_runtime.inference.proposals import Proposal
 
 MIN_PRIMITIVES = 10  # the paper's code dropped shorter traces
 
 Trace = list[tuple[int, np.ndarray, float]]  # (site, features, value) per site visit
+
+
+def check_frame(program: Program, where: str | None = None) -> None:
+    """TraceError unless the grammar has what its targets are placed in: a 2D viewport,
+    or a 3D grammar's box (`viewport:` with six numbers)."""
+    if program.dim != 3:
+        viewport(program, where)
+    elif program.box is None:
+        raise TraceError(
+            f"{where or 'grammar ' + program.name}: the 3D grammar has no "
+            "'viewport: XMIN XMAX YMIN YMAX ZMIN ZMAX' line; traces grow into 3D "
+            "targets placed in that box"
+        )
 
 
 def viewport(program: Program, where: str | None = None) -> Viewport:
@@ -37,9 +52,16 @@ def viewport(program: Program, where: str | None = None) -> Viewport:
     return program.viewport
 
 
-def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Target]:
-    """The dataset's targets, plus mirrored copies of those without one when `mirror`."""
+def load_targets(
+    directory: str | Path, size: int, mirror: bool, program: Program | None = None
+) -> list[Any]:
+    """The dataset's targets, plus mirrored copies of those without one when `mirror`.
+    A 3D `program` loads a 3D target set (VolumeTargets placed in its box; `size` is not
+    used: the set's own resolution)."""
     from ngpm_runtime.image.targets import load_dataset
+
+    if program is not None and program.dim == 3:
+        return load_volume_targets(directory, mirror, program)
 
     targets = list(load_dataset(directory, size=size))
     if mirror:
@@ -53,6 +75,33 @@ def load_targets(directory: str | Path, size: int, mirror: bool) -> list[Target]
     return targets
 
 
+def load_volume_targets(directory: str | Path, mirror: bool, program: Program) -> list[Any]:
+    """The 3D target set in `directory` placed in the program's box (TraceError when it is
+    not one, or with `mirror`: a 3D set is mirrored when built, `ngpmc targets build
+    --mirror`)."""
+    from ngpm_runtime.errors import TargetError
+    from ngpm_runtime.volume.load import load_volume_dataset
+
+    if mirror:
+        raise TraceError(
+            "--mirror is for pictures; build a 3D set with mirrored copies instead "
+            "(ngpmc targets build NAME -o DIR --mirror)"
+        )
+    try:
+        return list(load_volume_dataset(directory, program))
+    except TargetError as err:
+        raise TraceError(f"{err} (a 3D grammar records traces into a 3D target set)") from None
+
+
+def start_of(program: Program, target: Any) -> tuple[float, ...]:
+    """The world start pose of a run into `target` (a 2D Target or a VolumeTarget)."""
+    if program.dim == 3:
+        from ngpm_runtime.volume.run import start_pose
+
+        return start_pose(program, target)
+    return cast("tuple[float, ...]", target.start_pose(viewport(program)))
+
+
 def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
     """(target index, SMC seed) of job `job`: a pure function of its arguments."""
     a, b = np.random.SeedSequence([int(base_seed), int(job)]).generate_state(2)
@@ -61,7 +110,7 @@ def job_spec(base_seed: int, job: int, n_targets: int) -> tuple[int, int]:
 
 def run_job(
     program: Program,
-    target: Target,
+    target: Any,
     seed: int,
     particles: int,
     guide: Proposal | None = None,
@@ -76,7 +125,7 @@ def run_job(
     from ngpm_runtime.grow import grow
     from ngpm_runtime.inference.smc import TraceRecording, replay
 
-    start = target.start_pose(viewport(program))
+    start = start_of(program, target)
     best = grow(
         program,
         target,
@@ -87,14 +136,17 @@ def run_job(
         max_modules=max_modules,
     ).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
-    again = replay(
-        program,
-        values,
-        start=start,
-        canvas_size=target.size,
-        target_mask=target.mask,
-        max_modules=max_modules,
-    )
+    if program.dim == 3:
+        again = replay(program, values, start=start, max_modules=max_modules, volume=target)
+    else:
+        again = replay(
+            program,
+            values,
+            start=start,
+            canvas_size=target.size,
+            target_mask=target.mask,
+            max_modules=max_modules,
+        )
     if again.primitives != best.primitives:
         raise ProgramError(
             f"program {program.name}: replaying the best particle's values "
@@ -107,9 +159,21 @@ def run_job(
     return trace, len(best.primitives)
 
 
-def site_layouts(program: Program, target_mask: np.ndarray | None) -> dict[int, dict[str, slice]]:
-    """FeatureMaker.layout for every site (traces record the context group too)."""
+def site_layouts(program: Program, target: Any = None) -> dict[int, dict[str, slice]]:
+    """FeatureMaker.layout for every site (traces record the context group too); a 3D
+    grammar's: FeatureMaker3D.layout on the target's grid (its context group empty)."""
     from ngpm_runtime.image.features import FeatureMaker
+
+    if program.dim == 3:
+        from ngpm_runtime.volume.features import FeatureMaker3D
+        from ngpm_runtime.volume.raster import VoxelGrid
+
+        fm3 = FeatureMaker3D(program, VoxelGrid.of_target(target))
+        out = {s.index: fm3.layout(s) for s in program.sites}
+        for lay in out.values():  # every traces manifest has the group: empty in 3D
+            lay["context"] = slice(lay["partial"].stop, lay["partial"].stop)
+        return out
+    target_mask = target.mask if target is not None else None
 
     fm = FeatureMaker(program, viewport(program), target_mask, context=True)
     return {s.index: fm.layout(s) for s in program.sites}

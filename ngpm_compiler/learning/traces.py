@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from ngpm_runtime.program import Program
@@ -47,9 +47,10 @@ from ngpm_compiler.jobs.driver import drive
 from ngpm_compiler.learning.shards import TraceError, layout_widths
 from ngpm_compiler.learning.trace_jobs import (
     MIN_PRIMITIVES,
+    check_frame,
     load_targets,
     site_layouts,
-    viewport,
+    start_of,
 )
 from ngpm_compiler.learning.trace_store import TRACE_FORMAT, TraceStore
 from ngpm_compiler.learning.trace_workers import JobArgs, do_job, worker_setup
@@ -139,7 +140,8 @@ def _check_module_cap(cfg: TraceConfig, program: Program, target: Target) -> Non
     sample = forward(
         program,
         seed=cfg.seed,
-        start=target.start_pose(viewport(program)),
+        # a 3D start is (x, y, z, heading): forward hands it to SMCOptions as it is
+        start=cast("tuple[float, float, float]", start_of(program, target)),
         max_modules=cfg.max_modules,
     )
     if sample.limit == "max modules" and len(sample.primitives) < cfg.min_primitives:
@@ -167,11 +169,11 @@ def generate_traces(
     from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(cfg.grammar)
-    viewport(program, cfg.grammar)
+    check_frame(program, cfg.grammar)
     if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
         backends.load_guide(cfg.guide, program)
-    targets = load_targets(cfg.targets, cfg.size, cfg.mirror)
-    layouts = site_layouts(program, targets[0].mask)
+    targets = load_targets(cfg.targets, cfg.size, cfg.mirror, program)
+    layouts = site_layouts(program, targets[0])
     store = TraceStore(out_dir, layout_widths(layouts))
     store.dir.mkdir(parents=True, exist_ok=True)
     key = _config_key(cfg, program, targets)

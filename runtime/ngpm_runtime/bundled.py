@@ -1,10 +1,15 @@
-"""Package data: the vines model, its pretrained guide and the demo targets.
+"""Package data: the vines model, its pretrained guide and the demo targets; the 3D
+topiary3d model and its guide (the default of `ngpmc grow shape.obj`).
 
 Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the repository):
 
 - `vines_sampler.py`, `vines_sites.json`:
   `ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`
 - `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
+- `topiary3d_sampler.py`, `topiary3d_sites.json`:
+  `ngpmc compile grammars/topiary3d.lsys -o runtime/ngpm_runtime/data`
+- `topiary3d_guide.onnx`: `bash scripts/train_topiary3d_guide.sh work/topiary3d`, then
+  copied here
 - `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), made by
   `ngpm_compiler.datasets.demo_targets.write_demo_targets("runtime/ngpm_runtime/data")`
 
@@ -30,6 +35,9 @@ SITES_FILE = "vines_sites.json"
 GUIDE_FILE = "vines_guide.onnx"
 DEMO_TARGETS = ("glyph", "horse", "heart", "spiral")  # demo order
 REGENERATE = "bash scripts/train_vines_guide.sh work/vines"
+SAMPLER_3D = "topiary3d_sampler.py"
+GUIDE_3D = "topiary3d_guide.onnx"
+REGENERATE_3D = "bash scripts/train_topiary3d_guide.sh work/topiary3d"
 
 
 def data_path(name: str) -> Path:
@@ -71,6 +79,31 @@ def bundled_program() -> Program:
     return _cached_program(str(path), path.stat().st_mtime)
 
 
+def bundled_program3d() -> Program:
+    """The 3D topiary3d Program from the generated sampler shipped with the package."""
+    path = data_path(SAMPLER_3D)
+    if not path.is_file():
+        raise ProgramError(
+            f"{path}: the bundled 3D sampler is missing "
+            "(regenerate: ngpmc compile grammars/topiary3d.lsys "
+            "-o runtime/ngpm_runtime/data)"
+        )
+    return _cached_program(str(path), path.stat().st_mtime)
+
+
+def bundled_guide3d(program: Program | None = None) -> Guide:
+    """The pretrained topiary3d guide for `program` (default: bundled_program3d())."""
+    from ngpm_runtime.inference.guide import Guide
+
+    path = data_path(GUIDE_3D)
+    if not path.is_file():
+        raise GuideError(
+            f"{path}: the bundled 3D guide is missing (regenerate it with "
+            f"`{REGENERATE_3D}` and copy work/topiary3d/{GUIDE_3D} there)"
+        )
+    return Guide.load(path, bundled_program3d() if program is None else program)
+
+
 def bundled_guide(program: Program | None = None) -> Guide:
     """The pretrained vines guide (a `ngpm_runtime.inference.guide.Guide`) for `program`.
 
@@ -99,6 +132,10 @@ def default_guide(program: Program, likelihood: str = "shape") -> Guide | None:
     trained for another likelihood)."""
     if likelihood not in LIKELIHOOD_GUIDES:
         return None
+    if program.dim == 3:
+        if program.grammar_hash != bundled_program3d().grammar_hash:
+            return None
+        return bundled_guide3d(program)
     if program.grammar_hash != bundled_program().grammar_hash:
         return None
     return bundled_guide(program)

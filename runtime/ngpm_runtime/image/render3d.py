@@ -234,6 +234,30 @@ def render_mesh(
     )
 
 
+def render_side_by_side(
+    meshes: list[MeshData],
+    size: int = 384,
+    view: tuple[float, float] | None = None,
+    supersample: int = 2,
+) -> np.ndarray:
+    """RGB uint8 (size, size * len(meshes), 3): the meshes from one `view`, drawn at one
+    scale and centre (all fitted together) side by side, so they compare in place (a 3D
+    target's voxels | the tree grown into it)."""
+    axes = view_axes(*(DEFAULT_VIEW if view is None else view))
+    xy = [np.stack([_dot(m.vertices, axes[0]), _dot(m.vertices, axes[1])], axis=1) for m in meshes]
+    scale, centre = _fit(xy, int(size))
+    pics = [
+        _picture(m.vertices, _prepare(m), axes, scale, centre, int(size), max(1, supersample))
+        for m in meshes
+    ]
+    return np.concatenate(pics, axis=1)
+
+
+def save_png(rgb: np.ndarray, path: str | Path) -> Path:
+    """An RGB uint8 picture written as a .png (atomically)."""
+    return atomic_write(Path(path), _png(rgb))
+
+
 def turntable(
     mesh: MeshData,
     frames: int = GIF_FRAMES,

@@ -689,6 +689,10 @@ def _check_program(path: str, meta: dict[str, Any], program: Program) -> None:
             f"{path}: guide's site table does not match grammar "
             f"{program.name!r} ({len(theirs)} vs {len(ours)} sites)"
         )
+    if program.dim == 3:
+        from ngpm_runtime.volume.features import check_guide_layouts
+
+        check_guide_layouts(path, meta, program)
 
 
 def format_message(path: str, fmt: object) -> str:

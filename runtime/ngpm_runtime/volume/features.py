@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ngpm_runtime.errors import TargetError
+from ngpm_runtime.errors import GuideError, TargetError
 from ngpm_runtime.program import Program, Site
 from ngpm_runtime.volume.raster import N_LEVELS, VoxelCanvas, VoxelGrid, volume_pyramid
 
@@ -99,12 +99,7 @@ class FeatureMaker3D:
 
     def layout(self, site: Site) -> dict[str, slice]:
         """Column ranges of the feature groups for a site."""
-        nl, nw = self.n_local(site), self.n_window
-        return {
-            "local": slice(0, nl),
-            "target": slice(nl, nl + nw),
-            "partial": slice(nl + nw, nl + 2 * nw),
-        }
+        return layout3d(site, self.window)
 
     def n_features(self, site: Site) -> int:
         return self.n_local(site) + self.n_common - N_LOCAL_BASE
@@ -234,6 +229,40 @@ class FeatureMaker3D:
         if pos != len(common):
             raise ValueError(f"features: {len(common)} particles, {pos} rows of arguments")
         return out
+
+
+def layout3d(site: Site, window: str = DEFAULT_WINDOW) -> dict[str, slice]:
+    """Column ranges of a site's feature groups (local, target, partial) with `window`."""
+    nl = FeatureMaker3D.n_local(site)
+    nw = len(WINDOWS[window]) * N_LEVELS
+    return {
+        "local": slice(0, nl),
+        "target": slice(nl, nl + nw),
+        "partial": slice(nl + nw, nl + 2 * nw),
+    }
+
+
+def check_guide_layouts(path: str, meta: dict[str, Any], program: Program) -> None:
+    """GuideError unless a guide's stored feature layouts are the ones a 3D run computes
+    (the default window's; 3D rows have no context group)."""
+    features = meta["features"]
+    if "context" in str(features["feature_set"]).split("+"):
+        raise GuideError(
+            f"{path}: feature set {features['feature_set']} reads 2D context features; "
+            f"{program.name} is a 3D grammar (train it with --features all)"
+        )
+    stored = features["layouts"]
+    for site in program.sites:
+        lay = stored.get(str(site.index))
+        if lay is None:
+            continue
+        ours = {g: [sl.start, sl.stop] for g, sl in layout3d(site).items()}
+        theirs = {g: [int(v) for v in lay[g]] for g in lay if g != "context"}
+        if theirs != ours:
+            raise GuideError(
+                f"{path}: site {site.index}'s feature layout {theirs} is not the 3D "
+                f"features' {ours} (a 2D guide, or trained with other 3D features)"
+            )
 
 
 def _turtle_rows(turtles: list[Any]) -> np.ndarray:

@@ -274,13 +274,13 @@ def test_a_low_similarity_is_explained(horse: Path, capsys) -> None:
 
 
 @pytest.mark.parametrize("guide", [[], ["--guide", "none"]])
-def test_grow_with_a_3d_grammar_is_a_one_line_error(
+def test_grow_a_picture_with_a_3d_grammar_asks_to_make_it_3d(
     horse: Path, guide: list[str], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Guided 3D growth needs a 3D target (issue #26): said before the target or the guide
-    is read, in one line."""
+    """A 3D grammar grows into a 3D target: a plain picture is refused, in one line,
+    naming --extrude and --revolve (tests/compiler/cli/test_grow3d.py grows 3D)."""
     tree = str(REPO / "grammars" / "tree3d.lsys")
     assert main(["grow", str(horse), "--grammar", tree, "-o", "x.png", *guide]) == 1
     err = capsys.readouterr().err.strip()
-    assert err.startswith("ngpmc: error: tree3d is a 3D grammar") and "issue #26" in err
+    assert err.startswith("ngpmc: error: ") and "--extrude" in err and "--revolve" in err
     assert "\n" not in err and not Path("x.png").exists()
