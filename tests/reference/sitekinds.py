@@ -6,27 +6,32 @@ kernel's draws, log densities and tempering are compared with."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from itertools import accumulate
-from typing import Protocol
 
 import numpy as np
-from ngpm_runtime.errors import ProgramError
+
+# the helpers the compiled kernels did not replace are the runtime's own
+from ngpm_runtime.inference.sitekinds import (
+    SiteRef,
+    _bernoulli_logpmf,
+    _categorical_logpmf,
+    _categorical_probs,
+    _categorical_sample,
+    _log,
+    _logsumexp_rows,
+    _mixture,
+    _mixture_logpdf,
+    _normal_logpdf,
+    _normal_mixture,
+    _probs,
+    _uniform_bounds,
+    numbers_text,
+)
 
 LOG_2PI = float(np.log(2.0 * np.pi))
 MIXTURE, SIGMOID, SOFTMAX = "mixture", "sigmoid", "softmax"  # the heads of guide networks
 _SMALL = 16  # rows up to which the categorical draw runs in plain Python
 _SMALL_NORMAL = 4  # the same for the normal mixture (its rows cost more)
-
-
-class SiteRef(Protocol):
-    """What the table reads of a site (program.Site) for its error messages."""
-
-    @property
-    def id(self) -> str: ...
-
-    @property
-    def line(self) -> int: ...
 
 
 class SiteKind:
@@ -389,102 +394,7 @@ KINDS: dict[str, SiteKind] = {k.name: k for k in (Normal(), Uniform(), Bernoulli
 SITE_KINDS = tuple(KINDS)
 
 
-def numbers_text(values: Sequence[object]) -> str:
-    """The first few values for a message: `1, -1` or `1, 2, ... (300 values)`."""
-    shown = ", ".join(f"{v:g}" if isinstance(v, float) else repr(v) for v in values[:6])
-    return shown if len(values) <= 6 else f"{shown}, ... ({len(values)} values)"
-
-
 # --------------------------------------------------------------------------- helpers
-
-
-def _log(x: np.ndarray) -> np.ndarray:
-    """log that maps 0 to -inf without a warning."""
-    with np.errstate(divide="ignore"):
-        out: np.ndarray = np.log(x)
-    return out
-
-
-def _normal_logpdf(x: np.ndarray, mean: np.ndarray, sd: np.ndarray) -> np.ndarray:
-    """Normal log density; sd == 0 is a point mass (log density 0 at the mean)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = (x - mean) / sd
-        out = -0.5 * z * z - np.log(sd) - 0.5 * LOG_2PI
-    point = sd == 0
-    if point.any():
-        out = np.where(point, np.where(x == mean, 0.0, -np.inf), out)
-    result: np.ndarray = np.where(np.isnan(out), -np.inf, out)
-    return result
-
-
-def _bernoulli_logpmf(p: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """log P(x) for values 0/1 with probabilities of 1 `p` (clipped into [0, 1])."""
-    p = np.clip(p, 0.0, 1.0)
-    out = np.where(x == 1.0, _log(p), _log(1.0 - p))
-    result: np.ndarray = np.where((x == 0.0) | (x == 1.0), out, -np.inf)
-    return result
-
-
-def _categorical_probs(site: SiteRef, w: np.ndarray) -> np.ndarray:
-    """Normalize categorical weights row-wise; bad weights are the program's fault."""
-    w = np.asarray(w, dtype=np.float64)
-    total = w.sum(axis=1, keepdims=True)
-    if not np.all(np.isfinite(w)) or (w < 0).any() or (total <= 0).any():
-        raise ProgramError(
-            f"site {site.id} (line {site.line}): categorical weights must be finite, "
-            "non-negative and not all zero"
-        )
-    out: np.ndarray = w / total
-    return out
-
-
-def _categorical_sample(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """One draw per row of the probability matrix `p`, by inverting the cumulative sums."""
-    cum = np.cumsum(p, axis=1)
-    u = rng.random(p.shape[0]) * cum[:, -1]
-    idx = (cum <= u[:, None]).sum(axis=1)
-    # never land on a zero-probability category through rounding at the top end
-    idx = np.minimum(idx, p.shape[1] - 1)
-    out: np.ndarray = idx.astype(np.float64)
-    return out
-
-
-def _categorical_logpmf(
-    p: np.ndarray, values: np.ndarray, rows: np.ndarray | None = None
-) -> np.ndarray:
-    """log p[row, value] per value; `rows` picks the row of `p` for each value
-    (default: row i for value i)."""
-    v = np.asarray(values)
-    ok = (v >= 0) & (v < p.shape[1]) & (v == np.floor(v))
-    k = np.where(ok, v, 0).astype(np.intp)
-    out = _log(p[np.arange(p.shape[0]) if rows is None else rows, k])
-    result: np.ndarray = np.where(ok, out, -np.inf)
-    return result
-
-
-def _uniform_bounds(args: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.minimum(args[:, 0], args[:, 1])
-    b = np.maximum(args[:, 0], args[:, 1])
-    return a, b
-
-
-def _mixture(params: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Split `(n, 3K)` mixture params into normalized log weights, means, log sds."""
-    params = np.asarray(params, dtype=np.float64)
-    if params.ndim != 2 or params.shape[1] % 3 != 0 or params.shape[1] == 0:
-        raise ValueError(f"mixture params must be (n, 3K), got shape {params.shape}")
-    k = params.shape[1] // 3
-    logw = params[:, :k]
-    logw = logw - _logsumexp_rows(logw)[:, None]
-    return logw, params[:, k : 2 * k], params[:, 2 * k :]
-
-
-def _logsumexp_rows(a: np.ndarray) -> np.ndarray:
-    m = np.max(a, axis=1)
-    m = np.where(np.isfinite(m), m, 0.0)
-    with np.errstate(divide="ignore"):
-        out: np.ndarray = m + np.log(np.sum(np.exp(a - m[:, None]), axis=1))
-    return out
 
 
 def _mixture_sample(
@@ -493,31 +403,6 @@ def _mixture_sample(
     comp = _categorical_sample(np.exp(logw), rng).astype(np.intp)
     rows = np.arange(logw.shape[0])
     out: np.ndarray = mean[rows, comp] + sd[rows, comp] * rng.standard_normal(logw.shape[0])
-    return out
-
-
-def _mixture_logpdf(
-    x: np.ndarray, logw: np.ndarray, mean: np.ndarray, sd: np.ndarray
-) -> np.ndarray:
-    comp = logw + _normal_logpdf(x[:, None], mean, sd)
-    return _logsumexp_rows(comp)
-
-
-def _normal_mixture(
-    args: np.ndarray, params: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    logw, m, s = _mixture(params)
-    mu = args[:, 0:1]
-    sigma = np.abs(args[:, 1:2])
-    return logw, mu + sigma * m, sigma * np.exp(s)
-
-
-def _probs(params: np.ndarray) -> np.ndarray:
-    p = np.clip(np.asarray(params, dtype=np.float64), 0.0, None)
-    total = p.sum(axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = p / total
-    out: np.ndarray = np.where(total > 0, p, 1.0 / p.shape[1])
     return out
 
 
