@@ -1,10 +1,10 @@
 """Compiled kernels of growth into a 3D target (numba), each one call over the population.
 
 `draw` (3D primitives -> voxel canvases and their count pyramids), `volume_increment` (the
-voxel likelihood's update), `volume_features` (turtle columns and the windows at 4 levels)
-and `take_rows` (resampling's canvas copies). tests/reference/volume.py holds the numpy
-code they are compared with: the same arithmetic in the same order, so canvases, pyramids,
-likelihoods and feature rows are identical.
+voxel likelihood's update) and `volume_features` (turtle columns and the windows at 4
+levels); resampling copies the voxels with ../kernels.py's `take_rows`.
+tests/reference/volume.py holds the numpy code they are compared with: the same arithmetic
+in the same order, so canvases, pyramids, likelihoods and feature rows are identical.
 
 Imported lazily (by VoxelCanvas, VoxelLikelihood and FeatureMaker3D), like ../kernels.py,
 whose import (done here first) keeps numba's BLAS probe from importing scipy.linalg.
@@ -24,6 +24,9 @@ EPS = 1e-9
 SEG3, SPHERE, LEAF3, POLY3 = 0, 1, 2, 3  # primitive kind codes of `draw`
 BOUNDS_SCALE = 0.001
 jit = njit(cache=True, nogil=True, error_model="numpy")
+# _min, _max and _unit repeat ngpm_runtime.kernels' on purpose: numba's disk cache checks
+# only this file's stamp, so a kernel here calling one there would keep stale code when that
+# file changed. Resampling's copies are ngpm_runtime.kernels.take_rows (called from Python).
 
 
 @jit
@@ -418,19 +421,3 @@ def volume_features(
                     out[k, col + nw] = vox[idx[k], i, j, c]
                 else:
                     out[k, col + nw] = np.float32(pyr[idx[k], pstart[lv] + flat]) * scale
-
-
-@jit
-def take_rows(
-    vox: np.ndarray, pyr: np.ndarray, anc: np.ndarray, vox_out: np.ndarray, pyr_out: np.ndarray
-) -> None:
-    """Resampling's canvas copies: row k of the outputs becomes row anc[k] (canvases and
-    pyramids flattened to (N, cells))."""
-    for k in range(anc.shape[0]):
-        src = anc[k]
-        if not 0 <= src < vox.shape[0]:
-            raise IndexError("take: particle index out of range")
-        for j in range(vox.shape[1]):
-            vox_out[k, j] = vox[src, j]
-        for j in range(pyr.shape[1]):
-            pyr_out[k, j] = pyr[src, j]

@@ -210,7 +210,9 @@ class VoxelCanvas:
             self._spare = [np.empty_like(self.voxels), np.empty_like(self.counts)]
         vox, cnt = self._spare
         n = self.n
-        self._k.take_rows(self.voxels.reshape(n, -1), self.counts, idx, vox.reshape(n, -1), cnt)
+        from ngpm_runtime import kernels  # its take_rows copies any rows, voxels too
+
+        kernels.take_rows(self.voxels.reshape(n, -1), self.counts, idx, vox.reshape(n, -1), cnt)
         self._spare = [self.voxels, self.counts]
         self.voxels, self.counts = vox, cnt
 
