@@ -18,9 +18,15 @@ import os
 import sys
 import time
 from importlib import import_module
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported on use: this module is imported without numpy's cost
+    from ngpm_runtime.inference.guide import Guide
+    from ngpm_runtime.program import Program
+    from ngpm_runtime.volume.target import VolumeTarget
 
 # modules (relative to the package) whose @njit(cache=True) kernels are cached
-KERNEL_MODULES = ("kernels",)
+KERNEL_MODULES = ("kernels", "volume.kernels")
 
 
 def cache_is_cold() -> bool:
@@ -64,7 +70,25 @@ def warm_up() -> float:
     grow(program, target, guide, n_particles=2, seed=0, max_modules=40)
     grow(program, target, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
     grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
+    program3d, block, guide3d = _tiny_3d()
+    grow(program3d, block, guide3d, n_particles=2, seed=0, max_modules=40)  # 3D kernels
     return time.perf_counter() - t0
+
+
+def _tiny_3d() -> tuple[Program, VolumeTarget, Guide]:
+    """(program, target, guide): the bundled 3D plant, a 16^3 block in its box, its guide."""
+    import numpy as np
+
+    from ngpm_runtime.bundled import bundled_guide3d, bundled_program3d
+    from ngpm_runtime.volume.target import VolumeTarget, box_grid
+
+    program = bundled_program3d()
+    assert program.box is not None  # a 3D grammar has its box
+    lo, voxel = box_grid(program.box, 16)
+    occupancy = np.zeros((16, 16, 16), dtype=bool)
+    occupancy[4:12, :10, 4:12] = True
+    start = lo + np.array([8.0, 0.0, 8.0]) * voxel
+    return program, VolumeTarget(occupancy, lo, voxel, start, "block"), bundled_guide3d(program)
 
 
 def main() -> int:
