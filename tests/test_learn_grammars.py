@@ -1,0 +1,83 @@
+"""benchmarks/learn_grammars.py: the multi-grammar table of `ngpmc learn` (its figures from
+a summary, the page's block, the resumable run on one tiny grammar)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import pytest
+from repo_paths import REPO
+
+from ngpm_compiler.evaluation.runs import UNGUIDED
+
+
+def load():
+    path = REPO / "benchmarks" / "learn_grammars.py"
+    spec = importlib.util.spec_from_file_location("learn_grammars", path)
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def summary(guided: float) -> list[dict]:
+    rows = [{"model": "guide", "n": 10, "mean_similarity": guided, "mean_seconds": 0.5}]
+    for n, sim in ((10, 0.1), (100, 0.3), (1000, 0.5)):
+        rows.append({"model": UNGUIDED, "n": n, "mean_similarity": sim, "mean_seconds": n / 100})
+    return rows
+
+
+def test_figures_crossing_n_and_time_ratio():
+    lg = load()
+    f = lg.figures(summary(0.3))
+    assert f["guided"] == 0.3 and f["unguided"] == {10: 0.1, 100: 0.3, 1000: 0.5}
+    assert f["match_n"] == pytest.approx(100)
+    assert f["ratio"] == pytest.approx(2.0) and f["ratio_bound"] == ""  # 1 s / 0.5 s
+    above = lg.figures(summary(0.7))  # unguided never gets there: bounds
+    assert above["match_n"] is None
+    assert above["ratio"] == pytest.approx(20.0) and above["ratio_bound"] == ">"
+
+
+def test_table_and_page_block(tmp_path):
+    lg = load()
+    result = {
+        "grammar": "bush",
+        "learn_minutes": 44.5,
+        "rounds": 4,
+        "stopped": False,
+        **lg.figures(summary(0.7)),
+    }
+    lines = lg.table([result], [10, 100, 1000])
+    assert lines[2] == "| bush | 44.5 | 4 | **0.700** | 0.100 | 0.300 | 0.500 | > 1000 | >20.0x |"
+    page = tmp_path / "page.md"
+    page.write_text("# Results\n\nkept\n")
+    lg.write_page(page, "first")
+    lg.write_page(page, "second\ntable")
+    text = page.read_text()
+    assert text.startswith("# Results\n\nkept\n")
+    assert "<!-- begin learn-grammars -->\nsecond\ntable\n<!-- end learn-grammars -->\n" in text
+    assert "first" not in text
+
+
+@pytest.mark.slow
+def test_one_tiny_grammar_end_to_end_and_resumed(tmp_path, capsys):
+    """`ngpmc learn` on the chain grammar with a budget of a minute, then the held-out runs;
+    the second call finds the result and runs nothing."""
+    lg = load()
+    out, page = tmp_path / "work", tmp_path / "results" / "lg.md"
+    argv = ["--budget", "75s", "--grammars", "chain", "-o", str(out), "--targets", "2"]
+    argv += ["--repeats", "1", "--ns", "10,30", "--workers", "1", "--page", str(page)]
+    assert lg.main(argv) == 0
+    result = json.loads((out / "chain" / "result.json").read_text())
+    assert result["rounds"] >= 1 and 0 < result["learn_minutes"] < 2.5
+    assert set(result["unguided"]) == {"10", "30"}
+    assert (out / "chain" / "learn" / "guide.onnx").is_file()
+    text = page.read_text()
+    assert "| chain | " in text and "<!-- end learn-grammars -->" in text
+    rows = (tmp_path / "results" / "lg.csv").read_text().splitlines()
+    assert rows[0] == "grammar,model,n,targets,mean_similarity,mean_seconds"
+    assert any(r.startswith("chain,guide,10,4,") for r in rows)
+    capsys.readouterr()
+    assert lg.main(argv) == 0
+    assert "chain: done before" in capsys.readouterr().out
