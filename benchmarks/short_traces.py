@@ -1,6 +1,7 @@
 """What dropping short traces costs: the share of trace jobs whose best particle drew fewer
-than 10 primitives (`ngpmc traces` drops them, as the paper's code did; `ngpmc learn` keeps
-them as data), and the share of the trace time they took.
+than 10 primitives (the paper's code dropped them; `ngpmc learn`, `traces` and `iterate`
+keep them as data unless `--min-primitives 10` asks), and the share of the trace time they
+took.
 
     python3 benchmarks/short_traces.py [--traces 40] [--particles 600] [--grammar G]
 

@@ -6,6 +6,7 @@
 # Settings of the documented run (experiments/notes/README.md): 4 rounds, 300 traces per round
 # and training set (varied + scribbles, mirrored), guided SMC with 200 particles,
 # validation: 12 varied targets + 12 DejaVu glyphs x 2 runs at N = 10.
+# --min-primitives 10: the documented runs dropped jobs under 10 primitives.
 set -euo pipefail
 INIT=${1:-runtime/ngpm_runtime/data/vines_guide.onnx}
 W=${2:-work}
@@ -15,16 +16,18 @@ cp "$INIT" "$W/guides/v0.onnx"
 ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
     --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
     --init-guide "$W/guides/v0.onnx" --rounds 4 -n 300 --particles 200 \
-    --val-targets 12 --val-repeats 2 -o "$W/ei"
+    --val-targets 12 --val-repeats 2 -o "$W/ei" --min-primitives 10
 # round 5: a stronger teacher (600 guided particles) on every round's traces (shipped guide)
 ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
     --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
     --init-guide "$W/ei/best.onnx" --init-traces "$(ls -d "$W"/ei/round_*/traces_* | paste -sd, -)" \
-    --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5"
+    --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5" \
+    --min-primitives 10
 # ablation: round 1 with the paper's teacher (unguided SMC, 600 particles), same targets/seeds
 ngpmc iterate grammars/vines.lsys --targets "$W/data/varied,$W/data/scribbles" \
     --validate "varied=$W/data/val_varied,glyphs=$W/data/val_glyphs" \
-    --rounds 1 -n 300 --unguided-particles 600 --val-targets 12 --val-repeats 2 -o "$W/abl"
+    --rounds 1 -n 300 --unguided-particles 600 --val-targets 12 --val-repeats 2 -o "$W/abl" \
+    --min-primitives 10
 GUIDES="v0=$W/guides/v0.onnx,unguided_teacher=$W/abl/round_1/guide.onnx"
 for r in 1 2 3 4; do GUIDES="$GUIDES,round$r=$W/ei/round_$r/guide.onnx"; done
 GUIDES="$GUIDES,round5=$W/ei5/round_1/guide.onnx"
@@ -41,7 +44,7 @@ ngpmc targets build varied -o "$W/data/val_varied36" --count 36 --seed 1
 ngpmc targets build shapes -o "$W/data/shapes" --count 300 --seed 5 --mirror
 record() {  # record DATASET N: guided traces into $R6/traces_DATASET (resumes)
     ngpmc traces grammars/vines.lsys --targets "$W/data/$1" -n "$2" --particles 600 \
-        --guide "$W/ei5/best.onnx" -o "$R6/traces_$1" --workers 2 --seed 6
+        --guide "$W/ei5/best.onnx" -o "$R6/traces_$1" --workers 2 --seed 6 --min-primitives 10
 }
 train() {  # train OUT FEATURES [ngpmc train options]: on the three traces directories
     ngpmc train "$R6/traces_varied,$R6/traces_scribbles,$R6/traces_shapes" -o "$R6/$1.pt" \
@@ -76,7 +79,8 @@ for d in shapes varied scribbles; do
 done
 for d in shapes7:800 varied7:600 scribbles7:400; do
     ngpmc traces grammars/vines.lsys --targets "$W/data/${d%:*}" -n "${d#*:}" --particles 400 \
-        --guide "$R6/t3000_all+context.onnx" -o "$R7/traces_${d%:*}" --workers 2 --seed 7
+        --guide "$R6/t3000_all+context.onnx" -o "$R7/traces_${d%:*}" --workers 2 --seed 7 \
+        --min-primitives 10
 done
 R6T="$R6/traces_varied,$R6/traces_scribbles,$R6/traces_shapes"
 R7T="$R7/traces_shapes7,$R7/traces_varied7,$R7/traces_scribbles7"

@@ -5,6 +5,7 @@
 # extruded of another seed; never the held-out `revolved` set).
 # Usage: bash scripts/train_topiary3d_guide.sh [WORKDIR]   (about 30 min on 2 busy cores)
 # then: cp WORKDIR/topiary3d_guide.onnx runtime/ngpm_runtime/data/
+# (--min-primitives 10: the bundled guide's traces dropped jobs under 10 primitives.)
 set -euo pipefail
 W=${1:-work/topiary3d}
 mkdir -p "$W"
@@ -14,7 +15,7 @@ for s in blobs3d extruded; do
 done
 for s in blobs3d extruded; do
     ngpmc traces grammars/topiary3d.lsys --targets "$W/$s" -n 400 --particles 100 \
-        -o "$W/traces_$s" --workers 2 --seed 0
+        -o "$W/traces_$s" --workers 2 --seed 0 --min-primitives 10
 done
 ngpmc train "$W/traces_blobs3d,$W/traces_extruded" -o "$W/model_all.pt" --features all
 ngpmc export "$W/model_all.pt" -o "$W/topiary3d_guide_v0.onnx"

@@ -15,13 +15,14 @@
 # The same recipe, planned to a time budget and resumable, for any grammar:
 #   ngpmc learn grammars/vines.lsys -o work/vines_learn --budget 3h
 # (not yet shown to reproduce the bundled guide's quality: issue #23).
+# (--min-primitives 10: the bundled guide's traces dropped jobs under 10 primitives.)
 set -euo pipefail
 W=${1:-work/vines}
 mkdir -p "$W"
 ngpmc compile grammars/vines.lsys -o "$W"
 ngpmc targets build scribbles -o "$W/scribbles" --count 300 --mirror
 ngpmc traces grammars/vines.lsys --targets "$W/scribbles" -n 1000 --particles 600 \
-    -o "$W/traces" --workers 2 --seed 0
+    -o "$W/traces" --workers 2 --seed 0 --min-primitives 10
 ngpmc train "$W/traces" -o "$W/model_all_k4.pt" --features all --K 4
 ngpmc export "$W/model_all_k4.pt" -o "$W/vines_guide_v0.onnx"
 ngpmc targets build varied -o "$W/varied" --count 300 --mirror
@@ -30,18 +31,20 @@ ngpmc targets build glyphs -o "$W/val_glyphs"
 ngpmc iterate grammars/vines.lsys --targets "$W/varied,$W/scribbles" \
     --validate "varied=$W/val_varied,glyphs=$W/val_glyphs" \
     --init-guide "$W/vines_guide_v0.onnx" --rounds 4 -n 300 --particles 200 \
-    --val-targets 12 --val-repeats 2 -o "$W/ei"
+    --val-targets 12 --val-repeats 2 -o "$W/ei" --min-primitives 10
 # a last round with a stronger teacher (600 guided particles) on every round's traces
 ngpmc iterate grammars/vines.lsys --targets "$W/varied,$W/scribbles" \
     --validate "varied=$W/val_varied,glyphs=$W/val_glyphs" \
     --init-guide "$W/ei/best.onnx" --init-traces "$(ls -d "$W"/ei/round_*/traces_* | paste -sd, -)" \
-    --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5"
+    --rounds 1 -n 300 --particles 600 --val-targets 12 --val-repeats 2 -o "$W/ei5" \
+    --min-primitives 10
 # round 6 (the shipped guide): 3000 traces from SMC guided by round 5 (600 particles) on
 # varied, scribbles and procedural shapes, trained with the context features (all+context)
 ngpmc targets build shapes -o "$W/shapes" --count 300 --seed 5 --mirror
 for d in varied:1200 scribbles:1200 shapes:600; do
     ngpmc traces grammars/vines.lsys --targets "$W/${d%:*}" -n "${d#*:}" --particles 600 \
-        --guide "$W/ei5/best.onnx" -o "$W/r6/traces_${d%:*}" --workers 2 --seed 6
+        --guide "$W/ei5/best.onnx" -o "$W/r6/traces_${d%:*}" --workers 2 --seed 6 \
+        --min-primitives 10
 done
 ngpmc train "$W/r6/traces_varied,$W/r6/traces_scribbles,$W/r6/traces_shapes" \
     -o "$W/r6/all+context.pt" --features all+context

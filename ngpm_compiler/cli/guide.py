@@ -76,7 +76,21 @@ def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
         help="guide .onnx that proposes in SMC (expert iteration; default: "
         "unguided, the prior proposes)",
     )
+    add_min_primitives(p)
     p.set_defaults(handler=cmd_traces)
+
+
+def add_min_primitives(p: argparse.ArgumentParser) -> None:
+    """--min-primitives (traces and iterate): by default every trace is kept."""
+    p.add_argument(
+        "--min-primitives",
+        type=argtypes.integer(1, 10**6),
+        default=1,
+        metavar="N",
+        help="drop a job whose best particle drew fewer than N primitives (default 1: "
+        "short traces are kept as data, as `ngpmc learn` keeps them; the paper's code "
+        "used 10)",
+    )
 
 
 def _register_train(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -214,6 +228,7 @@ def _register_iterate(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
+    add_min_primitives(p)
     p.set_defaults(handler=cmd_iterate)
 
 
@@ -361,6 +376,7 @@ def cmd_traces(args: argparse.Namespace) -> int:
         backend=args.backend,
         ray_address=args.ray_address,
         guide=args.guide,
+        min_primitives=args.min_primitives,
     )
     if args.guide is not None and not Path(args.guide).is_file():
         raise NgpmError(f"--guide {args.guide}: no such file")
@@ -453,6 +469,7 @@ def cmd_iterate(args: argparse.Namespace) -> int:
         epochs=args.epochs,
         workers=args.workers,
         seed=args.seed,
+        min_primitives=args.min_primitives,
     )
     rows = expert_iteration(cfg, log=_log)
     print("| round | teacher | traces | validation NLL | validation similarity (N=10) |")

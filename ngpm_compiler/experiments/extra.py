@@ -79,13 +79,14 @@ def _circuit_setup(grammar: str) -> dict[str, Any]:
 
 
 def _circuit_job(args: tuple[int, int, int]) -> dict[str, np.ndarray]:
-    from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES, job_arrays
+    from ngpm_compiler.learning.trace_jobs import PAPER_MIN_PRIMITIVES, job_arrays
 
     job, base_seed, particles = args
     seed = run_seed(base_seed, job, particles, 99)
     _, _, best = circuit_once(pool.state()["program"], None, particles, seed, record=True)
     n_prims = len(best.primitives)
-    return job_arrays(job, 0, seed, list(best.trace or []), n_prims, n_prims >= MIN_PRIMITIVES)
+    kept = n_prims >= PAPER_MIN_PRIMITIVES
+    return job_arrays(job, 0, seed, list(best.trace or []), n_prims, kept)
 
 
 def circuit_traces(cfg: CircuitConfig, out_dir: str, log: Any = print) -> str:
@@ -281,6 +282,7 @@ def run_chain(cfg: ChainConfig, log: Any = print) -> list[dict[str, Any]]:
     from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.language.compile import load_grammar
+    from ngpm_compiler.learning.trace_jobs import PAPER_MIN_PRIMITIVES
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     work = Path(cfg.work) / "chain"
@@ -307,6 +309,7 @@ def run_chain(cfg: ChainConfig, log: Any = print) -> list[dict[str, Any]]:
             particles=cfg.chain_particles,
             seed=cfg.seed,
             workers=max(1, cfg.workers),
+            min_primitives=PAPER_MIN_PRIMITIVES,  # the paper's evaluation
             backend=cfg.backend,
             ray_address=cfg.ray_address,
         ),

@@ -15,14 +15,18 @@ as learning/rounds.py, rounds scored under equal, default proposal settings), `t
 validation targets), then OUT/report.md and curve.png. OUT/guide.onnx is written after
 every round and after tuning.
 
+A rerun with a larger `--budget` than the latest plan was made under extends it
+(`extend_1`, `extend_2`...: learn_plan.extend): the finished rounds stay, the guided rounds
+that fit the time left are added (numbered on), and tuning and the curve run again for the
+new guide (`tune_1`, `curve_1`...; their cached runs are reused).
+
 Inside a stage the library's own resumption holds: trace shards, a training checkpoint
 and the validation run cache, so Ctrl-C loses only the unfinished part. The budget counts
 the wall time of every run on OUT; past it the run stops at the next trace, epoch or
 stage, keeps the best finished round's guide, and writes the report.
 
-Short traces are kept as data (`MIN_PRIMITIVES` 1, not the paper's 10): a best particle
-with few primitives is still the SMC's answer for its target, and dropping it threw away
-its whole run (benchmarks/short_traces.py, vines: 21% of unguided 600-particle jobs).
+Short traces are kept as data, as `ngpmc traces` and `iterate` keep them by default
+(learning/trace_jobs.MIN_PRIMITIVES: 1, not the paper's 10).
 """
 
 from __future__ import annotations
@@ -45,16 +49,17 @@ from ngpm_compiler.experiments.learn_plan import (
     UNGUIDED_PARTICLES,
     Costs,
     Plan,
+    extend,
     plan,
     replan,
     round_seconds,
     trace_allowance,
     validation_seconds,
 )
+from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
 from ngpm_compiler.progress import Log
 
 STATE_FORMAT = "ngpm-learn/1"
-MIN_PRIMITIVES = 1  # keep short traces (see the module docstring)
 FEATURES = "all+context"
 TRAIN_DATASETS = ("scribbles", "varied")
 VALIDATION = {"varied": ("varied", 1), "shapes": ("shapes", 101)}  # name: (dataset, seed)
@@ -302,15 +307,15 @@ def _costs(run: Run) -> Costs:
 
 
 def plan_stage(run: Run) -> dict[str, Any]:
-    p = plan(max(1.0, run.clock.left()), _costs(run))
+    p = replace(plan(max(1.0, run.clock.left()), _costs(run)), total=run.cfg.budget)
     for line in p.reasons:
         run.log(f"plan: {line}")
     return asdict(p)
 
 
-def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
-    """After round 0: measure guided trace jobs (round 0's guide teaching) and a guided
-    validation run (round 0's validation), then plan the guided rounds anew."""
+def measure_guided(run: Run, p: Plan) -> None:
+    """Guided trace jobs timed (round 0's guide teaching), and round 0's validation and
+    training times, into the run's costs."""
     r0 = run.state["stages"]["round_00"]["result"]
     d = run.state["stages"]["diagnose"]["result"]
     train = run.state["stages"]["targets"]["result"]["train"]
@@ -320,9 +325,92 @@ def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
     runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
     costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
     costs["train"] = r0["train_seconds_per_trace"]
+
+
+def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
+    """After round 0: measure guided trace jobs and a guided validation run, then plan the
+    guided rounds anew."""
+    measure_guided(run, p)
+    r0 = run.state["stages"]["round_00"]["result"]
     q = replan(p, max(0.0, run.clock.left()), _costs(run), r0["traces"])
+    q = replace(q, total=run.cfg.budget)
     run.log(f"plan: {q.reasons[-1]}")
     return asdict(q)
+
+
+def planned_under(run: Run, p: Plan) -> float:
+    """The --budget plan `p` was made under (a plan of an older learn.json does not say:
+    its seconds plus those of the stages before it)."""
+    if p.total:
+        return p.total
+    stages = run.state["stages"]
+    return p.budget + sum(stages[k]["seconds"] for k in ("diagnose", "targets", "measure"))
+
+
+def extensions(run: Run) -> list[str]:
+    """The finished extend_<k> stages, in order."""
+    names = [k for k in run.state["stages"] if k.startswith("extend_")]
+    return sorted(names, key=lambda k: int(k.removeprefix("extend_")))
+
+
+def extended(run: Run, p: Plan) -> Plan:
+    """The latest plan (`p` or the last extension's); a new extension when this run's
+    --budget is larger than the one that plan was made under."""
+    names = extensions(run)
+    if names:
+        p = load_plan(run.state["stages"][names[-1]]["result"]["plan"])
+    before = planned_under(run, p)
+    if run.cfg.budget <= before + 1.0:
+        return p
+    run.clock.check("planning more rounds")
+    run.log(
+        f"the budget grew from {_minutes(before)} to {_minutes(run.cfg.budget)}: "
+        f"planning more rounds for the {_minutes(run.clock.left())} left"
+    )
+    name = f"extend_{len(names) + 1}"
+    res = run.stage(name, lambda: extend_stage(run, p, before))
+    return load_plan(res["plan"])
+
+
+def extend_stage(run: Run, p: Plan, before: float) -> dict[str, Any]:
+    """The plan `p` extended by the guided rounds that fit what is left of the larger
+    budget (learn_plan.extend), from the costs the rounds measured."""
+    rows = _rounds(run)
+    if "guided" not in run.state["costs"]:  # round 0 alone was planned: time guided SMC
+        measure_guided(run, p)
+    costs, val = _round_costs(run, p)
+    done = rows[-1]["round"]
+    cut = (run.out / "rounds" / f"round_{done + 1}").exists()  # a round the budget cut
+    curve_done = any(k.startswith("curve") for k in run.state["stages"])
+    q = extend(
+        p,
+        run.cfg.budget,
+        max(0.0, run.clock.left()),
+        costs,
+        done,
+        rows[-1]["traces"],
+        val,
+        fixed=cut,
+        curve_done=curve_done,
+    )
+    run.log(f"plan: {q.reasons[-1]}")
+    return {
+        "plan": asdict(q),
+        "after_round": done,
+        "budget_before": before,
+        "spent": round(run.clock.spent(), 3),
+    }
+
+
+def final_suffix(run: Run) -> str:
+    """'' or '_<k>': the stage names of the tuning and curve that belong to the latest
+    extension that added rounds (tune_<k>, curve_<k>; tune and curve without one)."""
+    suffix = ""
+    for name in extensions(run):
+        res = run.state["stages"][name]["result"]
+        if res["plan"]["rounds"] > res["after_round"]:
+            suffix = "_" + name.removeprefix("extend_")
+    return suffix
 
 
 def load_plan(d: dict[str, Any]) -> Plan:
@@ -501,10 +589,12 @@ def best_round(run: Run) -> dict[str, Any] | None:
 
 
 def write_guide(run: Run) -> str | None:
-    """OUT/guide.onnx: the tuned guide when tuning finished, else the best round's."""
-    tuned = run.state["stages"].get("tune")
+    """OUT/guide.onnx: the best round's guide, tuned when a finished tuning tuned it."""
+    from ngpm_compiler.experiments.learn_report import tuned_result
+
     best = best_round(run)
-    src = tuned["result"]["guide"] if tuned and tuned["result"] else (best or {}).get("guide")
+    tuned = tuned_result(run.state["stages"], best["round"] if best else None)
+    src = tuned["guide"] if tuned else (best or {}).get("guide")
     if src is None:
         return None
     dst = run.out / "guide.onnx"
@@ -534,8 +624,8 @@ def run_rounds(run: Run, p: Plan) -> None:
         write_guide(run)
 
 
-def _next_round_estimate(run: Run, p: Plan) -> float:
-    """The next guided round's seconds at the costs the last rounds measured."""
+def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
+    """The costs the last rounds measured, and one round's validation seconds."""
     rows = _rounds(run)
     last = rows[-1]
     costs = _costs(run)
@@ -546,7 +636,13 @@ def _next_round_estimate(run: Run, p: Plan) -> float:
         train=last["train_seconds_per_trace"],
     )
     val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
-    trained = last["traces"] + p.guided_traces
+    return costs, val
+
+
+def _next_round_estimate(run: Run, p: Plan) -> float:
+    """The next guided round's seconds at the costs the last rounds measured."""
+    costs, val = _round_costs(run, p)
+    trained = _rounds(run)[-1]["traces"] + p.guided_traces
     return round_seconds(costs, p.guided_traces, p.guided_particles, True, trained, val)
 
 
@@ -554,7 +650,8 @@ def _next_round_estimate(run: Run, p: Plan) -> float:
 
 
 def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
-    """learning/tune.py on the best round's guide (None: no grid in the plan)."""
+    """learning/tune.py on the best round's guide (None: no grid in the plan), into
+    OUT/work/tuned.onnx (tuned_<k>.onnx after a rerun's extension k added rounds)."""
     from ngpm_runtime.inference.sitekinds import KINDS
 
     from ngpm_compiler.language.compile import load_grammar
@@ -563,6 +660,7 @@ def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
     best = best_round(run)
     if not p.choice_temperatures or best is None:
         return None
+    tuned = f"tuned{final_suffix(run)}.onnx"
     t = run.state["stages"]["targets"]["result"]
     grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
     sites = load_grammar(grammar).sites
@@ -574,7 +672,7 @@ def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
         grammar,
         best["guide"],
         t["validation"],
-        run.out / "work" / "tuned.onnx",
+        run.out / "work" / tuned,
         run.out / "work" / "tune",
         settings,
         k=p.val_targets,
@@ -584,7 +682,7 @@ def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
         log=run.log,
     )
     return {
-        "guide": str(run.out / "work" / "tuned.onnx"),
+        "guide": str(run.out / "work" / tuned),
         "round": best["round"],
         "setting": res["best"].label(),
         "table": res["table"],
@@ -674,11 +772,13 @@ def _stages(run: Run) -> None:
     if p.rounds > 0:
         run.clock.check("measuring guided SMC")
         p = load_plan(run.stage("replan", lambda: replan_stage(run, p)))
+    p = extended(run, p)
     run_rounds(run, p)
     run.clock.check("tuning")
+    sfx = final_suffix(run)
     if p.estimates.get("tune", 0.0) > run.clock.left():
         run.state.setdefault("notes", []).append("tuning skipped: too little budget left")
     else:
-        run.stage("tune", lambda: tune_stage(run, p))
+        run.stage(f"tune{sfx}", lambda: tune_stage(run, p))
         write_guide(run)
-    run.stage("curve", lambda: curve_stage(run, p))
+    run.stage(f"curve{sfx}", lambda: curve_stage(run, p))

@@ -8,6 +8,11 @@ that), so every stage's estimate is a sum of runs divided by the workers. The sh
 the project's recipe (scripts/train_vines_guide.sh): 600 unguided particles for round 0,
 200 guided particles in the later rounds, 12 validation targets per set run twice, the
 tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapness.
+
+A rerun with a larger budget extends the finished plan (`extend`): the finished rounds
+stay, and the guided rounds that fit the time left after them are added, sized from the
+costs the rounds measured; validation and the curve keep their settings, so the new rounds
+and the new guide compare with the old.
 """
 
 from __future__ import annotations
@@ -94,6 +99,7 @@ class Plan:
     curve_unguided: tuple[int, ...]
     estimates: dict[str, float] = field(default_factory=dict)  # stage -> seconds
     reasons: tuple[str, ...] = ()
+    total: float = 0.0  # the run's --budget when planned (0: not recorded)
 
 
 def validation_seconds(costs: Costs, k: int, repeats: int) -> float:
@@ -152,15 +158,18 @@ def _curve(
 
 
 def guided_rounds(
-    costs: Costs, room: float, val: float, trained: int, particles: int
+    costs: Costs, room: float, val: float, trained: int, particles: int, fixed: bool = False
 ) -> tuple[int, int, int, float] | None:
     """The guided rounds that fit `room` seconds after `trained` traces: (rounds, traces per
     round, particles, seconds) with the most rounds of at least MIN_TRACES traces, at
-    `particles` or, when none fits, at a half or a quarter of them; None when none fits."""
+    `particles` or, when none fits and not `fixed`, at a half or a quarter of them; None
+    when none fits."""
     options = sorted(
         {particles, max(MIN_PARTICLES, particles // 2), max(MIN_PARTICLES, particles // 4)},
         reverse=True,
     )
+    if fixed:
+        options = [particles]
     for pg in options:
         per_job = costs.trace(pg, True) / max(1, costs.workers)
         for rounds in range(MAX_ROUNDS, 0, -1):
@@ -261,6 +270,63 @@ def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
         curve_unguided=cu,
         estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
         reasons=(*p.reasons, f"after round 0: {why}; tune: {why_tune}"),
+    )
+
+
+def extend(
+    p: Plan,
+    total: float,
+    left: float,
+    costs: Costs,
+    done: int,
+    trained: int,
+    val: float,
+    fixed: bool = False,
+    curve_done: bool = False,
+) -> Plan:
+    """A rerun under a larger budget `total` with `left` seconds of it: the plan `p` of the
+    run before, its first `done` guided rounds finished (trained on `trained` traces), then
+    the guided rounds that fit after tuning and the curve again, at the measured `costs`
+    (`val`: one round's validation seconds as measured). Validation and the curve keep
+    their settings (the rounds and guides compare with the old); a plan without a tune grid
+    gets the one that fits its share of `total`. `fixed`: keep `p.guided_particles` (a cut
+    round resumes its traces with them); `curve_done`: the unguided curve runs are cached,
+    only the guided ones count."""
+    if p.choice_temperatures:
+        temps, ess = p.choice_temperatures, p.ess
+        tune_s = len(temps) * len(ess) * val
+        why_tune = f"the grid of the run before ({len(temps) * len(ess)} settings)"
+    else:
+        temps, ess, tune_s, why_tune = _tune(val, total)
+    k, rep = p.val_targets, p.val_repeats
+    curve_s = STAGE_SECONDS * len(p.curve_guided) + costs.runs(k, rep, p.curve_guided, True)
+    if not curve_done:
+        curve_s += costs.runs(k, rep, p.curve_unguided, False)
+    particles = p.guided_particles if fixed else GUIDED_PARTICLES
+    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, particles, fixed)
+    if g is None:
+        rounds, ng, pg, secs = 0, p.guided_traces, p.guided_particles, 0.0
+        why = (
+            f"no guided round added: one of {MIN_TRACES} traces, tuning and the curve would "
+            f"not fit the {left:.0f} s left"
+        )
+    else:
+        rounds, ng, pg, secs = g
+        why = (
+            f"{rounds} guided round(s) added after round {done}, {ng} traces each at {pg} "
+            f"particles (measured costs; {left:.0f} s left)"
+        )
+    return replace(
+        p,
+        budget=left,
+        total=total,
+        rounds=done + rounds,
+        guided_traces=ng,
+        guided_particles=pg,
+        choice_temperatures=temps,
+        ess=ess,
+        estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
+        reasons=(*p.reasons, f"budget {total:.0f} s: {why}; tune: {why_tune}"),
     )
 
 

@@ -1,7 +1,8 @@
 """OUT/report.md of `ngpmc learn` (and OUT/curve.png): validation similarity per round,
-wall time per stage, the budget plan and its reasons, the tuning table, and similarity vs N
-of the guide and of unguided SMC on the validation targets. Written from learn.json's
-state alone, so a stopped run's report shows what finished."""
+wall time per stage, the budget plan and its reasons, the tuning table, similarity vs N
+of the guide and of unguided SMC on the validation targets, and what each rerun with a
+larger budget added. Written from learn.json's state alone, so a stopped run's report shows
+what finished."""
 
 from __future__ import annotations
 
@@ -17,6 +18,35 @@ NOT_TUNED = "Not tuned (no grid in the plan, or no budget left)."
 
 def _min(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
+def _numbered(stages: dict[str, Any], base: str) -> list[str]:
+    """The finished stages `base`, `base_1`, `base_2`... in that order."""
+    names = [k for k in stages if k == base or k.removeprefix(base + "_").isdigit()]
+    return sorted(names, key=lambda k: int(k.removeprefix(base + "_") if k != base else 0))
+
+
+def latest(stages: dict[str, Any], base: str) -> tuple[str, Any] | None:
+    """(name, result) of the last finished stage `base` or `base_<k>` (a rerun's), or None."""
+    names = _numbered(stages, base)
+    return (names[-1], stages[names[-1]]["result"]) if names else None
+
+
+def tuned_result(stages: dict[str, Any], best: int | None) -> dict[str, Any] | None:
+    """The last finished tuning that tuned round `best` (the best round), or None."""
+    for name in reversed(_numbered(stages, "tune")):
+        res = stages[name]["result"]
+        if res and res["round"] == best:
+            return dict(res)
+    return None
+
+
+def latest_plan(stages: dict[str, Any]) -> dict[str, Any] | None:
+    """The plan the run follows: the last extension's, the replan's or the first."""
+    ext = latest(stages, "extend")
+    if ext is not None:
+        return dict(ext[1]["plan"])
+    return (stages.get("replan") or stages.get("plan") or {}).get("result")
 
 
 def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
@@ -50,13 +80,18 @@ def measured(c: dict[str, Any]) -> str:
 
 def plan_lines(state: dict[str, Any]) -> list[str]:
     stages = state["stages"]
-    p = (stages.get("replan") or stages.get("plan") or {}).get("result")
+    p = latest_plan(stages)
     if p is None:
         return ["No plan was made (the run stopped before)."]
     c = state.get("costs", {})
+    when = (
+        f"extended for a budget of {_min(p['total'])}, {_min(p['budget'])} of it left"
+        if latest(stages, "extend")
+        else f"planned for {_min(p['budget'])} (what was left after the diagnosis, the "
+        "targets and the measurement)"
+    )
     lines = [
-        f"Planned for {_min(p['budget'])} (what was left after the diagnosis, the "
-        f"targets and the measurement). {measured(c)}",
+        f"The plan as {when}. {measured(c)}",
         "",
         f"- round 0: {p['traces']} traces from unguided SMC with {p['unguided_particles']} "
         f"particles; then up to {p['rounds']} guided round(s) of {p['guided_traces']} traces with "
@@ -118,13 +153,46 @@ def curve_lines(summary: list[dict[str, Any]] | None, out: Path) -> list[str]:
     return lines
 
 
+def extension_lines(stages: dict[str, Any]) -> list[str]:
+    """What each rerun with a larger budget planned and added (rounds, traces, the best
+    validation similarity before and after)."""
+    rounds = [stages[k]["result"] for k in sorted(stages) if k.startswith("round_")]
+    names = [n for n in _numbered(stages, "extend") if n != "extend"]
+    if not names:
+        return ["None: the run was planned once."]
+    lines = []
+    for name in names:
+        e = stages[name]["result"]
+        p, after = e["plan"], e["after_round"]
+        last = p["rounds"] if p["rounds"] > after else after
+        old = [r for r in rounds if r["round"] <= after]
+        new = [r for r in rounds if after < r["round"] <= last]
+        head = (
+            f"- `{name}`: the budget grew from {_min(e['budget_before'])} to "
+            f"{_min(p['total'])} after {_min(e['spent'])} spent; {p['reasons'][-1]}."
+        )
+        if not new:
+            lines.append(head + " Added no finished round.")
+            continue
+        before = max(r["validation"] for r in old)
+        best = max(new + old, key=lambda r: (r["validation"], -r["round"]))
+        added = new[-1]["traces"] - old[-1]["traces"]
+        span = f"{new[0]['round']}" + (f" to {new[-1]['round']}" if len(new) > 1 else "")
+        lines.append(
+            f"{head} Added round(s) {span} ({added} traces): best validation similarity "
+            f"{before:.3f} before, {best['validation']:.3f} after (round {best['round']})."
+        )
+    return lines
+
+
 def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
     """Write out/report.md (and out/curve.png) from the run's state."""
     stages = state["stages"]
     rounds = [stages[k]["result"] for k in sorted(stages) if k.startswith("round_")]
     best = max(rounds, key=lambda x: (x["validation"], -x["round"])) if rounds else None
-    tuned = (stages.get("tune") or {}).get("result")
+    tuned = tuned_result(stages, best["round"] if best else None)
     diag = (stages.get("diagnose") or {}).get("result") or {}
+    curve = latest(stages, "curve")
     lines = [
         f"# ngpmc learn: {state['key']['grammar']}",
         "",
@@ -152,11 +220,16 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "",
         "## Similarity vs N (validation targets)",
         "",
-        *curve_lines((stages.get("curve") or {}).get("result"), out),
+        *curve_lines(curve[1] if curve else None, out),
+        *_stale_curve(curve[0] if curve else None, stages),
         "",
         "## Budget plan",
         "",
         *plan_lines(state),
+        "",
+        "## Reruns with a larger budget",
+        "",
+        *extension_lines(stages),
         "",
         "## Wall time per stage",
         "",
@@ -171,3 +244,15 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "traces whose best particle drew fewer than 10 primitives are kept as data",
     ]
     return atomic_write(out / "report.md", "\n".join(lines) + "\n")
+
+
+def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:
+    """A note when the curve shown was measured before the last rerun added rounds."""
+    ext = [
+        n.removeprefix("extend_")
+        for n in _numbered(stages, "extend")
+        if stages[n]["result"]["plan"]["rounds"] > stages[n]["result"]["after_round"]
+    ]
+    if name is None or not ext or name == f"curve_{ext[-1]}":
+        return []
+    return ["", f"(Measured by `{name}`, for the guide before the rounds the last rerun added.)"]

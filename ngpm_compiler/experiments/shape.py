@@ -66,6 +66,7 @@ def test_targets(cfg: ShapeConfig) -> dict[str, list[Any]]:
 def tiny_traces(cfg: ShapeConfig) -> str:
     """A few unguided-SMC traces on a few scribbles (quick mode / no canonical traces)."""
     from ngpm_compiler.datasets.build import build_dataset
+    from ngpm_compiler.learning.trace_jobs import PAPER_MIN_PRIMITIVES
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
     w = Path(cfg.work)
@@ -81,6 +82,7 @@ def tiny_traces(cfg: ShapeConfig) -> str:
             particles=cfg.tiny_particles,
             seed=cfg.seed,
             workers=1,
+            min_primitives=PAPER_MIN_PRIMITIVES,  # the paper's evaluation
         ),
         out,
         progress=False,

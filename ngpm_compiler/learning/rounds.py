@@ -30,6 +30,7 @@ from ngpm_runtime.inference.guide import ProposalSettings
 
 from ngpm_compiler.learning.shards import TraceError
 from ngpm_compiler.learning.trace_data import SiteData, TraceSet
+from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.progress import Log
 
@@ -49,6 +50,7 @@ class RoundsConfig:
     init_guide: str | None = None  # the guide of round 0 (scored, then proposes in round 1)
     init_traces: list[str] = field(default_factory=list)  # added to every round's training
     mirror: bool = True
+    min_primitives: int = MIN_PRIMITIVES  # shorter traces are dropped
     val_targets: int = 12
     val_repeats: int = 2
     val_n: int = 10
@@ -103,6 +105,7 @@ def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Log) -> list
             seed=cfg.seed + 1000 * r + i,
             workers=cfg.workers,
             mirror=cfg.mirror,
+            min_primitives=cfg.min_primitives,
             guide=guide,
         )
         m = generate_traces(tc, out, progress=False)

@@ -185,9 +185,12 @@ def generate_traces(
             for k in {*key, *theirs}  # a key missing on one side differs too
             if (k in key, key.get(k)) != (k in theirs, theirs.get(k))
         )
+        hint = ""
+        if diff == ["min_primitives"]:
+            hint = f" or --min-primitives {theirs['min_primitives']} to resume it"
         raise TraceError(
             f"{store.dir}: holds traces of another configuration "
-            f"(differs in {', '.join(diff)}); use a new directory"
+            f"(differs in {', '.join(diff)}); use a new directory{hint}"
         )
     done = store.finished()
     done_ids = set(int(j) for j in done["jobs"])

@@ -132,8 +132,9 @@ def test_grow_into_a_closed_pipe_still_writes_its_files(horse: Path) -> None:
 
 
 def test_traces_stops_when_every_job_is_dropped(tmp_path: Path) -> None:
-    """`Axiom: F F F` never reaches the keep threshold (10 primitives): traces stops with a
-    message that says why and what to change, and keeps its manifest."""
+    """`Axiom: F F F` never reaches a keep threshold of 10 primitives (--min-primitives 10;
+    by default it is kept): traces stops with a message that says why and what to change,
+    and keeps its manifest."""
     g = write(tmp_path / "f3.lsys", "viewport: -10 10 -10 10\nAxiom: F F F\nendlsystem\n")
     data = tmp_path / "sc"
     assert cli("targets", "build", "scribbles", "-o", str(data), "--count", "2").returncode == 0
@@ -150,6 +151,8 @@ def test_traces_stops_when_every_job_is_dropped(tmp_path: Path) -> None:
         str(tmp_path / "tr"),
         "--workers",
         "1",
+        "--min-primitives",
+        "10",
         timeout=120,
     )
     assert proc.returncode == 1 and "Traceback" not in proc.stderr

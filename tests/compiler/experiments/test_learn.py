@@ -5,6 +5,7 @@ with the best guide so far, and the grammar checks before any compute."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import onnx
@@ -227,3 +228,78 @@ def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatc
     assert 1 <= done["round_00"]["result"]["traces"] < TINY.traces
     assert any("stopped at its share of the budget" in n for n in res["state"]["notes"])
     onnx.checker.check_model(onnx.load(res["guide"]))
+
+
+def one_more_round(p, total, left, costs, done, trained, val, **_kw):
+    """learn_plan.extend as a tiny fixed extension: one guided round of 5 traces."""
+    return replace(
+        p,
+        total=total,
+        budget=left,
+        rounds=done + 1,
+        guided_traces=5,
+        reasons=(*p.reasons, f"budget {total:.0f} s: 1 guided round(s) added after round {done}"),
+    )
+
+
+def test_a_rerun_with_a_larger_budget_adds_rounds(tmp_path, monkeypatch, tiny_plan):
+    """A finished run, rerun with a larger --budget: the finished rounds stay as they were,
+    one more guided round is planned and run (taught by the best round, trained on every
+    round's traces), tuning and the curve run again for the new guide, the report says
+    what the rerun added; the same budget again adds nothing."""
+    cfg = small(tmp_path)
+    learn(cfg, log=lambda _m: None)
+    out = Path(cfg.out)
+    first = stages(out)
+    calls = []
+
+    def extend(p, total, left, costs, done, trained, val, **kw):
+        calls.append((total, done, trained, kw))
+        return one_more_round(p, total, left, costs, done, trained, val)
+
+    monkeypatch.setattr(learn_mod, "extend", extend)
+    cfg.budget = 1200.0
+    logs: list[str] = []
+    res = learn(cfg, log=logs.append)
+    again = stages(out)
+    assert calls == [(1200.0, 1, 10, {"fixed": False, "curve_done": True})]
+    assert any(m.startswith("the budget grew from 10.0 min to 20.0 min") for m in logs)
+    for name in ("round_00", "round_01", "tune", "curve"):
+        assert again[name] == first[name]  # kept as they were
+    assert list(again)[len(first) :] == ["extend_1", "round_02", "tune_1", "curve_1"]
+    r2 = again["round_02"]["result"]
+    assert r2["traces"] == 15 and r2["teacher"].startswith("guided N=10 by round ")
+    assert again["tune_1"]["result"]["guide"].endswith("tuned_1.onnx")
+    assert Path(first["tune"]["result"]["guide"]).is_file()  # not overwritten
+    report = (out / "report.md").read_text()
+    assert "## Reruns with a larger budget" in report
+    assert "- `extend_1`: the budget grew from 10.0 min to 20.0 min after " in report
+    assert "Added round(s) 2 (5 traces): best validation similarity " in report
+    assert "| round_02 |" in report and "| extend_1 |" in report
+    best = max(range(3), key=lambda r: (again[f"round_0{r}"]["result"]["validation"], -r))
+    assert again["tune_1"]["result"]["round"] == best
+    assert (out / "guide.onnx").read_bytes() == Path(res["guide"]).read_bytes()
+    learn(cfg, log=logs.append)  # the same budget again: nothing new
+    assert stages(out) == again and len(calls) == 1
+
+
+def test_a_rerun_whose_extension_adds_no_round_runs_nothing_more(tmp_path, monkeypatch, tiny_plan):
+    cfg = small(tmp_path)
+    learn(cfg, log=lambda _m: None)
+    out = Path(cfg.out)
+    first = stages(out)
+    monkeypatch.setattr(
+        learn_mod,
+        "extend",
+        lambda p, total, left, costs, done, trained, val, **kw: replace(
+            p, total=total, budget=left, rounds=done, reasons=(*p.reasons, "nothing fits")
+        ),
+    )
+    cfg.budget = 700.0
+    learn(cfg, log=lambda _m: None)
+    again = stages(out)
+    assert list(again) == [*first, "extend_1"]
+    assert "- `extend_1`: the budget grew from 10.0 min to 11.7 min" in (
+        (out / "report.md").read_text()
+    )
+    assert "Added no finished round." in (out / "report.md").read_text()

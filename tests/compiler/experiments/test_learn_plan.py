@@ -18,6 +18,7 @@ from ngpm_compiler.experiments.learn_plan import (
     TUNE_CHOICES,
     UNGUIDED_PARTICLES,
     Costs,
+    extend,
     parse_budget,
     plan,
     replan,
@@ -128,3 +129,60 @@ def test_trace_allowance_keeps_the_reserve():
     assert trace_allowance(100.0, 1000.0, 200.0) == pytest.approx(100.0 * TRACE_SLACK + TRACE_GRACE)
     assert trace_allowance(100.0, 250.0, 200.0) == pytest.approx(50.0)  # the reserve first
     assert trace_allowance(100.0, 150.0, 200.0) == 0.0
+
+
+def finished(minutes: float):
+    """The plan a run of `minutes` followed to its end (planned, then replanned)."""
+    p = plan(minutes * 60, VINES)
+    return replace(replan(p, 0.7 * minutes * 60, VINES, p.traces), total=minutes * 60)
+
+
+def test_extend_adds_guided_rounds_after_the_finished_ones():
+    p = finished(10)
+    done = p.rounds
+    q = extend(p, 45 * 60, 35 * 60, VINES, done, 900, 8.0)
+    assert q.rounds > done and q.total == 45 * 60 and q.budget == 35 * 60
+    assert q.guided_traces >= MIN_TRACES and q.guided_particles == GUIDED_PARTICLES
+    assert sum(q.estimates.values()) <= 35 * 60
+    # what the rounds and guides are compared on stays: validation, the curve
+    assert (q.val_targets, q.val_repeats) == (p.val_targets, p.val_repeats)
+    assert (q.curve_guided, q.curve_unguided) == (p.curve_guided, p.curve_unguided)
+    assert q.traces == p.traces and q.unguided_particles == p.unguided_particles
+    assert q.reasons[:-1] == p.reasons and "added after round" in q.reasons[-1]
+
+
+def test_extend_adds_more_rounds_or_traces_with_more_time():
+    p = finished(10)
+    added = [extend(p, 600 + left, left, VINES, p.rounds, 900, 8.0) for left in (600, 1800, 7200)]
+    work = [(q.rounds - p.rounds) * q.guided_traces * q.guided_particles for q in added]
+    assert 0 < work[0] < work[1] < work[2]
+
+
+def test_extend_with_too_little_time_adds_nothing():
+    p = finished(45)
+    q = extend(p, 46 * 60, 60, VINES, 2, 1500, 8.0)
+    assert q.rounds == 2 and q.estimates["rounds"] == 0.0
+    assert "no guided round added" in q.reasons[-1]
+
+
+def test_extend_keeps_the_particles_of_a_cut_round():
+    p = replace(finished(10), guided_particles=50)
+    free = extend(p, 45 * 60, 35 * 60, VINES, 1, 900, 8.0)
+    cut = extend(p, 45 * 60, 35 * 60, VINES, 1, 900, 8.0, fixed=True)
+    assert free.guided_particles == GUIDED_PARTICLES and cut.guided_particles == 50
+
+
+def test_extend_tunes_a_plan_that_had_no_grid():
+    p = plan(15, VINES)
+    assert p.choice_temperatures == ()
+    q = extend(p, 45 * 60, 44 * 60, VINES, 0, p.traces, 8.0)
+    assert q.choice_temperatures and q.estimates["tune"] > 0
+    kept = extend(finished(45), 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0)
+    assert (kept.choice_temperatures, kept.ess) == TUNE_CHOICES[0]
+
+
+def test_extend_counts_only_the_guided_curve_runs_when_the_curve_was_cached():
+    p = finished(45)
+    full = extend(p, 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0)
+    cached = extend(p, 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0, curve_done=True)
+    assert cached.estimates["curve"] < full.estimates["curve"]

@@ -21,7 +21,7 @@ from ngpm_compiler.cli.guide import FEATURE_SETS
 from ngpm_compiler.learning.nets import FEATURE_SETS as NET_FEATURE_SETS
 from ngpm_compiler.learning.shards import TraceError
 from ngpm_compiler.learning.trace_data import load_traces
-from ngpm_compiler.learning.trace_jobs import job_arrays, job_spec
+from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES, job_arrays, job_spec
 from ngpm_compiler.learning.trace_store import TraceStore
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
@@ -318,3 +318,32 @@ def test_disk_full_at_the_last_shard_keeps_the_finished_traces(tmp_path, monkeyp
     generate_traces(cfg, tmp_path / "ref", progress=False)
     for name in m["shards"]:
         assert (out / name).read_bytes() == (tmp_path / "ref" / name).read_bytes()
+
+
+F3 = "viewport: -10 10 -10 10\nAxiom: F F F\nendlsystem\n"  # always 3 primitives
+
+
+def test_short_traces_are_kept_unless_asked_to_drop(tmp_path):
+    """By default a job whose best particle drew few primitives is kept as data (as `ngpmc
+    learn` keeps it); --min-primitives drops it; a directory recorded under another
+    threshold says which to pass to resume it."""
+    grammar = tmp_path / "f3.lsys"
+    grammar.write_text(F3)
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=str(grammar), targets=str(data), n=2, particles=4, workers=1)
+    assert cfg.min_primitives == MIN_PRIMITIVES == 1
+    m = generate_traces(cfg, tmp_path / "kept", progress=False)
+    assert (m["kept"], m["dropped"]) == (2, 0)
+    assert len(load_traces(tmp_path / "kept").kept_jobs) == 2
+    cfg.min_primitives = 4
+    with pytest.raises(
+        TraceError,
+        match=r"differs in min_primitives\); use a new directory or "
+        r"--min-primitives 1 to resume it",
+    ):
+        generate_traces(cfg, tmp_path / "kept", progress=False)
+    cfg.n = 1
+    with pytest.raises(TraceError, match="fewer than 4 primitives"):
+        generate_traces(cfg, tmp_path / "dropped", progress=False)
+    m = json.loads((tmp_path / "dropped" / "manifest.json").read_text())
+    assert m["kept"] == 0 and m["dropped"] >= 50
