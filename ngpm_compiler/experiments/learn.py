@@ -54,6 +54,7 @@ from ngpm_compiler.experiments.learn_plan import (
     replan,
     round_seconds,
     trace_allowance,
+    train_per_trace,
     validation_seconds,
 )
 from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
@@ -324,7 +325,7 @@ def measure_guided(run: Run, p: Plan) -> None:
     c = _costs(run)
     runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
     costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
-    costs["train"] = r0["train_seconds_per_trace"]
+    costs["train"] = train_per_trace(r0["seconds"]["train"], r0["traces"])
 
 
 def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
@@ -394,23 +395,24 @@ def extend_stage(run: Run, p: Plan, before: float) -> dict[str, Any]:
         curve_done=curve_done,
     )
     run.log(f"plan: {q.reasons[-1]}")
+    tuned = any(k.startswith("tune") and v["result"] for k, v in run.state["stages"].items())
     return {
         "plan": asdict(q),
         "after_round": done,
         "budget_before": before,
         "spent": round(run.clock.spent(), 3),
+        # new rounds, or a tune grid where none was tuned: tuning and the curve run again
+        "renews": q.rounds > done or bool(q.choice_temperatures and not tuned),
     }
 
 
 def final_suffix(run: Run) -> str:
     """'' or '_<k>': the stage names of the tuning and curve that belong to the latest
-    extension that added rounds (tune_<k>, curve_<k>; tune and curve without one)."""
-    suffix = ""
-    for name in extensions(run):
-        res = run.state["stages"][name]["result"]
-        if res["plan"]["rounds"] > res["after_round"]:
-            suffix = "_" + name.removeprefix("extend_")
-    return suffix
+    extension that renews them (tune_<k>, curve_<k>; tune and curve without one)."""
+    from ngpm_compiler.experiments.learn_report import renewing
+
+    ks = renewing(run.state["stages"])
+    return f"_{ks[-1]}" if ks else ""
 
 
 def load_plan(d: dict[str, Any]) -> Plan:
@@ -633,7 +635,7 @@ def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
     costs = replace(
         costs,
         guided=guided[-1] if guided else costs.guided,
-        train=last["train_seconds_per_trace"],
+        train=train_per_trace(last["seconds"]["train"], last["traces"]),
     )
     val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
     return costs, val

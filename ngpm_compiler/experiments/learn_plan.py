@@ -158,10 +158,16 @@ def _curve(
 
 
 def guided_rounds(
-    costs: Costs, room: float, val: float, trained: int, particles: int, fixed: bool = False
+    costs: Costs,
+    room: float,
+    val: float,
+    trained: int,
+    particles: int,
+    fixed: bool = False,
+    least: int = MIN_TRACES,
 ) -> tuple[int, int, int, float] | None:
     """The guided rounds that fit `room` seconds after `trained` traces: (rounds, traces per
-    round, particles, seconds) with the most rounds of at least MIN_TRACES traces, at
+    round, particles, seconds) with the most rounds of at least `least` traces, at
     `particles` or, when none fits and not `fixed`, at a half or a quarter of them; None
     when none fits."""
     options = sorted(
@@ -176,7 +182,7 @@ def guided_rounds(
             fixed = rounds * (TRAIN_FIXED + val + costs.train * trained)
             per_trace = rounds * per_job + costs.train * rounds * (rounds + 1) / 2
             n = min(MAX_TRACES, int((room - fixed) / per_trace))
-            if n >= MIN_TRACES:
+            if n >= least:
                 return rounds, n, pg, fixed + n * per_trace
     return None
 
@@ -291,7 +297,9 @@ def extend(
     their settings (the rounds and guides compare with the old); a plan without a tune grid
     gets the one that fits its share of `total`. `fixed`: keep `p.guided_particles` (a cut
     round resumes its traces with them); `curve_done`: the unguided curve runs are cached,
-    only the guided ones count."""
+    only the guided ones count. A round needs MIN_TRACES traces, or as many as the rounds
+    before trained on when they were fewer (a small first run: a round that doubles the
+    data is worth its validation), and FEW_TRACES at least."""
     if p.choice_temperatures:
         temps, ess = p.choice_temperatures, p.ess
         tune_s = len(temps) * len(ess) * val
@@ -303,11 +311,12 @@ def extend(
     if not curve_done:
         curve_s += costs.runs(k, rep, p.curve_unguided, False)
     particles = p.guided_particles if fixed else GUIDED_PARTICLES
-    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, particles, fixed)
+    least = min(MIN_TRACES, max(FEW_TRACES, trained))  # or as many as trained on so far
+    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, particles, fixed, least)
     if g is None:
         rounds, ng, pg, secs = 0, p.guided_traces, p.guided_particles, 0.0
         why = (
-            f"no guided round added: one of {MIN_TRACES} traces, tuning and the curve would "
+            f"no guided round added: one of {least} traces, tuning and the curve would "
             f"not fit the {left:.0f} s left"
         )
     else:
@@ -328,6 +337,16 @@ def extend(
         estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
         reasons=(*p.reasons, f"budget {total:.0f} s: {why}; tune: {why_tune}"),
     )
+
+
+def train_per_trace(seconds: float, traces: int) -> float:
+    """Training seconds per trace from one training on `traces` traces that took `seconds`:
+    what it took beyond TRAIN_FIXED, per trace (at least a twentieth of TRAIN_SECONDS); the
+    guess TRAIN_SECONDS when fewer than FEW_TRACES traces cannot tell it from the fixed
+    part."""
+    if traces < FEW_TRACES:
+        return TRAIN_SECONDS
+    return max(TRAIN_SECONDS / 20, (seconds - TRAIN_FIXED) / traces)
 
 
 def trace_allowance(planned: float, left: float, reserve: float) -> float:

@@ -41,6 +41,17 @@ def tuned_result(stages: dict[str, Any], best: int | None) -> dict[str, Any] | N
     return None
 
 
+def renewing(stages: dict[str, Any]) -> list[str]:
+    """The k of each extend_<k> after which tuning and the curve run again (tune_<k>,
+    curve_<k>): it added rounds, or a tune grid where none had been tuned."""
+    out = []
+    for name in _numbered(stages, "extend"):
+        e = stages[name]["result"]
+        if e.get("renews", e["plan"]["rounds"] > e["after_round"]):
+            out.append(name.removeprefix("extend_"))
+    return out
+
+
 def latest_plan(stages: dict[str, Any]) -> dict[str, Any] | None:
     """The plan the run follows: the last extension's, the replan's or the first."""
     ext = latest(stages, "extend")
@@ -172,7 +183,8 @@ def extension_lines(stages: dict[str, Any]) -> list[str]:
             f"{_min(p['total'])} after {_min(e['spent'])} spent; {p['reasons'][-1]}."
         )
         if not new:
-            lines.append(head + " Added no finished round.")
+            retune = " (tuning and the curve run again)" if e.get("renews") else ""
+            lines.append(f"{head} Added no finished round{retune}.")
             continue
         before = max(r["validation"] for r in old)
         best = max(new + old, key=lambda r: (r["validation"], -r["round"]))
@@ -247,12 +259,8 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:
-    """A note when the curve shown was measured before the last rerun added rounds."""
-    ext = [
-        n.removeprefix("extend_")
-        for n in _numbered(stages, "extend")
-        if stages[n]["result"]["plan"]["rounds"] > stages[n]["result"]["after_round"]
-    ]
+    """A note when the curve shown was measured before the last rerun renewed the guide."""
+    ext = renewing(stages)
     if name is None or not ext or name == f"curve_{ext[-1]}":
         return []
-    return ["", f"(Measured by `{name}`, for the guide before the rounds the last rerun added.)"]
+    return ["", f"(Measured by `{name}`, for the guide before the last rerun's changes.)"]

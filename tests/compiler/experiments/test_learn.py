@@ -303,3 +303,32 @@ def test_a_rerun_whose_extension_adds_no_round_runs_nothing_more(tmp_path, monke
         (out / "report.md").read_text()
     )
     assert "Added no finished round." in (out / "report.md").read_text()
+
+
+def test_a_rerun_that_can_now_tune_tunes_and_measures_the_curve_again(tmp_path, monkeypatch):
+    """A first run too small to tune; the rerun's extension adds no round but a tune grid:
+    tune_1 and curve_1 run and OUT/guide.onnx becomes the tuned best round."""
+    untuned = replace(TINY, choice_temperatures=(), ess=())
+    monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: untuned)
+    monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: untuned)
+    cfg = small(tmp_path)
+    learn(cfg, log=lambda _m: None)
+    out = Path(cfg.out)
+    assert stages(out)["tune"]["result"] is None
+    monkeypatch.setattr(
+        learn_mod,
+        "extend",
+        lambda p, total, left, costs, done, trained, val, **kw: replace(
+            p, total=total, budget=left, rounds=done, choice_temperatures=(1.0, 0.5), ess=(None,)
+        ),
+    )
+    cfg.budget = 900.0
+    learn(cfg, log=lambda _m: None)
+    done = stages(out)
+    assert list(done)[-3:] == ["extend_1", "tune_1", "curve_1"]
+    assert done["extend_1"]["result"]["renews"] is True
+    tuned = done["tune_1"]["result"]["guide"]
+    assert (out / "guide.onnx").read_bytes() == Path(tuned).read_bytes()
+    report = (out / "report.md").read_text()
+    assert "Added no finished round (tuning and the curve run again)." in report
+    assert ", tuned (" in report

@@ -15,6 +15,7 @@ from ngpm_compiler.experiments.learn_plan import (
     TRACE_GRACE,
     TRACE_SLACK,
     TRAIN_FIXED,
+    TRAIN_SECONDS,
     TUNE_CHOICES,
     UNGUIDED_PARTICLES,
     Costs,
@@ -24,6 +25,7 @@ from ngpm_compiler.experiments.learn_plan import (
     replan,
     round_seconds,
     trace_allowance,
+    train_per_trace,
 )
 
 # measured on the 2-core test machine (vines, ivy): unguided trace jobs about 1 ms per
@@ -186,3 +188,19 @@ def test_extend_counts_only_the_guided_curve_runs_when_the_curve_was_cached():
     full = extend(p, 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0)
     cached = extend(p, 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0, curve_done=True)
     assert cached.estimates["curve"] < full.estimates["curve"]
+
+
+def test_train_per_trace_leaves_out_the_fixed_part():
+    assert train_per_trace(10 + 0.05 * 1000, 1000) == pytest.approx(0.05)
+    assert train_per_trace(8.0, 1) == TRAIN_SECONDS  # one trace: all of it is fixed cost
+    assert train_per_trace(5.0, 100) == pytest.approx(TRAIN_SECONDS / 20)
+
+
+def test_a_small_first_run_is_extended_by_a_round_that_doubles_its_traces():
+    """17 traces trained on: rounds of fewer than MIN_TRACES (but at least 17) are added;
+    after 500 traces the same time adds none."""
+    p = plan(60, VINES)
+    assert p.rounds == 0 and p.traces < MIN_TRACES
+    q = extend(p, 150, 90, VINES, 0, 17, 3.0)
+    assert q.rounds == 1 and 17 <= q.guided_traces < MIN_TRACES
+    assert extend(p, 150, 90, VINES, 0, 500, 3.0).rounds == 0
