@@ -190,6 +190,8 @@ def table(results: list[dict[str, Any]], ns: list[int]) -> list[str]:
     for r in results:
         u = {int(k): v for k, v in r["unguided"].items()}
         match = f"{r['match_n']:.0f}" if r["match_n"] is not None else f"> {max(ns)}"
+        if u and r["guided"] <= u[min(u)]:  # no better than the smallest unguided N
+            match = f"<= {min(u)}"
         ratio = "" if r["ratio"] is None else f"{r['ratio_bound']}{r['ratio']:.1f}x".strip()
         stop = " (budget ran out)" if r["stopped"] else ""
         cells = [f"{u[n]:.3f}" if n in u else "" for n in ns]

@@ -50,6 +50,8 @@ def test_table_and_page_block(tmp_path):
     }
     lines = lg.table([result], [10, 100, 1000])
     assert lines[2] == "| bush | 44.5 | 4 | **0.700** | 0.100 | 0.300 | 0.500 | > 1000 | >20.0x |"
+    worse = {**result, **lg.figures(summary(0.05))}
+    assert "| **0.050** | 0.100 | 0.300 | 0.500 | <= 10 |" in lg.table([worse], [10, 100, 1000])[2]
     page = tmp_path / "page.md"
     page.write_text("# Results\n\nkept\n")
     lg.write_page(page, "first")

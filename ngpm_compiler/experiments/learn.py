@@ -653,7 +653,7 @@ def _next_round_estimate(run: Run, p: Plan) -> float:
 
 def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
     """learning/tune.py on the best round's guide (None: no grid in the plan), into
-    OUT/work/tuned.onnx (tuned_<k>.onnx after a rerun's extension k added rounds)."""
+    OUT/work/tuned.onnx (tuned_<k>.onnx when a rerun's extension k renewed tuning)."""
     from ngpm_runtime.inference.sitekinds import KINDS
 
     from ngpm_compiler.language.compile import load_grammar
