@@ -163,18 +163,18 @@ def guided_rounds(
     val: float,
     trained: int,
     particles: int,
-    fixed: bool = False,
+    keep_particles: bool = False,
     least: int = MIN_TRACES,
 ) -> tuple[int, int, int, float] | None:
     """The guided rounds that fit `room` seconds after `trained` traces: (rounds, traces per
     round, particles, seconds) with the most rounds of at least `least` traces, at
-    `particles` or, when none fits and not `fixed`, at a half or a quarter of them; None
-    when none fits."""
+    `particles` or, when none fits and not `keep_particles`, at a half or a quarter of
+    them; None when none fits."""
     options = sorted(
         {particles, max(MIN_PARTICLES, particles // 2), max(MIN_PARTICLES, particles // 4)},
         reverse=True,
     )
-    if fixed:
+    if keep_particles:
         options = [particles]
     for pg in options:
         per_job = costs.trace(pg, True) / max(1, costs.workers)
