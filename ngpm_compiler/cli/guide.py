@@ -383,10 +383,10 @@ def cmd_traces(args: argparse.Namespace) -> int:
     m = generate_traces(cfg, args.out)
     per = np.mean(m["job_seconds"]) if m["job_seconds"] else 0.0
     failed = f", {m['failed']} of them SMC failures" if m["failed"] else ""
+    short = "no" if cfg.min_primitives == 1 else f"fewer than {cfg.min_primitives}"
     print(
-        f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped (fewer than "
-        f"{cfg.min_primitives} primitives{failed}), {len(m['shards'])} shards, "
-        f"{per:.2f} s per job"
+        f"{args.out}: {m['kept']} traces kept, {m['dropped']} dropped ({short} "
+        f"primitives{failed}), {len(m['shards'])} shards, {per:.2f} s per job"
     )
     return 0
 
