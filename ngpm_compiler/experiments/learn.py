@@ -63,7 +63,9 @@ from ngpm_compiler.progress import Log
 STATE_FORMAT = "ngpm-learn/1"
 FEATURES = "all+context"
 TRAIN_DATASETS = ("scribbles", "varied")
-VALIDATION = {"varied": ("varied", 1), "shapes": ("shapes", 101)}  # name: (dataset, seed)
+# name: (dataset, seed); the seeds differ from the training sets' (cfg.seed + i), so the
+# validation targets are held out (targets_stage checks it)
+VALIDATION = {"varied": ("varied", 9001), "shapes": ("shapes", 9101)}
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
 MEASURE_SMALL = 100  # particles of the measured jobs when the budget is under 10 minutes
 
@@ -256,6 +258,12 @@ def targets_stage(run: Run) -> dict[str, Any]:
 
     cfg, root = run.cfg, run.out / "targets"
     train = list(cfg.targets)
+    seen = {(name, cfg.seed + i) for i, name in enumerate(TRAIN_DATASETS)}
+    if not cfg.targets and seen & set(VALIDATION.values()) and not cfg.validation:
+        raise LearnError(
+            f"--seed {cfg.seed} would build training targets equal to the validation targets; "
+            "choose another seed"
+        )
     if not train:
         count = 300 if cfg.budget >= 1800 else max(8, min(300, int(cfg.budget / 6)))
         for i, name in enumerate(TRAIN_DATASETS):

@@ -332,3 +332,21 @@ def test_a_rerun_that_can_now_tune_tunes_and_measures_the_curve_again(tmp_path, 
     report = (out / "report.md").read_text()
     assert "Added no finished round (tuning and the curve run again)." in report
     assert ", tuned (" in report
+
+
+def _stage_run(tmp_path: Path, seed: int) -> learn_mod.Run:
+    cfg = LearnConfig(grammar=CHAIN, out=str(tmp_path / "out"), budget=48.0, seed=seed)
+    return learn_mod.Run(cfg, {}, learn_mod.Clock(48.0, 0.0), print)
+
+
+def test_the_built_validation_targets_are_not_training_targets(tmp_path):
+    dirs = learn_mod.targets_stage(_stage_run(tmp_path, 0))
+    train = {p.read_bytes() for d in dirs["train"] for p in Path(d).glob("*.png")}
+    val = [p.read_bytes() for d in dirs["validation"].values() for p in Path(d).glob("*.png")]
+    assert train and val and not train & set(val)
+
+
+def test_a_seed_that_would_train_on_the_validation_targets_is_refused(tmp_path):
+    seed = learn_mod.VALIDATION["varied"][1] - 1  # varied is built with cfg.seed + 1
+    with pytest.raises(LearnError, match="validation targets; choose another seed"):
+        learn_mod.targets_stage(_stage_run(tmp_path, seed))
