@@ -40,18 +40,18 @@ _NO_VOXELS = np.zeros((0, 1, 1, 1), dtype=np.uint8)
 _NO_COUNTS = np.zeros((0, 0), dtype=np.uint16)
 
 
-def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
-    """(n, k) float64: `a` reshaped, truncated or zero-padded to k columns."""
+def _put_columns(dst: np.ndarray, a: np.ndarray) -> None:
+    """Write `a` into the (n, k) columns `dst`, reshaped to n rows, truncated or
+    zero-padded to k columns (all zeros when `a` is empty)."""
     a = np.asarray(a, dtype=np.float64)
+    n, k = dst.shape
     if a.size == 0:
-        return np.zeros((n, k))
+        dst[:] = 0.0
+        return
     a = a.reshape(n, -1)
-    if a.shape[1] == k:
-        return a
-    out = np.zeros((n, k))
     m = min(k, a.shape[1])
-    out[:, :m] = a[:, :m]
-    return out
+    dst[:, :m] = a[:, :m]
+    dst[:, m:] = 0.0
 
 
 class FeatureMaker3D:
@@ -210,21 +210,17 @@ class FeatureMaker3D:
         arguments, then the windows."""
         out = []
         pos = 0
+        tail = common.shape[1] - N_LOCAL_BASE
         for site, par, args in zip(sites, params, prior_args, strict=True):
             m = len(args)
             block = common[pos : pos + m]
-            out.append(
-                np.concatenate(
-                    (
-                        block[:, :N_LOCAL_BASE],
-                        _fit_columns(par, m, int(site.arity)),
-                        _fit_columns(args, m, int(site.n_args())),
-                        block[:, N_LOCAL_BASE:],
-                    ),
-                    axis=1,
-                    dtype=np.float32,
-                )
-            )
+            a, k = int(site.arity), int(site.n_args())
+            row = np.empty((m, N_LOCAL_BASE + a + k + tail), dtype=np.float32)
+            row[:, :N_LOCAL_BASE] = block[:, :N_LOCAL_BASE]
+            _put_columns(row[:, N_LOCAL_BASE : N_LOCAL_BASE + a], par)
+            _put_columns(row[:, N_LOCAL_BASE + a : N_LOCAL_BASE + a + k], args)
+            row[:, N_LOCAL_BASE + a + k :] = block[:, N_LOCAL_BASE:]
+            out.append(row)
             pos += m
         if pos != len(common):
             raise ValueError(f"features: {len(common)} particles, {pos} rows of arguments")
