@@ -40,18 +40,18 @@ _NO_VOXELS = np.zeros((0, 1, 1, 1), dtype=np.uint8)
 _NO_COUNTS = np.zeros((0, 0), dtype=np.uint16)
 
 
-def _put_columns(dst: np.ndarray, a: np.ndarray) -> None:
-    """Write `a` into the (n, k) columns `dst`, reshaped to n rows, truncated or
-    zero-padded to k columns (all zeros when `a` is empty)."""
+def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
+    """(n, k) float64: `a` reshaped, truncated or zero-padded to k columns."""
     a = np.asarray(a, dtype=np.float64)
-    n, k = dst.shape
     if a.size == 0:
-        dst[:] = 0.0
-        return
+        return np.zeros((n, k))
     a = a.reshape(n, -1)
+    if a.shape[1] == k:
+        return a
+    out = np.zeros((n, k))
     m = min(k, a.shape[1])
-    dst[:, :m] = a[:, :m]
-    dst[:, m:] = 0.0
+    out[:, :m] = a[:, :m]
+    return out
 
 
 class FeatureMaker3D:
@@ -210,17 +210,21 @@ class FeatureMaker3D:
         arguments, then the windows."""
         out = []
         pos = 0
-        tail = common.shape[1] - N_LOCAL_BASE
         for site, par, args in zip(sites, params, prior_args, strict=True):
             m = len(args)
             block = common[pos : pos + m]
-            a, k = int(site.arity), int(site.n_args())
-            row = np.empty((m, N_LOCAL_BASE + a + k + tail), dtype=np.float32)
-            row[:, :N_LOCAL_BASE] = block[:, :N_LOCAL_BASE]
-            _put_columns(row[:, N_LOCAL_BASE : N_LOCAL_BASE + a], par)
-            _put_columns(row[:, N_LOCAL_BASE + a : N_LOCAL_BASE + a + k], args)
-            row[:, N_LOCAL_BASE + a + k :] = block[:, N_LOCAL_BASE:]
-            out.append(row)
+            out.append(
+                np.concatenate(
+                    (
+                        block[:, :N_LOCAL_BASE],
+                        _fit_columns(par, m, int(site.arity)),
+                        _fit_columns(args, m, int(site.n_args())),
+                        block[:, N_LOCAL_BASE:],
+                    ),
+                    axis=1,
+                    dtype=np.float32,
+                )
+            )
             pos += m
         if pos != len(common):
             raise ValueError(f"features: {len(common)} particles, {pos} rows of arguments")
