@@ -1,6 +1,7 @@
 """3D grow cost of two runtime versions, run in turn, and whether their seeded runs agree.
 
     python benchmarks/compare3d.py OLD_RUNTIME_DIR [--rounds 4] [--targets DIR] [--k 4]
+    python benchmarks/compare3d.py --profile [--targets DIR] [--k 4]
 
 OLD_RUNTIME_DIR holds an older `ngpm_runtime` package (for example `git worktree add
 /tmp/old <commit>`, then /tmp/old/runtime). Each round runs, as fresh processes, this file's
@@ -10,7 +11,9 @@ held-out `revolved` set (built in work/revolved when missing, as benchmarks/eval
 seeds 0 and 1: guided N = 10 with the bundled guide, unguided N = 100, on one core. It prints
 the CPU seconds per run and a hash of every run's trees, similarity, weights and evidence:
 equal hashes mean the versions' seeded runs are the same bit for bit. The table gives the
-median over rounds and the load average.
+median over rounds and the load average. `--profile` runs the same grows with this
+checkout's runtime under cProfile and prints the share of each part of a run (the time
+inside the named functions, callees included; the turtle's: its own functions' time).
 """
 
 from __future__ import annotations
@@ -24,21 +27,27 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 MODES = (("guided N=10", True, 10), ("unguided N=100", False, 100))
+PARTS = {  # part -> (file, function) whose cumulative time it is
+    "site rounds": ("inference/smc.py", "_serve"),
+    "  3D feature rows": ("volume/features.py", "features_round"),
+    "  guide networks, draws": ("inference/guide.py", "propose_round"),
+    "derivation": ("geometry/derive.py", "advance"),
+    "resampling": ("inference/smc.py", "_resample"),
+    "drawing voxels": ("volume/raster.py", "draw"),
+    "likelihood increments": ("volume/likelihood.py", "increment"),
+}
 
 
 def child(targets_dir: str, k: int) -> None:
     """One process's runs: JSON {mode: [CPU s per run, hash]} on stdout."""
-    from ngpm_runtime import bundled
     from ngpm_runtime.grow import grow
-    from ngpm_runtime.volume.load import load_volume_dataset
 
-    program = bundled.bundled_program3d()
-    guide = bundled.bundled_guide3d(program)
-    targets = load_volume_dataset(targets_dir, program)[:k]
+    program, guide, targets = _grows(targets_dir, k)
     grow(program, targets[0], guide, 10, 0)  # kernels loaded, caches warm
     out = {}
     for label, guided, n in MODES:
@@ -55,6 +64,44 @@ def child(targets_dir: str, k: int) -> None:
     print(json.dumps(out))
 
 
+def _grows(targets_dir: str, k: int) -> tuple[Any, Any, list[Any]]:
+    from ngpm_runtime import bundled
+    from ngpm_runtime.volume.load import load_volume_dataset
+
+    program = bundled.bundled_program3d()
+    guide = bundled.bundled_guide3d(program)
+    return program, guide, load_volume_dataset(targets_dir, program)[:k]
+
+
+def profile(targets_dir: str, k: int) -> None:
+    """The share of each part of a 3D run (PARTS, and the 3D turtle), guided and unguided."""
+    import cProfile
+    import pstats
+
+    from ngpm_runtime.grow import grow
+
+    program, guide, targets = _grows(targets_dir, k)
+    grow(program, targets[0], guide, 10, 0)
+    print(f"share of a grow's time under cProfile, {k} revolved targets x 2 seeds")
+    for label, guided, n in MODES:
+        prof = cProfile.Profile()
+        prof.enable()
+        for seed in (0, 1):
+            for t in targets:
+                grow(program, t, guide if guided else None, n, seed)
+        prof.disable()
+        stats = pstats.Stats(prof).stats  # type: ignore[attr-defined]
+        cum = {
+            (Path(f).parent.name + "/" + Path(f).name, fn): v[3] for (f, _, fn), v in stats.items()
+        }
+        total = cum[("ngpm_runtime/grow.py", "grow")]
+        turtle = sum(v[2] for (f, _, _), v in stats.items() if f.endswith("turtle3d.py"))
+        print(f"{label}: {total:.2f} s in all")
+        for part, key in PARTS.items():
+            print(f"  {part:26s} {100 * cum.get(key, 0.0) / total:5.1f}%")
+        print(f"  {'3D turtle (own time)':26s} {100 * turtle / total:5.1f}%")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("old", nargs="?", help="directory holding the older ngpm_runtime package")
@@ -62,9 +109,13 @@ def main() -> None:
     ap.add_argument("--targets", default=str(ROOT / "work" / "revolved"))
     ap.add_argument("--k", type=int, default=4)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--profile", action="store_true", help="where this runtime's time goes")
     args = ap.parse_args()
     if args.child:
         child(args.targets, args.k)
+        return
+    if args.profile:
+        profile(args.targets, args.k)
         return
     if args.old is None:
         ap.error("give OLD_RUNTIME_DIR")
