@@ -109,9 +109,9 @@ def _turn_about(axis: str, sign: float) -> Callable[[Module, Turtle3, Any, Any, 
         a = (mod[1] if len(mod) > 1 else angle) * _RAD
         c, s = math.cos(a), sign * math.sin(a)
         p0, p1, p2, q0, q1, q2 = t[3:9]  # p = H, q = L
-        turned = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
-        turned += (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
-        return t[:3] + turned + t[9:], tstack, poly, None
+        p = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
+        q = (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
+        return t[:3] + p + q + t[9:], tstack, poly, None
 
     def about_l(mod: Module, t: Turtle3, tstack: Any, poly: Any, angle: float) -> Step3:
         a = (mod[1] if len(mod) > 1 else angle) * _RAD
@@ -126,9 +126,9 @@ def _turn_about(axis: str, sign: float) -> Callable[[Module, Turtle3, Any, Any, 
         a = (mod[1] if len(mod) > 1 else angle) * _RAD
         c, s = math.cos(a), sign * math.sin(a)
         p0, p1, p2, q0, q1, q2 = t[6:12]  # p = L, q = U
-        turned = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
-        turned += (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
-        return t[:6] + turned + t[12:], tstack, poly, None
+        p = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
+        q = (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
+        return t[:6] + p + q + t[12:], tstack, poly, None
 
     return {"U": about_u, "L": about_l, "H": about_h}[axis]
 
