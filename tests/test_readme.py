@@ -102,7 +102,8 @@ def test_demo_picture_is_an_image() -> None:
             x0 = PAD + c * (CELL + PAD)
             inner = gray[y0 + 2 : y0 + CELL - 2, x0 + 2 : x0 + CELL - 2]  # inside the frame
             drawn = (inner != np.median(inner)).mean()
-            assert drawn > 0.002, f"picture {r}, {c} of demo.png looks blank ({drawn:.3f})"
+            least = 0.01 if r < 4 else 0.002  # a 3D row's tree may be a stub
+            assert drawn > least, f"picture {r}, {c} of demo.png looks blank ({drawn:.3f})"
 
 
 def test_readme_python_runs(monkeypatch) -> None:
