@@ -119,20 +119,9 @@ def _mean(rows: Sequence[DemoRow | Demo3DRow], kind: str) -> tuple[str, str]:
 
 def summary_table(rows: list[DemoRow], particles: int, runs: int = 1) -> str:
     head = ("target", f"guided N={particles}", "seconds", f"unguided N={particles}", "seconds")
-    body = [(r.target.name, *_stats(r.guided_runs), *_stats(r.unguided_runs)) for r in rows]
-    body.append(("mean", *_mean(rows, "guided"), *_mean(rows, "unguided")))
-    widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]
-    lines = [
-        "  ".join(
-            c.ljust(w) if i == 0 else c.rjust(w)
-            for i, (c, w) in enumerate(zip(r, widths, strict=True))
-        )
-        for r in [head, *body]
-    ]
-    lines.insert(1, "-" * len(lines[0]))
     return (
         f"similarity (1 = the target exactly, 0 = no better than a blank canvas) and "
-        f"seconds, mean of {runs} run{'s' if runs > 1 else ''}\n" + "\n".join(lines)
+        f"seconds, mean of {runs} run{'s' if runs > 1 else ''}\n" + _text_table(head, rows)
     )
 
 
@@ -140,6 +129,11 @@ def summary_table3d(rows: Sequence[Demo3DRow], particles: int) -> str:
     """The 3D rows as summary_table's text table (the unguided runs' N in the header)."""
     n_u = UNGUIDED_FACTOR * particles
     head = ("3D target", f"guided N={particles}", "seconds", f"unguided N={n_u}", "seconds")
+    return _text_table(head, rows)
+
+
+def _text_table(head: tuple[str, ...], rows: Sequence[DemoRow | Demo3DRow]) -> str:
+    """Aligned columns: name, guided similarity and seconds, unguided ones; then the mean."""
     body = [(r.target.name, *_stats(r.guided_runs), *_stats(r.unguided_runs)) for r in rows]
     body.append(("mean", *_mean(rows, "guided"), *_mean(rows, "unguided")))
     widths = [max(len(x[i]) for x in [head, *body]) for i in range(len(head))]

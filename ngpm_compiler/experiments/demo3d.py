@@ -22,8 +22,8 @@ from typing import Any
 RESOLUTION = 32
 EXTRUDE = 0.25
 REVOLVED = {7: "tree_revolved", 8: "mushroom_revolved"}  # index in the revolved set -> name
-# unguided particles per guided particle: unguided N = 20 took about as long as guided
-# N = 10 on these targets (0.44 s against 0.42 s a run; the demo prints both times)
+# unguided particles per guided particle: unguided N = 20 takes about as long as guided
+# N = 10 on these targets (docs/results/demo.md: 0.60 s and 0.56 s a run)
 UNGUIDED_FACTOR = 2
 SOURCES = {
     "vase": "mesh demo_vase.obj",
