@@ -1,5 +1,6 @@
 """The demo's built-in targets (shipped in runtime/ngpm_runtime/data/): a glyph, a horse, a
-heart and a spiral. `write_demo_targets(dir)` (re)makes them."""
+heart and a spiral, and the 3D rows' vase mesh (`demo_vase.obj`). `write_demo_targets(dir)`
+(re)makes them."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ import os
 from pathlib import Path
 
 import numpy as np
+from ngpm_runtime.files import atomic_write
 from ngpm_runtime.image.targets import Target, auto_start, save_target
 from PIL import Image, ImageDraw, ImageFont
 
 SIZE = 50
 SUPER = 8  # supersampling of the drawn shapes
+VASE_FILE = "demo_vase.obj"
 
 
 def _heart_mask(n: int) -> np.ndarray:
@@ -63,9 +66,50 @@ def make_demo_targets(size: int = SIZE) -> dict[str, Target]:
     return {name: Target(m, auto_start(m), name) for name, m in masks.items()}
 
 
+def vase_mesh(sides: int = 32, rings: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, triangles) of a closed vase, a solid of revolution about the y axis (y up,
+    height 1): a round belly, a narrow neck and a flared lip, capped at both ends;
+    triangles counter-clockwise seen from outside."""
+    y = np.linspace(0.0, 1.0, rings)
+    radius = 0.16 + 0.14 * np.sin(np.pi * np.minimum(y / 0.75, 1.0)) + 0.09 * (y / 1.0) ** 6
+    a = 2.0 * np.pi * np.arange(sides) / sides
+    ring = np.stack(
+        [
+            radius[:, None] * np.cos(a),
+            np.repeat(y[:, None], sides, 1),
+            -radius[:, None] * np.sin(a),
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    verts = np.concatenate([ring, [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])
+    bottom, top = len(ring), len(ring) + 1
+    tris = []
+    for i in range(rings - 1):
+        for j in range(sides):
+            a0, a1 = i * sides + j, i * sides + (j + 1) % sides
+            b0, b1 = a0 + sides, a1 + sides
+            tris += [(a0, a1, b1), (a0, b1, b0)]
+    last = (rings - 1) * sides
+    for j in range(sides):
+        k = (j + 1) % sides
+        tris += [(bottom, k, j), (top, last + j, last + k)]
+    return verts, np.array(tris, dtype=np.int64)
+
+
+def vase_obj() -> str:
+    """The vase as Wavefront .obj text (what `demo_vase.obj` holds)."""
+    verts, tris = vase_mesh()
+    lines = ["# the ngpm demo's vase (ngpm_compiler.datasets.demo_targets.vase_mesh)"]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in verts]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in tris]
+    return "\n".join(lines) + "\n"
+
+
 def write_demo_targets(out_dir: str | os.PathLike[str]) -> list[Path]:
-    """Write `demo_<name>.png` + sidecar for every demo target into out_dir."""
-    return [
+    """Write `demo_<name>.png` + sidecar for every demo target and the vase mesh
+    `demo_vase.obj` into out_dir."""
+    written = [
         save_target(t, Path(out_dir) / f"demo_{name}.png")
         for name, t in make_demo_targets().items()
     ]
+    return [*written, atomic_write(Path(out_dir) / VASE_FILE, vase_obj())]

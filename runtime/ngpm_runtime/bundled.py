@@ -10,7 +10,8 @@ Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the re
   `ngpmc compile grammars/topiary3d.lsys -o runtime/ngpm_runtime/data`
 - `topiary3d_guide.onnx`: `bash scripts/train_topiary3d_guide.sh work/topiary3d`, then
   copied here
-- `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), made by
+- `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), and
+  `demo_vase.obj`, the mesh of its 3D rows, made by
   `ngpm_compiler.datasets.demo_targets.write_demo_targets("runtime/ngpm_runtime/data")`
 
 Only numpy / onnxruntime code is imported here: no torch, no lark, no compiler.

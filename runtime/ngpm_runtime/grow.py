@@ -157,7 +157,6 @@ def _grow3d(
 ) -> GrowResult:
     """grow() of a 3D grammar into a VolumeTarget: similarity and image are the best
     particle's voxels on the target's grid."""
-    from ngpm_runtime.volume.likelihood import volume_similarity
     from ngpm_runtime.volume.raster import VoxelGrid, voxelize
     from ngpm_runtime.volume.run import start_pose, volume_likelihood
 
@@ -179,5 +178,5 @@ def _grow3d(
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
     voxels = voxelize(prims, VoxelGrid.of_target(target))
-    sim = volume_similarity(voxels, target.occupancy)
+    sim = like.similarity(voxels)
     return GrowResult(sim, seconds, n_particles, prims, voxels, result)

@@ -145,6 +145,19 @@ def test_demo_targets_are_the_ones_the_project_makes() -> None:
         assert np.allclose(t.start, made[t.name].start, atol=1e-5), t.name
 
 
+def test_demo_vase_is_the_closed_mesh_the_project_makes() -> None:
+    from ngpm_runtime.geometry.mesh_read import read_mesh
+    from ngpm_runtime.volume.voxelize import check_closed
+
+    from ngpm_compiler.datasets.demo_targets import VASE_FILE, vase_obj
+
+    path = bundled.data_path(VASE_FILE)
+    assert path.read_text(encoding="utf-8") == vase_obj()
+    vertices, faces = read_mesh(path)
+    check_closed(vertices, faces, "vase")  # raises on a hole
+    assert vertices[:, 1].min() == 0.0 and vertices[:, 1].max() == 1.0
+
+
 def test_unknown_demo_target() -> None:
     with pytest.raises(TargetError, match="choose from glyph"):
         bundled.demo_target_path("unicorn")

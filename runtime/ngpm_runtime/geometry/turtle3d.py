@@ -98,12 +98,39 @@ def interpret3d(
 Step3 = tuple[Turtle3, Cons | None, Cons | None, Prim | None]  # what a symbol returns
 
 
-def _turn_op(
-    mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, angle: float
-) -> Step3:
-    """`+ - & ^ / \\`: a rotation about one frame axis (`_AXES`)."""
-    a = (mod[1] if len(mod) > 1 else angle) * _RAD
-    return _rotate(turtle, mod[0], a), tstack, poly, None
+def _turn_about(axis: str, sign: float) -> Callable[[Module, Turtle3, Any, Any, float], Step3]:
+    """The op of a rotation symbol: the turtle turned by the symbol's angle (radians, times
+    `sign`) about one frame axis, right-handed: about U, H -> H cos + L sin; about L,
+    U -> U cos + H sin; about H, L -> L cos + U sin (the third vector p x q follows: p and q
+    become p cos + q sin and q cos - p sin). One function per axis, written out: the deriver
+    calls it for every turn (tests/reference/turtle3d.py holds the plain version)."""
+
+    def about_u(mod: Module, t: Turtle3, tstack: Any, poly: Any, angle: float) -> Step3:
+        a = (mod[1] if len(mod) > 1 else angle) * _RAD
+        c, s = math.cos(a), sign * math.sin(a)
+        p0, p1, p2, q0, q1, q2 = t[3:9]  # p = H, q = L
+        p = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
+        q = (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
+        return t[:3] + p + q + t[9:], tstack, poly, None
+
+    def about_l(mod: Module, t: Turtle3, tstack: Any, poly: Any, angle: float) -> Step3:
+        a = (mod[1] if len(mod) > 1 else angle) * _RAD
+        c, s = math.cos(a), sign * math.sin(a)
+        q0, q1, q2 = t[3:6]  # p = U, q = H
+        p0, p1, p2 = t[9:12]
+        h = (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
+        u = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
+        return t[:3] + h + t[6:9] + u + t[12:], tstack, poly, None
+
+    def about_h(mod: Module, t: Turtle3, tstack: Any, poly: Any, angle: float) -> Step3:
+        a = (mod[1] if len(mod) > 1 else angle) * _RAD
+        c, s = math.cos(a), sign * math.sin(a)
+        p0, p1, p2, q0, q1, q2 = t[6:12]  # p = L, q = U
+        p = (p0 * c + q0 * s, p1 * c + q1 * s, p2 * c + q2 * s)
+        q = (q0 * c - p0 * s, q1 * c - p1 * s, q2 * c - p2 * s)
+        return t[:6] + p + q + t[12:], tstack, poly, None
+
+    return {"U": about_u, "L": about_l, "H": about_h}[axis]
 
 
 def _push(mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, _: float) -> Step3:
@@ -154,32 +181,6 @@ _AXES = {
 }
 
 
-def _rotate(t: Turtle3, name: str, a: float) -> Turtle3:
-    """The turtle turned by `a` radians (times the symbol's sign) about one frame axis,
-    right-handed: about U, H -> H cos + L sin; about L, U -> U cos + H sin; about H,
-    L -> L cos + U sin (the third vector p x q follows)."""
-    axis, sign = _AXES[name]
-    c, s = math.cos(a), sign * math.sin(a)
-    h, lv, u = t[3:6], t[6:9], t[9:12]
-    if axis == "U":  # p = H, q = L
-        h, lv = _turn(h, lv, c, s)
-    elif axis == "L":  # p = U, q = H
-        u, h = _turn(u, h, c, s)
-    else:  # p = L, q = U
-        lv, u = _turn(lv, u, c, s)
-    return t[:3] + h + lv + u + t[12:]
-
-
-def _turn(
-    p: tuple[float, ...], q: tuple[float, ...], c: float, s: float
-) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """(p cos + q sin, q cos - p sin): p and q turned in their plane."""
-    return (
-        (p[0] * c + q[0] * s, p[1] * c + q[1] * s, p[2] * c + q[2] * s),
-        (q[0] * c - p[0] * s, q[1] * c - p[1] * s, q[2] * c - p[2] * s),
-    )
-
-
 def _other(
     mod: Module, turtle: Turtle3, tstack: Cons | None, poly: Cons | None, _: float = 0.0
 ) -> tuple[Turtle3, Cons | None, Cons | None, Prim | None]:
@@ -215,9 +216,10 @@ def _other(
 
 # symbol -> its semantics: (mod, turtle, tstack, poly, angle) -> (turtle, tstack, poly, prim)
 TURTLE3D_OPS: dict[str, Callable[[Module, Turtle3, Any, Any, float], Step3]] = {
-    name: _turn_op if name in _AXES else _other for name in TURTLE3D_SYMBOLS
+    name: _other for name in TURTLE3D_SYMBOLS
 }
 TURTLE3D_OPS.update({"F": _forward, "f": _move, "[": _push, "]": _pop})
+TURTLE3D_OPS.update({name: _turn_about(*_AXES[name]) for name in _AXES})
 
 
 def _color(mod: Module, color: int) -> int:
@@ -281,29 +283,33 @@ def bend(t: Turtle3, trop: Tropism) -> Turtle3:
     alpha = e * s
     ax, ay, az = ax / s, ay / s, az / s
     c, sn = math.cos(alpha), math.sin(alpha)
-
-    def rot(vx: float, vy: float, vz: float) -> tuple[float, float, float]:
-        # Rodrigues: v cos + (a x v) sin + a (a . v)(1 - cos)
-        d = (ax * vx + ay * vy + az * vz) * (1.0 - c)
-        return (
-            vx * c + (ay * vz - az * vy) * sn + ax * d,
-            vy * c + (az * vx - ax * vz) * sn + ay * d,
-            vz * c + (ax * vy - ay * vx) * sn + az * d,
-        )
-
-    h = _unit(*rot(hx, hy, hz))
-    lx, ly, lz = rot(t[6], t[7], t[8])
-    dot = lx * h[0] + ly * h[1] + lz * h[2]
-    lv = _unit(lx - dot * h[0], ly - dot * h[1], lz - dot * h[2])
-    u = (h[1] * lv[2] - h[2] * lv[1], h[2] * lv[0] - h[0] * lv[2], h[0] * lv[1] - h[1] * lv[0])
-    return t[:3] + h + lv + u + t[12:]
-
-
-def _unit(x: float, y: float, z: float) -> tuple[float, float, float]:
-    n = math.hypot(x, y, z)
+    omc = 1.0 - c
+    # Rodrigues on H and L: v cos + (a x v) sin + a (a . v)(1 - cos), written out
+    d = (ax * hx + ay * hy + az * hz) * omc
+    rx = hx * c + (ay * hz - az * hy) * sn + ax * d
+    ry = hy * c + (az * hx - ax * hz) * sn + ay * d
+    rz = hz * c + (ax * hy - ay * hx) * sn + az * d
+    n = math.hypot(rx, ry, rz)
     if n == 0:
         raise ValueError("the turtle's frame has collapsed")
-    return (x / n, y / n, z / n)
+    h0, h1, h2 = rx / n, ry / n, rz / n
+    vx, vy, vz = t[6], t[7], t[8]
+    d = (ax * vx + ay * vy + az * vz) * omc
+    lx = vx * c + (ay * vz - az * vy) * sn + ax * d
+    ly = vy * c + (az * vx - ax * vz) * sn + ay * d
+    lz = vz * c + (ax * vy - ay * vx) * sn + az * d
+    dot = lx * h0 + ly * h1 + lz * h2
+    lx, ly, lz = lx - dot * h0, ly - dot * h1, lz - dot * h2
+    n = math.hypot(lx, ly, lz)
+    if n == 0:
+        raise ValueError("the turtle's frame has collapsed")
+    l0, l1, l2 = lx / n, ly / n, lz / n
+    return (
+        t[:3]
+        + (h0, h1, h2, l0, l1, l2)
+        + (h1 * l2 - h2 * l1, h2 * l0 - h0 * l2, h0 * l1 - h1 * l0)
+        + t[12:]
+    )
 
 
 def prim3_bounds(prim: Prim) -> tuple[float, float, float, float, float, float]:

@@ -30,15 +30,18 @@ def sobel3(grid: np.ndarray) -> np.ndarray:
     """3D Sobel gradient magnitude / 16 of an (nx, ny, nz) grid, zero padding."""
     p = np.pad(np.asarray(grid, dtype=np.float64), 1)
 
+    def cut(a: np.ndarray, axis: int, start: int, stop: int) -> np.ndarray:
+        index = [slice(None)] * a.ndim
+        index[axis] = slice(start, a.shape[axis] - 2 + stop)
+        out: np.ndarray = a[tuple(index)]
+        return out
+
     def smooth(a: np.ndarray, axis: int) -> np.ndarray:
-        lo, mid, hi = (np.take(a, range(s, a.shape[axis] - 2 + s), axis=axis) for s in range(3))
-        out: np.ndarray = lo + 2.0 * mid + hi
+        out: np.ndarray = cut(a, axis, 0, 0) + 2.0 * cut(a, axis, 1, 1) + cut(a, axis, 2, 2)
         return out
 
     def deriv(a: np.ndarray, axis: int) -> np.ndarray:
-        lo = np.take(a, range(0, a.shape[axis] - 2), axis=axis)
-        hi = np.take(a, range(2, a.shape[axis]), axis=axis)
-        out: np.ndarray = hi - lo
+        out: np.ndarray = cut(a, axis, 2, 2) - cut(a, axis, 0, 0)
         return out
 
     g = [
@@ -65,14 +68,16 @@ def _blank_sim(w: np.ndarray, t: np.ndarray) -> tuple[float, float]:
     return sim0, total
 
 
-def volume_similarity(occupancy: np.ndarray, target: np.ndarray) -> float:
+def volume_similarity(
+    occupancy: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+) -> float:
     """Normalized weighted similarity of an occupancy grid to the target's, 1 = equal,
-    0 = no better than an empty grid."""
+    0 = no better than an empty grid; `weights`: the target's `volume_weights` when known."""
     t = np.asarray(target, dtype=bool)
     v = np.asarray(occupancy).astype(bool)
     if v.shape != t.shape:
         raise ValueError(f"grid {v.shape} and target {t.shape} differ in size")
-    w = volume_weights(t)
+    w = volume_weights(t) if weights is None else weights
     sim0, total = _blank_sim(w, t)
     return (float(w[v == t].sum()) / total - sim0) / (1.0 - sim0)
 
@@ -127,6 +132,7 @@ class VoxelLikelihood(Likelihood):
         self.target = t
         self.box = check_box(box, str(target.name))
         w = volume_weights(t)
+        self.weights = w
         self.sim_blank, total = _blank_sim(w, t)
         self.gain = (w * (2.0 * t - 1.0) / total / (1.0 - self.sim_blank)).reshape(-1)
         self._box = np.array(self.box)
@@ -158,8 +164,12 @@ class VoxelLikelihood(Likelihood):
 
     def full(self, occupancy: np.ndarray, bbox: np.ndarray) -> float:
         """Log-likelihood of one finished grid from scratch."""
-        s = volume_similarity(occupancy, self.target)
+        s = self.similarity(occupancy)
         return float(-(((s - 1.0) / self.sigma) ** 2) + volume_bounds_penalty(bbox, self.box))
+
+    def similarity(self, occupancy: np.ndarray) -> float:
+        """`volume_similarity` of a grid to the target (its weights computed once)."""
+        return volume_similarity(occupancy, self.target, self.weights)
 
     def blank_loglik(self, height: int, width: int) -> float | None:
         """The empty grid's value (the arguments, a 2D canvas's size, are not used)."""

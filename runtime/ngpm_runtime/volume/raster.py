@@ -60,16 +60,19 @@ class VoxelGrid:
 
     @classmethod
     def of_box(cls, box: Sequence[float], resolution: int = DEFAULT_RESOLUTION) -> VoxelGrid:
-        """A cube of `resolution`^3 voxels centred on a program's box (xmin, xmax, ymin, ymax,
-        zmin, zmax), its side the box's longest."""
+        """The grid of a run without a target: the cube of `resolution`^3 voxels that
+        targets are placed on (`volume.target.box_grid`: its side the box's longest, centred
+        on the box in x and z, its floor the box's floor)."""
+        from ngpm_runtime.volume.target import VolumeError, box_grid
+
         b = [float(v) for v in box]
-        side = max(b[1] - b[0], b[3] - b[2], b[5] - b[4])
-        if not (side > 0 and np.isfinite(side)) or resolution < 1:
-            raise ProgramError(f"cannot lay a voxel grid over the box {tuple(b)}")
-        voxel = side / resolution
-        half = resolution * voxel / 2.0
-        lo = tuple((b[2 * a] + b[2 * a + 1]) / 2.0 - half for a in range(3))
-        return cls((lo[0], lo[1], lo[2]), voxel, (resolution,) * 3)
+        try:
+            if resolution < 1:
+                raise VolumeError("no voxels")
+            lo, voxel = box_grid(b, resolution)
+        except VolumeError:
+            raise ProgramError(f"cannot lay a voxel grid over the box {tuple(b)}") from None
+        return cls((float(lo[0]), float(lo[1]), float(lo[2])), voxel, (resolution,) * 3)
 
     def centres(self, axis: int) -> np.ndarray:
         """The voxel centres' world coordinates along one axis."""

@@ -19,6 +19,7 @@ from ngpm_runtime.geometry.turtle3d import (
 )
 from ngpm_runtime.inference.likelihood import CircuitLikelihood
 from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, forward, smc
+from reference import turtle3d as ref3d
 
 S30, C30 = 0.5, math.sqrt(3) / 2
 UP = start3d(0.0, 0.0, 90.0)  # H = +Y, L = -X, U = +Z
@@ -155,6 +156,26 @@ def test_tropism_keeps_the_frame_orthonormal() -> None:
     b = bend(t0, (0.0, -1.0, 0.0, e))
     want = th - e * math.sin(th)
     np.testing.assert_allclose(b[3:6], (math.sin(want), -math.cos(want), 0), atol=1e-12)
+
+
+def test_rotations_and_tropism_match_the_plain_reference_bit_for_bit() -> None:
+    """The ops written out per axis give the same floats as tests/reference/turtle3d.py,
+    so seeded 3D runs did not change with them."""
+    rng = np.random.default_rng(1)
+    d = np.array([0.2, -0.95, 0.1])
+    trop = (*(d / np.linalg.norm(d)).tolist(), 0.35)
+    t = start3d(1.0, 2.0, 33.0, tropism=trop)
+    syms = ["+", "-", "&", "^", "/", "\\"]
+    for k in range(3000):
+        sym = syms[rng.integers(6)]
+        a = float(rng.uniform(-200, 200))
+        mod = (sym, a) if k % 3 else (sym,)  # the grammar's angle when no argument
+        got, *_ = interpret3d(mod, t, None, None, 27.5)
+        assert got == ref3d.rotate(t, sym, a if k % 3 else 27.5)
+        assert bend(got, trop) == ref3d.bend(got, trop)
+        t, _ = run([("F", 0.5)], got)  # moves, then bends
+        assert t[3:12] == ref3d.bend(got, trop)[3:12]
+    assert_orthonormal(t)
 
 
 def test_push_pop_restores_everything() -> None:

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from fixtures.volume3d import GRID, random_prim3
+from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.volume.raster import (
     MIN_RADIUS,
     VoxelCanvas,
@@ -17,6 +18,7 @@ from ngpm_runtime.volume.raster import (
     volume_pyramid,
     voxelize,
 )
+from ngpm_runtime.volume.target import box_grid
 from reference import volume as ref
 
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
@@ -102,6 +104,11 @@ def test_grids_of_boxes_and_bad_targets() -> None:
 
     g = VoxelGrid.of_box((-600, 600, -20, 1150, -600, 600), 32)
     assert g.shape == (32, 32, 32) and g.voxel == pytest.approx(1200 / 32)
-    assert g.lo[1] + 16 * g.voxel == pytest.approx(565.0)  # centred on the box
+    assert g.lo[0] + 16 * g.voxel == pytest.approx(0.0)  # centred on the box in x and z
+    assert g.lo[1] == -20.0  # its floor on the box's floor, as targets' grids
+    lo, voxel = box_grid((-600, 600, -20, 1150, -600, 600), 32)
+    assert g == VoxelGrid((lo[0], lo[1], lo[2]), voxel, (32, 32, 32))
+    with pytest.raises(ProgramError, match="cannot lay a voxel grid"):
+        VoxelGrid.of_box((0, 0, 0, 0, 0, 0), 8)
     with pytest.raises(TargetError, match=r"occupancy must be \(R, R, R\)"):
         VoxelGrid.of_target(VolumeTarget(np.ones((4, 4)), np.zeros(3), 1.0, np.zeros(3), "flat"))
