@@ -116,6 +116,8 @@ def _extra_columns(
 class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
+    n_turtle = 4  # the turtle's numbers a row reads: x, y, heading, width
+
     def __init__(
         self,
         program: Program,
@@ -257,7 +259,7 @@ class FeatureMaker:
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
         extra, n_extra = _extra_columns(sites, params, prior_args, n)
-        return self._rows(
+        return self.rows_from(
             canvas,
             idx,
             np.ascontiguousarray(turtle, dtype=np.float64).reshape(n, 4),
@@ -272,9 +274,9 @@ class FeatureMaker:
         """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
         target and partial windows, context) of every particle."""
         n = len(idx)
-        return self._rows(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
+        return self.rows_from(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
 
-    def _rows(
+    def rows_from(
         self,
         canvas: Canvas | None,
         idx: np.ndarray,
@@ -283,8 +285,11 @@ class FeatureMaker:
         extra: np.ndarray,
         n_extra: np.ndarray,
     ) -> np.ndarray:
-        """The rows: turtle columns, extra[k, :n_extra[k]], windows and context, by
-        kernels.feature_windows."""
+        """The rows (n, n_common + extra's columns) of particles idx (intp) with turtles
+        (n, 4) and depths (n,) (float64): turtle columns, extra[k, :n_extra[k]] (module
+        parameters and prior arguments, fitted to the site), windows and context, by
+        kernels.feature_windows. SMC's rounds call it (their rows unpacked by
+        kernels.unpack_round)."""
         n = len(idx)
         out = np.empty((n, self.n_common + extra.shape[1]), dtype=np.float32)
         h, w = self._shape(canvas)

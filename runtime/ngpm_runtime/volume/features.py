@@ -59,6 +59,7 @@ class FeatureMaker3D:
     image/features.FeatureMaker that smc() uses: features_round, layout)."""
 
     context = False  # no context group in 3D
+    n_turtle = 13  # the turtle's numbers a row reads: position, H, L, U, width
 
     def __init__(
         self,
@@ -197,6 +198,28 @@ class FeatureMaker3D:
             counts,
             starts,
         )
+        return out
+
+    def rows_from(
+        self,
+        canvas: VoxelCanvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        extra: np.ndarray,
+        n_extra: np.ndarray,
+    ) -> np.ndarray:
+        """The rows (n, n_common + extra's columns) float32 of particles idx with turtles
+        (n, 13) and depths (n,): the local base columns, extra[k, :n_extra[k]] (module
+        parameters and prior arguments, fitted to the site), then the windows (as 2D
+        FeatureMaker.rows_from; SMC's rounds call it)."""
+        common = self._common(canvas, idx, turtle, depth)
+        out = np.zeros((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
+        out[:, :N_LOCAL_BASE] = common[:, :N_LOCAL_BASE]
+        for e in np.unique(n_extra).tolist():
+            at = np.flatnonzero(n_extra == e)
+            out[at, N_LOCAL_BASE : N_LOCAL_BASE + e] = extra[at, :e]
+            out[at, N_LOCAL_BASE + e : self.n_common + e] = common[at, N_LOCAL_BASE:]
         return out
 
     def _site_rows(
