@@ -4,7 +4,7 @@ One call per step and part: `draw` (primitives -> canvases and their count pyram
 `shape_increment` / `circuit_increment` (the likelihoods' incremental updates),
 `unpack_round` (a guided round's particle state into the rows of the next two),
 `feature_windows` (turtle columns, 3x3 windows at 4 levels, context), `guide_round` (site
-networks, draws, log q, log prior), `residual_counts`,
+networks, draws, log q, log prior), `add_weights` (SMC's site weights), `residual_counts`,
 `ancestors` and `take_rows` (resampling). They do the arithmetic of the numpy code they
 replaced (tests/reference/ keeps it) in the same order, so images, pyramids, likelihoods,
 features and ancestors are bit-identical to it (sums included: `_pairwise_sum` adds as
@@ -728,6 +728,23 @@ def unpack_round(
             pos += width
             r += 1
     return r
+
+
+@jit
+def add_weights(
+    log_w: np.ndarray, log_prior: np.ndarray, idx: np.ndarray, log_q: np.ndarray, log_p: np.ndarray
+) -> None:
+    """SMC's site weights of particles idx (distinct): log_w += log_p - log_q (NaN: -inf;
+    an empty log_q: no change, the prior proposal), log_prior += log_p."""
+    guided = log_q.shape[0] > 0
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        if not 0 <= i < log_w.shape[0]:
+            raise IndexError("add_weights: particle index out of range")
+        if guided:
+            d = log_p[r] - log_q[r]
+            log_w[i] += d if d == d else -np.inf
+        log_prior[i] += log_p[r]
 
 
 # site kinds (sitekinds.SiteKind.code) and guide network heads of `guide_round`

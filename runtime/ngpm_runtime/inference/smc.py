@@ -333,6 +333,11 @@ class _Run:
         # log prior of weighted (categorical) sites per (site, weights)
         self.tables: dict[tuple[int, Args], list[float]] = {}
         self.t_width = 0 if self.fmaker is None else int(self.fmaker.n_turtle)
+        self.kernels: Any = None  # ngpm_runtime.kernels, when the run loads numba anyway
+        if self.canvas is not None or self.batched or self.fmaker is not None:
+            from ngpm_runtime import kernels
+
+            self.kernels = kernels
         self.buffers = (
             _Buffers(program, n, self.t_width) if self.batched or self.fmaker is not None else None
         )
@@ -507,17 +512,25 @@ class _Run:
             vals = res[:, 0].tolist()
         else:  # one site, with features (recorded traces)
             vals = self._propose_one(objs[0], rows, idx)
+        if len(groups) == 1:
+            self._record(objs[0], groups[0], vals, x)
+            return
         pos = 0
         for site, g in zip(objs, groups, strict=True):
             m = len(g)
-            got = vals[pos : pos + m] if len(groups) > 1 else vals
-            feats = None
-            if x is not None:
-                feats = x[pos : pos + m, : self.fmaker.n_features(site)]
-            _record(self.pop.parts, site, g, got, feats, self.trace)
-            for obs in self.observers:
-                obs.site_drawn(site, g, got)
+            self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
             pos += m
+
+    def _record(self, site: Site, idx: list[int], vals: list[float], x: np.ndarray | None) -> None:
+        """The values (and, for full traces, the feature rows x, cut to the site's width)
+        into the particles' replay values and traces; the observers hear of them."""
+        feats = None
+        if self.trace is TraceRecording.FULL:
+            assert x is not None and self.fmaker is not None
+            feats = x[:, : self.fmaker.n_features(site)]
+        _record(self.pop.parts, site, idx, vals, feats, self.trace)
+        for obs in self.observers:
+            obs.site_drawn(site, idx, vals)
 
     def _propose_one(self, site: Site, rows: RoundRows, idx: np.ndarray) -> list[float]:
         """`propose` for the rows of one site (a proposal that is no RoundProposal); weighs
@@ -558,20 +571,24 @@ class _Run:
             if log_p is None:
                 log_p = prior_logpdf(site, args, values)
             self._weigh(ia, log_q, log_p)
-        _record(parts, site, idx, vals, None, self.trace)
-        for obs in self.observers:
-            obs.site_drawn(site, idx, vals)
+        self._record(site, idx, vals, None)
 
     def _weigh(self, idx: np.ndarray, log_q: np.ndarray | None, log_p: np.ndarray) -> None:
         """Particles idx (distinct) drew values: log w += log p - log q (NaN: zero weight;
         log_q None: the prior proposal, no change), log prior += log p. A particle's terms
-        are added in the order its sites were served."""
+        are added in the order its sites were served. One kernel call (kernels.add_weights)
+        when the run has loaded the kernels; the same arithmetic in numpy in a run that
+        needs none (a forward sample: no canvas, no features)."""
         pop = self.pop
+        if self.kernels is not None:
+            self.kernels.add_weights(
+                pop.log_w, pop.log_prior, idx, _NO_ROWS if log_q is None else log_q, log_p
+            )
+            return
         if log_q is not None:
             with np.errstate(invalid="ignore"):
                 delta = log_p - log_q
-            delta[np.isnan(delta)] = -np.inf
-            pop.log_w[idx] += delta
+            pop.log_w[idx] += np.where(np.isnan(delta), -np.inf, delta)
         pop.log_prior[idx] += log_p
 
     def _round_rows(
@@ -917,6 +934,7 @@ def _weights_logp(
     return np.array(out)
 
 
+_NO_ROWS = np.zeros(0)
 # _rows of one shared tuple, by (tuple, n): read-only arrays, reused across rounds and runs
 _SHARED: dict[tuple[Args, int], np.ndarray] = {}
 
