@@ -159,6 +159,8 @@ class Guide:
             if 0 <= i < len(self._n_out):
                 self._n_out[i] = int(net["n_out"])
         self._widest = int(self._n_out.max(initial=1))
+        # the features each site's net reads (-1: no net)
+        self._n_f = [int(self.nets[s.index]["n_f"]) if s.index in self.nets else -1 for s in program.sites]
         from ngpm_runtime import kernels  # numba loads with the guide (its checks run nets)
 
         self._k = kernels
@@ -440,17 +442,19 @@ class Guide:
         """The round's float32 feature rows for the kernel, checked against the width
         each site's network reads (zeros for a guide that reads none)."""
         x = rows.features
+        n_f = self._n_f
         if x is None or not self.uses_features:
+            on = [s.index for s, ok in zip(rows.sites, served, strict=True) if ok]
             if self.uses_features:
-                s = next(s for s, on in zip(rows.sites, served, strict=True) if on)
-                raise GuideError(f"{self.path}: site {s.index} needs features")
-            width = max([self.nets[s.index]["n_f"] for s, on in zip(rows.sites, served, strict=True) if on] + [0])
+                raise GuideError(f"{self.path}: site {on[0]} needs features")
+            width = max([n_f[s] for s in on] + [0])
             return np.zeros((len(rows.site), width), dtype=np.float32)
-        for s, m, w, on in zip(rows.sites, rows.counts, rows.widths, served, strict=True):
-            if on and w != self.nets[s.index]["n_f"]:
+        for s, m, w in zip(rows.sites, rows.counts, rows.widths, strict=True):
+            want = n_f[s.index]
+            if w != want and want >= 0:
                 raise GuideError(
-                    f"{self.path}: site {s.index} expects {self.nets[s.index]['n_f']} features "
-                    f"per row, got shape ({m}, {w}) (features changed since training?)"
+                    f"{self.path}: site {s.index} expects {want} features per row, got "
+                    f"shape ({m}, {w}) (features changed since training?)"
                 )
         return x
 

@@ -333,6 +333,9 @@ class _Run:
         # log prior of weighted (categorical) sites per (site, weights)
         self.tables: dict[tuple[int, Args], list[float]] = {}
         self.t_width = 0 if self.fmaker is None else int(self.fmaker.n_turtle)
+        # feature columns per site
+        fm = self.fmaker
+        self.n_feat = [] if fm is None else [int(fm.n_features(s)) for s in program.sites]
         self.kernels: Any = None  # ngpm_runtime.kernels, when the run loads numba anyway
         if self.canvas is not None or self.batched or self.fmaker is not None:
             from ngpm_runtime import kernels
@@ -526,8 +529,8 @@ class _Run:
         into the particles' replay values and traces; the observers hear of them."""
         feats = None
         if self.trace is TraceRecording.FULL:
-            assert x is not None and self.fmaker is not None
-            feats = x[:, : self.fmaker.n_features(site)]
+            assert x is not None
+            feats = x[:, : self.n_feat[site.index]]
         _record(self.pop.parts, site, idx, vals, feats, self.trace)
         for obs in self.observers:
             obs.site_drawn(site, idx, vals)
@@ -650,7 +653,8 @@ class _Run:
             x = fmaker.rows_from(
                 self.canvas, idx, buf.turtle[:n], buf.depth[:n], buf.extra[:n], buf.n_extra[:n]
             )
-            widths = [fmaker.n_features(s) - self.trim for s in sites]
+            n_feat, trim = self.n_feat, self.trim
+            widths = [n_feat[s.index] - trim for s in sites]
         counts = [len(g) for g in groups]
         rows = RoundRows(sites, counts, buf.site[:n], buf.args[:n], buf.n_args[:n], x, widths)
         return rows, idx
