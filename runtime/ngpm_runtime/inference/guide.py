@@ -160,7 +160,9 @@ class Guide:
                 self._n_out[i] = int(net["n_out"])
         self._widest = int(self._n_out.max(initial=1))
         # the features each site's net reads (-1: no net)
-        self._n_f = [int(self.nets[s.index]["n_f"]) if s.index in self.nets else -1 for s in program.sites]
+        self._n_f = [
+            int(self.nets[s.index]["n_f"]) if s.index in self.nets else -1 for s in program.sites
+        ]
         from ngpm_runtime import kernels  # numba loads with the guide (its checks run nets)
 
         self._k = kernels
@@ -365,7 +367,10 @@ class Guide:
         prior_args[j] and features[j] (checked as `propose`'s) are the rows at sites[j].
         Returns per site (values, log q, log prior)."""
         counts = [len(a) for a in prior_args]
-        args_list = [np.asarray(a, dtype=np.float64).reshape(m, -1) for a, m in zip(prior_args, counts, strict=True)]
+        args_list = [
+            np.asarray(a, dtype=np.float64).reshape(m, -1)
+            for a, m in zip(prior_args, counts, strict=True)
+        ]
         n = sum(counts)
         args = np.zeros((n, max([a.shape[1] for a in args_list] + [0])))
         xs = None
@@ -391,7 +396,7 @@ class Guide:
             [] if xs is None else [f.shape[1] for f in xs],
         )
         res = self.propose_rows(rows, rng)
-        out = []
+        out: list[tuple[np.ndarray, ...]] = []
         pos = 0
         for m in counts:
             part = res[pos : pos + m]
@@ -463,7 +468,7 @@ class Guide:
     ) -> np.ndarray:
         """Draw the rows of the sites without a network from their prior into res (value,
         log q = log prior, log prior), in site order; returns the other rows' indices."""
-        keep = []
+        keep: list[int] = []
         pos = 0
         for s, m, on in zip(rows.sites, rows.counts, served, strict=True):
             if on:
