@@ -10,9 +10,10 @@ site's network (see Engines), then sampling with distributions.proposal_draw. Si
 a network (unseen in training) fall back to the prior; they are listed in
 `Guide.fallback_sites`.
 
-`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round
-with one compiled call (kernels.guide_round) over the rows of all of them: networks,
-tempering, draws, log q and log prior.
+`Guide.propose_rows` (proposals.RoundProposal) serves every site waiting in an SMC round
+with one compiled call (kernels.guide_round) over the rows of all of them (SMC's
+`RoundRows`): networks, tempering, draws, log q and log prior; `Guide.propose_round` does
+the same for rows given per site.
 
 Engines (`Guide.engine` says which serves a site): with the `onnx` package (the compiler's
 installs), every site net that reads features runs in the compiled kernel (`NumpyNet`, the

@@ -2,16 +2,18 @@
 
 All particles advance together. In one step every live particle runs to its next drawn
 primitive; the random values it asks for on the way are drawn in rounds. A proposal with
-`propose_round` (a learned Guide) serves every site that particles wait on in one call per
+`propose_rows` (a learned Guide) serves every site that particles wait on in one call per
 round (one network evaluation for all of them); any other proposal gets one batched
 `propose` call per round for the particles waiting on one site (`SiteOrder` picks it).
+A round with features or a RoundProposal packs its particles' state in one pass and
+unpacks it with one kernel call into the run's arrays (`_round_rows`, `_Buffers`).
 Particles are served in index order. Then the new primitives are rasterized, the likelihood
 increments applied and, every step or when the ESS drops below `ess_threshold * N`, the
 particles are resampled. Weights carry `log prior - log q` of every site, so any proposal
 gives a correct answer.
 
 The parts: `smc()` checks its `SMCOptions` and builds a `_Run`; `_Run.step` derives
-(`_derive`), serves the waiting sites (`_serve`, `_weigh_sites`), rasterizes and applies the
+(`_derive`), serves the waiting sites (`_serve`, `_weigh`), rasterizes and applies the
 likelihood (`_observe`) and resamples (`_resample`); `Population` holds the particles and
 weights. Observers (`SMCObserver`: progress, live frames, time limits) watch from outside:
 they hear of every served site, every finished step and every resampling, and keep their

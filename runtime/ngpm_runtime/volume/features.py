@@ -56,7 +56,7 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
 
 class FeatureMaker3D:
     """Builds the float32 feature rows of a 3D grammar's site visits (the interface of
-    image/features.FeatureMaker that smc() uses: features_round, layout)."""
+    image/features.FeatureMaker that smc() uses: rows_from, n_features, layout)."""
 
     context = False  # no context group in 3D
     n_turtle = 13  # the turtle's numbers a row reads: position, H, L, U, width
@@ -136,8 +136,8 @@ class FeatureMaker3D:
         prior_args: list[np.ndarray],
     ) -> list[np.ndarray]:
         """Rows for several sites at once (particles of `sites[j]` one after the other), as
-        image/features.FeatureMaker.features_round, the call SMC makes in every round (the
-        canvases may have changed since the last: nothing remembered is used)."""
+        image/features.FeatureMaker.features_round (the canvases may have changed since
+        the last call: nothing remembered is used)."""
         self.forget()
         return self.features_cached(sites, canvas, idx, turtles, depths, params, prior_args)
 
