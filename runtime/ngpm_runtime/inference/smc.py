@@ -752,7 +752,8 @@ class _Buffers:
         self.unpack_round = kernels.unpack_round
         sites = program.sites
         shape = np.array([(int(s.arity), int(s.n_args())) for s in sites], dtype=np.int64)
-        self.shape = shape.reshape(len(sites), 2)  # (arity, prior argument count) per site
+        shape = shape.reshape(len(sites), 2)  # (arity, prior argument count) per site
+        self.shape = shape
         self.t_width = t_width
         self.n = n
         self.idx = np.zeros(n, dtype=np.intp)

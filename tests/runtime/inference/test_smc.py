@@ -530,3 +530,12 @@ def test_rows_that_do_not_fit_a_site_are_one_line_errors(case: str, words: str) 
     )
     with pytest.raises(ProgramError, match=words):
         smc(prog, None, 20, Featured(), options=SMCOptions(canvas_size=(8, 8)))
+
+
+def test_a_program_without_sites_records_full_traces() -> None:
+    """A grammar with no random choice: full traces (feature rows, the round buffers of no
+    site) and a replay of it run; the trace is empty."""
+    prog = make_program({}, axiom=(("F", 1.0),) * 3, viewport=(-4.0, 4.0, -4.0, 4.0))
+    r = smc(prog, None, 3, options=SMCOptions(trace=TraceRecording.FULL, canvas_size=(8, 8)))
+    assert all(p.trace == [] and len(p.primitives) == 3 for p in r.particles)
+    assert replay(prog, []).primitives == r.particles[0].primitives
