@@ -2,7 +2,9 @@
 
 One call per step and part: `draw` (primitives -> canvases and their count pyramids),
 `shape_increment` / `circuit_increment` (the likelihoods' incremental updates),
-`feature_windows` (turtle columns, 3x3 windows at 4 levels, context), `residual_counts`,
+`unpack_round` (a guided round's particle state into the rows of the next two),
+`feature_windows` (turtle columns, 3x3 windows at 4 levels, context), `guide_round` (site
+networks, draws, log q, log prior), `add_weights` (SMC's site weights), `residual_counts`,
 `ancestors` and `take_rows` (resampling). They do the arithmetic of the numpy code they
 replaced (tests/reference/ keeps it) in the same order, so images, pyramids, likelihoods,
 features and ancestors are bit-identical to it (sums included: `_pairwise_sum` adds as
@@ -666,6 +668,83 @@ def take_rows(
             image_out[k, j] = image[src, j]
         for j in range(padded.shape[1]):
             padded_out[k, j] = padded[src, j]
+
+
+@jit
+def unpack_round(
+    flat: np.ndarray,
+    n_turtle: int,
+    shape: np.ndarray,
+    idx: np.ndarray,
+    site: np.ndarray,
+    turtle: np.ndarray,
+    depth: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+) -> int:
+    """A guided SMC round's particle state, packed by SMC into one float64 vector `flat`,
+    into the rows `feature_windows` and `guide_round` read; returns the row count n.
+
+    `flat` holds one block per site: (site, m, a, k), then m rows (particle, depth, turtle
+    (n_turtle numbers), the waiting module's a parameters, the site's k prior arguments).
+    Row r gets idx, site, turtle, depth (the axiom's -1 as 0), extra[r, :n_extra[r]] (the
+    parameters and prior arguments fitted, cut or zero-padded, to the site's arity and
+    argument count shape[s] = (arity, n_args), as features.py's columns) and args[r,
+    :n_args[r]] = its k prior arguments as they are. IndexError if `flat` is malformed or
+    the buffers are too small."""
+    pos = 0
+    r = 0
+    while pos < flat.shape[0]:
+        if pos + 4 > flat.shape[0]:
+            raise IndexError("unpack_round: truncated block")
+        s, m, a, k = int(flat[pos]), int(flat[pos + 1]), int(flat[pos + 2]), int(flat[pos + 3])
+        pos += 4
+        if not 0 <= s < shape.shape[0] or m < 0 or a < 0 or k < 0 or k > args.shape[1]:
+            raise IndexError("unpack_round: bad block header")
+        arity, na = shape[s, 0], shape[s, 1]
+        width = 2 + n_turtle + a + k
+        if pos + m * width > flat.shape[0] or r + m > idx.shape[0]:
+            raise IndexError("unpack_round: rows out of range")
+        if arity + na > extra.shape[1]:
+            raise IndexError("unpack_round: extra columns too narrow")
+        for _ in range(m):
+            idx[r] = int(flat[pos])
+            site[r] = s
+            d = flat[pos + 1]
+            depth[r] = d if d > 0.0 else 0.0
+            for q in range(n_turtle):
+                turtle[r, q] = flat[pos + 2 + q]
+            at = pos + 2 + n_turtle
+            for q in range(arity):
+                extra[r, q] = flat[at + q] if q < a else 0.0
+            for q in range(na):
+                extra[r, arity + q] = flat[at + a + q] if q < k else 0.0
+            n_extra[r] = arity + na
+            for q in range(k):
+                args[r, q] = flat[at + a + q]
+            n_args[r] = k
+            pos += width
+            r += 1
+    return r
+
+
+@jit
+def add_weights(
+    log_w: np.ndarray, log_prior: np.ndarray, idx: np.ndarray, log_q: np.ndarray, log_p: np.ndarray
+) -> None:
+    """SMC's site weights of particles idx (distinct): log_w += log_p - log_q (NaN: -inf;
+    an empty log_q: no change, the prior proposal), log_prior += log_p."""
+    guided = log_q.shape[0] > 0
+    for r in range(idx.shape[0]):
+        i = idx[r]
+        if not 0 <= i < log_w.shape[0]:
+            raise IndexError("add_weights: particle index out of range")
+        if guided:
+            d = log_p[r] - log_q[r]
+            log_w[i] += d if d == d else -np.inf
+        log_prior[i] += log_p[r]
 
 
 # site kinds (sitekinds.SiteKind.code) and guide network heads of `guide_round`

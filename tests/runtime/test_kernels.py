@@ -371,3 +371,80 @@ print("scipy.linalg" in sys.modules, sys.modules.get("scipy.linalg") is not None
         )
         assert proc.returncode == 0, proc.stderr[-3000:]
         assert proc.stdout.strip() == want
+
+
+def _unpack_reference(blocks, n_turtle, shape):
+    """unpack_round's rows by hand: (idx, site, turtle, depth, fitted extra, raw args)."""
+    rows = []
+    for s, rs in blocks:
+        arity, na = shape[s]
+        for i, depth, turtle, params, args in rs:
+            fit = [*params[:arity], *[0.0] * (arity - len(params))]
+            fit += [*args[:na], *[0.0] * (na - len(args))]
+            rows.append((i, s, list(turtle), max(depth, 0.0), fit, list(args)))
+    return rows
+
+
+def test_unpack_round_rows_equal_the_packed_state() -> None:
+    """kernels.unpack_round: blocks of several sites, parameters and arguments fitted to
+    the site (cut, zero-padded) for the features and kept as they are for the guide, the
+    axiom's depth -1 as 0; a malformed vector is an IndexError, not a crash."""
+    rng = np.random.default_rng(5)
+    shape = np.array([(1, 2), (0, 3), (2, 1)], dtype=np.int64)  # (arity, n_args) per site
+    blocks = []
+    for s, a, k in ((0, 1, 2), (1, 2, 4), (2, 1, 0)):  # site 1: extra parameter, 4 weights
+        rs = [
+            (int(i), float(rng.integers(-1, 9)), rng.normal(size=4), rng.normal(size=a),
+             rng.normal(size=k))
+            for i in rng.permutation(9)[:3]
+        ]  # fmt: skip
+        blocks.append((s, rs))
+    flat = []
+    for s, rs in blocks:
+        flat += [s, len(rs), len(rs[0][3]), len(rs[0][4])]
+        for i, depth, turtle, params, args in rs:
+            flat += [i, depth, *turtle, *params, *args]
+    n = 12
+    bufs = dict(
+        idx=np.zeros(n, np.intp), site=np.zeros(n, np.int64), turtle=np.zeros((n, 4)),
+        depth=np.zeros(n), extra=np.zeros((n, 3)), n_extra=np.zeros(n, np.int64),
+        args=np.zeros((n, 4)), n_args=np.zeros(n, np.int64),
+    )  # fmt: skip
+    got = kernels.unpack_round(np.array(flat), 4, shape, *bufs.values())
+    want = _unpack_reference(blocks, 4, shape)
+    assert got == len(want) == 9
+    for r, (i, s, turtle, depth, fit, args) in enumerate(want):
+        assert bufs["idx"][r] == i and bufs["site"][r] == s and bufs["depth"][r] == depth
+        assert bufs["turtle"][r].tolist() == turtle
+        assert bufs["n_extra"][r] == len(fit) and bufs["extra"][r, : len(fit)].tolist() == fit
+        assert bufs["n_args"][r] == len(args) and bufs["args"][r, : len(args)].tolist() == args
+    for bad in (flat[:-1], [7.0, 1, 0, 0, 0, 0, 0, 0, 0, 0], flat + [0.0, 20.0, 0.0, 0.0]):
+        with pytest.raises(IndexError):
+            kernels.unpack_round(np.array(bad, dtype=np.float64), 4, shape, *bufs.values())
+
+
+def test_add_weights_equals_the_numpy_update() -> None:
+    """kernels.add_weights: log w += log p - log q (NaN, as inf - inf, gives -inf), log
+    prior += log p; no log q (the prior proposal): log w unchanged."""
+    rng = np.random.default_rng(2)
+    odd = np.array([np.nan, np.inf, -np.inf, 0.0])
+    for _ in range(50):
+        n = 12
+        log_w, log_p0 = rng.normal(size=n), rng.normal(size=n)
+        idx = rng.permutation(n)[: rng.integers(1, n)].astype(np.intp)
+        lq, lp = rng.normal(size=(2, len(idx)))
+        lq[rng.random(len(idx)) < 0.2] = odd[rng.integers(4)]
+        lp[rng.random(len(idx)) < 0.2] = odd[rng.integers(4)]
+        for guided in (True, False):
+            w, p = log_w.copy(), log_p0.copy()
+            kernels.add_weights(w, p, idx, lq if guided else np.zeros(0), lp)
+            want_w, want_p = log_w.copy(), log_p0.copy()
+            if guided:
+                with np.errstate(invalid="ignore"):
+                    d = lp - lq
+                np.add.at(want_w, idx, np.where(np.isnan(d), -np.inf, d))
+            np.add.at(want_p, idx, lp)
+            np.testing.assert_array_equal(w, want_w)
+            np.testing.assert_array_equal(p, want_p)
+    with pytest.raises(IndexError):
+        kernels.add_weights(np.zeros(2), np.zeros(2), np.array([2]), np.zeros(1), np.zeros(1))

@@ -116,6 +116,8 @@ def _extra_columns(
 class FeatureMaker:
     """Builds the float32 feature rows the guide networks read."""
 
+    n_turtle = 4  # the turtle's numbers a row reads: x, y, heading, width
+
     def __init__(
         self,
         program: Program,
@@ -144,6 +146,9 @@ class FeatureMaker:
             for t in (False, True)
             for c in (False, True)
         }
+        # kernels.feature_windows' arguments for the last canvas (_kernel_args)
+        self._canvas: Canvas | None = None
+        self._args: tuple[np.ndarray, ...] | None = None
         from ngpm_runtime import kernels  # numba loads when features are made
 
         self._k = kernels
@@ -257,7 +262,7 @@ class FeatureMaker:
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         n = len(idx)
         extra, n_extra = _extra_columns(sites, params, prior_args, n)
-        return self._rows(
+        return self.rows_from(
             canvas,
             idx,
             np.ascontiguousarray(turtle, dtype=np.float64).reshape(n, 4),
@@ -272,9 +277,9 @@ class FeatureMaker:
         """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
         target and partial windows, context) of every particle."""
         n = len(idx)
-        return self._rows(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
+        return self.rows_from(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
 
-    def _rows(
+    def rows_from(
         self,
         canvas: Canvas | None,
         idx: np.ndarray,
@@ -283,48 +288,26 @@ class FeatureMaker:
         extra: np.ndarray,
         n_extra: np.ndarray,
     ) -> np.ndarray:
-        """The rows: turtle columns, extra[k, :n_extra[k]], windows and context, by
-        kernels.feature_windows."""
-        n = len(idx)
-        out = np.empty((n, self.n_common + extra.shape[1]), dtype=np.float32)
-        h, w = self._shape(canvas)
-        if h == 0 or w == 0:  # no image: the turtle columns, windows all 0 or -1
-            view = self._view_fill[self.target_levels is not None, canvas is not None]
-            self._k.feature_windows(
-                out,
-                turtle,
-                depth,
-                idx,
-                view,
-                _NO_SIZE,
-                _NO_OFFS,
-                _NO_TARGET,
-                _NO_CANVAS,
-                _NO_CTX,
-                _NO_GEOM,
-                _NO_CELLS,
-                _NO_TARGET,
-                extra,
-                n_extra,
-            )
-            return out
-        size, offs = self._windows(h, w)
-        target_flat = _NO_TARGET if self.target_levels is None else self._padded_target()
-        rows = _NO_CANVAS if canvas is None else canvas.padded
-        if self.context and self.target_levels is not None and canvas is not None:
-            cells, t, rays, geom = self._context_geometry(h, w)
-        else:
-            cells, t, rays, geom = _NO_CELLS, _NO_TARGET, _NO_CTX, _NO_GEOM
+        """The rows (n, n_common + extra's columns) of particles idx (intp) with turtles
+        (n, 4) and depths (n,) (float64): turtle columns, extra[k, :n_extra[k]] (module
+        parameters and prior arguments, fitted to the site), windows and context, by
+        kernels.feature_windows. SMC's rounds call it (their rows unpacked by
+        kernels.unpack_round)."""
+        out = np.empty((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
+        if canvas is not self._canvas or self._args is None:  # checked once per canvas
+            self._args = self._kernel_args(canvas)
+            self._canvas = canvas
+        view, size, offs, target, rays, geom, cells, t = self._args
         self._k.feature_windows(
             out,
             turtle,
             depth,
             idx,
-            self._view_fill[False, False],
+            view,
             size,
             offs,
-            target_flat,
-            rows,
+            target,
+            _NO_CANVAS if canvas is None or not size.shape[1] else canvas.padded,
             rays,
             geom,
             cells,
@@ -333,6 +316,22 @@ class FeatureMaker:
             n_extra,
         )
         return out
+
+    def _kernel_args(self, canvas: Canvas | None) -> tuple[np.ndarray, ...]:
+        """kernels.feature_windows' arguments for `canvas` (TargetError if its size is not
+        the target's) but the rows, the particles' state and the canvas rows: view, level
+        sizes, window offsets, target pyramid and the context's geometry."""
+        h, w = self._shape(canvas)
+        if h == 0 or w == 0:  # no image: the turtle columns, windows all 0 or -1
+            view = self._view_fill[self.target_levels is not None, canvas is not None]
+            return (view, _NO_SIZE, _NO_OFFS, _NO_TARGET, _NO_CTX, _NO_GEOM, _NO_CELLS, _NO_TARGET)
+        size, offs = self._windows(h, w)
+        target_flat = _NO_TARGET if self.target_levels is None else self._padded_target()
+        if self.context and self.target_levels is not None and canvas is not None:
+            cells, t, rays, geom = self._context_geometry(h, w)
+        else:
+            cells, t, rays, geom = _NO_CELLS, _NO_TARGET, _NO_CTX, _NO_GEOM
+        return (self._view_fill[False, False], size, offs, target_flat, rays, geom, cells, t)
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
         """Per canvas size: the fill level's cells in the padded row, the target there, the

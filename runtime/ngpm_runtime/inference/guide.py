@@ -10,9 +10,10 @@ site's network (see Engines), then sampling with distributions.proposal_draw. Si
 a network (unseen in training) fall back to the prior; they are listed in
 `Guide.fallback_sites`.
 
-`Guide.propose_round` (proposals.RoundProposal) serves every site waiting in an SMC round
-with one compiled call (kernels.guide_round) over the rows of all of them: networks,
-tempering, draws, log q and log prior.
+`Guide.propose_rows` (proposals.RoundProposal) serves every site waiting in an SMC round
+with one compiled call (kernels.guide_round) over the rows of all of them (SMC's
+`RoundRows`): networks, tempering, draws, log q and log prior; `Guide.propose_round` does
+the same for rows given per site.
 
 Engines (`Guide.engine` says which serves a site): with the `onnx` package (the compiler's
 installs), every site net that reads features runs in the compiled kernel (`NumpyNet`, the
@@ -54,6 +55,7 @@ from ngpm_runtime.inference.guide_format import (
     output_name,
     param_name,
 )
+from ngpm_runtime.inference.proposals import RoundRows
 from ngpm_runtime.inference.sitekinds import MIXTURE, SIGMOID, SOFTMAX
 from ngpm_runtime.program import Program, Site
 
@@ -158,6 +160,10 @@ class Guide:
             if 0 <= i < len(self._n_out):
                 self._n_out[i] = int(net["n_out"])
         self._widest = int(self._n_out.max(initial=1))
+        # the features each site's net reads (-1: no net)
+        self._n_f = [
+            int(self.nets[s.index]["n_f"]) if s.index in self.nets else -1 for s in program.sites
+        ]
         from ngpm_runtime import kernels  # numba loads with the guide (its checks run nets)
 
         self._k = kernels
@@ -358,86 +364,143 @@ class Guide:
         features: list[np.ndarray] | None,
         rng: np.random.Generator,
     ) -> list[tuple[np.ndarray, ...]]:
-        """`propose` for every site waiting in an SMC round (proposals.RoundProposal):
-        sites without a network draw from their prior; the rows of all others are one
-        kernel call (kernels.guide_round: networks, or onnxruntime's outputs for the nets
-        it serves, tempering, draws, log q and log prior) with one uniform per row, then
-        one standard normal per row when a site is a mixture. Those sites' answers are
-        (values, log q, log prior)."""
-        out: list[Any] = [None] * len(sites)
-        net = []
-        for j, site in enumerate(sites):
-            if site.index in self.nets:
-                net.append(j)
-            else:
-                out[j] = self.propose(site, prior_args[j], None, rng)
-        if not net:
-            return out
-        counts = [len(prior_args[j]) for j in net]
-        x, rows, args, n_args = self._round_rows(sites, prior_args, features, net, counts)
-        n = len(rows)
-        params = np.empty((n, self._widest))
-        onnx = [k for k, j in enumerate(net) if sites[j].index not in self._numpy_nets]
-        if onnx:  # onnxruntime serves these nets; the kernel tempers and draws
-            starts = [0, *accumulate(counts)]
-            which = [sites[net[k]].index for k in onnx]
-            got = self._onnx_round(
-                which,
-                [
-                    x[starts[k] : starts[k + 1], : self.nets[s]["n_f"]]
-                    for k, s in zip(onnx, which, strict=True)
-                ],
-            )
-            for k, o in zip(onnx, got, strict=True):
-                params[starts[k] : starts[k + 1], : o.shape[1]] = o
-        u = rng.random(n)
-        mixture = [self._mixture[sites[j].index] for j in net]
-        z = rng.standard_normal(n) if True in mixture else _NO_ROWS
-        res = np.empty((n, 3))
-        bad = self._kernel(x, rows, params, args, n_args, res, u, z)
-        if len(net) == 1 and bad < 0:
-            out[net[0]] = (res[:, 0], res[:, 1], res[:, 2])
-            return out
+        """`propose_rows` for rows given per site (distinct sites, in the order given):
+        prior_args[j] and features[j] (checked as `propose`'s) are the rows at sites[j].
+        Returns per site (values, log q, log prior)."""
+        counts = [len(a) for a in prior_args]
+        args_list = [
+            np.asarray(a, dtype=np.float64).reshape(m, -1)
+            for a, m in zip(prior_args, counts, strict=True)
+        ]
+        n = sum(counts)
+        args = np.zeros((n, max([a.shape[1] for a in args_list] + [0])))
+        xs = None
+        if features is not None:
+            xs = [
+                self._input(s.index, f, m) if s.index in self.nets else np.zeros((m, 0), np.float32)
+                for s, f, m in zip(sites, features, counts, strict=True)
+            ]
+        x = None if xs is None else np.zeros((n, max([f.shape[1] for f in xs] + [0])), np.float32)
         pos = 0
-        for j, m in zip(net, counts, strict=True):
-            if pos <= bad < pos + m:  # the error naming the site and the cause
-                _bad_args(sites[j], prior_args[j])
+        for j, (a, m) in enumerate(zip(args_list, counts, strict=True)):
+            args[pos : pos + m, : a.shape[1]] = a
+            if x is not None and xs is not None:
+                x[pos : pos + m, : xs[j].shape[1]] = xs[j]
+            pos += m
+        rows = RoundRows(
+            list(sites),
+            counts,
+            np.repeat(np.array([s.index for s in sites], np.int64), counts),
+            args,
+            np.repeat(np.array([a.shape[1] for a in args_list], np.int64), counts),
+            x,
+            [] if xs is None else [f.shape[1] for f in xs],
+        )
+        res = self.propose_rows(rows, rng)
+        out: list[tuple[np.ndarray, ...]] = []
+        pos = 0
+        for m in counts:
             part = res[pos : pos + m]
-            out[j] = (part[:, 0], part[:, 1], part[:, 2])
+            out.append((part[:, 0], part[:, 1], part[:, 2]))
             pos += m
         return out
 
-    def _round_rows(
-        self,
-        sites: list[Site],
-        prior_args: list[np.ndarray],
-        features: list[np.ndarray] | None,
-        net: list[int],
-        counts: list[int],
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The kernel's rows of the sites `net` (indices into `sites`): feature rows
-        (float32, checked), site per row, prior arguments and their count per row."""
-        xs = [
-            self._input(sites[j].index, None if features is None else features[j], m)
-            for j, m in zip(net, counts, strict=True)
-        ]
-        if len(net) == 1:
-            args = prior_args[net[0]]
-            if not (args.dtype == np.float64 and args.flags.c_contiguous and args.flags.writeable):
-                args = np.array(args, dtype=np.float64)  # one compiled signature
-            n, s = counts[0], sites[net[0]].index
-            return xs[0], np.full(n, s, np.int64), args, np.full(n, args.shape[1], np.int64)
-        index = np.array([sites[j].index for j in net], dtype=np.int64)
-        n = sum(counts)
-        x = np.zeros((n, max(a.shape[1] for a in xs)), dtype=np.float32)
-        width = [prior_args[j].shape[1] for j in net]
-        args = np.zeros((n, max(width)))
+    def propose_rows(self, rows: RoundRows, rng: np.random.Generator) -> np.ndarray:
+        """Every site waiting in an SMC round (proposals.RoundProposal): (n, 3) value, log
+        q, log prior per row. Sites without a network draw from their prior first, in
+        order; the rows of all others are one kernel call (kernels.guide_round: networks,
+        or onnxruntime's outputs for the nets it serves, tempering, draws, log q and log
+        prior) with one uniform per row, then one standard normal per row when a site is
+        a mixture."""
+        sites, counts = rows.sites, rows.counts
+        res = np.empty((len(rows.site), 3))
+        nets = self.nets
+        served = [s.index in nets for s in sites]
+        site, args, n_args = rows.site, rows.args, rows.n_args
+        x = self._round_features(rows, served)
+        if False in served:  # the prior's draws first, then the network rows alone
+            keep = self._prior_rows(rows, served, res, rng)
+            if not len(keep):
+                return res
+            x, site, args, n_args = x[keep], site[keep], args[keep], n_args[keep]
+            sites = [s for s, on in zip(sites, served, strict=True) if on]
+            counts = [m for m, on in zip(counts, served, strict=True) if on]
+        n = len(site)
+        params = np.empty((n, self._widest))
+        if len(self._numpy_nets) < len(nets):
+            self._onnx_rows(sites, counts, x, params)
+        u = rng.random(n)
+        mixture = self._mixture
+        z = rng.standard_normal(n) if any(mixture[s.index] for s in sites) else _NO_ROWS
+        out = res if n == len(res) else np.empty((n, 3))
+        bad = self._kernel(x, site, params, args, n_args, out, u, z)
+        if bad >= 0:  # the error naming the site and the cause
+            pos = 0
+            for s, m in zip(sites, counts, strict=True):
+                if pos <= bad < pos + m:
+                    _bad_args(s, args[pos : pos + m, : n_args[pos]])
+                pos += m
+        if out is not res:
+            res[keep] = out
+        return res
+
+    def _round_features(self, rows: RoundRows, served: list[bool]) -> np.ndarray:
+        """The round's float32 feature rows for the kernel, checked against the width
+        each site's network reads (zeros for a guide that reads none)."""
+        x = rows.features
+        n_f = self._n_f
+        if x is None or not self.uses_features:
+            on = [s.index for s, ok in zip(rows.sites, served, strict=True) if ok]
+            if self.uses_features:
+                raise GuideError(f"{self.path}: site {on[0]} needs features")
+            width = max([n_f[s] for s in on] + [0])
+            return np.zeros((len(rows.site), width), dtype=np.float32)
+        for s, m, w in zip(rows.sites, rows.counts, rows.widths, strict=True):
+            want = n_f[s.index]
+            if w != want and want >= 0:
+                raise GuideError(
+                    f"{self.path}: site {s.index} expects {want} features per row, got "
+                    f"shape ({m}, {w}) (features changed since training?)"
+                )
+        return x
+
+    def _prior_rows(
+        self, rows: RoundRows, served: list[bool], res: np.ndarray, rng: np.random.Generator
+    ) -> np.ndarray:
+        """Draw the rows of the sites without a network from their prior into res (value,
+        log q = log prior, log prior), in site order; returns the other rows' indices."""
+        keep: list[int] = []
         pos = 0
-        for j, xj, m in zip(net, xs, counts, strict=True):
-            x[pos : pos + m, : xj.shape[1]] = xj
-            args[pos : pos + m, : prior_args[j].shape[1]] = prior_args[j]
+        for s, m, on in zip(rows.sites, rows.counts, served, strict=True):
+            if on:
+                keep.extend(range(pos, pos + m))
+            else:
+                args = np.array(rows.args[pos : pos + m, : rows.n_args[pos]])
+                values, log_q = self.propose(s, args, None, rng)
+                res[pos : pos + m, 0] = values
+                res[pos : pos + m, 1] = log_q
+                res[pos : pos + m, 2] = log_q
             pos += m
-        return x, np.repeat(index, counts), args, np.repeat(np.array(width, np.int64), counts)
+        return np.array(keep, dtype=np.intp)
+
+    def _onnx_rows(
+        self, sites: list[Site], counts: list[int], x: np.ndarray, params: np.ndarray
+    ) -> None:
+        """params of the rows whose nets onnxruntime serves (the kernel tempers and draws)."""
+        starts = [0, *accumulate(counts)]
+        onnx = [k for k, s in enumerate(sites) if s.index not in self._numpy_nets]
+        if not onnx:
+            return
+        which = [sites[k].index for k in onnx]
+        got = self._onnx_round(
+            which,
+            [
+                np.ascontiguousarray(x[starts[k] : starts[k + 1], : self.nets[s]["n_f"]])
+                for k, s in zip(onnx, which, strict=True)
+            ],
+        )
+        for k, o in zip(onnx, got, strict=True):
+            params[starts[k] : starts[k + 1], : o.shape[1]] = o
 
     def propose(
         self,

@@ -8,6 +8,7 @@ A learned `Guide` (guide.py) implements the same protocol.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -35,23 +36,33 @@ class Proposal(Protocol):
     ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+@dataclass
+class RoundRows:
+    """The rows of one SMC round for a RoundProposal: the waiting sites `sites` (ascending),
+    `counts[j]` particles at sites[j], one block after the other, each in particle order.
+    Row r is at site index site[r] with prior arguments args[r, :n_args[r]] and, when
+    features are given, the feature row features[r, :widths[j]] (float32; the columns
+    past a site's width belong to no one)."""
+
+    sites: list[Site]
+    counts: list[int]
+    site: np.ndarray  # (n,) int64
+    args: np.ndarray  # (n, >= max n_args) float64
+    n_args: np.ndarray  # (n,) int64
+    features: np.ndarray | None  # (n, >= max width) float32
+    widths: list[int]
+
+
 @runtime_checkable
 class RoundProposal(Protocol):
     """A proposal that also serves every site waiting in an SMC round with one call (a
-    learned Guide: one network evaluation for all of them). `smc()` then hands it all
-    waiting sites at once, in ascending site order, each with its particles in index order;
-    it returns per site (values, log q), as `propose` would, or (values, log q, log prior)
-    when it computed the log prior of the values with them (SMC then uses that)."""
+    learned Guide: one network evaluation for all of them). `smc()` then hands it the
+    rows of all waiting sites at once (`RoundRows`); it returns (n, 3) float64: per row
+    the value, its log q and its log prior."""
 
     uses_features: bool
 
-    def propose_round(
-        self,
-        sites: list[Site],
-        prior_args: list[np.ndarray],
-        features: list[np.ndarray] | None,
-        rng: np.random.Generator,
-    ) -> list[tuple[np.ndarray, ...]]: ...
+    def propose_rows(self, rows: RoundRows, rng: np.random.Generator) -> np.ndarray: ...
 
 
 class PriorProposal:

@@ -2,16 +2,18 @@
 
 All particles advance together. In one step every live particle runs to its next drawn
 primitive; the random values it asks for on the way are drawn in rounds. A proposal with
-`propose_round` (a learned Guide) serves every site that particles wait on in one call per
+`propose_rows` (a learned Guide) serves every site that particles wait on in one call per
 round (one network evaluation for all of them); any other proposal gets one batched
 `propose` call per round for the particles waiting on one site (`SiteOrder` picks it).
+A round with features or a RoundProposal packs its particles' state in one pass and
+unpacks it with one kernel call into the run's arrays (`_round_rows`, `_Buffers`).
 Particles are served in index order. Then the new primitives are rasterized, the likelihood
 increments applied and, every step or when the ESS drops below `ess_threshold * N`, the
 particles are resampled. Weights carry `log prior - log q` of every site, so any proposal
 gives a correct answer.
 
 The parts: `smc()` checks its `SMCOptions` and builds a `_Run`; `_Run.step` derives
-(`_derive`), serves the waiting sites (`_serve`, `_weigh_sites`), rasterizes and applies the
+(`_derive`), serves the waiting sites (`_serve`, `_weigh`), rasterizes and applies the
 likelihood (`_observe`) and resamples (`_resample`); `Population` holds the particles and
 weights. Observers (`SMCObserver`: progress, live frames, time limits) watch from outside:
 they hear of every served site, every finished step and every resampling, and keep their
@@ -45,7 +47,7 @@ from ngpm_runtime.geometry.turtle import Prim, prim_bbox
 from ngpm_runtime.image.raster import DrawBatch
 from ngpm_runtime.inference.distributions import kind_of, prior_logpdf
 from ngpm_runtime.inference.likelihood import Likelihood, NullLikelihood, PrimBatch
-from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal
+from ngpm_runtime.inference.proposals import PriorProposal, Proposal, RoundProposal, RoundRows
 from ngpm_runtime.inference.resample import SCHEMES
 from ngpm_runtime.inference.resample import resample as draw_ancestors
 from ngpm_runtime.program import Program, Site
@@ -332,8 +334,18 @@ class _Run:
         self.order = SiteOrder()
         # log prior of weighted (categorical) sites per (site, weights)
         self.tables: dict[tuple[int, Args], list[float]] = {}
-        # (particles, log q or None for the prior proposal, log p) of the sites served
-        self.pending: list[tuple[np.ndarray, np.ndarray | None, np.ndarray]] = []
+        self.t_width = 0 if self.fmaker is None else int(self.fmaker.n_turtle)
+        # feature columns per site
+        fm = self.fmaker
+        self.n_feat = [] if fm is None else [int(fm.n_features(s)) for s in program.sites]
+        self.kernels: Any = None  # ngpm_runtime.kernels, when the run loads numba anyway
+        if self.canvas is not None or self.batched or self.fmaker is not None:
+            from ngpm_runtime import kernels
+
+            self.kernels = kernels
+        self.buffers = (
+            _Buffers(program, n, self.t_width) if self.batched or self.fmaker is not None else None
+        )
         self.log_z = 0.0
         self.ess_history: list[float] = []
         self.steps = 0
@@ -473,7 +485,6 @@ class _Run:
             for a, s in seen:
                 order.saw(a, s)
             if not waiting:
-                self._flush()
                 return drawn, empty
             # a RoundProposal gets every site no other waiting site leads to in one call
             sites = order.free(waiting) if self.batched else [order.pick(waiting)]
@@ -484,121 +495,171 @@ class _Run:
 
     def _serve(self, sites: list[int], groups: list[list[int]]) -> None:
         """Draw the values the particles `groups[j]` wait for at site `sites[j]`: one
-        proposal call (propose_round, or propose for a single site)."""
-        program, parts = self.program, self.pop.parts
-        objs: list[Site] = []
-        rows_list: list[list[Args]] = []
-        args_list: list[np.ndarray] = []
-        for s, idx in zip(sites, groups, strict=True):
+        proposal call (propose_rows for a RoundProposal, else propose for one site), then
+        the weights (log prior - log q), traces and replay values."""
+        program = self.program
+        objs = []
+        for s in sites:
             if not 0 <= s < len(program.sites):
                 raise ProgramError(f"program {program.name} asked for unknown site {s}")
-            site = program.sites[s]
-            rows = [parts[i].need[1] for i in idx]  # type: ignore[index]  # waiting: set
-            args = _prior_args(site, rows)
-            if not kind_of(site).weighted and args.shape[1] != site.n_args():
-                raise ProgramError(
-                    f"site {site.id} (line {site.line}): {site.kind} takes "
-                    f"{site.n_args()} arguments, got {args.shape[1]}"
-                )
-            objs.append(site)
-            rows_list.append(rows)
-            args_list.append(args)
-        feats = self._features(objs, groups, args_list) if self.fmaker is not None else None
-        given = feats if self.use_features else None
-        if given is not None and self.trim:  # recorded with context, the guide reads less
-            given = [f[:, : f.shape[1] - self.trim] for f in given]
+            objs.append(program.sites[s])
+        if self.buffers is None:  # no features, no RoundProposal: one site
+            self._serve_site(objs[0], groups[0])
+            return
+        rows, idx = self._round_rows(objs, groups)
+        x = rows.features
+        if x is not None and not self.use_features:  # features for the trace only
+            rows = RoundRows(rows.sites, rows.counts, rows.site, rows.args, rows.n_args, None, [])
         if self.batched:
             # self.batched: a RoundProposal (checked once, not per round)
-            answers = self.proposal.propose_round(  # type: ignore[attr-defined]
-                objs, args_list, given, self.rng
-            )
-        else:
-            answers = [
-                self.proposal.propose(
-                    objs[0], args_list[0], None if given is None else given[0], self.rng
-                )
-            ]
-        for j, answer in enumerate(answers):
-            self._weigh_site(
-                objs[j],
-                groups[j],
-                rows_list[j],
-                args_list[j],
-                answer,
-                None if feats is None else feats[j],
-            )
+            res = self.proposal.propose_rows(rows, self.rng)  # type: ignore[attr-defined]
+            self._weigh(idx, res[:, 1], res[:, 2])
+            vals = res[:, 0].tolist()
+        else:  # one site, with features (recorded traces)
+            vals = self._propose_one(objs[0], rows, idx)
+        if len(groups) == 1:
+            self._record(objs[0], groups[0], vals, x)
+            return
+        pos = 0
+        for site, g in zip(objs, groups, strict=True):
+            m = len(g)
+            self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
+            pos += m
 
-    def _weigh_site(
-        self,
-        site: Site,
-        idx: list[int],
-        rows: list[Args],
-        args: np.ndarray,
-        answer: tuple[np.ndarray, ...],
-        feats: np.ndarray | None,
-    ) -> None:
-        """Weights (log prior - log q), trace and replay values of one served site from the
-        proposal's answer (values, log q[, log prior]). The weight changes wait in
-        `pending` (`_flush` applies them once per step, in order)."""
-        ia = np.asarray(idx, dtype=np.intp)
-        values = np.asarray(answer[0], dtype=np.float64)
-        vals = values.tolist()
-        log_q = answer[1]
-        if self.is_prior:  # log q = log prior: the weight does not change
-            self.pending.append((ia, None, log_q))
-        else:
-            log_q = np.asarray(log_q, dtype=np.float64)
-            log_p = None
-            if len(answer) > 2:  # the proposal computed the log prior with its draws
-                log_p = np.asarray(answer[2], dtype=np.float64)
-            elif kind_of(site).weighted:  # often one weight tuple for all rows: a table
-                log_p = _weights_logp(site, rows, args, vals, self.tables)
-            if log_p is None:
-                log_p = prior_logpdf(site, args, values)
-            self.pending.append((ia, log_q, log_p))
+    def _record(self, site: Site, idx: list[int], vals: list[float], x: np.ndarray | None) -> None:
+        """The values (and, for full traces, the feature rows x, cut to the site's width)
+        into the particles' replay values and traces; the observers hear of them."""
+        feats = None
+        if self.trace is TraceRecording.FULL:
+            assert x is not None
+            feats = x[:, : self.n_feat[site.index]]
         _record(self.pop.parts, site, idx, vals, feats, self.trace)
         for obs in self.observers:
             obs.site_drawn(site, idx, vals)
 
-    def _flush(self) -> None:
-        """Apply the pending site weights: log w += log p - log q (NaN: zero weight),
-        log prior += log p; each particle's terms are added in the order they came."""
-        pending = self.pending
-        if not pending:
-            return
+    def _propose_one(self, site: Site, rows: RoundRows, idx: np.ndarray) -> list[float]:
+        """`propose` for the rows of one site (a proposal that is no RoundProposal); weighs
+        them and returns the values."""
+        args = np.array(rows.args[:, : rows.n_args[0]])
+        f = None if rows.features is None else rows.features[:, : rows.widths[0]]
+        values, log_q = self.proposal.propose(site, args, f, self.rng)
+        values = np.asarray(values, dtype=np.float64)
+        log_q = np.asarray(log_q, dtype=np.float64)
+        if self.is_prior:  # log q = log prior: the weight does not change
+            self._weigh(idx, None, log_q)
+        else:
+            self._weigh(idx, log_q, prior_logpdf(site, args, values))
+        return cast("list[float]", values.tolist())
+
+    def _serve_site(self, site: Site, idx: list[int]) -> None:
+        """One site without features (the prior, or a proposal that reads none): its
+        prior arguments as one array, one `propose` call."""
+        parts = self.pop.parts
+        rows = [parts[i].need[1] for i in idx]  # type: ignore[index]  # waiting: set
+        args = _prior_args(site, rows)
+        if not kind_of(site).weighted and args.shape[1] != site.n_args():
+            raise ProgramError(
+                f"site {site.id} (line {site.line}): {site.kind} takes "
+                f"{site.n_args()} arguments, got {args.shape[1]}"
+            )
+        values, log_q = self.proposal.propose(site, args, None, self.rng)
+        values = np.asarray(values, dtype=np.float64)
+        vals = values.tolist()
+        ia = np.asarray(idx, dtype=np.intp)
+        if self.is_prior:  # log q = log prior: the weight does not change
+            self._weigh(ia, None, log_q)
+        else:
+            log_q = np.asarray(log_q, dtype=np.float64)
+            log_p = None
+            if kind_of(site).weighted:  # often one weight tuple for all rows: a table
+                log_p = _weights_logp(site, rows, args, vals, self.tables)
+            if log_p is None:
+                log_p = prior_logpdf(site, args, values)
+            self._weigh(ia, log_q, log_p)
+        self._record(site, idx, vals, None)
+
+    def _weigh(self, idx: np.ndarray, log_q: np.ndarray | None, log_p: np.ndarray) -> None:
+        """Particles idx (distinct) drew values: log w += log p - log q (NaN: zero weight;
+        log_q None: the prior proposal, no change), log prior += log p. A particle's terms
+        are added in the order its sites were served. One kernel call (kernels.add_weights)
+        when the run has loaded the kernels; the same arithmetic in numpy in a run that
+        needs none (a forward sample: no canvas, no features)."""
         pop = self.pop
-        ia = np.concatenate([x[0] for x in pending]) if len(pending) > 1 else pending[0][0]
-        log_p = np.concatenate([x[2] for x in pending]) if len(pending) > 1 else pending[0][2]
-        if not self.is_prior:
-            log_q = np.concatenate([x[1] for x in pending]) if len(pending) > 1 else pending[0][1]
+        if self.kernels is not None:
+            self.kernels.add_weights(
+                pop.log_w, pop.log_prior, idx, _NO_ROWS if log_q is None else log_q, log_p
+            )
+            return
+        if log_q is not None:
             with np.errstate(invalid="ignore"):
                 delta = log_p - log_q
-            np.add.at(pop.log_w, ia, np.where(np.isnan(delta), -np.inf, delta))
-        np.add.at(pop.log_prior, ia, log_p)
-        pending.clear()
+            pop.log_w[idx] += np.where(np.isnan(delta), -np.inf, delta)
+        pop.log_prior[idx] += log_p
 
-    def _features(
-        self, sites: list[Site], groups: list[list[int]], args_list: list[np.ndarray]
-    ) -> list[np.ndarray]:
-        """Feature rows of the waiting particles, one array per site, in one kernel call."""
+    def _round_rows(
+        self, sites: list[Site], groups: list[list[int]]
+    ) -> tuple[RoundRows, np.ndarray]:
+        """The round's rows (and the particle of each): the waiting particles' state
+        packed into one float64 vector in one pass (kernels.unpack_round's layout),
+        unpacked into the run's buffers by one kernel call, and their feature rows (one
+        kernel call)."""
         parts = self.pop.parts
-        idx = groups[0] if len(groups) == 1 else [i for g in groups for i in g]
-        ps = [parts[i] for i in idx]
-        tops = [p.stack for p in ps]
-        # the axiom pseudo-module has depth -1
-        depths = [float(max(t[1], 0)) for t in tops]  # type: ignore[index]  # waiting: a stack
-        params_list = []
-        pos = 0
+        t_width = self.t_width
+        flat: list[Any] = []
+        top_k = 0
         for site, g in zip(sites, groups, strict=True):
-            params = _rows([t[0][1:] for t in tops[pos : pos + len(g)]])  # type: ignore[index]  # same
-            if params is None:
-                raise ProgramError(f"site {site.id}: modules of different arity share it")
-            params_list.append(params)
-            pos += len(g)
-        assert self.fmaker is not None
-        return self.fmaker.features_round(
-            sites, self.canvas, idx, [p.turtle for p in ps], depths, params_list, args_list
-        )
+            p = parts[g[0]]
+            a = len(p.stack[0]) - 1  # type: ignore[index]  # waiting: module on top
+            k = len(p.need[1])  # type: ignore[index]  # waiting: set
+            flat += (site.index, len(g), a, k)
+            for i in g:
+                p = parts[i]
+                top = p.stack  # (module, depth, rest)
+                mod = top[0]  # type: ignore[index]  # same
+                need = p.need[1]  # type: ignore[index]  # same
+                if len(mod) != a + 1 or len(need) != k:
+                    _check_rows(site, [parts[j] for j in g])
+                flat.append(i)
+                flat.append(top[1])  # type: ignore[index]  # same
+                flat += p.turtle[:t_width]
+                flat += mod[1:]
+                flat += need
+            if k != site.n_args() and not kind_of(site).weighted:
+                raise ProgramError(
+                    f"site {site.id} (line {site.line}): {site.kind} takes "
+                    f"{site.n_args()} arguments, got {k}"
+                )
+            top_k = max(top_k, k)
+        try:
+            packed = np.array(flat, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            for site, g in zip(sites, groups, strict=True):
+                _check_rows(site, [parts[i] for i in g])
+            raise ProgramError(
+                f"program {self.program.name}: a turtle state holds something else than numbers"
+            ) from None
+        return self._unpack(packed, sites, groups, top_k)
+
+    def _unpack(
+        self, packed: np.ndarray, sites: list[Site], groups: list[list[int]], top_k: int
+    ) -> tuple[RoundRows, np.ndarray]:
+        """`_round_rows`' kernel calls: the packed state into the buffers, the features."""
+        buf = self.buffers
+        assert buf is not None
+        n = buf.unpack(packed, top_k)
+        idx = buf.idx[:n]
+        x = None
+        widths = []
+        fmaker = self.fmaker
+        if fmaker is not None:
+            x = fmaker.rows_from(
+                self.canvas, idx, buf.turtle[:n], buf.depth[:n], buf.extra[:n], buf.n_extra[:n]
+            )
+            n_feat, trim = self.n_feat, self.trim
+            widths = [n_feat[s.index] - trim for s in sites]
+        counts = [len(g) for g in groups]
+        rows = RoundRows(sites, counts, buf.site[:n], buf.args[:n], buf.n_args[:n], x, widths)
+        return rows, idx
 
     def _observe(self, drawn: list[int], empty: list[int]) -> None:
         """Rasterize the new primitives and apply the likelihood increments (and the blank
@@ -679,6 +740,60 @@ class _Run:
                 "limits": _limit_counts(finals),
             },
         )
+
+
+class _Buffers:
+    """A run's arrays for the rows of its rounds, one row per particle at most, and the
+    kernel that fills them (kernels.unpack_round)."""
+
+    def __init__(self, program: Program, n: int, t_width: int) -> None:
+        from ngpm_runtime import kernels  # numba loads with the first rows
+
+        self.unpack_round = kernels.unpack_round
+        sites = program.sites
+        shape = np.array([(int(s.arity), int(s.n_args())) for s in sites], dtype=np.int64)
+        shape = shape.reshape(len(sites), 2)  # (arity, prior argument count) per site
+        self.shape = shape
+        self.t_width = t_width
+        self.n = n
+        self.idx = np.zeros(n, dtype=np.intp)
+        self.site = np.zeros(n, dtype=np.int64)
+        self.turtle = np.zeros((n, t_width))
+        self.depth = np.zeros(n)
+        self.extra = np.zeros((n, int((shape[:, 0] + shape[:, 1]).max(initial=0))))
+        self.n_extra = np.zeros(n, dtype=np.int64)
+        self.args = np.zeros((n, int(shape[:, 1].max(initial=0))))
+        self.n_args = np.zeros(n, dtype=np.int64)
+
+    def unpack(self, packed: np.ndarray, widest_args: int) -> int:
+        """The rows packed in `packed` (kernels.unpack_round's layout) into the buffers;
+        returns their count."""
+        if widest_args > self.args.shape[1]:
+            self.args = np.zeros((self.n, widest_args))
+        return int(
+            self.unpack_round(
+                packed,
+                self.t_width,
+                self.shape,
+                self.idx,
+                self.site,
+                self.turtle,
+                self.depth,
+                self.extra,
+                self.n_extra,
+                self.args,
+                self.n_args,
+            )
+        )
+
+
+def _check_rows(site: Site, parts: list[Particle]) -> None:
+    """The ProgramError for particles waiting on `site` whose prior arguments or module
+    parameters are not numbers of one length (nothing if they are)."""
+    _prior_args(site, [p.need[1] for p in parts])  # type: ignore[index]  # waiting: set
+    params = _rows([p.stack[0][1:] for p in parts])  # type: ignore[index]  # module on top
+    if params is None:
+        raise ProgramError(f"site {site.id}: modules of different arity share it")
 
 
 def _record(
@@ -826,6 +941,7 @@ def _weights_logp(
     return np.array(out)
 
 
+_NO_ROWS = np.zeros(0)
 # _rows of one shared tuple, by (tuple, n): read-only arrays, reused across rounds and runs
 _SHARED: dict[tuple[Args, int], np.ndarray] = {}
 

@@ -56,9 +56,10 @@ def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
 
 class FeatureMaker3D:
     """Builds the float32 feature rows of a 3D grammar's site visits (the interface of
-    image/features.FeatureMaker that smc() uses: features_round, layout)."""
+    image/features.FeatureMaker that smc() uses: rows_from, n_features, layout)."""
 
     context = False  # no context group in 3D
+    n_turtle = 13  # the turtle's numbers a row reads: position, H, L, U, width
 
     def __init__(
         self,
@@ -135,8 +136,8 @@ class FeatureMaker3D:
         prior_args: list[np.ndarray],
     ) -> list[np.ndarray]:
         """Rows for several sites at once (particles of `sites[j]` one after the other), as
-        image/features.FeatureMaker.features_round, the call SMC makes in every round (the
-        canvases may have changed since the last: nothing remembered is used)."""
+        image/features.FeatureMaker.features_round (the canvases may have changed since
+        the last call: nothing remembered is used)."""
         self.forget()
         return self.features_cached(sites, canvas, idx, turtles, depths, params, prior_args)
 
@@ -197,6 +198,28 @@ class FeatureMaker3D:
             counts,
             starts,
         )
+        return out
+
+    def rows_from(
+        self,
+        canvas: VoxelCanvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        extra: np.ndarray,
+        n_extra: np.ndarray,
+    ) -> np.ndarray:
+        """The rows (n, n_common + extra's columns) float32 of particles idx with turtles
+        (n, 13) and depths (n,): the local base columns, extra[k, :n_extra[k]] (module
+        parameters and prior arguments, fitted to the site), then the windows (as 2D
+        FeatureMaker.rows_from; SMC's rounds call it)."""
+        common = self._common(canvas, idx, turtle, depth)
+        out = np.zeros((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
+        out[:, :N_LOCAL_BASE] = common[:, :N_LOCAL_BASE]
+        for e in np.unique(n_extra).tolist():
+            at = np.flatnonzero(n_extra == e)
+            out[at, N_LOCAL_BASE : N_LOCAL_BASE + e] = extra[at, :e]
+            out[at, N_LOCAL_BASE + e : self.n_common + e] = common[at, N_LOCAL_BASE:]
         return out
 
     def _site_rows(

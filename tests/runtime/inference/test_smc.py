@@ -489,3 +489,53 @@ def test_an_observer_that_raises_stops_the_run(vines) -> None:
         run_vines(vines, n=5, observers=[Stop()])
     with pytest.raises(SMCOptionError, match="one per particle"):
         SMCState(3, np.zeros(3)).register("x", np.zeros(2))
+
+
+@pytest.mark.parametrize(
+    "case, words",
+    [
+        ("args", "prior arguments are not numbers of one length"),
+        ("arity", "modules of different arity share it"),
+    ],
+)
+def test_rows_that_do_not_fit_a_site_are_one_line_errors(case: str, words: str) -> None:
+    """A round with features (its particles' state packed for kernels.unpack_round):
+    particles at one site whose prior arguments or module parameters differ in length get
+    the ProgramError naming the site, never a traceback."""
+    from ngpm_runtime.program import Site
+
+    sites = [
+        Site(index=0, id="S/0/bernoulli0", kind="bernoulli", module="S"),
+        Site(index=1, id="B/0/normal0", kind="normal", module="B", arity=1),
+        Site(index=2, id="B/0/categorical0", kind="categorical", k=2, module="B", arity=1),
+    ]
+
+    class Featured(PriorProposal):
+        uses_features = True
+
+    def produce_s(ctx):  # the particles differ after this flip
+        b = ctx.bernoulli(0, 0.5)
+        return [("B", b) if b or case != "arity" else ("B", b, 2.0)]
+
+    def produce_b(ctx, b, *more):
+        if case == "args":  # 2 weights or 3
+            return [("F", 1.0 + ctx.categorical(2, (1.0, 1.0) if b else (1.0, 1.0, 1.0)))]
+        return [("F", ctx.normal(1, 0.0, 1.0))]
+
+    prog = make_program(
+        {"S": produce_s, "B": produce_b},
+        axiom=(("S",),),
+        sites=sites,
+        viewport=(-2.0, 2.0, -2.0, 2.0),
+    )
+    with pytest.raises(ProgramError, match=words):
+        smc(prog, None, 20, Featured(), options=SMCOptions(canvas_size=(8, 8)))
+
+
+def test_a_program_without_sites_records_full_traces() -> None:
+    """A grammar with no random choice: full traces (feature rows, the round buffers of no
+    site) and a replay of it run; the trace is empty."""
+    prog = make_program({}, axiom=(("F", 1.0),) * 3, viewport=(-4.0, 4.0, -4.0, 4.0))
+    r = smc(prog, None, 3, options=SMCOptions(trace=TraceRecording.FULL, canvas_size=(8, 8)))
+    assert all(p.trace == [] and len(p.primitives) == 3 for p in r.particles)
+    assert replay(prog, []).primitives == r.particles[0].primitives

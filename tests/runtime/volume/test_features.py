@@ -93,3 +93,30 @@ def test_window_sizes_and_cached_rows() -> None:
             np.testing.assert_array_equal(rows[j], fresh)
     with pytest.raises(ValueError, match="unknown window"):
         FeatureMaker3D(PROGRAM, GRID, None, window="sphere")
+
+
+def test_rows_from_equal_features_round_per_site() -> None:
+    """rows_from (what SMC's rounds call, with the parameters and prior arguments already
+    fitted to each site: a site of arity 0 with 1 argument next to one of arity 2 with 2)
+    gives, in each site's columns, the rows features_round gives."""
+    rng = np.random.default_rng(9)
+    other = Site(index=1, id="B/0/bernoulli0", kind="bernoulli", module="B", arity=0)
+    fm = FeatureMaker3D(PROGRAM, GRID, ball_target(GRID, (0.0, 2.0, 0.0), 2.0))
+    n = 7
+    canvas = VoxelCanvas(n, GRID)
+    for _ in range(5):
+        canvas.draw(np.arange(n), [random_prim3(rng) for _ in range(n)])
+    turtles = _turtles(rng, n)
+    depths = rng.integers(0, 6, size=n).astype(float)
+    idx = rng.permutation(n)
+    params = [rng.normal(size=(4, 2)), np.zeros((3, 0))]
+    args = [rng.normal(size=(4, 2)), rng.random(size=(3, 1))]
+    want = fm.features_round([SITE, other], canvas, idx.tolist(), turtles, depths, params, args)
+    extra = np.zeros((n, 4))
+    extra[:4] = np.hstack([params[0], args[0]])
+    extra[4:, :1] = args[1]
+    n_extra = np.array([4] * 4 + [1] * 3)
+    rows = np.array([t[:13] for t in turtles])
+    got = fm.rows_from(canvas, idx, rows, depths, extra, n_extra)
+    np.testing.assert_array_equal(got[:4, : fm.n_features(SITE)], want[0])
+    np.testing.assert_array_equal(got[4:, : fm.n_features(other)], want[1])
