@@ -32,3 +32,14 @@ def horse(tmp_path: Path) -> Path:
     shutil.copy(src, tmp_path / "horse.png")
     shutil.copy(src.with_suffix(".txt"), tmp_path / "horse.txt")
     return tmp_path / "horse.png"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def warm_kernels() -> None:
+    """Compiles and caches the SMC kernels first when the cache is cold (a fresh clone, or
+    kernels just changed), so that tests reading a command's stderr line by line never see
+    the one-line compile note (tests/runtime/test_warmup.py tests the note itself)."""
+    from ngpm_runtime.warmup import cache_is_cold, warm_up
+
+    if cache_is_cold():
+        warm_up()
