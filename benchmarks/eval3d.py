@@ -13,7 +13,7 @@ runs.n_to_match); CPU time to reach the guide's similarity, unguided against gui
 at the largest N (seed 0), drawn at one scale.
 
 Usage: python benchmarks/eval3d.py [--targets DIR] [--guide G.onnx] [--grammar G.lsys]
-       [--k 8] [--repeats 2] [--ns 10,30,100,300,600] [--pictures 3] [--out DIR]
+       [--k 24] [--repeats 2] [--ns 10,30,100,300,600] [--pictures 3] [--out DIR]
 --targets defaults to work/revolved, built there first when missing (ngpmc targets build
 revolved). Needs the compiler (ngpm_compiler) to build targets and compile a grammar.
 """
@@ -148,7 +148,7 @@ def main() -> None:
     ap.add_argument("--targets", default=str(ROOT / "work" / "revolved"))
     ap.add_argument("--grammar", help="3D grammar (default: the bundled topiary3d)")
     ap.add_argument("--guide", help="guide .onnx (default: the bundled 3D guide)")
-    ap.add_argument("--k", type=int, default=8, help="targets (spread over the set)")
+    ap.add_argument("--k", type=int, default=24, help="targets (spread over the set)")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--ns", default="10,30,100,300,600", help="unguided particle counts")
     ap.add_argument("--pictures", type=int, default=3, help="targets drawn (first k)")

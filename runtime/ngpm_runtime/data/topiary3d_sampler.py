@@ -5,53 +5,62 @@ from ngpm_runtime.program import Program, Site
 PROTOCOL = 1  # the runtime refuses a module of another protocol
 DIM = 3  # a 3D grammar: the runtime's 3D turtle draws it
 
-# constants (topiary3d.lsys:6-8)
+# constants (topiary3d.lsys:8-10)
 L = 90.0
-WR = 0.88
+WR = 0.85
 BA = 35.0
 
 SITES = [
     Site(index=0, id="C/0/normal0", kind="normal", name="gauss(0, 180) in C", module="C", arity=1,
-         line=16, col=22, source="gauss(0, 180)"),
+         line=18, col=22, source="gauss(0, 180)"),
     Site(index=1, id="C/0/normal1", kind="normal", name="gauss(BA, 12) in C", module="C", arity=1,
-         line=16, col=40, source="gauss(BA, 12)"),
+         line=18, col=40, source="gauss(BA, 12)"),
     Site(index=2, id="A/choice", kind="categorical", name="choice of A", module="A", arity=1, k=4,
-         probs=(0.1, 0.25, 0.4, 0.25), line=18, col=1, source="A(w) --> * : 0.1 ..."),
-    Site(index=3, id="A/1/normal0", kind="normal", name="gauss(0, 12) in A", module="A", arity=1,
-         line=19, col=22, source="gauss(0, 12)"),
-    Site(index=4, id="A/1/normal1", kind="normal", name="gauss(0, 40) in A", module="A", arity=1,
-         line=19, col=38, source="gauss(0, 40)"),
-    Site(index=5, id="A/2/normal0", kind="normal", name="gauss(137, 40) in A", module="A", arity=1,
-         line=20, col=22, source="gauss(137, 40)"),
-    Site(index=6, id="A/2/normal1", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
-         line=20, col=41, source="gauss(BA, 12)"),
-    Site(index=7, id="A/2/normal2", kind="normal", name="gauss(0, 12) in A", module="A", arity=1,
-         line=20, col=69, source="gauss(0, 12)"),
-    Site(index=8, id="A/3/normal0", kind="normal", name="gauss(0, 60) in A", module="A", arity=1,
-         line=21, col=22, source="gauss(0, 60)"),
-    Site(index=9, id="A/3/normal1", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
-         line=21, col=39, source="gauss(BA, 12)"),
-    Site(index=10, id="A/3/normal2", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
-         line=21, col=75, source="gauss(BA, 12)"),
-    Site(index=11, id="A/3/normal3", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
-         line=21, col=111, source="gauss(BA, 12)"),
+         probs=(0.1, 0.3, 0.35, 0.25), line=20, col=1,
+         source="A(w) --> @O(uniform(30, 150)) : 0.1 ..."),
+    Site(index=3, id="A/0/uniform0", kind="uniform", name="uniform(30, 150) in A", module="A",
+         arity=1, line=20, col=13, source="uniform(30, 150)"),
+    Site(index=4, id="A/1/uniform0", kind="uniform", name="uniform(20, 150) in A", module="A",
+         arity=1, line=21, col=23, source="uniform(20, 150)"),
+    Site(index=5, id="A/1/normal0", kind="normal", name="gauss(0, 12) in A", module="A", arity=1,
+         line=21, col=43, source="gauss(0, 12)"),
+    Site(index=6, id="A/1/normal1", kind="normal", name="gauss(0, 40) in A", module="A", arity=1,
+         line=21, col=59, source="gauss(0, 40)"),
+    Site(index=7, id="A/2/uniform0", kind="uniform", name="uniform(20, 150) in A", module="A",
+         arity=1, line=22, col=23, source="uniform(20, 150)"),
+    Site(index=8, id="A/2/normal0", kind="normal", name="gauss(137, 40) in A", module="A", arity=1,
+         line=22, col=43, source="gauss(137, 40)"),
+    Site(index=9, id="A/2/normal1", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
+         line=22, col=62, source="gauss(BA, 12)"),
+    Site(index=10, id="A/2/normal2", kind="normal", name="gauss(0, 12) in A", module="A", arity=1,
+         line=22, col=90, source="gauss(0, 12)"),
+    Site(index=11, id="A/3/uniform0", kind="uniform", name="uniform(20, 150) in A", module="A",
+         arity=1, line=23, col=23, source="uniform(20, 150)"),
+    Site(index=12, id="A/3/normal0", kind="normal", name="gauss(0, 60) in A", module="A", arity=1,
+         line=23, col=43, source="gauss(0, 60)"),
+    Site(index=13, id="A/3/normal1", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
+         line=23, col=60, source="gauss(BA, 12)"),
+    Site(index=14, id="A/3/normal2", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
+         line=23, col=96, source="gauss(BA, 12)"),
+    Site(index=15, id="A/3/normal3", kind="normal", name="gauss(BA, 12) in A", module="A", arity=1,
+         line=23, col=132, source="gauss(BA, 12)"),
 ]
 
 LOCATIONS = {
-    "axiom": (14, 8),
-    "production C": (16, 1),
-    "production A": (18, 1),
+    "axiom": (16, 8),
+    "production C": (18, 1),
+    "production A": (20, 1),
 }
 
 
 def axiom(ctx):
-    """Axiom: !(140) F(120) C(140)   (topiary3d.lsys:14)"""
-    return [("!", 140.0), ("F", 120.0), ("C", 140.0)]
+    """Axiom: !(120) F(100) C(120)   (topiary3d.lsys:16)"""
+    return [("!", 120.0), ("F", 100.0), ("C", 120.0)]
 
 
 def produce_C(ctx, w):
     """C(w) --> !(w) F(L) /(gauss(0, 180)) [&(gauss(BA, 12)) A(w * WR)] A(w * WR)
-    (topiary3d.lsys:16)
+    (topiary3d.lsys:18)
     """
     return [
         ("!", w),
@@ -66,53 +75,56 @@ def produce_C(ctx, w):
 
 
 def produce_A(ctx, w):
-    """A(w) --> * : 0.1
-    A(w) --> !(w) F(L) &(gauss(0, 12)) /(gauss(0, 40)) A(w * WR) : 0.25
-    A(w) --> !(w) F(L) /(gauss(137, 40)) [&(gauss(BA, 12)) A(w * WR)] &(gauss(0, 12)) A(w * WR) :
-        0.4
-    A(w) --> !(w) F(L) /(gauss(0, 60)) [&(gauss(BA, 12)) A(w * WR)] /(120) [&(gauss(BA, 12)) A(w
-        * WR)] /(120) [&(gauss(BA, 12)) A(w * WR)] : 0.25
-    (topiary3d.lsys:18-21)
+    """A(w) --> @O(uniform(30, 150)) : 0.1
+    A(w) --> !(w) F(L) @O(uniform(20, 150)) &(gauss(0, 12)) /(gauss(0, 40)) A(w * WR) : 0.3
+    A(w) --> !(w) F(L) @O(uniform(20, 150)) /(gauss(137, 40)) [&(gauss(BA, 12)) A(w * WR)]
+        &(gauss(0, 12)) A(w * WR) : 0.35
+    A(w) --> !(w) F(L) @O(uniform(20, 150)) /(gauss(0, 60)) [&(gauss(BA, 12)) A(w * WR)] /(120)
+        [&(gauss(BA, 12)) A(w * WR)] /(120) [&(gauss(BA, 12)) A(w * WR)] : 0.25
+    (topiary3d.lsys:20-23)
     """
-    alt = ctx.choose(2, (0.1, 0.25, 0.4, 0.25))
+    alt = ctx.choose(2, (0.1, 0.3, 0.35, 0.25))
     if alt == 0:
-        return []
+        return [("@O", ctx.uniform(3, 30.0, 150.0))]
     if alt == 1:
         return [
             ("!", w),
             ("F", L),
-            ("&", ctx.normal(3, 0.0, 12.0)),
-            ("/", ctx.normal(4, 0.0, 40.0)),
+            ("@O", ctx.uniform(4, 20.0, 150.0)),
+            ("&", ctx.normal(5, 0.0, 12.0)),
+            ("/", ctx.normal(6, 0.0, 40.0)),
             ("A", w * WR),
         ]
     if alt == 2:
         return [
             ("!", w),
             ("F", L),
-            ("/", ctx.normal(5, 137.0, 40.0)),
+            ("@O", ctx.uniform(7, 20.0, 150.0)),
+            ("/", ctx.normal(8, 137.0, 40.0)),
             ("[",),
-            ("&", ctx.normal(6, BA, 12.0)),
+            ("&", ctx.normal(9, BA, 12.0)),
             ("A", w * WR),
             ("]",),
-            ("&", ctx.normal(7, 0.0, 12.0)),
+            ("&", ctx.normal(10, 0.0, 12.0)),
             ("A", w * WR),
         ]
     return [
         ("!", w),
         ("F", L),
-        ("/", ctx.normal(8, 0.0, 60.0)),
+        ("@O", ctx.uniform(11, 20.0, 150.0)),
+        ("/", ctx.normal(12, 0.0, 60.0)),
         ("[",),
-        ("&", ctx.normal(9, BA, 12.0)),
+        ("&", ctx.normal(13, BA, 12.0)),
         ("A", w * WR),
         ("]",),
         ("/", 120.0),
         ("[",),
-        ("&", ctx.normal(10, BA, 12.0)),
+        ("&", ctx.normal(14, BA, 12.0)),
         ("A", w * WR),
         ("]",),
         ("/", 120.0),
         ("[",),
-        ("&", ctx.normal(11, BA, 12.0)),
+        ("&", ctx.normal(15, BA, 12.0)),
         ("A", w * WR),
         ("]",),
     ]
@@ -121,7 +133,7 @@ def produce_A(ctx, w):
 PROGRAM = Program(
     name="topiary3d",
     source="grammars/topiary3d.lsys",
-    grammar_hash="sha256:3a1fb1ebd3ec6189fc56a253925a3328911bc12f5c692db5781e48bb67209785",
+    grammar_hash="sha256:9ce75bab2f98ddbe290972eb3938f95ff60576f66a188e3e05a86e871595f213",
     sites=SITES,
     axiom=axiom,
     productions={
