@@ -331,7 +331,8 @@ class Deriver:
         module, productions, interpretation rules and memoization inlined; every turtle
         symbol goes through its function of the program's one turtle semantics
         (`turtle.TURTLE_OPS` in 2D, `turtle3d.TURTLE3D_OPS` in 3D)."""
-        table, pcache = self.table, self.pcache
+        table, after, pcache = self.table, self.after, self.pcache
+        dlen, angle = self.dlen, self.angle
         stack = p.stack
         turtle, tstack, poly = p.turtle, p.tstack, p.poly
         ops = 0
@@ -365,17 +366,21 @@ class Deriver:
                     p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                     p.turtle, p.tstack, p.poly = turtle, tstack, poly
                     return DRAWN if drew else LIMIT
-                code, fn = table.get(mod[0]) or self._entry(mod[0])
+                try:
+                    code, fn = table[mod[0]]
+                except KeyError:
+                    code, fn = self._entry(mod[0])
                 if code == _PROD:
-                    if ilevel == 0 and depth < self.dlen and not p.in_interp:
+                    if ilevel == 0 and depth < dlen and not p.in_interp:
                         # memoized outcome while the replay values are all discrete
                         values = p.values
                         if p.cont:
                             res = self._call(p, fn, "production", mod)
                         else:
                             key = (mod, values) if values else mod
-                            res = pcache.get(key, _MISS)
-                            if res is _MISS:
+                            try:
+                                res = pcache[key]
+                            except KeyError:
                                 res = self._memo(p, fn, "production", mod, pcache, key)
                         if res.__class__ is _Need:
                             p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
@@ -389,7 +394,7 @@ class Deriver:
                                 stack = _spill(seq, i, sdepth, slevel, stack)
                             seq, i, n, sdepth, slevel = res, 0, len(res), depth + 1, 0
                             continue
-                    code, fn = self.after[mod[0]]
+                    code, fn = after[mod[0]]
                 if code == _INTERP:
                     res = self._interpret(p, fn, mod, ilevel)
                     if res.__class__ is _Need:
@@ -408,7 +413,7 @@ class Deriver:
                         p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                         p.turtle, p.tstack, p.poly = turtle, tstack, poly
                         return DRAWN
-                    turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, self.angle)
+                    turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, angle)
                     if prim is None:
                         continue
                     p.last = prim

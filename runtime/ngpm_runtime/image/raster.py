@@ -111,6 +111,7 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 
 _CODES = {"seg": 0, "disk": 1, "leaf": 2, "poly": 3}  # kernels.SEG, DISK, LEAF, POLY
 _NO_VERTS = np.zeros((0, 2))
+_PARAM_PAD = (0.0,) * 5  # pads a primitive's parameters to the kernel's 5 columns
 _RASTER_CHUNK = 64  # primitives per kernel call in `rasterize`
 
 
@@ -136,14 +137,17 @@ def _pack(prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
             _NO_VERTS,
             np.zeros(n + 1, dtype=np.intp),
         )
-    codes = np.empty(n, dtype=np.int8)
+    try:
+        codes = np.array([_CODES[p[0]] for p in prims], dtype=np.int8)
+    except KeyError as err:
+        raise ValueError(f"unknown primitive kind {err.args[0]!r}") from None
+    if not (codes == _CODES["poly"]).any():  # mixed kinds without polygons: one array call
+        par = np.array([p[1:] + _PARAM_PAD[len(p) - 1 :] for p in prims], dtype=np.float64)
+        return codes, par, _NO_VERTS, np.zeros(n + 1, dtype=np.intp)
     par = np.zeros((n, 5))
     verts: list[np.ndarray] = []
     vstart = np.zeros(n + 1, dtype=np.intp)
     for k, p in enumerate(prims):
-        if p[0] not in _CODES:
-            raise ValueError(f"unknown primitive kind {p[0]!r}")
-        codes[k] = _CODES[p[0]]
         if p[0] == "poly":
             v = np.asarray(p[1], dtype=np.float64).reshape(-1, 2)
             verts.append(v)
