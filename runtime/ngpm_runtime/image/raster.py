@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -111,7 +112,7 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 
 _CODES = {"seg": 0, "disk": 1, "leaf": 2, "poly": 3}  # kernels.SEG, DISK, LEAF, POLY
 _NO_VERTS = np.zeros((0, 2))
-_PARAM_PAD = (0.0,) * 5  # pads a primitive's parameters to the kernel's 5 columns
+_PAD = (0.0,) * 5  # pads a primitive's parameters to the kernel's 5 columns
 _RASTER_CHUNK = 64  # primitives per kernel call in `rasterize`
 
 
@@ -138,11 +139,16 @@ def _pack(prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
             np.zeros(n + 1, dtype=np.intp),
         )
     try:
-        codes = np.array([_CODES[p[0]] for p in prims], dtype=np.int8)
+        codes = np.fromiter([_CODES[p[0]] for p in prims], np.int8, n)
     except KeyError as err:
         raise ValueError(f"unknown primitive kind {err.args[0]!r}") from None
-    if not (codes == _CODES["poly"]).any():  # mixed kinds without polygons: one array call
-        par = np.array([p[1:] + _PARAM_PAD[len(p) - 1 :] for p in prims], dtype=np.float64)
+    if not (codes == _CODES["poly"]).any():  # mixed kinds without polygons: one flat list
+        rows = [p if len(p) == 6 else p + _PAD[len(p) - 1 :] for p in prims]
+        flat = list(chain.from_iterable(rows))
+        if len(flat) != 6 * n:
+            raise ValueError("a primitive has more than 5 parameters")
+        del flat[::6]  # the kind names
+        par = np.fromiter(flat, np.float64, 5 * n).reshape(n, 5)
         return codes, par, _NO_VERTS, np.zeros(n + 1, dtype=np.intp)
     par = np.zeros((n, 5))
     verts: list[np.ndarray] = []
