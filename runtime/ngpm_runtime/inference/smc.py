@@ -432,7 +432,7 @@ class _Run:
         """Run the live particles to their next primitive, serving their random choices in
         rounds; returns (particles that drew, particles that ended having drawn nothing)."""
         parts = self.pop.parts
-        advance = self.deriver.advance
+        advance_all = self.deriver.advance_all
         order = self.order
         drawn: list[int] = []
         empty: list[int] = []
@@ -452,19 +452,19 @@ class _Run:
         while True:
             for a, group in served:
                 asked: set[int] = set()  # the sites asked for right after site `a`
-                for i in group:
-                    p = parts[i]
-                    code = advance(p)
+                codes = advance_all([parts[i] for i in group])
+                for i, code in zip(group, codes, strict=True):
                     if code == DRAWN:
                         drawn.append(i)
                     elif code == NEED:
-                        s = p.need[0]  # type: ignore[index]  # advance set it with NEED
+                        s = parts[i].need[0]  # type: ignore[index]  # set with NEED
                         asked.add(s)
                         if s in waiting:
                             waiting[s].append(i)
                         else:
                             waiting[s] = [i]
                     else:
+                        p = parts[i]
                         p.status = "done" if code == DONE else "limit"
                         if code != DONE:
                             p.limit = "max modules"
