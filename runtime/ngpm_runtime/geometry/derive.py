@@ -6,11 +6,9 @@ pops modules until the particle draws a primitive (a resampling point), needs a 
 at once and appends it to `values`), finishes, or hits a cap. Productions are replayed with
 the values chosen so far, so no generator is ever copied.
 
-Stack nodes are flat tuples `(module, depth, ilevel, rest, seq, i)`: the pending modules
-`seq[i:]` of one successor (`module` is `seq[i]`, the next one), all at `depth` and `ilevel`,
-then the stack `rest`; so a particle that stops inside a successor pushes one node, not one
-per module left. `ilevel` 0 means a module of the derivation; `ilevel` > 0 a module produced
-by interpretation rules at that nesting level (interpreted only, never expanded).
+Stack nodes are flat tuples `(module, depth, ilevel, rest)`: `ilevel` 0 means a module of the
+derivation; `ilevel` > 0 a module produced by interpretation rules at that nesting level
+(interpreted only, never expanded).
 """
 
 from __future__ import annotations
@@ -43,8 +41,7 @@ DRAWN, NEED, DONE, LIMIT = 1, 2, 3, 4
 _IGNORE, _PROD, _INTERP, _CUT, _HALT, _TURTLE, _DRAW = 0, 1, 2, 3, 4, 5, 6
 
 Entry = tuple[int, Any]  # a dispatch table entry: (code, production or turtle function)
-# a stack node (seq[i], depth, ilevel, rest: Node | None, seq, i): seq[i:] pending, then rest
-Node = tuple[Module, int, int, Any, Any, int]
+Node = tuple[Module, int, int, Any]  # a stack node (module, depth, ilevel, rest: Node | None)
 Args = tuple[float, ...]  # a site's prior arguments
 # A production's outcome: a successor list, a _Need or None. Any: the hot loop tells them
 # apart by `__class__` (faster than isinstance), which mypy does not narrow.
@@ -190,7 +187,7 @@ class _Need(tuple):  # type: ignore[type-arg]
 
 _MISS = object()
 AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
-_AXIOM_NODE: Node = ((AXIOM,), -1, 0, None, ((AXIOM,),), 0)  # every particle's first stack
+_AXIOM_NODE: Node = ((AXIOM,), -1, 0, None)  # every particle's first stack
 MAX_CACHE = 200_000
 
 
@@ -354,8 +351,9 @@ class Deriver:
             if max_ops > max_modules:
                 max_ops = max_modules
             # the successor being read: seq[i:] at depth sdepth, level slevel, then `stack`
-            seq: list[Module] | tuple[Module, ...] = ()
+            seq: list[Module] | tuple[()] = ()
             i = n = sdepth = slevel = 0
+            node: Node | None = None  # the stack node `mod` came from; None: from seq
             mod: Module = ()
             res: Outcome
             drew = False
@@ -365,10 +363,10 @@ class Deriver:
                     if i < n:
                         mod = seq[i]
                         i += 1
+                        depth, ilevel, node = sdepth, slevel, None
                     elif stack is not None:
-                        mod, sdepth, slevel, stack, seq, i = stack
-                        i += 1
-                        n = len(seq)
+                        node = stack
+                        mod, depth, ilevel, stack = node
                     else:
                         break
                     ops += 1
@@ -377,7 +375,7 @@ class Deriver:
                             raise self._runaway(
                                 f"expanded or interpreted more than {max_work} modules"
                             )
-                        p.stack = (mod, sdepth, slevel, stack, seq, i - 1)
+                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                         stop = DRAWN if drew else LIMIT
                         break
                     try:
@@ -385,7 +383,7 @@ class Deriver:
                     except KeyError:
                         code, fn = self._entry(mod[0])
                     if code == _PROD:
-                        if slevel == 0 and sdepth < dlen and not p.in_interp:
+                        if ilevel == 0 and depth < dlen and not p.in_interp:
                             # memoized outcome while the replay values are all discrete
                             values = p.values
                             if p.cont:
@@ -397,7 +395,7 @@ class Deriver:
                                 except KeyError:
                                     res = self._memo(p, fn, "production", mod, pcache, key)
                             if res.__class__ is _Need:
-                                p.stack = (mod, sdepth, slevel, stack, seq, i - 1)
+                                p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                                 p.need = res
                                 stop = DRAWN if drew else NEED
                                 break
@@ -405,26 +403,26 @@ class Deriver:
                                 p.values, p.sites, p.cont = (), (), False
                             if res is not None:  # read the successor next
                                 if i < n:
-                                    stack = (seq[i], sdepth, slevel, stack, seq, i)
-                                seq, i, n, sdepth = res, 0, len(res), sdepth + 1
+                                    stack = _spill(seq, i, sdepth, slevel, stack)
+                                seq, i, n, sdepth, slevel = res, 0, len(res), depth + 1, 0
                                 continue
                         code, fn = after[mod[0]]
                     if code == _INTERP:
-                        res = self._interpret(p, fn, mod, slevel)
+                        res = self._interpret(p, fn, mod, ilevel)
                         if res.__class__ is _Need:
-                            p.stack = (mod, sdepth, slevel, stack, seq, i - 1)
+                            p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                             p.need = res
                             stop = DRAWN if drew else NEED
                             break
                         if res is not None:
                             if i < n:
-                                stack = (seq[i], sdepth, slevel, stack, seq, i)
-                            seq, i, n, slevel = res, 0, len(res), slevel + 1
+                                stack = _spill(seq, i, sdepth, slevel, stack)
+                            seq, i, n, sdepth, slevel = res, 0, len(res), depth, ilevel + 1
                             continue
                         code, fn = self._turtle_entry(mod[0])
                     if code >= _TURTLE:
                         if drew and code == _DRAW:
-                            p.stack = (mod, sdepth, slevel, stack, seq, i - 1)
+                            p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
                             stop = DRAWN
                             break
                         turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, angle)
@@ -437,7 +435,7 @@ class Deriver:
                             raise self._runaway(f"drew more than {max_prims} primitives")
                         drew = True
                     elif code == _CUT:
-                        stack = _cut(seq, i, sdepth, slevel, stack)
+                        stack = _cut(_spill(seq, i, sdepth, slevel, stack))
                         seq, i, n = (), 0, 0
                     elif code == _HALT:
                         stack, seq, i, n = None, (), 0, 0
@@ -499,21 +497,26 @@ class Deriver:
         return ({CUT: _CUT, HALT: _HALT}.get(name, _IGNORE), None)
 
 
-def _cut(
-    seq: list[Module] | tuple[Module, ...], i: int, depth: int, ilevel: int, stack: Node | None
+def _spill(
+    seq: list[Module] | tuple[()], i: int, depth: int, ilevel: int, stack: Node | None
 ) -> Node | None:
-    """The pending modules `seq[i:]` (at `depth`, `ilevel`), then `stack`, without those up to
-    (not including) the `]` closing the current branch."""
+    """The stack with the modules `seq[i:]` (at `depth` and `ilevel`) pushed on top."""
+    for k in range(len(seq) - 1, i - 1, -1):
+        stack = (seq[k], depth, ilevel, stack)
+    return stack
+
+
+def _cut(stack: Node | None) -> Node | None:
+    """Discard pending modules up to (not including) the `]` closing the current branch."""
     level = 0
-    while True:
-        for k in range(i, len(seq)):
-            name = seq[k][0]
-            if name == "[":
-                level += 1
-            elif name == "]":
-                if level == 0:
-                    return (seq[k], depth, ilevel, stack, seq, k)
-                level -= 1
-        if stack is None:
-            return None
-        _, depth, ilevel, stack, seq, i = stack
+    node = stack
+    while node is not None:
+        n = node[0][0]
+        if n == "[":
+            level += 1
+        elif n == "]":
+            if level == 0:
+                return node
+            level -= 1
+        node = node[3]
+    return None

@@ -143,8 +143,11 @@ def _pack(prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
     except KeyError as err:
         raise ValueError(f"unknown primitive kind {err.args[0]!r}") from None
     if not (codes == _CODES["poly"]).any():  # mixed kinds without polygons: one flat list
-        rows = [p if len(p) == 6 else p + _PAD[len(p) - 1 :] for p in prims]
-        flat = list(chain.from_iterable(rows))
+        # a generator, so that the padded rows are not all alive at once (the garbage
+        # collector runs by the count of container objects alive)
+        flat = list(
+            chain.from_iterable(p if len(p) == 6 else p + _PAD[len(p) - 1 :] for p in prims)
+        )
         if len(flat) != 6 * n:
             raise ValueError("a primitive has more than 5 parameters")
         del flat[::6]  # the kind names

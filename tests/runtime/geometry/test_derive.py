@@ -310,9 +310,8 @@ def test_replay_asks_sites_one_at_a_time() -> None:
 
 def test_a_stop_inside_a_successor_keeps_its_rest_on_the_stack() -> None:
     """The deriver reads a successor in place; where a particle stops inside one (a drawn
-    primitive, a request), the rest of it is on its stack as one node (module, depth, level,
-    rest, successor, position), the waiting module first (SMC reads its parameters and depth
-    for the features)."""
+    primitive, a request), the rest of it is on its stack as (module, depth, level) nodes,
+    the waiting module on top (SMC reads its parameters and depth for the features)."""
     sites = [Site(index=0, id="B/0/normal0", kind="normal", module="B", arity=1)]
     prog = make_program(
         {
@@ -327,8 +326,7 @@ def test_a_stop_inside_a_successor_keeps_its_rest_on_the_stack() -> None:
     # the look-ahead stopped at B's request: B on top at depth 1, then F(3)
     assert p.need == (0, (2.0, 1.0))
     assert p.stack[:3] == (("B", 2.0), 1, 0)
-    seq, pos = p.stack[4], p.stack[5]
-    assert seq[pos:] == [("B", 2.0), ("F", 3.0)] and p.stack[3] is None
+    assert p.stack[3][:3] == (("F", 3.0), 1, 0) and p.stack[3][3] is None
     p.values += (4.0,)
     p.sites += (0,)
     assert d.advance(p) == DRAWN and p.n_prims == 2
