@@ -1,4 +1,4 @@
-"""The deriver's cost per SMC step: time inside `Deriver.advance` (the per-particle Python
+"""The deriver's cost per SMC step: time inside `Deriver.advance_all` (the per-particle Python
 derivation: productions, memo tables, turtle), apart from the numeric kernels.
 
     python benchmarks/derive.py [--seeds 4] [--json PATH]
@@ -10,9 +10,9 @@ Runs on the bundled vines program, one core, each case in turn per seed:
 - unguided N=600: `grow` without a guide into the same targets;
 - traces: a trace job's SMC (600 particles, values recorded, unguided; `ngpmc traces`).
 Printed per case: CPU microseconds in the deriver per SMC step and per particle-step,
-advance calls per step and the deriver's share of the run's CPU time. The deriver's time is
-measured by making a run's recorded `advance` calls again back to back (`measure`): CPU time,
-so a shared machine's load changes it little. "in run": wall microseconds inside `advance`
+particle advances per step and the deriver's share of the run's CPU time. The deriver's time is
+measured by making a run's recorded `advance_all` calls again back to back (`measure`): CPU time,
+so a shared machine's load changes it little. "in run": wall microseconds inside it
 per step during the run itself (a timer around each call, counted in): what a run pays,
 caches cold between the rounds' numeric work included, but inflated by a shared machine's
 load.
@@ -57,10 +57,10 @@ TARGETS = ("horse", "glyph", "heart", "spiral")
 
 
 def measure(seeds: int, reps: int = 3) -> dict[str, dict[str, float]]:
-    """Deriver CPU seconds, SMC steps, particle-steps, advance calls and run CPU seconds
+    """Deriver CPU seconds, SMC steps, particle-steps, particle advances and run CPU seconds
     per case, summed over the targets and seeds.
 
-    Each run records every `advance` call (the deriver and a copy of the particle as it was
+    Each run records every `advance_all` call (the deriver and copies of the particles as they were
     before the call); the recorded calls are then made again back to back, `reps` times,
     and the fastest repetition's CPU time (process_time, robust to a shared machine's load)
     is the deriver's time: the same work, in the same order, as in the run."""
@@ -73,17 +73,21 @@ def measure(seeds: int, reps: int = 3) -> dict[str, dict[str, float]]:
     program = bundled_program()
     guide = bundled_guide(program)
     targets = [load_target(demo_target_path(name)) for name in TARGETS]
-    calls: list[tuple[Any, Any]] = []
-    advance = Deriver.advance
+    calls: list[tuple[Any, list[Any]]] = []
+    # SMC advances a round's particles in one `advance_all` call (an older runtime: one
+    # `advance` call per particle); that method is recorded and timed
+    name = "advance_all" if hasattr(Deriver, "advance_all") else "advance"
+    advance = getattr(Deriver, name)
     inside = [0.0]
 
-    def recorded(self: Any, p: Any) -> int:
-        calls.append((self, p.copy()))
-        return advance(self, p)
+    def recorded(self: Any, arg: Any) -> Any:
+        parts = list(arg) if name == "advance_all" else [arg]
+        calls.append((self, [p.copy() for p in parts]))
+        return advance(self, parts if name == "advance_all" else arg)
 
-    def timed(self: Any, p: Any) -> int:
+    def timed(self: Any, arg: Any) -> Any:
         t = time.perf_counter()
-        code = advance(self, p)
+        code = advance(self, arg)
         inside[0] += time.perf_counter() - t
         return code
 
@@ -99,7 +103,7 @@ def measure(seeds: int, reps: int = 3) -> dict[str, dict[str, float]]:
         for target in targets:
             for case, kw in runs.items():
                 trace = kw.get("trace", TraceRecording.NONE)
-                Deriver.advance = timed  # type: ignore[method-assign]
+                setattr(Deriver, name, timed)
                 inside[0] = 0.0
                 c0 = time.process_time()
                 res = grow(program, target, kw["guide"], kw["n"], seed, trace=trace)
@@ -108,23 +112,27 @@ def measure(seeds: int, reps: int = 3) -> dict[str, dict[str, float]]:
                 row["in run"] += inside[0]
                 row["steps"] += res.smc.steps
                 row["psteps"] += res.smc.info["particle_steps"]
-                Deriver.advance = recorded  # type: ignore[method-assign]
+                setattr(Deriver, name, recorded)
                 calls.clear()
                 grow(program, target, kw["guide"], kw["n"], seed, trace=trace)
-                Deriver.advance = advance  # type: ignore[method-assign]
-                row["calls"] += len(calls)
-                row["derive"] += replay(calls, advance, reps)
+                setattr(Deriver, name, advance)
+                row["calls"] += sum(len(parts) for _, parts in calls)
+                row["derive"] += replay(calls, advance, name == "advance_all", reps)
     return out
 
 
-def replay(calls: list[tuple[Any, Any]], advance: Any, reps: int) -> float:
-    """The fastest of `reps` back-to-back replays of the recorded calls, CPU seconds."""
+def replay(calls: list[tuple[Any, list[Any]]], advance: Any, batched: bool, reps: int) -> float:
+    """The fastest of `reps` back-to-back replays of the recorded calls, CPU seconds
+    (`batched`: `advance_all` calls, one per recorded list; else one `advance` each)."""
     best = float("inf")
     for _ in range(reps):
-        parts = [(d, p.copy()) for d, p in calls]
+        made = [(d, [p.copy() for p in parts]) for d, parts in calls]
         c0 = time.process_time()
-        for d, p in parts:
-            advance(d, p)
+        for d, parts in made:
+            if batched:
+                advance(d, parts)
+            else:
+                advance(d, parts[0])
         best = min(best, time.process_time() - c0)
     return best
 

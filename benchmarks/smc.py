@@ -207,7 +207,7 @@ def equal_similarity(
 PARTS = (
     ("inference.smc", "_Run", "step", "step (everything)"),
     ("inference.smc", "_Run", "_derive", " derive: rounds until every particle drew"),
-    ("geometry.derive", "Deriver", "advance", "  advance (the deriver, per particle)"),
+    ("geometry.derive", "Deriver", "advance_all", "  advance_all (the deriver, per group)"),
     ("inference.smc", "_Run", "_serve", "  serve (one round's sites)"),
     ("inference.smc", "_Run", "_round_rows", "   rows: gather particle state + features"),
     ("inference.smc", "_Buffers", "unpack", "    unpack the state (kernel call)"),

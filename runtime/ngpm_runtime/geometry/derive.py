@@ -13,7 +13,7 @@ derivation; `ilevel` > 0 a module produced by interpretation rules at that nesti
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError, printable
@@ -187,6 +187,7 @@ class _Need(tuple):  # type: ignore[type-arg]
 
 _MISS = object()
 AXIOM = "<axiom>"  # pseudo-module at depth -1 whose production is the axiom
+_AXIOM_NODE: Node = ((AXIOM,), -1, 0, None)  # every particle's first stack
 MAX_CACHE = 200_000
 
 
@@ -245,8 +246,8 @@ class Deriver:
         program's turtle starts at that pose in the XY plane (`turtle3d.start3d`)."""
         if self.dim == 3:
             x, y, h, w = turtle
-            return Particle(((AXIOM,), -1, 0, None), start3d(x, y, h, w, self.program.tropism))
-        return Particle(((AXIOM,), -1, 0, None), turtle)
+            return Particle(_AXIOM_NODE, start3d(x, y, h, w, self.program.tropism))
+        return Particle(_AXIOM_NODE, turtle)
 
     def _call(self, p: Particle, fn: Callable[..., Any], kind: str, mod: Module) -> Outcome:
         """Run `fn` with the particle's replay values: successor list, None or a _Need."""
@@ -320,114 +321,135 @@ class Deriver:
         return res
 
     def advance(self, p: Particle) -> int:
-        """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT.
+        """Run `p` to its next resampling point; returns DRAWN, NEED, DONE or LIMIT (one
+        particle of `advance_all`)."""
+        return self.advance_all((p,))[0]
 
-        After drawing, the particle looks ahead: it goes on with its deterministic work up
+    def advance_all(self, parts: Iterable[Particle]) -> list[int]:
+        """Run each particle, in turn, to its next resampling point; returns its outcome,
+        DRAWN, NEED, DONE or LIMIT, in a list.
+
+        After drawing, a particle looks ahead: it goes on with its deterministic work up
         to its next request (then `p.need` is set), its next drawing symbol or its end (then
         `p.stack` is None), and still returns DRAWN; done before resampling, this work is
-        shared by the copies.
+        shared by the copies. SMC advances the particles of a round in one call: the
+        program's tables are read once, not once per particle.
 
         Long because it is the derivation's hot loop: one look-up in the dispatch table per
         module, productions, interpretation rules and memoization inlined; every turtle
         symbol goes through its function of the program's one turtle semantics
         (`turtle.TURTLE_OPS` in 2D, `turtle3d.TURTLE3D_OPS` in 3D)."""
-        table, pcache = self.table, self.pcache
-        stack = p.stack
-        turtle, tstack, poly = p.turtle, p.tstack, p.poly
-        ops = 0
-        max_ops = self.max_work - p.work
-        if max_ops > self.max_modules:
-            max_ops = self.max_modules
-        # the successor being read: seq[i:] at depth sdepth, level slevel, then `stack`
-        seq: list[Module] | tuple[()] = ()
-        i = n = sdepth = slevel = 0
-        node: Node | None = None  # the stack node `mod` came from; None: from seq
-        mod: Module = ()
-        res: Outcome
-        drew = False
-        try:
-            while True:
-                if i < n:
-                    mod = seq[i]
-                    i += 1
-                    depth, ilevel, node = sdepth, slevel, None
-                elif stack is not None:
-                    node = stack
-                    mod, depth, ilevel, stack = node
-                else:
-                    break
-                ops += 1
-                if ops > max_ops:
-                    if p.work + ops > self.max_work:
-                        raise self._runaway(
-                            f"expanded or interpreted more than {self.max_work} modules"
-                        )
-                    p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
-                    p.turtle, p.tstack, p.poly = turtle, tstack, poly
-                    return DRAWN if drew else LIMIT
-                code, fn = table.get(mod[0]) or self._entry(mod[0])
-                if code == _PROD:
-                    if ilevel == 0 and depth < self.dlen and not p.in_interp:
-                        # memoized outcome while the replay values are all discrete
-                        values = p.values
-                        if p.cont:
-                            res = self._call(p, fn, "production", mod)
-                        else:
-                            key = (mod, values) if values else mod
-                            res = pcache.get(key, _MISS)
-                            if res is _MISS:
-                                res = self._memo(p, fn, "production", mod, pcache, key)
+        table, after, pcache = self.table, self.after, self.pcache
+        dlen, angle, max_prims = self.dlen, self.angle, self.max_prims
+        max_work, max_modules = self.max_work, self.max_modules
+        out: list[int] = []
+        for p in parts:
+            stack = p.stack
+            turtle, tstack, poly = p.turtle, p.tstack, p.poly
+            ops = 0
+            max_ops = max_work - p.work
+            if max_ops > max_modules:
+                max_ops = max_modules
+            # the successor being read: seq[i:] at depth sdepth, level slevel, then `stack`
+            seq: list[Module] | tuple[()] = ()
+            i = n = sdepth = slevel = 0
+            node: Node | None = None  # the stack node `mod` came from; None: from seq
+            mod: Module = ()
+            res: Outcome
+            drew = False
+            stop = 0  # the outcome, once the particle stops before its stack runs out
+            try:
+                while True:
+                    if i < n:
+                        mod = seq[i]
+                        i += 1
+                        depth, ilevel, node = sdepth, slevel, None
+                    elif stack is not None:
+                        node = stack
+                        mod, depth, ilevel, stack = node
+                    else:
+                        break
+                    ops += 1
+                    if ops > max_ops:
+                        if p.work + ops > max_work:
+                            raise self._runaway(
+                                f"expanded or interpreted more than {max_work} modules"
+                            )
+                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                        stop = DRAWN if drew else LIMIT
+                        break
+                    try:
+                        code, fn = table[mod[0]]
+                    except KeyError:
+                        code, fn = self._entry(mod[0])
+                    if code == _PROD:
+                        if ilevel == 0 and depth < dlen and not p.in_interp:
+                            # memoized outcome while the replay values are all discrete
+                            values = p.values
+                            if p.cont:
+                                res = self._call(p, fn, "production", mod)
+                            else:
+                                key = (mod, values) if values else mod
+                                try:
+                                    res = pcache[key]
+                                except KeyError:
+                                    res = self._memo(p, fn, "production", mod, pcache, key)
+                            if res.__class__ is _Need:
+                                p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                                p.need = res
+                                stop = DRAWN if drew else NEED
+                                break
+                            if values:
+                                p.values, p.sites, p.cont = (), (), False
+                            if res is not None:  # read the successor next
+                                if i < n:
+                                    stack = _spill(seq, i, sdepth, slevel, stack)
+                                seq, i, n, sdepth, slevel = res, 0, len(res), depth + 1, 0
+                                continue
+                        code, fn = after[mod[0]]
+                    if code == _INTERP:
+                        res = self._interpret(p, fn, mod, ilevel)
                         if res.__class__ is _Need:
                             p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
-                            p.turtle, p.tstack, p.poly = turtle, tstack, poly
                             p.need = res
-                            return DRAWN if drew else NEED
-                        if values:
-                            p.values, p.sites, p.cont = (), (), False
-                        if res is not None:  # read the successor next
+                            stop = DRAWN if drew else NEED
+                            break
+                        if res is not None:
                             if i < n:
                                 stack = _spill(seq, i, sdepth, slevel, stack)
-                            seq, i, n, sdepth, slevel = res, 0, len(res), depth + 1, 0
+                            seq, i, n, sdepth, slevel = res, 0, len(res), depth, ilevel + 1
                             continue
-                    code, fn = self.after[mod[0]]
-                if code == _INTERP:
-                    res = self._interpret(p, fn, mod, ilevel)
-                    if res.__class__ is _Need:
-                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
-                        p.turtle, p.tstack, p.poly = turtle, tstack, poly
-                        p.need = res
-                        return DRAWN if drew else NEED
-                    if res is not None:
-                        if i < n:
-                            stack = _spill(seq, i, sdepth, slevel, stack)
-                        seq, i, n, sdepth, slevel = res, 0, len(res), depth, ilevel + 1
-                        continue
-                    code, fn = self._turtle_entry(mod[0])
-                if code >= _TURTLE:
-                    if drew and code == _DRAW:
-                        p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
-                        p.turtle, p.tstack, p.poly = turtle, tstack, poly
-                        return DRAWN
-                    turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, self.angle)
-                    if prim is None:
-                        continue
-                    p.last = prim
-                    p.prims = (prim, p.prims)
-                    p.n_prims += 1
-                    if p.n_prims > self.max_prims:
-                        raise self._runaway(f"drew more than {self.max_prims} primitives")
-                    drew = True
-                elif code == _CUT:
-                    stack = _cut(_spill(seq, i, sdepth, slevel, stack))
-                    seq, i, n = (), 0, 0
-                elif code == _HALT:
-                    stack, seq, i, n = None, (), 0, 0
-        except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
-            raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
-        finally:
-            p.work += ops
-        p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
-        return DRAWN if drew else DONE
+                        code, fn = self._turtle_entry(mod[0])
+                    if code >= _TURTLE:
+                        if drew and code == _DRAW:
+                            p.stack = node or _spill(seq, i - 1, sdepth, slevel, stack)
+                            stop = DRAWN
+                            break
+                        turtle, tstack, poly, prim = fn(mod, turtle, tstack, poly, angle)
+                        if prim is None:
+                            continue
+                        p.last = prim
+                        p.prims = (prim, p.prims)
+                        p.n_prims += 1
+                        if p.n_prims > max_prims:
+                            raise self._runaway(f"drew more than {max_prims} primitives")
+                        drew = True
+                    elif code == _CUT:
+                        stack = _cut(_spill(seq, i, sdepth, slevel, stack))
+                        seq, i, n = (), 0, 0
+                    elif code == _HALT:
+                        stack, seq, i, n = None, (), 0, 0
+            except (TypeError, ValueError, IndexError) as err:  # malformed turtle arguments
+                raise ProgramError(f"turtle: bad module {mod!r}: {err}") from None
+            finally:
+                p.work += ops
+            if stop:
+                p.turtle, p.tstack, p.poly = turtle, tstack, poly
+                out.append(stop)
+            else:  # the stack ran out
+                p.stack, p.turtle, p.tstack, p.poly = None, turtle, tstack, poly
+                out.append(DRAWN if drew else DONE)
+        return out
 
     def _interpret(self, p: Particle, fn: Callable[..., Any], mod: Module, ilevel: int) -> Outcome:
         """The outcome of `mod`'s interpretation rule (memoized as productions are)."""

@@ -61,12 +61,14 @@ def _forward(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: 
 
 def _left(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, angle: float) -> Step:
     """`+`: turn left (counter-clockwise) by `a` degrees (default `angle`)."""
-    return (t[0], t[1], t[2] + (mod[1] if len(mod) > 1 else angle), t[3]), tstack, poly, None
+    x, y, h, w = t
+    return (x, y, h + (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
 
 
 def _right(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, angle: float) -> Step:
     """`-`: turn right by `a` degrees (default `angle`)."""
-    return (t[0], t[1], t[2] - (mod[1] if len(mod) > 1 else angle), t[3]), tstack, poly, None
+    x, y, h, w = t
+    return (x, y, h - (mod[1] if len(mod) > 1 else angle), w), tstack, poly, None
 
 
 def _push(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
@@ -83,7 +85,8 @@ def _pop(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: floa
 
 def _width(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:
     """`!(w)`: set the width."""
-    return (t[0], t[1], t[2], float(mod[1]) if len(mod) > 1 else t[3]), tstack, poly, None
+    x, y, h, w = t
+    return (x, y, h, float(mod[1]) if len(mod) > 1 else w), tstack, poly, None
 
 
 def _move(mod: Module, t: Turtle, tstack: Cons | None, poly: Cons | None, _: float) -> Step:

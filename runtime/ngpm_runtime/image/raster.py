@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -111,6 +112,7 @@ def pyramid(image: np.ndarray) -> list[np.ndarray]:
 
 _CODES = {"seg": 0, "disk": 1, "leaf": 2, "poly": 3}  # kernels.SEG, DISK, LEAF, POLY
 _NO_VERTS = np.zeros((0, 2))
+_PAD = (0.0,) * 5  # pads a primitive's parameters to the kernel's 5 columns
 _RASTER_CHUNK = 64  # primitives per kernel call in `rasterize`
 
 
@@ -136,14 +138,25 @@ def _pack(prims: list[Prim]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
             _NO_VERTS,
             np.zeros(n + 1, dtype=np.intp),
         )
-    codes = np.empty(n, dtype=np.int8)
+    try:
+        codes = np.fromiter([_CODES[p[0]] for p in prims], np.int8, n)
+    except KeyError as err:
+        raise ValueError(f"unknown primitive kind {err.args[0]!r}") from None
+    if not (codes == _CODES["poly"]).any():  # mixed kinds without polygons: one flat list
+        # a generator, so that the padded rows are not all alive at once (the garbage
+        # collector runs by the count of container objects alive)
+        flat = list(
+            chain.from_iterable(p if len(p) == 6 else p + _PAD[len(p) - 1 :] for p in prims)
+        )
+        if len(flat) != 6 * n:
+            raise ValueError("a primitive has more than 5 parameters")
+        del flat[::6]  # the kind names
+        par = np.fromiter(flat, np.float64, 5 * n).reshape(n, 5)
+        return codes, par, _NO_VERTS, np.zeros(n + 1, dtype=np.intp)
     par = np.zeros((n, 5))
     verts: list[np.ndarray] = []
     vstart = np.zeros(n + 1, dtype=np.intp)
     for k, p in enumerate(prims):
-        if p[0] not in _CODES:
-            raise ValueError(f"unknown primitive kind {p[0]!r}")
-        codes[k] = _CODES[p[0]]
         if p[0] == "poly":
             v = np.asarray(p[1], dtype=np.float64).reshape(-1, 2)
             verts.append(v)

@@ -287,11 +287,10 @@ class Population:
 
     def take(self, anc: np.ndarray) -> None:
         """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
-        self.parts = _take_particles(self.parts, anc)
+        self.parts, self.live = _take_particles(self.parts, anc)
         self.log_prior = self.log_prior[anc]
         self.log_lik = self.log_lik[anc]
         self.log_w = np.zeros(self.n)
-        self.live = [i for i, p in enumerate(self.parts) if p.status == "live"]
 
 
 class _Run:
@@ -445,7 +444,7 @@ class _Run:
         """Run the live particles to their next primitive, serving their random choices in
         rounds; returns (particles that drew, particles that ended having drawn nothing)."""
         parts = self.pop.parts
-        advance = self.deriver.advance
+        advance_all = self.deriver.advance_all
         order = self.order
         drawn: list[int] = []
         empty: list[int] = []
@@ -460,38 +459,39 @@ class _Run:
                 waiting[need[0]].append(i)
             else:
                 waiting[need[0]] = [i]
-        came: list[int] = [-1] * len(run)  # the site each particle of `run` was served at
+        # (site served, its particles) of this round; -1: the particles not waiting
+        served: list[tuple[int, list[int]]] = [(-1, run)]
         while True:
-            seen: set[tuple[int, int]] = set()  # (served site, next site) in this round
-            for i, a in zip(run, came, strict=True):
-                p = parts[i]
-                code = advance(p)
-                if code == DRAWN:
-                    drawn.append(i)
-                elif code == NEED:
-                    s = p.need[0]  # type: ignore[index]  # advance set it with NEED
-                    if a >= 0:
-                        seen.add((a, s))
-                    if s in waiting:
-                        waiting[s].append(i)
+            for a, group in served:
+                asked: set[int] = set()  # the sites asked for right after site `a`
+                codes = advance_all([parts[i] for i in group])
+                for i, code in zip(group, codes, strict=True):
+                    if code == DRAWN:
+                        drawn.append(i)
+                    elif code == NEED:
+                        s = parts[i].need[0]  # type: ignore[index]  # set with NEED
+                        asked.add(s)
+                        if s in waiting:
+                            waiting[s].append(i)
+                        else:
+                            waiting[s] = [i]
                     else:
-                        waiting[s] = [i]
-                else:
-                    p.status = "done" if code == DONE else "limit"
-                    if code != DONE:
-                        p.limit = "max modules"
-                    if p.n_prims == 0:
-                        empty.append(i)
-            for a, s in seen:
-                order.saw(a, s)
+                        p = parts[i]
+                        p.status = "done" if code == DONE else "limit"
+                        if code != DONE:
+                            p.limit = "max modules"
+                        if p.n_prims == 0:
+                            empty.append(i)
+                if a >= 0:
+                    for s in asked:
+                        order.saw(a, s)
             if not waiting:
                 return drawn, empty
             # a RoundProposal gets every site no other waiting site leads to in one call
             sites = order.free(waiting) if self.batched else [order.pick(waiting)]
             groups = [sorted(waiting.pop(s)) for s in sites]
             self._serve(sites, groups)
-            run = [i for g in groups for i in g]
-            came = [s for s, g in zip(sites, groups, strict=True) for _ in g]
+            served = list(zip(sites, groups, strict=True))
 
     def _serve(self, sites: list[int], groups: list[list[int]]) -> None:
         """Draw the values the particles `groups[j]` wait for at site `sites[j]`: one
@@ -985,16 +985,22 @@ def _prior_args(site: Site, rows: list[Args]) -> np.ndarray:
     return args
 
 
-def _take_particles(parts: list[Particle], anc: np.ndarray) -> list[Particle]:
-    """Particles for the ancestor indices (ascending): duplicates of live particles are
-    shallow copies; finished ones never change, so they are shared."""
+def _take_particles(parts: list[Particle], anc: np.ndarray) -> tuple[list[Particle], list[int]]:
+    """Particles for the ancestor indices (ascending), and the live ones' new indices:
+    duplicates of live particles are shallow copies; finished ones never change, so they
+    are shared."""
     out: list[Particle] = []
+    live: list[int] = []
     prev = -1
-    for a in anc.tolist():
+    for k, a in enumerate(anc.tolist()):
         p = parts[a]
-        out.append(p.copy() if a == prev and p.status == "live" else p)
+        if p.status == "live":
+            if a == prev:
+                p = p.copy()
+            live.append(k)
+        out.append(p)
         prev = a
-    return out
+    return out, live
 
 
 def check_run_options(n_particles: object, seed: object, max_modules: object) -> None:

@@ -154,6 +154,20 @@ def test_cut_discards_rest_of_branch_only() -> None:
     assert got[2][1] == 0.0  # the branch's ] restored the pose
 
 
+def test_cut_reaches_across_successors() -> None:
+    """A cut inside a successor discards what is left of it and of the successors that
+    enclose it (brackets inside them included) up to the `]` of the branch."""
+    prog = make_program(
+        {
+            "A": lambda ctx: [("F", 1.0), ("B",), ("[",), ("F", 8.0), ("]",), ("F", 6.0)],
+            "B": lambda ctx: [("%",), ("F", 9.0)],
+        },
+        axiom=[("[",), ("A",), ("F", 7.0), ("]",), ("F", 2.0), ("B",), ("F", 4.0)],
+    )
+    got = prims_of(prog)
+    assert [p[3] - p[1] for p in got] == [1.0, 2.0]
+
+
 def test_halt_discards_everything() -> None:
     prog = make_program(
         {"A": lambda ctx: [("F", 1.0), ("halt",), ("F", 2.0)]},
@@ -483,3 +497,35 @@ def test_one_samples_work_has_a_ceiling(monkeypatch) -> None:
     monkeypatch.setattr(derive, "MAX_PRIMITIVES", 30)
     with pytest.raises(ProgramError, match="one sample drew more than 30 primitives"):
         smc(prog, None, 3, options=SMCOptions(seed=0))
+
+
+def test_advance_all_equals_advance_one_by_one() -> None:
+    """A round's particles advanced in one call end as each advanced alone: the same
+    outcomes, requests, primitives and stacks (vines, values fed in by hand)."""
+    d = Deriver(load_program(VINES))
+    rng = np.random.default_rng(3)
+    together = [d.start((0.0, 0.0, 90.0, 1.0)) for _ in range(6)]
+    alone = [p.copy() for p in together]
+    for _ in range(40):
+        codes = d.advance_all(together)
+        assert codes == [d.advance(p) for p in alone]
+        for p, q in zip(together, alone, strict=True):
+            assert (p.need, p.stack, p.turtle, p.n_prims, p.work) == (
+                q.need,
+                q.stack,
+                q.turtle,
+                q.n_prims,
+                q.work,
+            )
+            if p.need is not None:  # waiting (NEED, or DRAWN with a look-ahead request)
+                site, v = p.need[0], float(rng.integers(0, 2))  # 0 or 1: a choice too
+                for r in (p, q):
+                    r.values += (v,)
+                    r.sites += (site,)
+                    r.need = None
+        live = [k for k, c in enumerate(codes) if c in (DRAWN, NEED)]
+        together = [together[k] for k in live]
+        alone = [alone[k] for k in live]
+        if not together:
+            break
+    assert d.advance_all([]) == []

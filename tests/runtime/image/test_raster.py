@@ -225,3 +225,23 @@ def test_property_batched_draw_equals_slow_rasterization() -> None:
             assert np.array_equal(canvas.image[k], _slow_image([p], vp, 12, 16))
 
     check()
+
+
+def test_mixed_kinds_without_polygons_draw_as_one_by_one() -> None:
+    """A batch of segments, leaves and disks (packed for the kernel through one flat list)
+    draws what drawing each primitive alone draws; a primitive of an unknown kind or with
+    too many parameters is a ValueError."""
+    rng = np.random.default_rng(7)
+    prims = [_random_prim(rng, ("seg", "leaf", "disk")) for _ in range(40)]
+    assert {p[0] for p in prims} == {"seg", "leaf", "disk"}
+    canvas = Canvas(len(prims), 50, 50, VP)
+    batch = canvas.draw(np.arange(len(prims)), prims)
+    for k, p in enumerate(prims):
+        one = Canvas(1, 50, 50, VP)
+        alone = one.draw(np.zeros(1, dtype=np.intp), [p])
+        assert np.array_equal(canvas.image[k], one.image[0])
+        assert np.array_equal(batch.bbox[k], alone.bbox[0])
+    with pytest.raises(ValueError, match="unknown primitive kind 'blob'"):
+        canvas.draw(np.arange(2), [prims[0], ("blob", 1.0)])
+    with pytest.raises(ValueError, match="more than 5 parameters"):
+        canvas.draw(np.arange(2), [("disk", 0.0, 0.0, 1.0), ("seg", 0.0, 0.0, 1.0, 1.0, 1.0, 9.0)])
