@@ -227,3 +227,26 @@ def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatc
     assert 1 <= done["round_00"]["result"]["traces"] < TINY.traces
     assert any("stopped at its share of the budget" in n for n in res["state"]["notes"])
     onnx.checker.check_model(onnx.load(res["guide"]))
+
+
+def test_cli_learn_circuit_trains_without_targets(tmp_path, capsys, tiny_plan):
+    """--likelihood circuit: no targets built or read; traces under equation 2 from the
+    blank canvas, validation and the curve scored by its argument."""
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "10m", "--likelihood", "circuit"]
+    assert main([*argv, "--workers", "1"]) == 0
+    onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
+    done = stages(out)
+    assert "tune" in done and "curve" in done
+    assert done["targets"]["result"] == {"train": [""], "validation": {"circuit": ""}}
+    assert not (out / "targets").exists()
+    for r in ("round_00", "round_01"):
+        for d in done[r]["result"]["traces_dirs"]:
+            key = json.loads((Path(d) / "manifest.json").read_text())["key"]
+            assert key["likelihood"] == "circuit" and key["targets"] == ["circuit"]
+    assert 0 < done["round_01"]["result"]["validation"] <= 1  # a circuit score
+    assert {row["dataset"] for row in done["curve"]["result"]} == {"validation"}
+    # --targets has no meaning here: one line before any work
+    assert main([*argv, "--targets", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert "the circuit likelihood has no targets: drop --targets" in err
