@@ -443,7 +443,9 @@ def test_cli_tune_under_the_circuit_likelihood(tmp_path: Path, capsys, monkeypat
     small = ["--choice-temperatures", "1,0.3", "--ess", "none", "--targets", "2"]
     assert main([*args, *small, "--repeats", "1", "--workers", "1"]) == 0
     text = capsys.readouterr().out
-    assert "N = 10, 2 targets per set, 1 runs each: mean over targets of the median circuit " in text
+    assert (
+        "N = 10, 2 targets per set, 1 runs each: mean over targets of the median circuit " in text
+    )
     assert f"{out}: proposes with T=1,Tc=" in text
     with open(tmp_path / "c_tune" / "heldout_runs.csv") as fh:
         runs = list(csv.DictReader(fh))
@@ -456,7 +458,10 @@ def test_cli_tune_under_the_circuit_likelihood(tmp_path: Path, capsys, monkeypat
     assert float(r["similarity"]) == pytest.approx(res.similarity, abs=1e-6)
     assert res.similarity > 0
     for argv, want in (
-        ([*args, "--validate", f"v={tmp_path}"], "circuit likelihood has no targets: drop --validate"),
+        (
+            [*args, "--validate", f"v={tmp_path}"],
+            "circuit likelihood has no targets: drop --validate",
+        ),
         (["tune", VINES, guide, "-o", str(out)], "the shape likelihood needs --validate"),
     ):
         assert main(argv) == 1

@@ -1,0 +1,119 @@
+"""Circuits: guided SMC (N = 10, the bundled circuit guide) against unguided SMC at a ladder of
+N under the circuit likelihood (the paper's equation 2), one core, runs interleaved.
+
+Every run grows the bundled vines into the blank 50 x 50 canvas from the bottom middle
+(`grow.circuit_target`, as `ngpmc grow --likelihood circuit` does); its score is equation 2's
+argument, edge(I) * (1 - |fill(I) - 0.5| / 0.5) of the best particle (1 is the optimum). Per
+repeat (seed `evaluation.runs.run_seed(0, repeat, N, 0)`), guided N and then every N of the
+ladder run in turn, so a load change touches all alike. Printed: mean score (95% interval over
+repeats) and mean CPU seconds per configuration, the unguided N that matches the guided score
+(log-interpolated, evaluation.runs.n_to_match) and the equal-score time ratio: the unguided
+CPU time to reach the guided score (evaluation.runs.time_to_reach) over guided SMC's.
+
+Usage: python benchmarks/circuit.py [--guide PATH] [--repeats 20] [--guided-n 10]
+       [--ladder 10,20,50,100,200,400,600,1000]
+CPU seconds, not wall: the machine may be shared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core
+
+ROOT = Path(__file__).resolve().parents[1]
+LADDER = "10,20,50,100,200,400,600,1000"
+
+
+def one_run(program: Any, guide: Any, n: int, seed: int) -> tuple[float, float, int]:
+    """(circuit score of the best particle, CPU seconds, primitives) of one run."""
+    from ngpm_runtime.grow import grow
+
+    c0 = time.process_time()
+    res = grow(program, None, guide, n, seed, "circuit")
+    return res.similarity, time.process_time() - c0, len(res.primitives)
+
+
+def main() -> int:
+    sys.path[:0] = [str(ROOT), str(ROOT / "runtime")]
+    from ngpm_runtime import bundled
+    from ngpm_runtime.inference.guide import Guide
+
+    from ngpm_compiler.evaluation.runs import (
+        curve,
+        n_to_match,
+        run_seed,
+        summarize,
+        t_interval,
+        time_to_reach,
+    )
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--guide", help="circuit guide .onnx (default: the bundled one)")
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--guided-n", type=int, default=10)
+    ap.add_argument("--ladder", default=LADDER)
+    args = ap.parse_args()
+    program = bundled.bundled_program()
+    guide = (
+        Guide.load(args.guide, program) if args.guide else bundled.bundled_guide(program, "circuit")
+    )
+    ladder = [int(x) for x in args.ladder.split(",")]
+    one_run(program, guide, 2, 0)  # kernels loaded (or compiled) before timing
+    one_run(program, None, 2, 0)
+    rows = []
+    for rep in range(args.repeats):
+        for model, proposal, ns in (
+            ("guided", guide, [args.guided_n]),
+            ("unguided", None, ladder),
+        ):
+            for n in ns:
+                score, cpu, prims = one_run(program, proposal, n, run_seed(0, rep, n, 0))
+                rows.append(
+                    {
+                        "model": model,
+                        "n": n,
+                        "dataset": "circuit",
+                        "target": f"circuit_{rep:02d}",
+                        "similarity": score,
+                        "seconds": cpu,
+                        "primitives": prims,
+                    }
+                )
+    print(f"guide: {guide.path}")
+    print(
+        f"circuits: {args.repeats} repeats; mean score (eq. 2's argument) [95% interval], "
+        "mean CPU seconds, mean primitives per run"
+    )
+    print("| run | N | score | 95% CI | CPU s | primitives |")
+    print("|---|---|---|---|---|---|")
+    for model, ns in (("guided", [args.guided_n]), ("unguided", ladder)):
+        for n in ns:
+            sub = [r for r in rows if r["model"] == model and r["n"] == n]
+            m, lo, hi = t_interval([r["similarity"] for r in sub])
+            secs = sum(r["seconds"] for r in sub) / len(sub)
+            prims = sum(r["primitives"] for r in sub) / len(sub)
+            print(f"| {model} | {n} | {m:.3f} | [{lo:.3f}, {hi:.3f}] | {secs:.3f} | {prims:.0f} |")
+    summary = summarize(rows, "circuit")
+    g = next(r for r in summary if r["model"] == "guided")
+    ns, scores, secs = curve(summary, "unguided")
+    cross = n_to_match(summary, g["mean_similarity"])
+    t_u = time_to_reach(scores, secs, g["mean_similarity"])
+    ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
+    more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
+    print(
+        f"guided N={args.guided_n}: score {g['mean_similarity']:.3f} in "
+        f"{g['mean_seconds']:.3f} s; unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: "
+        f"guided is {ratio:.1f}x faster at equal score{more}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
