@@ -11,8 +11,10 @@ repeats) and mean CPU seconds per configuration, the unguided N that matches the
 CPU time to reach the guided score (evaluation.runs.time_to_reach) over guided SMC's.
 
 Usage: python benchmarks/circuit.py [--guide PATH] [--repeats 20] [--guided-n 10]
-       [--ladder 10,20,50,100,200,400,600,1000]
-CPU seconds, not wall: the machine may be shared.
+       [--ladder 10,20,50,100,200,400,600,1000] [--md docs/results/circuit_guide.md]
+CPU seconds, not wall: the machine may be shared. --md also writes what it prints, with the
+load average, as Markdown (docs/results/circuit_guide.md, which scripts/headline.py copies
+into docs/results/README.md).
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--guided-n", type=int, default=10)
     ap.add_argument("--ladder", default=LADDER)
+    ap.add_argument("--md", help="also write the table and the ratio to this Markdown file")
     args = ap.parse_args()
     program = bundled.bundled_program()
     guide = (
@@ -86,20 +89,23 @@ def main() -> int:
                         "primitives": prims,
                     }
                 )
-    print(f"guide: {guide.path}")
-    print(
-        f"circuits: {args.repeats} repeats; mean score (eq. 2's argument) [95% interval], "
-        "mean CPU seconds, mean primitives per run"
-    )
-    print("| run | N | score | 95% CI | CPU s | primitives |")
-    print("|---|---|---|---|---|---|")
+    lines = [
+        f"Guide: `{Path(guide.path).name}`. {args.repeats} repeats (seeds); mean score "
+        "(equation 2's argument) with its 95% interval over repeats, mean CPU seconds and "
+        "primitives per run.",
+        "",
+        "| run | N | score | 95% CI | CPU s | primitives |",
+        "|---|---|---|---|---|---|",
+    ]
     for model, ns in (("guided", [args.guided_n]), ("unguided", ladder)):
         for n in ns:
             sub = [r for r in rows if r["model"] == model and r["n"] == n]
             m, lo, hi = t_interval([r["similarity"] for r in sub])
             secs = sum(r["seconds"] for r in sub) / len(sub)
             prims = sum(r["primitives"] for r in sub) / len(sub)
-            print(f"| {model} | {n} | {m:.3f} | [{lo:.3f}, {hi:.3f}] | {secs:.3f} | {prims:.0f} |")
+            lines.append(
+                f"| {model} | {n} | {m:.3f} | [{lo:.3f}, {hi:.3f}] | {secs:.3f} | {prims:.0f} |"
+            )
     summary = summarize(rows, "circuit")
     g = next(r for r in summary if r["model"] == "guided")
     ns, scores, secs = curve(summary, "unguided")
@@ -107,11 +113,18 @@ def main() -> int:
     t_u = time_to_reach(scores, secs, g["mean_similarity"])
     ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
     more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
-    print(
-        f"guided N={args.guided_n}: score {g['mean_similarity']:.3f} in "
-        f"{g['mean_seconds']:.3f} s; unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: "
-        f"guided is {ratio:.1f}x faster at equal score{more}"
-    )
+    lines += [
+        "",
+        f"Guided N = {args.guided_n} scores {g['mean_similarity']:.3f} in "
+        f"{g['mean_seconds']:.3f} s; unguided SMC matches it at N ~ {cross:.0f} in "
+        f"{t_u:.3f} s: **{ratio:.1f}x** faster at equal score{more} (load average "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end).",
+    ]
+    print("\n".join(lines))
+    if args.md:
+        from ngpm_runtime.files import atomic_write
+
+        atomic_write(args.md, "\n".join(lines) + "\n")
     return 0
 
 
