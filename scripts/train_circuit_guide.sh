@@ -22,11 +22,11 @@ ngpmc train "$W/traces_0" -o "$W/model_0.pt" --features all --K 4
 ngpmc export "$W/model_0.pt" -o "$W/guide_0.onnx"
 ngpmc tune grammars/vines.lsys "$W/guide_0.onnx" --likelihood circuit --targets 12 \
     --repeats 2 --choice-temperatures 1 --ess none,0.5 -o "$W/guide_0_tuned.onnx"
-ngpmc traces grammars/vines.lsys --likelihood circuit -n TRACES_1 --particles 100 \
+ngpmc traces grammars/vines.lsys --likelihood circuit -n 249 --particles 100 \
     --guide "$W/guide_0_tuned.onnx" -o "$W/traces_1" --workers 2 --seed 1
 ngpmc train "$W/traces_0,$W/traces_1" -o "$W/model_1.pt" --features all --K 4
 ngpmc export "$W/model_1.pt" -o "$W/guide_1.onnx"
 ngpmc tune grammars/vines.lsys "$W/guide_1.onnx" --likelihood circuit --targets 12 \
-    --repeats 3 --temperatures 0.7,1 --choice-temperatures 1,0.5 --ess none,0.5 \
+    --repeats 2 --temperatures 0.7,1 --choice-temperatures 1,0.7 --ess 0.3,0.5 \
     -o "$W/vines_circuit_guide.onnx"
 echo "guide: $W/vines_circuit_guide.onnx"
