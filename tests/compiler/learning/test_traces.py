@@ -326,10 +326,9 @@ def test_circuit_traces_grow_into_a_blank_canvas_from_the_bottom_middle(
     """--likelihood circuit: no targets; every job grows under equation 2 from the start of
     grow.circuit_target, and the recorded rows are what circuit SMC with a guide sees (as
     `grow` runs it: no target features)."""
+    from ngpm_runtime import warmup
     from ngpm_runtime.grow import grow
     from ngpm_runtime.inference.smc import TraceRecording
-
-    from ngpm_runtime import warmup
 
     from ngpm_compiler.cli import main
     from ngpm_compiler.language.compile import load_grammar
