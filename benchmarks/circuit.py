@@ -4,13 +4,13 @@ N under the circuit likelihood (the paper's equation 2), one core, runs interlea
 Every run grows the bundled vines into the blank 50 x 50 canvas from the bottom middle
 (`grow.circuit_target`, as `ngpmc grow --likelihood circuit` does); its score is equation 2's
 argument, edge(I) * (1 - |fill(I) - 0.5| / 0.5) of the best particle (1 is the optimum). Per
-repeat (seed `evaluation.runs.run_seed(0, repeat, N, 0)`), guided N and then every N of the
-ladder run in turn, so a load change touches all alike. Printed: mean score (95% interval over
+repeat (seed `evaluation.runs.run_seed(0, repeat, N, 0)`), each guided N and then every N of
+the ladder run in turn, so a load change touches all alike. Printed: mean score (95% interval over
 repeats) and mean CPU seconds per configuration, the unguided N that matches the guided score
 (log-interpolated, evaluation.runs.n_to_match) and the equal-score time ratio: the unguided
 CPU time to reach the guided score (evaluation.runs.time_to_reach) over guided SMC's.
 
-Usage: python benchmarks/circuit.py [--guide PATH] [--repeats 20] [--guided-n 10]
+Usage: python benchmarks/circuit.py [--guide PATH] [--repeats 20] [--guided-n 10[,5,...]]
        [--ladder 10,20,50,100,200,400,600,1000] [--md docs/results/circuit_guide.md]
 CPU seconds, not wall: the machine may be shared. --md also writes what it prints, with the
 load average, as Markdown (docs/results/circuit_guide.md, which scripts/headline.py copies
@@ -59,7 +59,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--guide", help="circuit guide .onnx (default: the bundled one)")
     ap.add_argument("--repeats", type=int, default=20)
-    ap.add_argument("--guided-n", type=int, default=10)
+    ap.add_argument("--guided-n", default="10", help="guided N, comma-separated (default 10)")
     ap.add_argument("--ladder", default=LADDER)
     ap.add_argument("--md", help="also write the table and the ratio to this Markdown file")
     args = ap.parse_args()
@@ -68,12 +68,13 @@ def main() -> int:
         Guide.load(args.guide, program) if args.guide else bundled.bundled_guide(program, "circuit")
     )
     ladder = [int(x) for x in args.ladder.split(",")]
+    guided_ns = [int(x) for x in args.guided_n.split(",")]
     one_run(program, guide, 2, 0)  # kernels loaded (or compiled) before timing
     one_run(program, None, 2, 0)
     rows = []
     for rep in range(args.repeats):
         for model, proposal, ns in (
-            ("guided", guide, [args.guided_n]),
+            ("guided", guide, guided_ns),
             ("unguided", None, ladder),
         ):
             for n in ns:
@@ -97,7 +98,7 @@ def main() -> int:
         "| run | N | score | 95% CI | CPU s | primitives |",
         "|---|---|---|---|---|---|",
     ]
-    for model, ns in (("guided", [args.guided_n]), ("unguided", ladder)):
+    for model, ns in (("guided", guided_ns), ("unguided", ladder)):
         for n in ns:
             sub = [r for r in rows if r["model"] == model and r["n"] == n]
             m, lo, hi = t_interval([r["similarity"] for r in sub])
@@ -107,19 +108,19 @@ def main() -> int:
                 f"| {model} | {n} | {m:.3f} | [{lo:.3f}, {hi:.3f}] | {secs:.3f} | {prims:.0f} |"
             )
     summary = summarize(rows, "circuit")
-    g = next(r for r in summary if r["model"] == "guided")
     ns, scores, secs = curve(summary, "unguided")
-    cross = n_to_match(summary, g["mean_similarity"])
-    t_u = time_to_reach(scores, secs, g["mean_similarity"])
-    ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
-    more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
-    lines += [
-        "",
-        f"Guided N = {args.guided_n} scores {g['mean_similarity']:.3f} in "
-        f"{g['mean_seconds']:.3f} s; unguided SMC matches it at N ~ {cross:.0f} in "
-        f"{t_u:.3f} s: **{ratio:.1f}x** faster at equal score{more} (load average "
-        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end).",
-    ]
+    lines.append("")
+    for g in (r for r in summary if r["model"] == "guided"):
+        cross = n_to_match(summary, g["mean_similarity"])
+        t_u = time_to_reach(scores, secs, g["mean_similarity"])
+        ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
+        more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
+        lines.append(
+            f"Guided N = {g['n']} scores {g['mean_similarity']:.3f} in "
+            f"{g['mean_seconds']:.3f} s; unguided SMC matches it at N ~ {cross:.0f} in "
+            f"{t_u:.3f} s: **{ratio:.1f}x** faster at equal score{more}."
+        )
+    lines.append(f"(Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end.)")
     print("\n".join(lines))
     if args.md:
         from ngpm_runtime.files import atomic_write

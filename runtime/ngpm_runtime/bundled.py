@@ -120,8 +120,9 @@ def bundled_guide(program: Program | None = None, likelihood: str = "shape") -> 
     name, how = LIKELIHOOD_GUIDES[likelihood]
     path = data_path(name)
     if not path.is_file():
+        what = "guide" if likelihood == "shape" else f"{likelihood} guide"
         raise GuideError(
-            f"{path}: the bundled vines {likelihood} guide is missing "
+            f"{path}: the bundled vines {what} is missing "
             f"(regenerate it with `{how}` and copy "
             f"{how.split()[-1]}/{name} there)"
         )

@@ -246,6 +246,7 @@ def test_cli_learn_circuit_trains_without_targets(tmp_path, capsys, tiny_plan):
             assert key["likelihood"] == "circuit" and key["targets"] == ["circuit"]
     assert 0 < done["round_01"]["result"]["validation"] <= 1  # a circuit score
     assert {row["dataset"] for row in done["curve"]["result"]} == {"validation"}
+    assert "Likelihood: circuit (equation 2)" in (out / "report.md").read_text()
     # --targets has no meaning here: one line before any work
     assert main([*argv, "--targets", str(tmp_path)]) == 1
     err = capsys.readouterr().err
