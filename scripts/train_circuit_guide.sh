@@ -8,7 +8,7 @@
 #    trained on both rounds' traces -> round 1;
 # 3. ngpmc tune: the proposal settings that score best on blank canvases (equation 2's
 #    argument at N = 10), written into the shipped guide's metadata.
-# Usage: bash scripts/train_circuit_guide.sh [WORKDIR]   (about 1.5 hours on 2 busy cores)
+# Usage: bash scripts/train_circuit_guide.sh [WORKDIR]   (about an hour on 2 busy cores)
 # Then: cp WORKDIR/vines_circuit_guide.onnx runtime/ngpm_runtime/data/ and re-measure
 # (python benchmarks/circuit.py; docs/results/README.md, "Circuits").
 # The same in one budgeted command (planned, not shown to reach this guide's quality):
