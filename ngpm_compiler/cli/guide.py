@@ -40,8 +40,8 @@ def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
     p.add_argument(
         "--targets",
         type=argtypes.path,
-        help="dataset directory of target images (the shape likelihood needs it; the "
-        "circuit likelihood has none)",
+        help="dataset directory of target images (default none: the shape likelihood "
+        "needs it, the circuit likelihood takes none)",
     )
     add_likelihood_argument(p)
     p.add_argument(
@@ -246,9 +246,9 @@ def _register_tune(subparsers: argparse._SubParsersAction[argparse.ArgumentParse
     p.add_argument(
         "--validate",
         type=argtypes.pairs,
-        help="validation sets NAME=DIR,... (targets never trained on, not held out; the "
-        "shape likelihood needs them, the circuit likelihood scores --targets blank "
-        "canvases)",
+        help="validation sets NAME=DIR,... (targets never trained on, not held out; "
+        "default none: the shape likelihood needs them, the circuit likelihood scores "
+        "--targets blank canvases instead)",
     )
     add_likelihood_argument(p)
     p.add_argument(
