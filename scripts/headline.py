@@ -5,7 +5,8 @@ A generated block sits between a `<!-- begin NAME -->` line and an `<!-- end NAM
 this script rewrites the text between them and leaves the rest of each page alone.
 Sources: demo.md (`ngpmc demo`), quick_tour.md (`benchmarks/quick_tour.py`), heldout.csv
 (`ngpmc eval --stages heldout`), and the full evaluation's settings.json, shape_summary.csv,
-speedup.csv, trainset.csv, circuit_runs.csv and chain_runs.csv (`ngpmc eval`).
+speedup.csv, trainset.csv, circuit_runs.csv and chain_runs.csv (`ngpmc eval`), and
+circuit_guide.md (`benchmarks/circuit.py`).
 
 Usage: python scripts/headline.py            # rewrite the blocks
        python scripts/headline.py --check    # exit 1 and name the blocks that are stale
@@ -230,6 +231,11 @@ def results_eval_circuits() -> str:
     return circuit_md(_csv("circuit_runs.csv")).rstrip()
 
 
+def results_circuit_guide() -> str:
+    """circuit_guide.md (`python benchmarks/circuit.py --md ...`) as it is."""
+    return (RESULTS / "circuit_guide.md").read_text(encoding="utf-8").rstrip()
+
+
 def results_eval_chain() -> str:
     from ngpm_compiler.experiments.report import chain_md
 
@@ -255,6 +261,7 @@ PAGES: dict[str, dict[str, Callable[[], str]]] = {
         "eval-similarity": results_eval_similarity,
         "eval-trainset": results_eval_trainset,
         "eval-circuits": results_eval_circuits,
+        "circuit-guide": results_circuit_guide,
         "eval-chain": results_eval_chain,
     },
 }

@@ -60,7 +60,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         choices=("shape", "circuit"),
         default="shape",
         help="shape: match the image (default); circuit: the paper's circuit-like "
-        "density (the image, if any, only gives the start)",
+        "density, guided by the bundled circuit guide for vines (the image, if any, only "
+        "gives the start and size; without one the vine starts at the bottom middle)",
     )
     p.add_argument(
         "-o",
@@ -179,7 +180,8 @@ def cmd_grow(args: argparse.Namespace) -> int:
     score = (
         f"similarity {res.similarity:.3f}"
         if args.likelihood == "shape"
-        else f"circuit log-likelihood {res.smc.best.log_likelihood:.2f}"
+        else f"circuit score {res.similarity:.3f} (log-likelihood "
+        f"{res.smc.best.log_likelihood:.2f})"
     )
     print(
         f"{name}: {score}, {res.particles} particles ({kind}), {res.seconds:.2f} s, "

@@ -38,8 +38,12 @@ def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
     )
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument(
-        "--targets", required=True, type=argtypes.path, help="dataset directory of target images"
+        "--targets",
+        type=argtypes.path,
+        help="dataset directory of target images (default none: the shape likelihood "
+        "needs it, the circuit likelihood takes none)",
     )
+    add_likelihood_argument(p)
     p.add_argument(
         "-n",
         type=argtypes.count,
@@ -256,10 +260,12 @@ def _register_tune(subparsers: argparse._SubParsersAction[argparse.ArgumentParse
     p.add_argument("guide", help="guide .onnx written by `ngpmc export`")
     p.add_argument(
         "--validate",
-        required=True,
         type=argtypes.pairs,
-        help="validation sets NAME=DIR,... (targets never trained on, not held out)",
+        help="validation sets NAME=DIR,... (targets never trained on, not held out; "
+        "default none: the shape likelihood needs them, the circuit likelihood scores "
+        "--targets blank canvases instead)",
     )
+    add_likelihood_argument(p)
     p.add_argument(
         "-o",
         "--out",
@@ -309,12 +315,14 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.cli.outpaths import check_output_file
+    from ngpm_compiler.evaluation.heldout import CIRCUIT_SETS
     from ngpm_compiler.language.compile import load_grammar
     from ngpm_compiler.learning.tune import grid, tune
 
     check_output_file(args.out, "ONNX file")
-    validation = args.validate
-    for path in validation.values():
+    check_targets_option(args.likelihood, args.validate is not None, "--validate")
+    validation = args.validate if args.likelihood == "shape" else CIRCUIT_SETS
+    for path in validation.values() if args.likelihood == "shape" else ():
         if not Path(path).is_dir():
             raise NgpmError(f"{path}: no such directory of validation targets")
     Guide.load(args.guide, load_grammar(args.grammar))  # names a wrong or corrupt file first
@@ -332,6 +340,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
         workers=args.workers,
         seed=args.seed,
         log=_log,
+        likelihood=args.likelihood,
     )
     print(res["table"], end="")
     print(f"{args.out}: proposes with {res['best'].label()} (runs in {work})")
@@ -359,12 +368,38 @@ def add_backend_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_likelihood_argument(p: argparse.ArgumentParser) -> None:
+    """--likelihood shape|circuit (traces and tune)."""
+    p.add_argument(
+        "--likelihood",
+        choices=("shape", "circuit"),
+        default="shape",
+        help="shape: match target images (default); circuit: the paper's circuit-like "
+        "density, no targets (runs start at the bottom middle of the viewport, heading up)",
+    )
+
+
+def check_targets_option(likelihood: str, given: bool, flag: str) -> None:
+    """One-line errors: the shape likelihood needs `flag`, the circuit likelihood has none."""
+    if likelihood == "shape" and not given:
+        raise NgpmError(f"the shape likelihood needs {flag} (or use --likelihood circuit)")
+    if likelihood == "circuit" and given:
+        raise NgpmError(
+            f"the circuit likelihood has no targets: drop {flag} (its runs start at the "
+            "bottom middle of the viewport, heading up)"
+        )
+
+
 def cmd_traces(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
+    check_targets_option(args.likelihood, args.targets is not None, "--targets")
+    if args.likelihood == "circuit" and args.mirror:
+        raise NgpmError("--mirror mirrors targets: the circuit likelihood has none")
     cfg = TraceConfig(
         grammar=args.grammar,
-        targets=args.targets,
+        targets=args.targets or "",
+        likelihood=args.likelihood,
         n=args.n,
         particles=args.particles,
         seed=args.seed,

@@ -42,7 +42,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--likelihood",
         choices=("shape", "circuit"),
         default="shape",
-        help="what the guide is for (default shape; circuit is not supported yet)",
+        help="what the guide is for: shape (match target images, default) or circuit (the "
+        "paper's circuit-like density: no targets, validated by equation 2's argument)",
     )
     p.add_argument(
         "--budget",
@@ -70,6 +71,11 @@ def cmd_learn(args: argparse.Namespace) -> int:
         raise NgpmError(f"{args.grammar}: ngpmc learn takes a grammar's .lsys file")
     if not Path(args.grammar).is_file():
         raise NgpmError(f"{args.grammar}: no such grammar file")
+    if args.likelihood == "circuit" and args.targets:
+        raise NgpmError(
+            "the circuit likelihood has no targets: drop --targets (its runs start at the "
+            "bottom middle of the viewport, heading up)"
+        )
     for d in args.targets:
         if not Path(d).is_dir():
             raise NgpmError(f"--targets {d}: no such directory of targets")

@@ -46,6 +46,9 @@ if TYPE_CHECKING:  # targets loads PIL: only when targets are loaded
     from ngpm_runtime.program import Program
 
 RUNS_FILE = "heldout_runs.csv"
+# the validation "set" of the circuit likelihood: k blank canvases (grow.circuit_target),
+# which differ only in their runs' seeds; its directory is not read
+CIRCUIT_SETS = {"circuit": ""}
 HASH_FIELDS = ("guide_sha", "target_sha", "grammar_sha")
 HELDOUT_FIELDS = (*RUN_FIELDS, *HASH_FIELDS)
 
@@ -61,10 +64,22 @@ def parse_pairs(text: str) -> dict[str, str]:
     return out
 
 
-def load_sets(sets: dict[str, str], k: int, program: Program | None = None) -> dict[str, list[Any]]:
+def load_sets(
+    sets: dict[str, str], k: int, program: Program | None = None, likelihood: str = "shape"
+) -> dict[str, list[Any]]:
     """k targets of each set, spread evenly over the set's sorted files (no mirrors); for
-    a 3D `program`, 3D target sets (`ngpmc targets build`) placed in its box."""
-    from ngpm_runtime.image.targets import load_dataset
+    a 3D `program`, 3D target sets (`ngpmc targets build`) placed in its box; under the
+    circuit likelihood, k blank canvases per set (`grow.circuit_target`, named circuit_<i>)."""
+    from ngpm_runtime.image.targets import Target, load_dataset
+
+    if likelihood == "circuit":
+        from ngpm_runtime.grow import circuit_target
+
+        blank = circuit_target()
+        return {
+            name: [Target(blank.mask, blank.start, f"circuit_{i:02d}") for i in range(k)]
+            for name in sets
+        }
 
     if program is not None and program.dim == 3:
         from ngpm_runtime.volume.load import load_volume_dataset
@@ -164,21 +179,24 @@ def run_heldout(
     workers: int = 2,
     seed: int = 0,
     log: Log = print,
+    likelihood: str = "shape",
 ) -> dict[str, Any]:
-    """Run what `heldout_runs.csv` lacks, then write the summary and table."""
+    """Run what `heldout_runs.csv` lacks, then write the summary and table (under the
+    circuit likelihood `sets` names the sets of blank canvases: CIRCUIT_SETS)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     runs_path = out / RUNS_FILE
     from ngpm_compiler.language.compile import load_grammar
 
-    targets = load_sets(sets, k, load_grammar(grammar))
+    targets = load_sets(sets, k, load_grammar(grammar), likelihood)
     tasks = heldout_tasks(targets, list(guides), guided_n, unguided_ns, repeats, seed)
     ids = run_ids(tasks, targets, grammar, guides)
     have = {_key(r): r for r in read_runs(runs_path, HELDOUT_FIELDS, log)}
     todo = [t for t in tasks if _key(ids[t]) not in have]
     log(f"held-out: {len(tasks)} runs, {len(todo)} to do")
     if todo:
-        _run_todo(runs_path, grammar, targets, guides, todo, ids, have, workers, seed, log)
+        todo_args = (todo, ids, have, workers, seed, log, likelihood)
+        _run_todo(runs_path, grammar, targets, guides, *todo_args)
     rows = [have[_key(ids[t])] for t in tasks]
     summary = [
         s
@@ -202,6 +220,7 @@ def _run_todo(
     workers: int,
     seed: int,
     log: Log,
+    likelihood: str = "shape",
 ) -> None:
     """Run `todo`, appending each run to `runs_path` (and to `have`) as it finishes."""
     done = 0
@@ -216,7 +235,14 @@ def _run_todo(
                 log(f"held-out: {done}/{len(todo)} runs")
 
         run_tasks(
-            grammar, targets, guides, todo, workers=workers, shuffle_seed=seed, on_result=note
+            grammar,
+            targets,
+            guides,
+            todo,
+            workers=workers,
+            shuffle_seed=seed,
+            on_result=note,
+            likelihood=likelihood,
         )
 
 

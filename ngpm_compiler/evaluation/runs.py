@@ -1,8 +1,10 @@
 """Evaluation core: SMC runs over (model, target, N, repeat), summary statistics, CSV files.
 
 One *run* is SMC with N particles into one target; it records the best particle's normalized
-similarity (the argument of the Gaussian of equation 1, `likelihood.similarity`) and the wall
-time of the SMC call. Runs go to a backend (`jobs/backends.py`: worker processes, or Ray
+similarity (the argument of the Gaussian of equation 1, `likelihood.similarity`; under the
+circuit likelihood, whose targets are blank canvases giving the start, the argument of
+equation 2, `likelihood.circuit_score`, in the same column) and the wall time of the SMC
+call. Runs go to a backend (`jobs/backends.py`: worker processes, or Ray
 tasks with `backend="ray"`) in a shuffled order, so a load change on the machine touches every
 model alike. The statistics follow the paper: the median over repeats
 per target, then the mean over targets with a 95% t interval.
@@ -100,12 +102,18 @@ def run_seed(base: int, target: int, n: int, repeat: int) -> int:
 
 
 def grow_once(
-    program: Program, target: Target, proposal: Proposal | None, n: int, seed: int
+    program: Program,
+    target: Target,
+    proposal: Proposal | None,
+    n: int,
+    seed: int,
+    likelihood: str = "shape",
 ) -> tuple[float, float, list[Prim]]:
-    """SMC into `target`; (similarity of the best particle, seconds, its primitives)."""
+    """SMC into `target`; (score of the best particle: similarity, or the circuit score,
+    seconds, its primitives)."""
     from ngpm_runtime.grow import grow
 
-    res = grow(program, target, proposal, n, seed)
+    res = grow(program, target, proposal, n, seed, likelihood)
     return res.similarity, res.seconds, res.primitives
 
 
@@ -113,7 +121,11 @@ def grow_once(
 
 
 def _worker_setup(
-    grammar: str, text: str, targets: dict[str, list[Target]], guides: dict[str, str | bytes]
+    grammar: str,
+    text: str,
+    targets: dict[str, list[Target]],
+    guides: dict[str, str | bytes],
+    likelihood: str = "shape",
 ) -> dict[str, Any]:
     """A worker's state: the grammar from its text, the targets, and each guide from its path
     or, for workers that may be on other machines, from its file's bytes."""
@@ -125,6 +137,7 @@ def _worker_setup(
         "program": program,
         "targets": targets,
         "guides": {name: backends.load_guide(g, program) for name, g in guides.items()},
+        "likelihood": likelihood,
     }
 
 
@@ -132,7 +145,8 @@ def _run(task: RunTask) -> RunResult:
     w = pool.state()
     target = w["targets"][task.dataset][task.target]
     proposal = None if task.model == UNGUIDED else w["guides"][task.model]
-    sim, seconds, prims = grow_once(w["program"], target, proposal, task.n, task.seed)
+    like = w.get("likelihood", "shape")
+    sim, seconds, prims = grow_once(w["program"], target, proposal, task.n, task.seed, like)
     return RunResult(task, target.name, sim, seconds, prims)
 
 
@@ -146,15 +160,16 @@ def run_tasks(
     on_result: Callable[[RunResult], None] | None = None,
     backend: str = "local",
     address: str | None = None,
+    likelihood: str = "shape",
 ) -> list[RunResult]:
     """Run every task (shuffled order, on `backend` with `workers` processes or Ray CPUs, or
-    on the Ray cluster at `address`); results in task order."""
+    on the Ray cluster at `address`) under `likelihood`; results in task order."""
     order = np.random.default_rng(shuffle_seed).permutation(len(tasks))
     shuffled = [tasks[i] for i in order]
     ship = {name: backends.ship_file(path, backend) for name, path in guides.items()}
     text = Path(grammar).read_text(encoding="utf-8")
     jobs = backends.make_backend(
-        backend, workers, _worker_setup, (grammar, text, targets, ship), address
+        backend, workers, _worker_setup, (grammar, text, targets, ship, likelihood), address
     )
     out: dict[RunTask, RunResult] = {}
 

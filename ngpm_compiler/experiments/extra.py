@@ -36,18 +36,9 @@ CIRCUIT_SIZE = (50, 50)
 
 
 def circuit_start(viewport: tuple[float, ...]) -> tuple[float, float, float]:
-    """Bottom middle of the viewport, heading up."""
+    """Bottom middle of the viewport, heading up (grow.circuit_target's start)."""
     xmin, xmax, ymin, ymax = viewport
     return (xmin + xmax) / 2.0, ymin + 0.05 * (ymax - ymin), 90.0
-
-
-def circuit_score(image: np.ndarray) -> float:
-    """edge(I) * (1 - |fill(I) - tau| / tau): equation 2's argument (1 is the optimum)."""
-    from ngpm_runtime.inference.likelihood import CIRCUIT_TAU, sobel
-
-    img = np.asarray(image, dtype=np.float64)
-    edge, fill = float(sobel(img).mean()), float(img.mean())
-    return edge * (1.0 - abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
 
 
 def circuit_once(
@@ -69,7 +60,7 @@ def circuit_once(
         start=circuit_start(program.viewport),
         canvas_size=CIRCUIT_SIZE,
     )
-    return circuit_score(res.image), res.seconds, res.smc.best
+    return res.similarity, res.seconds, res.smc.best  # circuit_score of its image
 
 
 def _circuit_setup(grammar: str) -> dict[str, Any]:

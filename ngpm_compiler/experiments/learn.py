@@ -257,6 +257,10 @@ def targets_stage(run: Run) -> dict[str, Any]:
     from ngpm_compiler.datasets.build import build_dataset
 
     cfg, root = run.cfg, run.out / "targets"
+    if cfg.likelihood == "circuit":  # no targets: blank canvases (grow.circuit_target)
+        from ngpm_compiler.evaluation.heldout import CIRCUIT_SETS
+
+        return {"train": [""], "validation": dict(CIRCUIT_SETS)}
     train = list(cfg.targets)
     seen = {(name, cfg.seed + i) for i, name in enumerate(TRAIN_DATASETS)}
     if not cfg.targets and seen & set(VALIDATION.values()) and not cfg.validation:
@@ -292,9 +296,9 @@ def measure_stage(
         particles=particles,
         seed=run.cfg.seed + 7,
         workers=run.cfg.workers,
-        mirror=True,
         min_primitives=MIN_PRIMITIVES,
         guide=guide,
+        **_trace_options(run.cfg.likelihood),
     )
     out = run.out / "measure" / ("guided" if guide else "unguided")
     m = generate_traces(tc, out, progress=False, on_job=lambda _j: run.clock.check("measuring"))
@@ -450,7 +454,14 @@ def _rounds_config(run: Run, p: Plan, guided: bool) -> Any:
         feature_set=FEATURES,
         workers=run.cfg.workers,
         seed=run.cfg.seed,
+        likelihood=run.cfg.likelihood,
     )
+
+
+def _trace_options(likelihood: str) -> dict[str, Any]:
+    """TraceConfig's likelihood and mirroring: shape targets get mirrored copies, the
+    circuit likelihood has no targets to mirror."""
+    return {"likelihood": likelihood, "mirror": likelihood == "shape"}
 
 
 def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tuple[list[str], float]:
@@ -478,9 +489,9 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
             particles=rc.particles if teacher else rc.unguided_particles,
             seed=rc.seed + 1000 * r + i,
             workers=rc.workers,
-            mirror=True,
             min_primitives=MIN_PRIMITIVES,
             guide=teacher,
+            **_trace_options(rc.likelihood),
         )
         try:
             m = generate_traces(
@@ -690,6 +701,7 @@ def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
         workers=run.cfg.workers,
         seed=run.cfg.seed,
         log=run.log,
+        likelihood=run.cfg.likelihood,
     )
     return {
         "guide": str(run.out / "work" / tuned),
@@ -724,6 +736,7 @@ def curve_stage(run: Run, p: Plan) -> list[dict[str, Any]]:
             workers=run.cfg.workers,
             seed=run.cfg.seed + 1,
             log=lambda _m: None,
+            likelihood=run.cfg.likelihood,
         )
         for row in res["rows"]:
             rows[(row["model"], row["dataset"], row["target"], row["n"], row["repeat"])] = row
@@ -738,11 +751,8 @@ def learn(cfg: LearnConfig, log: Log = print) -> dict[str, Any]:
     "stopped" is None, or where the budget ran out (the best finished guide is written)."""
     from ngpm_compiler.experiments.learn_report import write_report
 
-    if cfg.likelihood != "shape":
-        raise LearnError(
-            f"--likelihood {cfg.likelihood}: ngpmc learn trains shape guides only so far "
-            "(circuit guides: ngpmc eval --stages circuit)"
-        )
+    if cfg.likelihood == "circuit" and cfg.targets:
+        raise LearnError("the circuit likelihood has no targets: drop --targets")
     run = open_run(cfg, log)
     stopped = None
     try:

@@ -16,6 +16,15 @@ from ngpm_compiler.evaluation.runs import UNGUIDED, n_to_match
 NOT_TUNED = "Not tuned (no grid in the plan, or no budget left)."
 
 
+# under the circuit likelihood the report's "similarity" is the circuit score
+CIRCUIT_NOTE = (
+    "Likelihood: circuit (equation 2). Every similarity below is the circuit score, "
+    "equation 2's argument of the best particle, on blank canvases grown from the bottom "
+    "middle (1 is the optimum).",
+    "",
+)
+
+
 def _min(seconds: float) -> str:
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
@@ -215,6 +224,7 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         + (f", tuned ({tuned['setting']})" if tuned else ", untuned")
         + (f"; grammar: `{Path(diag['grammar']).name}` (in this folder)" if diag else ""),
         "",
+        *(CIRCUIT_NOTE if state["key"].get("likelihood") == "circuit" else ()),
         "## Grammar",
         "",
         *(f"    {x}" for x in diag.get("lines", [])),

@@ -59,6 +59,7 @@ class RoundsConfig:
     K: int = 4
     workers: int = 2
     seed: int = 0
+    likelihood: str = "shape"  # circuit: targets [""], validation heldout.CIRCUIT_SETS
 
 
 def merge_traces(sets: list[TraceSet]) -> TraceSet:
@@ -104,9 +105,10 @@ def record_round(cfg: RoundsConfig, r: int, guide: str | None, log: Log) -> list
             particles=cfg.particles if guide else cfg.unguided_particles,
             seed=cfg.seed + 1000 * r + i,
             workers=cfg.workers,
-            mirror=cfg.mirror,
+            mirror=cfg.mirror and cfg.likelihood == "shape",
             min_primitives=cfg.min_primitives,
             guide=guide,
+            likelihood=cfg.likelihood,
         )
         m = generate_traces(tc, out, progress=False)
         log(
@@ -153,7 +155,7 @@ def train_round(
 
 
 def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
-    """Mean over validation targets of the median similarity at N = val_n."""
+    """Mean over validation targets of the median similarity (circuit: score) at N = val_n."""
     from ngpm_compiler.evaluation.heldout import run_heldout
 
     res = run_heldout(
@@ -168,6 +170,7 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
         workers=cfg.workers,
         seed=cfg.seed,
         log=lambda _m: None,
+        likelihood=cfg.likelihood,
     )
     sims = [
         float(s["mean_similarity"])
@@ -175,7 +178,8 @@ def validate(cfg: RoundsConfig, name: str, guide: str, log: Log) -> float:
         if s["model"] == name and int(s["n"]) == cfg.val_n
     ]
     score = float(np.mean(sims))
-    log(f"{name}: validation similarity {score:.3f} at N = {cfg.val_n}")
+    what = "score" if cfg.likelihood == "circuit" else "similarity"
+    log(f"{name}: validation {what} {score:.3f} at N = {cfg.val_n}")
     return score
 
 

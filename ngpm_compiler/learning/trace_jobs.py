@@ -120,9 +120,11 @@ def run_job(
     particles: int,
     guide: Proposal | None = None,
     max_modules: int | None = None,
+    likelihood: str = "shape",
 ) -> tuple[Trace, int]:
-    """SMC (guided by `guide`, else unguided) on one target; the best particle's trace and
-    primitive count.
+    """SMC (guided by `guide`, else unguided) on one target under `likelihood`; the best
+    particle's trace and primitive count. Under "circuit" the target gives the start and
+    canvas size only, and the features see no target (as `grow` runs it).
 
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
@@ -137,6 +139,7 @@ def run_job(
         guide,
         particles,
         seed,
+        likelihood,
         trace=TraceRecording.VALUES,
         max_modules=max_modules,
     ).smc.best
@@ -149,7 +152,7 @@ def run_job(
             values,
             start=start,
             canvas_size=target.size,
-            target_mask=target.mask,
+            target_mask=target.mask if likelihood == "shape" else None,
             max_modules=max_modules,
         )
     if again.primitives != best.primitives:

@@ -19,11 +19,15 @@ JobArgs = tuple[int, int, int, int, int | None]  # job, base seed, particles, mi
 
 
 def worker_setup(
-    grammar: str, text: str, targets: list[Target], guide: str | bytes | None = None
+    grammar: str,
+    text: str,
+    targets: list[Target],
+    guide: str | bytes | None = None,
+    likelihood: str = "shape",
 ) -> dict[str, Any]:
-    """A worker's state from the grammar file's name and text, the targets and the guide
-    (its path, or its file's bytes for workers on other machines), so a worker on another
-    machine reads no file."""
+    """A worker's state from the grammar file's name and text, the targets, the guide
+    (its path, or its file's bytes for workers on other machines) and the likelihood, so a
+    worker on another machine reads no file."""
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -31,7 +35,7 @@ def worker_setup(
 
     program = load_grammar(grammar, text)
     proposal = None if guide is None else backends.load_guide(guide, program)
-    return {"program": program, "targets": targets, "guide": proposal}
+    return {"program": program, "targets": targets, "guide": proposal, "likelihood": likelihood}
 
 
 def do_job(args: JobArgs) -> tuple[dict[str, np.ndarray], float]:
@@ -48,6 +52,7 @@ def do_job(args: JobArgs) -> tuple[dict[str, np.ndarray], float]:
             particles,
             guide=pool.state().get("guide"),
             max_modules=max_modules,
+            likelihood=pool.state().get("likelihood", "shape"),
         )
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1

@@ -67,7 +67,7 @@ MAX_DROPPED_IN_A_ROW = 50
 @dataclass
 class TraceConfig:
     grammar: str  # .lsys source or a generated *_sampler.py
-    targets: str  # dataset directory
+    targets: str  # dataset directory ("" under the circuit likelihood: no targets)
     n: int  # kept traces wanted
     particles: int = 600
     seed: int = 0
@@ -80,6 +80,7 @@ class TraceConfig:
     backend: str = "local"  # backends.BACKENDS: "local" (processes) or "ray"
     ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
     guide: str | None = None  # guide .onnx proposing in SMC (None: the prior)
+    likelihood: str = "shape"  # or "circuit": every job grows into grow.circuit_target
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> dict[str, Any]:
@@ -95,6 +96,9 @@ def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> di
         "min_primitives": cfg.min_primitives,
         "max_modules": cfg.max_modules,
         "guide": _file_hash(cfg.guide),
+        # only under the circuit likelihood, so shape traces recorded before it was an
+        # option still resume
+        **({"likelihood": cfg.likelihood} if cfg.likelihood != "shape" else {}),
     }
 
 
@@ -154,6 +158,25 @@ def _check_module_cap(cfg: TraceConfig, program: Program, target: Target) -> Non
         )
 
 
+def trace_targets(cfg: TraceConfig, program: Program) -> list[Any]:
+    """The targets jobs grow into: the dataset's, or under the circuit likelihood the one
+    blank canvas `grow.circuit_target` (its start and size; TraceError given targets)."""
+    if cfg.likelihood == "shape":
+        return load_targets(cfg.targets, cfg.size, cfg.mirror, program)
+    from ngpm_runtime.grow import LIKELIHOODS, circuit_target
+
+    if cfg.likelihood not in LIKELIHOODS:
+        raise TraceError(f"unknown likelihood {cfg.likelihood!r}; choose shape or circuit")
+    if program.dim == 3:
+        raise TraceError(f"{cfg.grammar}: a 3D grammar records traces with the shape likelihood")
+    if cfg.targets or cfg.mirror:
+        raise TraceError(
+            "the circuit likelihood has no targets: every trace starts at the bottom middle "
+            "of the viewport, heading up (drop --targets and --mirror)"
+        )
+    return [circuit_target((cfg.size, cfg.size))]
+
+
 def generate_traces(
     cfg: TraceConfig,
     out_dir: str | Path,
@@ -172,7 +195,7 @@ def generate_traces(
     check_frame(program, cfg.grammar)
     if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
         backends.load_guide(cfg.guide, program)
-    targets = load_targets(cfg.targets, cfg.size, cfg.mirror, program)
+    targets = trace_targets(cfg, program)
     layouts = site_layouts(program, targets[0])
     store = TraceStore(out_dir, layout_widths(layouts))
     store.dir.mkdir(parents=True, exist_ok=True)
@@ -273,7 +296,11 @@ def generate_traces(
     text = Path(cfg.grammar).read_text(encoding="utf-8")
     guide = backends.ship_file(cfg.guide, cfg.backend)
     jobs = backends.make_backend(
-        cfg.backend, cfg.workers, worker_setup, (cfg.grammar, text, targets, guide), cfg.ray_address
+        cfg.backend,
+        cfg.workers,
+        worker_setup,
+        (cfg.grammar, text, targets, guide, cfg.likelihood),
+        cfg.ray_address,
     )
     complete = False
     try:

@@ -75,10 +75,12 @@ def tune(
     workers: int = 2,
     seed: int = 0,
     log: Log = print,
+    likelihood: str = "shape",
 ) -> dict[str, Any]:
     """Score every setting on `validation` (guided N = 10, k targets per set or all of a
-    smaller set, `repeats` runs), write `out` with the best; returns {"best", "rows",
-    "table"}."""
+    smaller set, `repeats` runs) under `likelihood` (circuit: validation is
+    heldout.CIRCUIT_SETS, k blank canvases scored by equation 2's argument), write `out`
+    with the best; returns {"best", "rows", "table"}."""
     work = Path(work)
     digest = hashlib.sha256(Path(guide).read_bytes()).hexdigest()
     atomic_write(work / "source.txt", f"{digest} {guide}\n")
@@ -98,6 +100,7 @@ def tune(
         workers=workers,
         seed=seed,
         log=log,
+        likelihood=likelihood,
     )
     sets = sorted(validation)
     means = {(r["model"], r["dataset"]): float(r["mean_similarity"]) for r in res["summary"]}
@@ -123,7 +126,8 @@ def tune(
     best_row = max(rows, key=lambda r: r["mean"])  # the first of equals: grid order
     best = settings[rows.index(best_row)]
     write_csv(work / "tune.csv", rows, [*TUNE_FIELDS, *sets, *(f"{d}_ci95" for d in sets), "mean"])
-    table = tune_table(rows, sets, best_row["setting"], counts, repeats, baseline)
+    score = "circuit score (eq. 2's argument)" if likelihood == "circuit" else "similarity"
+    table = tune_table(rows, sets, best_row["setting"], counts, repeats, baseline, score)
     atomic_write(work / "tune.md", table)
     with_settings(guide, out, best)
     return {"best": best, "rows": rows, "table": table}
@@ -136,6 +140,7 @@ def tune_table(
     counts: dict[str, int],
     repeats: int,
     baseline: dict[str, tuple[float, float]] | None = None,
+    score: str = "similarity",
 ) -> str:
     """Markdown: one row per setting, the chosen one in bold, each set's mean +- the half
     width of its 95% interval over targets when known; `counts`: targets per set;
@@ -146,7 +151,7 @@ def tune_table(
         per_set = "targets per set: " + ", ".join(f"{d} {counts[d]}" for d in sets)
     lines = [
         f"Guided SMC, N = 10, {per_set}, {repeats} runs each: mean over "
-        "targets of the median similarity (+- half the 95% interval over targets).",
+        f"targets of the median {score} (+- half the 95% interval over targets).",
         "",
         "| temperature | choice temperature | ESS threshold | " + " | ".join(sets) + " | mean |",
         "|---" * (4 + len(sets)) + "|",

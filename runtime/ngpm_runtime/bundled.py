@@ -6,6 +6,8 @@ Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the re
 - `vines_sampler.py`, `vines_sites.json`:
   `ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`
 - `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
+- `vines_circuit_guide.onnx` (the vines guide for the circuit likelihood):
+  `bash scripts/train_circuit_guide.sh work/circuit`, then copied here
 - `topiary3d_sampler.py`, `topiary3d_sites.json`:
   `ngpmc compile grammars/topiary3d.lsys -o runtime/ngpm_runtime/data`
 - `topiary3d_guide.onnx`: `bash scripts/train_topiary3d_guide.sh work/topiary3d`, then
@@ -34,8 +36,10 @@ DATA_DIR = Path(__file__).resolve().parent / "data"
 SAMPLER_FILE = "vines_sampler.py"
 SITES_FILE = "vines_sites.json"
 GUIDE_FILE = "vines_guide.onnx"
+CIRCUIT_GUIDE_FILE = "vines_circuit_guide.onnx"
 DEMO_TARGETS = ("glyph", "horse", "heart", "spiral")  # demo order
 REGENERATE = "bash scripts/train_vines_guide.sh work/vines"
+REGENERATE_CIRCUIT = "bash scripts/train_circuit_guide.sh work/circuit"
 SAMPLER_3D = "topiary3d_sampler.py"
 GUIDE_3D = "topiary3d_guide.onnx"
 REGENERATE_3D = "bash scripts/train_topiary3d_guide.sh work/topiary3d"
@@ -105,26 +109,33 @@ def bundled_guide3d(program: Program | None = None) -> Guide:
     return Guide.load(path, bundled_program3d() if program is None else program)
 
 
-def bundled_guide(program: Program | None = None) -> Guide:
-    """The pretrained vines guide (a `ngpm_runtime.inference.guide.Guide`) for `program`.
+def bundled_guide(program: Program | None = None, likelihood: str = "shape") -> Guide:
+    """The pretrained vines guide (a `ngpm_runtime.inference.guide.Guide`) for `program`,
+    trained for `likelihood` ("shape", or "circuit": the circuit guide).
 
     `program` defaults to `bundled_program()`; any Program compiled from the same
     grammars/vines.lsys works (the guide checks the grammar hash and the site table).
     """
     from ngpm_runtime.inference.guide import Guide
 
-    path = guide_path()
+    name, how = LIKELIHOOD_GUIDES[likelihood]
+    path = data_path(name)
     if not path.is_file():
+        what = "guide" if likelihood == "shape" else f"{likelihood} guide"
         raise GuideError(
-            f"{path}: the bundled vines guide is missing "
-            f"(regenerate it with `{REGENERATE}` and copy "
-            f"work/vines/{GUIDE_FILE} there)"
+            f"{path}: the bundled vines {what} is missing "
+            f"(regenerate it with `{how}` and copy "
+            f"{how.split()[-1]}/{name} there)"
         )
     return Guide.load(path, bundled_program() if program is None else program)
 
 
-# the bundled guide of each likelihood (a guide is trained for one likelihood)
-LIKELIHOOD_GUIDES = {"shape": GUIDE_FILE}
+# the bundled vines guide of each likelihood (a guide is trained for one likelihood) and
+# the command that makes it
+LIKELIHOOD_GUIDES = {
+    "shape": (GUIDE_FILE, REGENERATE),
+    "circuit": (CIRCUIT_GUIDE_FILE, REGENERATE_CIRCUIT),
+}
 
 
 def default_guide(program: Program, likelihood: str = "shape") -> Guide | None:
@@ -134,12 +145,14 @@ def default_guide(program: Program, likelihood: str = "shape") -> Guide | None:
     if likelihood not in LIKELIHOOD_GUIDES:
         return None
     if program.dim == 3:
+        if likelihood != "shape":
+            return None
         if program.grammar_hash != bundled_program3d().grammar_hash:
             return None
         return bundled_guide3d(program)
     if program.grammar_hash != bundled_program().grammar_hash:
         return None
-    return bundled_guide(program)
+    return bundled_guide(program, likelihood)
 
 
 def demo_targets(size: int = 50) -> list[Target]:

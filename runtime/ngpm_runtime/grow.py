@@ -20,6 +20,7 @@ from ngpm_runtime.inference.likelihood import (
     CircuitLikelihood,
     Likelihood,
     ShapeLikelihood,
+    circuit_score,
     similarity,
 )
 from ngpm_runtime.inference.proposals import Proposal
@@ -38,13 +39,18 @@ if TYPE_CHECKING:  # targets loads PIL: only when a target is made
 
 LIKELIHOODS = ("shape", "circuit")
 DEFAULT_CANVAS = (50, 50)  # raster size when there is no target
+# where a circuit run starts without a picture: bottom middle, heading up (normalized
+# image coordinates x y, then the direction dx dy in image axes, as a start sidecar)
+CIRCUIT_START = (0.5, 0.95, 0.0, -1.0)
 
 
 @dataclass
 class GrowResult:
     """The best particle of one SMC run into a target."""
 
-    similarity: float  # of the best particle's raster to the target; nan without a target
+    # the best particle's score: its raster's similarity to the target (shape), or
+    # equation 2's argument (circuit, `circuit_score`); nan for a shape run without a target
+    similarity: float
     seconds: float  # time in SMC (not counting the final raster)
     particles: int
     primitives: list[Prim]
@@ -76,6 +82,14 @@ def make_likelihood(kind: str, program: Program, target: Target | None = None) -
     raise NgpmError(f"unknown likelihood {kind!r}; choose {' or '.join(LIKELIHOODS)}")
 
 
+def circuit_target(size: tuple[int, int] = DEFAULT_CANVAS) -> Target:
+    """What a circuit run grows into without a picture: a blank canvas of `size` (height,
+    width) with the start CIRCUIT_START. Circuit traces, tuning and evaluation use it."""
+    from ngpm_runtime.image.targets import Target
+
+    return Target(np.zeros(size, dtype=bool), CIRCUIT_START, "circuit")
+
+
 def grow(
     program: Program,
     target: Target | VolumeTarget | None = None,
@@ -94,7 +108,8 @@ def grow(
 
     target: a `ngpm_runtime.image.targets.Target` (mask + start pose), or None with the
     circuit likelihood. likelihood: "shape" (match the target) or "circuit" (the target,
-    optional, only gives the start pose and the target features). observers: SMC
+    optional, only gives the start pose and the canvas size, default `circuit_target()`;
+    the guide sees no target, and the score is `circuit_score`). observers: SMC
     observers (a progress bar, live frames, a time limit; one may raise to stop the run).
     trace (what each particle's trace records), start (world pose overriding the target's),
     canvas_size (default: the target's size) and max_modules (the grammar's "max modules"
@@ -120,7 +135,9 @@ def grow(
     target = cast("Target | None", target)  # a 2D grammar: a picture's Target
     viewport = _viewport(program)
     like: Likelihood = make_likelihood(likelihood, program, target)
-    mask = target.mask if target is not None else None
+    if likelihood == "circuit" and target is None:
+        target = circuit_target(canvas_size or DEFAULT_CANVAS)
+    mask = target.mask if target is not None and likelihood == "shape" else None
     if canvas_size is None:
         canvas_size = target.size if target is not None else DEFAULT_CANVAS
     if start is None and target is not None:
@@ -139,7 +156,10 @@ def grow(
     seconds = time.perf_counter() - t0
     prims = list(result.best.primitives)
     image = rasterize(prims, viewport, *canvas_size)
-    sim = float(similarity(image, mask)) if mask is not None else float("nan")
+    if likelihood == "circuit":
+        sim = circuit_score(image)
+    else:
+        sim = float(similarity(image, mask)) if mask is not None else float("nan")
     return GrowResult(sim, seconds, n_particles, prims, image, result)
 
 

@@ -109,9 +109,13 @@ def test_default_guide_by_grammar_and_likelihood() -> None:
 
     vines = bundled.bundled_program()
     assert bundled.default_guide(vines, "shape").path == str(bundled.guide_path())
-    assert bundled.default_guide(vines, "circuit") is None  # never the shape guide
+    circuit = bundled.default_guide(vines, "circuit")  # its own guide, never the shape one
+    assert circuit is not None
+    assert circuit.path == str(bundled.data_path(bundled.CIRCUIT_GUIDE_FILE))
+    assert circuit.path != str(bundled.guide_path())
     other = compile_grammar(REPO / "grammars" / "chain.lsys").program()
     assert bundled.default_guide(other, "shape") is None
+    assert bundled.default_guide(other, "circuit") is None
 
 
 def test_missing_guide_names_the_regeneration_command(tmp_path: Path, monkeypatch) -> None:
@@ -120,6 +124,8 @@ def test_missing_guide_names_the_regeneration_command(tmp_path: Path, monkeypatc
     with pytest.raises(GuideError, match="train_vines_guide.sh") as err:
         bundled.bundled_guide(program)
     assert "\n" not in str(err.value)
+    with pytest.raises(GuideError, match="circuit guide is missing.*train_circuit_guide.sh"):
+        bundled.bundled_guide(program, "circuit")
 
 
 # --- demo targets ------------------------------------------------------------------------

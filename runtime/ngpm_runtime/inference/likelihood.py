@@ -114,6 +114,14 @@ def circuit_loglik(image: np.ndarray, bbox: np.ndarray, viewport: Viewport) -> f
     )
 
 
+def circuit_score(image: np.ndarray) -> float:
+    """Equation 2's argument, edge(I) * (1 - |fill(I) - tau| / tau): 1 is the optimum, 0 a
+    blank image (a circuit run's score, as similarity is a shape run's)."""
+    img = np.asarray(image, dtype=np.float64)
+    edge, fill = float(sobel(img).mean()), float(img.mean())
+    return edge * (1.0 - abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
+
+
 def _circuit_value(edge: np.ndarray | np.float64, fill: np.ndarray | np.float64) -> np.ndarray:
     x = edge * (1.0 - np.abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
     z = (x - 1.0) / CIRCUIT_SIGMA

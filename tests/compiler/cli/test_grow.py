@@ -129,18 +129,27 @@ def test_guide_choices(horse: Path, capsys) -> None:
     assert code == 0 and "no bundled guide for grammar chain" in text and "(unguided)" in text
 
 
-def test_circuit_likelihood_needs_no_image_and_never_takes_the_shape_guide(capsys) -> None:
+def test_circuit_likelihood_needs_no_image_and_takes_the_circuit_guide(capsys) -> None:
     code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3")
     assert code == 0
-    assert "no bundled guide for grammar vines with the circuit likelihood" in text
     assert re.search(
-        r"^vines: circuit log-likelihood -?[\d.]+, 3 particles \(unguided\)", text, re.M
+        r"^vines: circuit score [\d.]+ \(log-likelihood -?[\d.]+\), 3 particles \(guided\)",
+        text,
+        re.M,
     ), text
+    circuit = bundled.data_path(bundled.CIRCUIT_GUIDE_FILE)
+    assert f"guide: {circuit}" in text  # the circuit guide, never the shape guide
+    code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3", "--guide", "none")
+    assert code == 0 and "(unguided)" in text and "guide:" not in text
     # a guide given explicitly is still used
     code, text, _ = run(
         capsys, "grow", "--likelihood", "circuit", "-N", "3", "--guide", str(bundled.guide_path())
     )
-    assert code == 0 and "(guided)" in text
+    assert code == 0 and "(guided)" in text and f"guide: {bundled.guide_path()}" in text
+    # another grammar has no bundled circuit guide: unguided, saying so
+    chain = str(REPO / "grammars" / "chain.lsys")
+    code, text, _ = run(capsys, "grow", "--likelihood", "circuit", "-N", "3", "--grammar", chain)
+    assert code == 0 and "no bundled guide for grammar chain with the circuit" in text
 
 
 # --- bad input ---------------------------------------------------------------------------

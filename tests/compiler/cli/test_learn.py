@@ -21,7 +21,10 @@ def test_a_bad_budget_is_refused_while_parsing(tmp_path, capsys, budget):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--likelihood", "circuit"], "--likelihood circuit: ngpmc learn trains shape guides only"),
+        (
+            ["--likelihood", "circuit", "--targets", "x"],
+            "the circuit likelihood has no targets: drop --targets",
+        ),
         (["--targets", "nowhere"], "--targets nowhere: no such directory of targets"),
     ],
 )

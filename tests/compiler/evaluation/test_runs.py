@@ -26,7 +26,7 @@ from ngpm_compiler.evaluation.runs import (
     time_to_reach,
     write_csv,
 )
-from ngpm_compiler.experiments.extra import chain_arc, circuit_score
+from ngpm_compiler.experiments.extra import chain_arc
 from ngpm_compiler.experiments.models import subset
 from ngpm_compiler.experiments.shape import equal_time_n, pick
 from ngpm_compiler.learning.trace_data import SiteData
@@ -176,15 +176,6 @@ def test_equal_time_n() -> None:
     assert equal_time_n(summ, 2.0, 1) == 200  # beyond the curve: linear in N
     assert equal_time_n(summ, 0.05, 1) == 5
     assert equal_time_n(summ, 0.001, 7) == 7
-
-
-def test_circuit_score() -> None:
-    assert circuit_score(np.zeros((20, 20))) == 0.0
-    half = np.zeros((20, 20))
-    half[:, :10] = 1
-    stripes = np.zeros((20, 20))
-    stripes[:, ::4] = stripes[:, 1::4] = 1  # half filled, edges everywhere
-    assert 0 < circuit_score(half) < circuit_score(stripes)
 
 
 def test_chain_arc_starts_at_the_program_start() -> None:

@@ -350,3 +350,27 @@ def test_a_seed_that_would_train_on_the_validation_targets_is_refused(tmp_path):
     seed = learn_mod.VALIDATION["varied"][1] - 1  # varied is built with cfg.seed + 1
     with pytest.raises(LearnError, match="validation targets; choose another seed"):
         learn_mod.targets_stage(_stage_run(tmp_path, seed))
+
+
+def test_cli_learn_circuit_trains_without_targets(tmp_path, capsys, tiny_plan):
+    """--likelihood circuit: no targets built or read; traces under equation 2 from the
+    blank canvas, validation and the curve scored by its argument."""
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "10m", "--likelihood", "circuit"]
+    assert main([*argv, "--workers", "1"]) == 0
+    onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
+    done = stages(out)
+    assert "tune" in done and "curve" in done
+    assert done["targets"]["result"] == {"train": [""], "validation": {"circuit": ""}}
+    assert not (out / "targets").exists()
+    for r in ("round_00", "round_01"):
+        for d in done[r]["result"]["traces_dirs"]:
+            key = json.loads((Path(d) / "manifest.json").read_text())["key"]
+            assert key["likelihood"] == "circuit" and key["targets"] == ["circuit"]
+    assert 0 < done["round_01"]["result"]["validation"] <= 1  # a circuit score
+    assert {row["dataset"] for row in done["curve"]["result"]} == {"validation"}
+    assert "Likelihood: circuit (equation 2)" in (out / "report.md").read_text()
+    # --targets has no meaning here: one line before any work
+    assert main([*argv, "--targets", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert "the circuit likelihood has no targets: drop --targets" in err

@@ -347,3 +347,51 @@ def test_short_traces_are_kept_unless_asked_to_drop(tmp_path):
         generate_traces(cfg, tmp_path / "dropped", progress=False)
     m = json.loads((tmp_path / "dropped" / "manifest.json").read_text())
     assert m["kept"] == 0 and m["dropped"] >= 50
+
+
+def test_circuit_traces_grow_into_a_blank_canvas_from_the_bottom_middle(
+    tmp_path, capsys, monkeypatch
+):
+    """--likelihood circuit: no targets; every job grows under equation 2 from the start of
+    grow.circuit_target, and the recorded rows are what circuit SMC with a guide sees (as
+    `grow` runs it: no target features)."""
+    from ngpm_runtime import warmup
+    from ngpm_runtime.grow import grow
+    from ngpm_runtime.inference.smc import TraceRecording
+
+    from ngpm_compiler.cli import main
+    from ngpm_compiler.language.compile import load_grammar
+
+    monkeypatch.setattr(warmup, "cache_is_cold", lambda: False)  # no note on stderr
+    out = tmp_path / "t"
+    argv = ["traces", CHAIN, "--likelihood", "circuit", "-n", "2", "--particles", "6"]
+    assert main([*argv, "-o", str(out), "--workers", "1"]) == 0
+    capsys.readouterr()
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["key"]["likelihood"] == "circuit" and m["key"]["targets"] == ["circuit"]
+    ts = load_traces(out)
+    assert len(ts.kept_jobs) == 2
+    # job 0 again, in this process: the rows of its best particle under the circuit likelihood
+    program = load_grammar(CHAIN)
+    _, seed = job_spec(0, 0, 1)
+    best = grow(program, None, None, 6, seed, "circuit", trace=TraceRecording.FULL).smc.best
+    site, feats, _ = best.trace[0]
+    rows = ts.data[site].features[ts.data[site].jobs == 0]
+    assert np.array_equal(rows[0], feats)
+    assert feats[0] == 0.0 and feats[1] == pytest.approx(-0.9)  # bottom middle: x, y in [-1, 1]
+    # the shape likelihood needs targets, the circuit likelihood takes none: one line each
+    for extra, want in (
+        (["--targets", str(tmp_path)], "the circuit likelihood has no targets: drop --targets"),
+        (["--mirror"], "--mirror mirrors targets: the circuit likelihood has none"),
+    ):
+        assert main([*argv, "-o", str(tmp_path / "x"), *extra]) == 1
+        err = capsys.readouterr().err
+        assert want in err and len(err.strip().splitlines()) == 1, err
+    assert main(["traces", CHAIN, "-n", "2", "-o", str(tmp_path / "x")]) == 1
+    err = capsys.readouterr().err
+    assert "the shape likelihood needs --targets" in err and len(err.strip().splitlines()) == 1
+    # a shape run on the circuit traces' directory is another configuration
+    data = make_dataset(tmp_path / "data", 2)
+    shape = TraceConfig(grammar=CHAIN, targets=str(data), n=2, particles=6, workers=1)
+    with pytest.raises(TraceError, match="differs in .*likelihood"):
+        generate_traces(shape, out, progress=False)

@@ -429,3 +429,41 @@ def test_cli_tune_counts_the_targets_of_a_set_of_12(tmp_path: Path, monkeypatch,
     )
     (head,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("Guided")]
     assert head.startswith("Guided SMC, N = 10, 12 targets per set, 1 runs each")
+
+
+def test_cli_tune_under_the_circuit_likelihood(tmp_path: Path, capsys, monkeypatch) -> None:
+    """--likelihood circuit: no validation sets; guided SMC on blank canvases scored by
+    equation 2's argument, which is what tune.csv holds per setting."""
+    from ngpm_runtime import warmup
+
+    monkeypatch.setattr(warmup, "cache_is_cold", lambda: False)  # no note on stderr
+    guide = str(bundled.guide_path())
+    out = tmp_path / "c.onnx"
+    args = ["tune", VINES, guide, "-o", str(out), "--likelihood", "circuit"]
+    small = ["--choice-temperatures", "1,0.3", "--ess", "none", "--targets", "2"]
+    assert main([*args, *small, "--repeats", "1", "--workers", "1"]) == 0
+    text = capsys.readouterr().out
+    assert (
+        "N = 10, 2 targets per set, 1 runs each: mean over targets of the median circuit " in text
+    )
+    assert f"{out}: proposes with T=1,Tc=" in text
+    with open(tmp_path / "c_tune" / "heldout_runs.csv") as fh:
+        runs = list(csv.DictReader(fh))
+    assert {r["dataset"] for r in runs} == {"circuit"}
+    assert {r["target"] for r in runs} == {"circuit_00", "circuit_01"}
+    # each run's score is the circuit score of its best particle, as grow reports it
+    program = bundled.bundled_program()
+    r = next(r for r in runs if r["model"] == "unguided")
+    res = grow(program, None, None, int(r["n"]), int(r["seed"]), "circuit")
+    assert float(r["similarity"]) == pytest.approx(res.similarity, abs=1e-6)
+    assert res.similarity > 0
+    for argv, want in (
+        (
+            [*args, "--validate", f"v={tmp_path}"],
+            "circuit likelihood has no targets: drop --validate",
+        ),
+        (["tune", VINES, guide, "-o", str(out)], "the shape likelihood needs --validate"),
+    ):
+        assert main(argv) == 1
+        err = capsys.readouterr().err
+        assert want in err and len(err.strip().splitlines()) == 1, err

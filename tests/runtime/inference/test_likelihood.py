@@ -9,11 +9,13 @@ import pytest
 from ngpm_runtime.errors import TargetError
 from ngpm_runtime.image.raster import Canvas
 from ngpm_runtime.inference.likelihood import (
+    CIRCUIT_SIGMA,
     CircuitLikelihood,
     NullLikelihood,
     ShapeLikelihood,
     bounds_penalty,
     circuit_loglik,
+    circuit_score,
     shape_loglik,
     similarity,
     sobel,
@@ -188,3 +190,17 @@ def test_drawbatch_without_hit_list_gives_same_increments() -> None:
         b = canvas.draw(np.arange(4), _random_prims(rng, 4))
         bare = DrawBatch(idx=b.idx, y0=b.y0, x0=b.x0, new=b.new, bbox=b.bbox)
         np.testing.assert_allclose(lik.increment(s1, canvas, b), lik.increment(s2, canvas, bare))
+
+
+def test_circuit_score_is_equation_2s_argument() -> None:
+    assert circuit_score(np.zeros((20, 20))) == 0.0
+    half = np.zeros((20, 20))
+    half[:, :10] = 1
+    stripes = np.zeros((20, 20))
+    stripes[:, ::4] = stripes[:, 1::4] = 1  # half filled, edges everywhere
+    assert 0 < circuit_score(half) < circuit_score(stripes)
+    # the log-likelihood is the Gaussian of the score around 1 (without bounds terms)
+    inside = np.array([-1.0, -1.0, 1.0, 1.0])  # a box inside the viewport
+    x = circuit_score(stripes)
+    want = -0.5 * ((x - 1) / CIRCUIT_SIGMA) ** 2 - np.log(CIRCUIT_SIGMA * np.sqrt(2 * np.pi))
+    assert circuit_loglik(stripes, inside, VP) == pytest.approx(want)
