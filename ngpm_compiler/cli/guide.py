@@ -169,16 +169,17 @@ def _register_iterate(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
     p.add_argument("grammar", help=GRAMMAR_HELP)
     p.add_argument(
         "--targets",
-        required=True,
         type=argtypes.paths,
-        help="training-target directories, comma-separated",
+        help="training-target directories, comma-separated (default none: the shape "
+        "likelihood needs them, the circuit likelihood takes none)",
     )
     p.add_argument(
         "--validate",
-        required=True,
         type=argtypes.pairs,
-        help="validation sets NAME=DIR,... (targets never trained on)",
+        help="validation sets NAME=DIR,... (targets never trained on; default none: the "
+        "shape likelihood needs them, the circuit likelihood scores blank canvases)",
     )
+    add_likelihood_argument(p)
     p.add_argument(
         "-o", "--out", required=True, type=argtypes.path, help="work directory (resumed if present)"
     )
@@ -369,7 +370,7 @@ def add_backend_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_likelihood_argument(p: argparse.ArgumentParser) -> None:
-    """--likelihood shape|circuit (traces and tune)."""
+    """--likelihood shape|circuit (traces, iterate and tune)."""
     p.add_argument(
         "--likelihood",
         choices=("shape", "circuit"),
@@ -476,13 +477,20 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_iterate(args: argparse.Namespace) -> int:
+    from ngpm_compiler.evaluation.heldout import CIRCUIT_SETS
     from ngpm_compiler.learning.rounds import RoundsConfig, expert_iteration
 
-    split, inits, validation = list(args.targets), list(args.init_traces), args.validate
+    check_targets_option(args.likelihood, args.targets is not None, "--targets")
+    check_targets_option(args.likelihood, args.validate is not None, "--validate")
+    if args.likelihood == "circuit":  # blank canvases (rounds.RoundsConfig.likelihood)
+        split, validation = [""], dict(CIRCUIT_SETS)
+    else:
+        split, validation = list(args.targets), args.validate
+    inits = list(args.init_traces)
     for path in [
-        *split,
+        *(split if args.likelihood == "shape" else ()),
         *inits,
-        *validation.values(),
+        *(validation.values() if args.likelihood == "shape" else ()),
         *([args.init_guide] if args.init_guide else []),
     ]:
         if not Path(path).exists():
@@ -505,6 +513,7 @@ def cmd_iterate(args: argparse.Namespace) -> int:
         workers=args.workers,
         seed=args.seed,
         min_primitives=args.min_primitives,
+        likelihood=args.likelihood,
     )
     rows = expert_iteration(cfg, log=_log)
     print("| round | teacher | traces | validation NLL | validation similarity (N=10) |")

@@ -362,3 +362,30 @@ def test_rounds_compare_under_equal_proposal_settings(tmp_path, monkeypatch):
     )
     assert rows[0]["teacher"] == "initial guide"
     assert not (tmp_path / "p" / "round_0" / "untuned.onnx").exists()
+
+
+def test_cli_iterate_under_the_circuit_likelihood(tmp_path, capsys):
+    """--likelihood circuit: rounds on blank canvases, scored by equation 2's argument;
+    --targets or --validate with it, or the shape likelihood without them: one line each."""
+    import json
+
+    from fixtures.datasets import CHAIN
+
+    out = tmp_path / "ei"
+    argv = ["iterate", CHAIN, "--likelihood", "circuit", "-o", str(out)]
+    tiny = ["--rounds", "1", "-n", "2", "--particles", "6", "--unguided-particles", "6"]
+    tiny += ["--val-targets", "1", "--val-repeats", "1", "--epochs", "1", "--workers", "1"]
+    assert main([*argv, *tiny]) == 0
+    assert "| 1 | unguided N=6 |" in capsys.readouterr().out
+    (manifest,) = (out / "round_1").glob("traces_*/manifest.json")
+    key = json.loads(manifest.read_text())["key"]
+    assert key["likelihood"] == "circuit" and key["targets"] == ["circuit"]
+    for extra, want in (
+        (["--targets", str(tmp_path)], "the circuit likelihood has no targets: drop --targets"),
+        (["--validate", f"v={tmp_path}"], "the circuit likelihood has no targets: drop --valid"),
+    ):
+        assert main([*argv, *extra]) == 1
+        err = capsys.readouterr().err
+        assert want in err and len(err.strip().splitlines()) == 1, err
+    assert main(["iterate", CHAIN, "-o", str(out)]) == 1
+    assert "the shape likelihood needs --targets" in capsys.readouterr().err
