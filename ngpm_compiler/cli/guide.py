@@ -482,17 +482,15 @@ def cmd_iterate(args: argparse.Namespace) -> int:
 
     check_targets_option(args.likelihood, args.targets is not None, "--targets")
     check_targets_option(args.likelihood, args.validate is not None, "--validate")
+    inits = list(args.init_traces)
+    guide = [args.init_guide] if args.init_guide else []
     if args.likelihood == "circuit":  # blank canvases (rounds.RoundsConfig.likelihood)
         split, validation = [""], dict(CIRCUIT_SETS)
+        inputs = [*inits, *guide]
     else:
         split, validation = list(args.targets), args.validate
-    inits = list(args.init_traces)
-    for path in [
-        *(split if args.likelihood == "shape" else ()),
-        *inits,
-        *(validation.values() if args.likelihood == "shape" else ()),
-        *([args.init_guide] if args.init_guide else []),
-    ]:
+        inputs = [*split, *inits, *validation.values(), *guide]
+    for path in inputs:
         if not Path(path).exists():
             raise NgpmError(f"{path}: no such file or directory")
     cfg = RoundsConfig(
