@@ -396,3 +396,77 @@ def warning_lines(diag: Diagnosis) -> list[str]:
             "or a condition that ends it"
         )
     return out
+
+
+# --------------------------------------------------------------------------- reachability
+
+REACH_N = 600  # particles of the reachability runs (round 0's teacher)
+REACH_TARGETS = 3  # training targets it runs on
+# below this mean similarity unguided SMC reaches the targets too poorly for a guide to learn
+# from: on learn's scribbles and varied targets ivy, lily and vines reach 0.3 and more at
+# N = 600, the bush (a small bounded shape growing up) 0.05 (docs/results/learn_grammars.md)
+REACH_LOW = 0.15
+
+
+@dataclass
+class Reach:
+    """What unguided SMC reaches on a few targets: the best particle's similarity, and the
+    share of the canvas its drawing and the target's ink cover (means over the targets)."""
+
+    n: int
+    targets: list[str]
+    similarity: float
+    drawn: float  # share of the canvas the best particles draw on
+    ink: float  # share of the canvas the targets' ink covers
+    covered: float  # share of the targets' ink the best particles draw on
+    seconds: float
+
+    @property
+    def low(self) -> bool:
+        return self.similarity < REACH_LOW
+
+
+def reachability(program: Program, targets: list[Any], n: int = REACH_N, seed: int = 0) -> Reach:
+    """Unguided SMC with n particles into each of `targets` (2D shape targets)."""
+    from ngpm_runtime.grow import grow
+
+    sims, drawn, ink, covered = [], [], [], []
+    t0 = time.perf_counter()
+    for i, target in enumerate(targets):
+        res = grow(program, target, None, n, seed + i)
+        img, mask = np.asarray(res.image) > 0, np.asarray(target.mask) > 0
+        sims.append(res.similarity)
+        drawn.append(float(img.mean()))
+        ink.append(float(mask.mean()))
+        covered.append(float((img & mask).sum() / max(1, mask.sum())))
+    return Reach(
+        n,
+        [t.name for t in targets],
+        float(np.mean(sims)),
+        float(np.mean(drawn)),
+        float(np.mean(ink)),
+        float(np.mean(covered)),
+        time.perf_counter() - t0,
+    )
+
+
+def reach_line(r: Reach, filename: str) -> str:
+    """The one-line warning for a grammar unguided SMC reaches the targets poorly with: the
+    cause in numbers and what to change."""
+    head = (
+        f"warning: {printable(filename)}: unguided SMC with {r.n} particles reaches similarity "
+        f"{r.similarity:.3f} on {len(r.targets)} training targets (below {REACH_LOW}: too "
+        f"little for a guide to learn from): its best drawings cover {r.drawn:.0%} of the "
+        f"canvas and {r.covered:.0%} of the targets' ink, which covers {r.ink:.0%}"
+    )
+    if r.drawn < r.ink:
+        fix = (
+            "it draws too small or too little for these targets: fit the viewport to what it "
+            "draws, lengthen the derivation, or train on targets of its size (--targets)"
+        )
+    else:
+        fix = (
+            "it draws over more than the targets hold: widen the viewport, draw thinner or "
+            "fewer strokes, or train on fuller targets (--targets)"
+        )
+    return f"{head}; {fix}"

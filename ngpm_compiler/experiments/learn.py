@@ -43,6 +43,7 @@ from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.experiments.learn_plan import (
+    CURVE_REPEATS,
     GUIDED_PARTICLES,
     TRAIN_FIXED,
     TRAIN_SECONDS,
@@ -50,6 +51,7 @@ from ngpm_compiler.experiments.learn_plan import (
     Costs,
     Plan,
     extend,
+    fill,
     plan,
     replan,
     round_seconds,
@@ -281,6 +283,36 @@ def targets_stage(run: Run) -> dict[str, Any]:
     return {"train": train, "validation": validation}
 
 
+REACH_SHARE = 0.02  # of the budget the reachability runs may take
+
+
+def reach_stage(run: Run, d: dict[str, Any], train: str) -> dict[str, Any]:
+    """What unguided SMC reaches on a few training targets (evaluation/diagnose.py
+    reachability), with REACH_N particles or as many as fit REACH_SHARE of the budget; a
+    warning line when it is low (learn goes on: the warning says what to change)."""
+    from ngpm_compiler.evaluation.diagnose import (
+        REACH_N,
+        REACH_TARGETS,
+        TARGET_N,
+        reach_line,
+        reachability,
+    )
+    from ngpm_compiler.evaluation.heldout import load_sets
+    from ngpm_compiler.language.compile import load_grammar
+
+    program = load_grammar(d["grammar"])
+    per_run = (d["smc_seconds"] or 1.0) / TARGET_N  # seconds per particle
+    fit = int(REACH_SHARE * run.cfg.budget / (REACH_TARGETS * per_run))
+    n = max(10, min(REACH_N, fit))
+    targets = load_sets({"train": train}, REACH_TARGETS, program)["train"]
+    r = reachability(program, targets, n, seed=run.cfg.seed)
+    return {
+        **asdict(r),
+        "low": r.low,
+        "warning": reach_line(r, Path(run.cfg.grammar).name) if r.low else None,
+    }
+
+
 def measure_stage(
     run: Run, grammar: str, train: str, particles: int, guide: str | None = None
 ) -> float:
@@ -430,24 +462,27 @@ def final_suffix(run: Run) -> str:
 def load_plan(d: dict[str, Any]) -> Plan:
     tuples = ("choice_temperatures", "ess", "curve_guided", "curve_unguided", "reasons")
     fields: dict[str, Any] = {k: tuple(v) if k in tuples else v for k, v in d.items()}
+    fields["more"] = tuple((int(n), int(pg)) for n, pg in d.get("more", ()))
     return Plan(**fields)
 
 
 # --------------------------------------------------------------------------- rounds
 
 
-def _rounds_config(run: Run, p: Plan, guided: bool) -> Any:
+def _rounds_config(run: Run, p: Plan, r: int) -> Any:
+    """Round r's settings (its traces and teacher particles: Plan.round_settings)."""
     from ngpm_compiler.learning.rounds import RoundsConfig
 
     t = run.state["stages"]["targets"]["result"]
+    n, particles = p.round_settings(r) if r > 0 else (p.traces, p.guided_particles)
     return RoundsConfig(
         grammar=run.state["stages"]["diagnose"]["result"]["grammar"],
         targets=t["train"],
         validation=t["validation"],
         out=str(run.out / "rounds"),
-        rounds=p.rounds,
-        n=p.guided_traces if guided else p.traces,
-        particles=p.guided_particles,
+        rounds=p.last_round,
+        n=n,
+        particles=particles,
         unguided_particles=p.unguided_particles,
         val_targets=p.val_targets,
         val_repeats=p.val_repeats,
@@ -554,7 +589,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     on every round's traces, validation at N = 10 under default proposal settings."""
     from ngpm_compiler.learning.rounds import validate
 
-    rc = _rounds_config(run, p, r > 0)
+    rc = _rounds_config(run, p, r)
     rows = _rounds(run)
     best = max(rows, key=lambda x: x["validation"]) if rows else None
     teacher = best["guide"] if best else None
@@ -623,14 +658,15 @@ def write_guide(run: Run) -> str | None:
     return str(dst)
 
 
-def run_rounds(run: Run, p: Plan) -> None:
+def run_rounds(run: Run, p: Plan) -> bool:
     """The guided rounds while the plan has them and the next one fits (its cost estimated
-    from the measured rounds, keeping tuning's and the curve's share)."""
+    from the measured rounds, keeping tuning's and the curve's share); False when one was
+    skipped for want of time."""
     reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
-    for r in range(1, p.rounds + 1):
+    for r in range(1, p.last_round + 1):
         name = f"round_{r:02d}"
         if name not in run.state["stages"]:
-            est = _next_round_estimate(run, p)
+            est = _next_round_estimate(run, p, r)
             if est > run.clock.left() - reserve:
                 run.log(
                     f"round {r}: skipped: it would take about {_minutes(est)}, "
@@ -640,9 +676,39 @@ def run_rounds(run: Run, p: Plan) -> None:
                     f"round {r} skipped: estimated {_minutes(est)}, "
                     f"{_minutes(run.clock.left() - reserve)} left before tuning and the curve"
                 )
-                break
+                return False
         run.stage(name, lambda r=r: round_stage(run, p, r))
         write_guide(run)
+    return True
+
+
+def fill_rounds(run: Run, p: Plan) -> Plan:
+    """After the plan's rounds, rounds with a stronger teacher while the costs the rounds
+    measured leave room for one before tuning and the curve (learn_plan.fill), each
+    addition recorded as a stage fill_<e>_<k> (e: the extensions so far) and its rounds run."""
+    e = len(extensions(run))
+    k = 1
+    while run_rounds(run, p):
+        name = f"fill_{e}_{k}"
+        if name not in run.state["stages"]:
+            run.clock.check("planning more rounds")
+            q = _fill_plan(run, p)
+            if q is None:
+                break
+            run.log(f"plan: {q.reasons[-1]}")
+            run.stage(name, lambda q=q: {"plan": asdict(q)})
+        p = load_plan(run.state["stages"][name]["result"]["plan"])
+        k += 1
+    return p
+
+
+def _fill_plan(run: Run, p: Plan) -> Plan | None:
+    """The plan `p` with the strong rounds that fit the time left (None: none fits)."""
+    if p.rounds == 0 or _rounds(run)[-1]["round"] < p.last_round:
+        return None  # round 0 alone was planned (no guided costs), or a round was skipped
+    costs, val = _round_costs(run, p)
+    reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    return fill(p, run.clock.left(), costs, _rounds(run)[-1]["traces"], val, reserve)
 
 
 def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
@@ -660,11 +726,12 @@ def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
     return costs, val
 
 
-def _next_round_estimate(run: Run, p: Plan) -> float:
-    """The next guided round's seconds at the costs the last rounds measured."""
+def _next_round_estimate(run: Run, p: Plan, r: int) -> float:
+    """Guided round r's seconds at the costs the last rounds measured."""
     costs, val = _round_costs(run, p)
-    trained = _rounds(run)[-1]["traces"] + p.guided_traces
-    return round_seconds(costs, p.guided_traces, p.guided_particles, True, trained, val)
+    n, particles = p.round_settings(r)
+    trained = _rounds(run)[-1]["traces"] + n
+    return round_seconds(costs, n, particles, True, trained, val)
 
 
 # --------------------------------------------------------------------------- tune, curve
@@ -730,7 +797,7 @@ def curve_stage(run: Run, p: Plan) -> list[dict[str, Any]]:
             t["validation"],
             {"guide": str(run.out / "guide.onnx")},
             k=p.val_targets,
-            repeats=p.val_repeats,
+            repeats=min(p.val_repeats, CURVE_REPEATS),
             guided_n=n,
             unguided_ns=extra,
             workers=run.cfg.workers,
@@ -781,6 +848,10 @@ def _stages(run: Run) -> None:
     if d["viewport_proposed"]:
         run.log(f"grammar: {d['grammar']}, with the proposed viewport (use it with the guide)")
     t = run.stage("targets", lambda: targets_stage(run))
+    if run.cfg.likelihood == "shape":
+        reach = run.stage("reach", lambda: reach_stage(run, d, t["train"][0]))
+        if reach["warning"]:
+            run.log(reach["warning"])
     run.clock.check("measuring")
     small = run.cfg.budget < 600
     particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES
@@ -793,7 +864,7 @@ def _stages(run: Run) -> None:
         run.clock.check("measuring guided SMC")
         p = load_plan(run.stage("replan", lambda: replan_stage(run, p)))
     p = extended(run, p)
-    run_rounds(run, p)
+    p = fill_rounds(run, p)
     run.clock.check("tuning")
     sfx = final_suffix(run)
     if p.estimates.get("tune", 0.0) > run.clock.left():

@@ -9,6 +9,12 @@ the project's recipe (scripts/train_vines_guide.sh): 600 unguided particles for 
 200 guided particles in the later rounds, 12 validation targets per set run twice, the
 tune grid of `ngpmc tune`; a small budget shrinks them in that order of cheapness.
 
+When the guided rounds reach their caps (MAX_ROUNDS rounds of MAX_TRACES traces) with time
+left, rounds with a stronger teacher fill it (`strong_rounds`: STRONG_PARTICLES guided
+particles, as the recipe's fifth and sixth rounds; more particles when even MAX_STRONG rounds
+of MAX_STRONG_TRACES leave time): the plan's estimate fills the budget. `learn.py` adds such
+rounds again after the planned ones while the measured costs leave room (`Plan.more`).
+
 A rerun with a larger budget extends the finished plan (`extend`): the finished rounds
 stay, and the guided rounds that fit the time left after them are added, sized from the
 costs the rounds measured; validation and the curve keep their settings, so the new rounds
@@ -23,6 +29,10 @@ UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
 MIN_PARTICLES = 20
 MAX_ROUNDS = 4  # guided rounds after round 0
+STRONG_PARTICLES = 600  # the stronger teacher of the recipe's rounds 5 and 6
+MAX_STRONG = 4  # rounds with a stronger teacher after the guided ones
+MAX_STRONG_TRACES = 3000  # per strong round (the recipe's round 6)
+MAX_PARTICLES = 5000  # a strong teacher's particles at most
 MIN_TRACES = 150  # a round with fewer traces is not worth its validation: fewer rounds
 MAX_TRACES = 2000  # per round
 FEW_TRACES = 20  # below this, round 0 runs fewer particles to get more traces
@@ -32,14 +42,21 @@ STAGE_SECONDS = 2.0  # what starting a stage's worker processes costs
 TRACE_SLACK = 1.5  # a round's traces may take this times their estimate (plus
 TRACE_GRACE = 30.0  # these seconds: starting the workers), then the round trains
 TRAIN_FIXED = 10.0  # a training's seconds beside its traces (start, checkpoints, export)
-# until measured (ivy of the README on the 2-core test machine: unguided 1.1 ms per particle
-# at 600, guided 24 ms at 200; a guided run at N = 10 about 3x its particles' share)
-GUIDED_FACTOR = 20.0  # guided SMC's seconds per particle over unguided (features, networks)
-SMALL_N = 3.0  # a run of a few particles over its per-particle share (per-step overhead)
+# until measured (learn at 45m on the 2-core machine, docs/results/learn_grammars.md:
+# guided trace jobs 0.24x (ivy) to 1.3x (bush) the unguided seconds per particle; a guided
+# run at N = 10 costs 9 to 56 times its particles' share of a trace job)
+GUIDED_FACTOR = 1.0  # guided SMC's seconds per particle over unguided (features, networks)
+SMALL_N = 3.0  # an unguided run of a few particles over its per-particle share
+GUIDED_SMALL_N = 10.0  # the same for a guided run (per-step networks)
 TRAIN_SECONDS = 0.2  # training seconds per trace (all epochs), until measured
 MAX_BUDGET = 7 * 24 * 3600.0  # seconds: `--budget` at most a week
-# (targets per validation set, runs per target), largest first
-VAL_CHOICES = ((12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
+# (targets per validation set, runs per target), largest first. Runs at N = 10 vary a lot
+# (lily at 45m: sd 0.2 between runs of one guide on one target), so 2 runs per target cannot
+# order rounds 0.03 apart: lily's rounds 2 and 3 scored 0.447 and 0.421 at 2 runs, and the
+# four disjoint pairs of 8 runs gave round 2 - round 3 from -0.055 to +0.098; at 8 runs,
+# 0.015 +- 0.024 (round 2 - round 4: 0.062 +- 0.025). Validation is cheap (3 s a round)
+VAL_CHOICES = ((12, 8), (12, 4), (12, 2), (8, 2), (6, 1), (4, 1), (2, 1), (1, 1))
+CURVE_REPEATS = 2  # the curve's runs per target at most (its unguided N = 1000 are dear)
 # tune grids (choice temperatures, ESS thresholds), largest first: `ngpmc tune`'s default
 TUNE_CHOICES: tuple[tuple[tuple[float, ...], tuple[float | None, ...]], ...] = (
     ((1.0, 0.7, 0.5, 0.3, 0.2), (None, 0.5)),
@@ -74,7 +91,7 @@ class Costs:
         """Seconds of one evaluation run of n particles (a few cost as VAL_N: overhead)."""
         if not guided:
             return SMALL_N * max(n, VAL_N) * self.unguided
-        unit = self.val_run or SMALL_N * VAL_N * self.per_particle(True)
+        unit = self.val_run or GUIDED_SMALL_N * VAL_N * self.per_particle(True)
         return unit * max(n, VAL_N) / VAL_N
 
     def runs(self, k: int, repeats: int, ns: tuple[int, ...], guided: bool) -> float:
@@ -100,6 +117,18 @@ class Plan:
     estimates: dict[str, float] = field(default_factory=dict)  # stage -> seconds
     reasons: tuple[str, ...] = ()
     total: float = 0.0  # the run's --budget when planned (0: not recorded)
+    # rounds after the `rounds` guided ones: (traces, particles) each, a stronger teacher
+    more: tuple[tuple[int, int], ...] = ()
+
+    @property
+    def last_round(self) -> int:
+        return self.rounds + len(self.more)
+
+    def round_settings(self, r: int) -> tuple[int, int]:
+        """(traces, teacher particles) of guided round r >= 1."""
+        if r <= self.rounds or not self.more:
+            return self.guided_traces, self.guided_particles
+        return self.more[min(r - self.rounds, len(self.more)) - 1]
 
 
 def validation_seconds(costs: Costs, k: int, repeats: int) -> float:
@@ -118,7 +147,7 @@ def round_seconds(
 def _validation(costs: Costs, budget: float) -> tuple[int, int, float, str]:
     for k, rep in VAL_CHOICES:
         v = validation_seconds(costs, k, rep)
-        if v * (1 + MAX_ROUNDS) <= VAL_SHARE * budget:
+        if v * (1 + MAX_ROUNDS + MAX_STRONG) <= VAL_SHARE * budget:
             return k, rep, v, f"{k} targets per set, {rep} run(s) each: fits {VAL_SHARE:.0%}"
     k, rep = VAL_CHOICES[-1]
     return k, rep, validation_seconds(costs, k, rep), f"{k} target per set (the least)"
@@ -140,6 +169,7 @@ def _curve(
     """The curve's N: guided and unguided, fewer until they fit their share; guided keeps
     1 and VAL_N (the guide's working N), unguided its two smallest."""
     guided, unguided = list(CURVE_GUIDED), list(CURVE_UNGUIDED)
+    rep = min(rep, CURVE_REPEATS)
     droppable = [n for n in reversed(guided) if n not in (1, VAL_N)]  # largest first
 
     def cost() -> float:
@@ -187,6 +217,53 @@ def guided_rounds(
     return None
 
 
+def strong_rounds(
+    costs: Costs, room: float, val: float, trained: int, least: int = MIN_TRACES
+) -> tuple[int, int, int, float] | None:
+    """The rounds with a stronger teacher that fill `room` seconds after rounds trained on
+    `trained` traces: (rounds, traces per round, particles, seconds). At STRONG_PARTICLES
+    (else GUIDED_PARTICLES), the number of rounds (at most MAX_STRONG) that records the most
+    traces, each of `least` to MAX_STRONG_TRACES (fewer rounds when equal: each trains on
+    every trace again); when MAX_STRONG rounds of MAX_STRONG_TRACES leave time, more
+    particles (up to MAX_PARTICLES) fill it. None when not one round of `least` fits."""
+    w = max(1, costs.workers)
+    for pg in (STRONG_PARTICLES, GUIDED_PARTICLES):
+        best: tuple[int, int, float] | None = None
+        for k in range(1, MAX_STRONG + 1):
+            fixed = k * (TRAIN_FIXED + val + costs.train * trained)
+            per_trace = k * costs.trace(pg, True) / w + costs.train * k * (k + 1) / 2
+            n = min(MAX_STRONG_TRACES, int((room - fixed) / per_trace))
+            if n >= least and (best is None or k * n > best[0] * best[1]):
+                best = (k, n, fixed + n * per_trace)
+        if best is None:
+            continue
+        k, n, secs = best
+        if k == MAX_STRONG and n == MAX_STRONG_TRACES:
+            unit = k * n * costs.trace(1, True) / w  # seconds of one more particle
+            add = max(0, min(MAX_PARTICLES - pg, int((room - secs) / unit)))
+            pg, secs = pg + add, secs + add * unit
+        return k, n, pg, secs
+    return None
+
+
+NO_MORE: tuple[tuple[tuple[int, int], ...], float, str] = ((), 0.0, "")
+
+
+def _more(
+    costs: Costs, room: float, val: float, trained: int, least: int = MIN_TRACES
+) -> tuple[tuple[tuple[int, int], ...], float, str]:
+    """Plan.more for `room` seconds (strong_rounds), its seconds and why."""
+    s = strong_rounds(costs, room, val, trained, least)
+    if s is None:
+        return NO_MORE
+    k, n, pg, secs = s
+    why = (
+        f"then {k} round(s) of {n} traces with a stronger teacher ({pg} guided particles) "
+        f"fill the {room:.0f} s the capped rounds leave"
+    )
+    return ((n, pg),) * k, secs, why
+
+
 def _traces(costs: Costs, budget: float, val: float) -> tuple[int, int, int, int, int, float, str]:
     """(rounds, round 0's traces, guided traces per round, unguided particles, guided
     particles, seconds, why): round 0 takes up to ROUND0_SHARE of `budget`, the guided
@@ -229,6 +306,11 @@ def plan(budget: float, costs: Costs) -> Plan:
     cg, cu, curve_s = _curve(costs, k, rep, budget)
     left = max(0.0, budget - tune_s - curve_s)
     rounds, n, ng, p0, pg, trace_s, why_traces = _traces(costs, left, val)
+    more, more_s, why_more = NO_MORE
+    if rounds:
+        more, more_s, why_more = _more(costs, left - trace_s, val, n + rounds * ng)
+    if why_more:
+        why_traces += f"; {why_more}"
     reasons = (
         f"validation: {why_val}",
         f"rounds: {why_traces}",
@@ -248,8 +330,9 @@ def plan(budget: float, costs: Costs) -> Plan:
         ess=ess,
         curve_guided=cg,
         curve_unguided=cu,
-        estimates={"rounds": trace_s, "tune": tune_s, "curve": curve_s},
+        estimates={"rounds": trace_s, "more rounds": more_s, "tune": tune_s, "curve": curve_s},
         reasons=reasons,
+        more=more,
     )
 
 
@@ -259,12 +342,16 @@ def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
     val = validation_seconds(costs, p.val_targets, p.val_repeats)
     temps, ess, tune_s, why_tune = _tune(val, p.budget)
     cg, cu, curve_s = _curve(costs, p.val_targets, p.val_repeats, p.budget)
-    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, GUIDED_PARTICLES)
+    room = left - tune_s - curve_s
+    g = guided_rounds(costs, room, val, trained, GUIDED_PARTICLES)
     rounds, ng, pg, secs = g if g is not None else (0, 0, p.guided_particles, 0.0)
+    more, more_s, why_more = NO_MORE
     if g is None:
         why = f"no guided round: one of {MIN_TRACES} traces would not fit the time left"
     else:
         why = f"{rounds} guided round(s) of {ng} traces at {pg} particles (measured costs)"
+        more, more_s, why_more = _more(costs, room - secs, val, trained + rounds * ng)
+        why += f"; {why_more}" if why_more else ""
     return replace(
         p,
         rounds=rounds,
@@ -274,8 +361,9 @@ def replan(p: Plan, left: float, costs: Costs, trained: int) -> Plan:
         ess=ess,
         curve_guided=cg,
         curve_unguided=cu,
-        estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
+        estimates={"rounds": secs, "more rounds": more_s, "tune": tune_s, "curve": curve_s},
         reasons=(*p.reasons, f"after round 0: {why}; tune: {why_tune}"),
+        more=more,
     )
 
 
@@ -306,13 +394,15 @@ def extend(
         why_tune = f"the grid of the run before ({len(temps) * len(ess)} settings)"
     else:
         temps, ess, tune_s, why_tune = _tune(val, total)
-    k, rep = p.val_targets, p.val_repeats
+    k, rep = p.val_targets, min(p.val_repeats, CURVE_REPEATS)
     curve_s = STAGE_SECONDS * len(p.curve_guided) + costs.runs(k, rep, p.curve_guided, True)
     if not curve_done:
         curve_s += costs.runs(k, rep, p.curve_unguided, False)
-    particles = p.guided_particles if fixed else GUIDED_PARTICLES
+    particles = p.round_settings(done + 1)[1] if fixed else GUIDED_PARTICLES
     least = min(MIN_TRACES, max(FEW_TRACES, trained))  # or as many as trained on so far
-    g = guided_rounds(costs, left - tune_s - curve_s, val, trained, particles, fixed, least)
+    room = left - tune_s - curve_s
+    g = guided_rounds(costs, room, val, trained, particles, fixed, least)
+    more, more_s, why_more = NO_MORE
     if g is None:
         rounds, ng, pg, secs = 0, p.guided_traces, p.guided_particles, 0.0
         why = (
@@ -325,6 +415,8 @@ def extend(
             f"{rounds} guided round(s) added after round {done}, {ng} traces each at {pg} "
             f"particles (measured costs; {left:.0f} s left)"
         )
+        more, more_s, why_more = _more(costs, room - secs, val, trained + rounds * ng, least)
+        why += f"; {why_more}" if why_more else ""
     return replace(
         p,
         budget=left,
@@ -334,8 +426,33 @@ def extend(
         guided_particles=pg,
         choice_temperatures=temps,
         ess=ess,
-        estimates={"rounds": secs, "tune": tune_s, "curve": curve_s},
+        estimates={"rounds": secs, "more rounds": more_s, "tune": tune_s, "curve": curve_s},
         reasons=(*p.reasons, f"budget {total:.0f} s: {why}; tune: {why_tune}"),
+        more=more,
+    )
+
+
+def fill(
+    p: Plan, left: float, costs: Costs, trained: int, val: float, reserve: float
+) -> Plan | None:
+    """After the plan's last round, `left` seconds of the budget left: the plan with the
+    strong rounds that fit them beside the `reserve` (tuning, the curve) at the measured
+    costs (`val`: one round's validation seconds); None when not one fits."""
+    room = left - reserve
+    more, secs, why = _more(costs, room, val, trained)
+    if not more:
+        return None
+    n, pg = more[0]
+    return replace(
+        p,
+        more=p.more + more,
+        estimates={**p.estimates, "more rounds": secs},
+        reasons=(
+            *p.reasons,
+            f"after round {p.last_round}: {len(more)} round(s) of {n} traces with {pg} "
+            f"guided particles fit the {room:.0f} s left before tuning and the curve "
+            "(measured costs)",
+        ),
     )
 
 

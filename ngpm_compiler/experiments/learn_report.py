@@ -62,11 +62,27 @@ def renewing(stages: dict[str, Any]) -> list[str]:
 
 
 def latest_plan(stages: dict[str, Any]) -> dict[str, Any] | None:
-    """The plan the run follows: the last extension's, the replan's or the first."""
-    ext = latest(stages, "extend")
-    if ext is not None:
-        return dict(ext[1]["plan"])
-    return (stages.get("replan") or stages.get("plan") or {}).get("result")
+    """The plan the run follows: the one of the last stage that planned (plan, replan, an
+    extension extend_<k> or an addition fill_<e>_<k>, in the order they ran)."""
+    p = None
+    for name, stage in stages.items():
+        if name in ("plan", "replan"):
+            p = stage["result"]
+        elif name.startswith(("extend_", "fill_")):
+            p = stage["result"]["plan"]
+    return dict(p) if p is not None else None
+
+
+def reach_lines(diag: dict[str, Any] | None) -> list[str]:
+    """What unguided SMC reached on a few training targets (the `reach` stage)."""
+    if not diag:
+        return []
+    line = (
+        f"unguided SMC, {diag['n']} particles, on {len(diag['targets'])} training targets: "
+        f"similarity {diag['similarity']:.3f}; its best drawings cover {diag['drawn']:.0%} "
+        f"of the canvas and {diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
+    )
+    return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] else [])]
 
 
 def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
@@ -115,7 +131,11 @@ def plan_lines(state: dict[str, Any]) -> list[str]:
         "",
         f"- round 0: {p['traces']} traces from unguided SMC with {p['unguided_particles']} "
         f"particles; then up to {p['rounds']} guided round(s) of {p['guided_traces']} traces with "
-        f"{p['guided_particles']} particles, each trained on every round's traces",
+        f"{p['guided_particles']} particles, each trained on every round's traces"
+        + "".join(
+            f"; round {p['rounds'] + i + 1}: {n} traces with {pg} particles"
+            for i, (n, pg) in enumerate(p.get("more", ()))
+        ),
         f"- validation: {p['val_targets']} targets per set, {p['val_repeats']} run(s) each",
         "- tune grid: "
         + (
@@ -228,6 +248,7 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Grammar",
         "",
         *(f"    {x}" for x in diag.get("lines", [])),
+        *reach_lines((stages.get("reach") or {}).get("result")),
         "",
         "## Rounds",
         "",

@@ -7,22 +7,26 @@ import math
 from pathlib import Path
 
 import pytest
-from fixtures.grammars import BOUNDED, EXPLODING, EXPLODING_LINE, LOOP
+from fixtures.datasets import make_dataset
+from fixtures.grammars import BOUNDED, EXPLODING, EXPLODING_LINE, LOOP, REACHES_BARS, SPECK
 from repo_paths import REPO
 
 from ngpm_compiler.evaluation.diagnose import (
+    REACH_LOW,
     RUNAWAY,
     diagnose,
     forward_samples,
     mean_matrix,
     propose_viewport,
+    reach_line,
+    reachability,
     sample_lines,
     smc_time,
     supercritical,
     viewport_line,
     warning_lines,
 )
-from ngpm_compiler.language.compile import compile_grammar
+from ngpm_compiler.language.compile import compile_grammar, load_grammar
 
 NO_VIEWPORT = BOUNDED.replace("viewport: -10 10 -2 18\n", "")
 
@@ -160,3 +164,24 @@ def test_the_api_docs_show_the_exploding_grammar_of_these_tests() -> None:
     text = (REPO / "docs" / "api.md").read_text(encoding="utf-8")
     assert f"```\n{EXPLODING}```" in text
     assert f"warning: explode.lsys:{EXPLODING_LINE}: rule A branches" in text
+
+
+def bars(tmp_path: Path) -> list:
+    from ngpm_runtime.image.targets import load_dataset
+
+    return load_dataset(str(make_dataset(tmp_path / "bars", 3)), size=50)
+
+
+def test_a_grammar_that_cannot_reach_the_targets_is_low_and_says_why(tmp_path):
+    r = reachability(load_grammar("speck.lsys", SPECK), bars(tmp_path), n=10)
+    assert r.low and r.similarity < REACH_LOW and r.n == 10 and len(r.targets) == 3
+    assert r.drawn < r.ink and r.covered < 0.1
+    line = reach_line(r, "speck.lsys")
+    assert line.startswith("warning: speck.lsys: unguided SMC with 10 particles reaches ")
+    assert "draws too small or too little" in line and "\n" not in line
+    assert f"cover {r.drawn:.0%} of the canvas and {r.covered:.0%} of the targets' ink" in line
+
+
+def test_a_grammar_that_reaches_the_targets_is_not_low(tmp_path):
+    r = reachability(load_grammar("thick.lsys", REACHES_BARS), bars(tmp_path), n=10)
+    assert not r.low and r.similarity > 2 * REACH_LOW and r.covered > 0.5

@@ -11,7 +11,7 @@ from pathlib import Path
 import onnx
 import pytest
 from fixtures.datasets import CHAIN, make_dataset
-from fixtures.grammars import EXPLODING, EXPLODING_LINE
+from fixtures.grammars import EXPLODING, EXPLODING_LINE, SPECK
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.experiments import learn as learn_mod
@@ -41,6 +41,7 @@ TINY = Plan(
 def use_tiny_plan(monkeypatch):
     monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
     monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: TINY)
+    monkeypatch.setattr(learn_mod, "fill", lambda *args: None)  # no rounds added
 
 
 @pytest.fixture()
@@ -75,7 +76,7 @@ def test_cli_learn_writes_a_guide_and_a_report(tmp_path, capsys, tiny_plan):
     onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
     done = stages(out)
     assert list(done) == [
-        *("diagnose", "targets", "measure", "plan", "round_00", "replan", "round_01"),
+        *("diagnose", "targets", "reach", "measure", "plan", "round_00", "replan", "round_01"),
         *("tune", "curve"),
     ]
     assert done["round_01"]["result"]["teacher"] == "guided N=10 by round 0"
@@ -311,6 +312,7 @@ def test_a_rerun_that_can_now_tune_tunes_and_measures_the_curve_again(tmp_path, 
     untuned = replace(TINY, choice_temperatures=(), ess=())
     monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: untuned)
     monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: untuned)
+    monkeypatch.setattr(learn_mod, "fill", lambda *args: None)
     cfg = small(tmp_path)
     learn(cfg, log=lambda _m: None)
     out = Path(cfg.out)
@@ -374,3 +376,42 @@ def test_cli_learn_circuit_trains_without_targets(tmp_path, capsys, tiny_plan):
     assert main([*argv, "--targets", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert "the circuit likelihood has no targets: drop --targets" in err
+
+
+def test_time_left_after_the_planned_rounds_adds_a_round_with_a_stronger_teacher(
+    tmp_path, monkeypatch, tiny_plan
+):
+    """The planned rounds done with time left: learn plans a round more (learn_plan.fill,
+    recorded as fill_0_1) at its particles, runs it, and tries again (nothing more fits)."""
+    calls = []
+
+    def one_more(p, left, costs, trained, val, reserve):
+        calls.append(trained)
+        if len(calls) > 1:
+            return None
+        return replace(p, more=((4, 12),), reasons=(*p.reasons, "after round 1: one more"))
+
+    monkeypatch.setattr(learn_mod, "fill", one_more)
+    res = learn(small(tmp_path), log=lambda _m: None)
+    st = stages(tmp_path / "out")
+    assert "fill_0_1" in st and "round_02" in st and "fill_0_2" not in st
+    assert st["round_02"]["result"]["teacher"].startswith("guided N=12 by round ")
+    assert len(calls) == 2 and calls[1] > calls[0]  # asked again after round 2, more traces
+    report = Path(res["report"]).read_text()
+    assert "round 2: 4 traces with 12 particles" in report
+    assert "- after round 1: one more" in report
+
+
+def test_a_grammar_that_cannot_reach_the_targets_warns_and_goes_on(tmp_path, tiny_plan):
+    grammar = tmp_path / "speck.lsys"
+    grammar.write_text(SPECK)
+    logs: list[str] = []
+    res = learn(small(tmp_path, grammar=str(grammar)), log=logs.append)
+    warning = [m for m in logs if m.startswith("warning: speck.lsys: unguided SMC with ")]
+    assert len(warning) == 1 and "too small or too little" in warning[0]
+    assert Path(res["guide"]).is_file()  # a warning, not an error
+    r = stages(tmp_path / "out")["reach"]["result"]
+    assert r["low"] and r["similarity"] < 0.15
+    report = Path(res["report"]).read_text()
+    grammar_section = report.split("## Grammar")[1].split("## Rounds")[0]
+    assert warning[0] in grammar_section

@@ -10,8 +10,13 @@ from ngpm_compiler.experiments.learn_plan import (
     CURVE_GUIDED,
     GUIDED_FACTOR,
     GUIDED_PARTICLES,
+    MAX_ROUNDS,
+    MAX_STRONG,
+    MAX_STRONG_TRACES,
+    MAX_TRACES,
     MIN_PARTICLES,
     MIN_TRACES,
+    STRONG_PARTICLES,
     TRACE_GRACE,
     TRACE_SLACK,
     TRAIN_FIXED,
@@ -20,10 +25,12 @@ from ngpm_compiler.experiments.learn_plan import (
     UNGUIDED_PARTICLES,
     Costs,
     extend,
+    fill,
     parse_budget,
     plan,
     replan,
     round_seconds,
+    strong_rounds,
     trace_allowance,
     train_per_trace,
 )
@@ -41,7 +48,7 @@ def test_a_large_budget_gets_the_recipe():
     p = plan(2 * 3600, VINES)
     assert (p.unguided_particles, p.guided_particles) == (UNGUIDED_PARTICLES, GUIDED_PARTICLES)
     assert p.rounds >= 2 and p.traces >= MIN_TRACES
-    assert (p.val_targets, p.val_repeats) == (12, 2)
+    assert (p.val_targets, p.val_repeats) == (12, 8)
     temps, ess = TUNE_CHOICES[0]
     assert (p.choice_temperatures, p.ess) == (temps, ess)
     assert p.curve_guided == CURVE_GUIDED
@@ -204,3 +211,68 @@ def test_a_small_first_run_is_extended_by_a_round_that_doubles_its_traces():
     q = extend(p, 150, 90, VINES, 0, 17, 3.0)
     assert q.rounds == 1 and 17 <= q.guided_traces < MIN_TRACES
     assert extend(p, 150, 90, VINES, 0, 500, 3.0).rounds == 0
+
+
+# measured by `ngpmc learn --budget 45m` (docs/results/learn_grammars.md, report.md's plan):
+# seconds per particle of unguided and guided trace jobs, of a guided run at N = 10, of
+# training per trace
+PROFILES = {
+    "lily": Costs(unguided=0.00216, guided=0.00144, val_run=0.13, train=0.01, workers=2),
+    "bush": Costs(unguided=0.00111, guided=0.00145, val_run=0.12, train=0.01, workers=2),
+    "ivy": Costs(unguided=0.00387, guided=0.00092, val_run=0.52, train=0.01, workers=2),
+    "old vines": VINES,
+    "unmeasured": Costs(unguided=0.002, workers=2),
+    "one worker": Costs(unguided=0.004, guided=0.01, val_run=0.3, train=0.03, workers=1),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PROFILES))
+@pytest.mark.parametrize("minutes", [6, 15, 45, 120, 480])
+def test_the_plan_fills_the_budget_without_exceeding_it(name, minutes):
+    """The estimate of every stage together: from 90% to 100% of the budget, before and
+    after round 0 (replan, at the measured costs)."""
+    costs, budget = PROFILES[name], minutes * 60.0
+    p = plan(budget, costs)
+    assert 0.9 * budget <= planned_seconds(p, costs) <= budget
+    left = 0.8 * budget
+    q = replan(p, left, costs, p.traces)
+    assert 0.9 * left <= planned_seconds(q, costs) <= left
+
+
+def test_capped_rounds_leave_their_time_to_a_stronger_teacher():
+    """lily at 45 min: four guided rounds reach MAX_TRACES each (the old plan stopped there,
+    using 28.5 of 45 min); the rest goes to rounds with STRONG_PARTICLES particles."""
+    costs = PROFILES["lily"]
+    q = replan(plan(45 * 60, costs), 40 * 60, costs, 800)
+    assert (q.rounds, q.guided_traces) == (MAX_ROUNDS, MAX_TRACES)
+    assert q.more and all(pg == STRONG_PARTICLES for _, pg in q.more)
+    assert q.last_round == MAX_ROUNDS + len(q.more)
+    assert q.round_settings(1) == (MAX_TRACES, GUIDED_PARTICLES)
+    assert q.round_settings(q.last_round) == q.more[-1]
+    assert "stronger teacher" in q.reasons[-1]
+    assert q.estimates["more rounds"] > 0
+
+
+def test_a_small_budget_plans_no_strong_round():
+    p = plan(15 * 60, PROFILES["lily"])
+    assert p.more == () and p.guided_traces < MAX_TRACES
+
+
+def test_strong_rounds_prefer_the_most_traces_then_more_particles():
+    costs = PROFILES["lily"]
+    one = strong_rounds(costs, 600, 10.0, 8000)
+    assert one is not None and one[0] == 1 and one[2] == STRONG_PARTICLES
+    rounds, n, pg, secs = strong_rounds(costs, 6 * 3600, 10.0, 8000)
+    assert (rounds, n) == (MAX_STRONG, MAX_STRONG_TRACES) and pg > STRONG_PARTICLES
+    assert 0.95 * 6 * 3600 <= secs <= 6 * 3600
+    assert strong_rounds(costs, 30, 10.0, 8000) is None
+
+
+def test_fill_adds_the_strong_rounds_that_fit_after_the_last_round():
+    costs = PROFILES["lily"]
+    p = replan(plan(45 * 60, costs), 40 * 60, costs, 800)
+    q = fill(p, 12 * 60, costs, 12000, 10.0, 100.0)
+    assert q is not None and q.more[: len(p.more)] == p.more and len(q.more) > len(p.more)
+    assert q.estimates["more rounds"] <= 12 * 60 - 100
+    assert q.reasons[-1].startswith(f"after round {p.last_round}: ")
+    assert fill(p, 60, costs, 12000, 10.0, 100.0) is None
