@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
-from ngpm_runtime.errors import NgpmError
+from ngpm_runtime.errors import NgpmError, printable
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.language.compile import (
@@ -39,9 +40,18 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "seconds), the primitives per sample, the share of samples stopped by a "
         "cap, the time of one 600-particle SMC run, a proposed 'viewport:' line "
         "when the grammar has none, and a warning naming the rule when chains "
-        "fork more than once per generation on average and samples run to a cap.",
+        "fork more than once per generation on average and samples run to a cap. "
+        "With --targets, what unguided SMC reaches on a few of those targets, and a "
+        "warning when it is too little for a guide to learn from.",
     )
     p.add_argument("grammar", help="the .lsys file")
+    p.add_argument(
+        "--targets",
+        type=argtypes.path,
+        metavar="DIR",
+        help="a folder of 2D targets: grow into 3 of them with 600 unguided particles "
+        "(as ngpmc learn does before its traces; a few seconds; default: none)",
+    )
     p.add_argument(
         "--no-samples",
         action="store_true",
@@ -161,7 +171,38 @@ def cmd_check(args: argparse.Namespace) -> int:
     diag = diagnose(compiled, samples=0 if args.no_samples else args.samples, seed=args.seed)
     for line in [*sample_lines(diag), *warning_lines(diag)]:
         print(line, flush=True)
+    if args.targets:
+        print("\n".join(reach_check(args.grammar, diag, args.targets)), flush=True)
     return 0
+
+
+def reach_check(filename: str, diag: Any, folder: str) -> list[str]:
+    """`check --targets`: what unguided SMC reaches on a few targets of `folder` (its
+    line, and the warning when low)."""
+    from dataclasses import replace
+
+    from ngpm_compiler.evaluation.diagnose import REACH_TARGETS, reach_line, reachability
+    from ngpm_compiler.evaluation.heldout import load_sets
+
+    program = diag.program
+    if program.dim != 2:
+        raise NgpmError(f"--targets {folder}: a 3D grammar grows into volumes; give a 2D one")
+    viewport = program.viewport or diag.viewport
+    if viewport is None:
+        raise NgpmError(f"--targets: {filename} has no 'viewport:' line to draw into targets")
+    if not Path(folder).is_dir():
+        raise NgpmError(f"--targets {folder}: no such folder of targets")
+    program = replace(program, viewport=viewport)
+    targets = load_sets({"t": folder}, REACH_TARGETS, program)["t"]
+    if not targets:
+        raise NgpmError(f"--targets {folder}: holds no targets")
+    r = reachability(program, targets)
+    out = [
+        f"unguided SMC, {r.n} particles, on {len(targets)} targets of {printable(folder)}: "
+        f"similarity {r.similarity:.3f}; its best drawings cover {r.drawn:.0%} of the canvas "
+        f"and {r.covered:.0%} of the targets' ink ({r.ink:.0%})"
+    ]
+    return [*out, reach_line(r, filename)] if r.low else out
 
 
 MESH_SUFFIXES = (".glb", ".obj", ".ply")

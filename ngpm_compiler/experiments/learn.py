@@ -69,7 +69,10 @@ TRAIN_DATASETS = ("scribbles", "varied")
 # validation targets are held out (targets_stage checks it)
 VALIDATION = {"varied": ("varied", 9001), "shapes": ("shapes", 9101)}
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
-MEASURE_SMALL = 100  # particles of the measured jobs when the budget is under 10 minutes
+# particles of the measured jobs when the budget is under 2 minutes (else round 0's: a job's
+# fixed cost at 100 particles made lily's 6-minute run plan for 6x its per-particle cost)
+MEASURE_SMALL = 100
+REPLAN_ROOM = 60.0  # seconds left after round 0 beside tuning and the curve: plan guided rounds
 
 
 class LearnError(NgpmError):
@@ -853,14 +856,15 @@ def _stages(run: Run) -> None:
         if reach["warning"]:
             run.log(reach["warning"])
     run.clock.check("measuring")
-    small = run.cfg.budget < 600
+    small = run.cfg.budget < 120
     particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES
     m = run.stage("measure", lambda: measure_stage(run, d["grammar"], t["train"][0], particles))
     run.state.setdefault("costs", {}).update(unguided=m)
     p = load_plan(run.stage("plan", lambda: plan_stage(run)))
     run.stage("round_00", lambda: round_stage(run, p, 0))
     write_guide(run)
-    if p.rounds > 0:
+    room = run.clock.left() - p.estimates.get("tune", 0.0) - p.estimates.get("curve", 0.0)
+    if p.rounds > 0 or "replan" in run.state["stages"] or room > REPLAN_ROOM:
         run.clock.check("measuring guided SMC")
         p = load_plan(run.stage("replan", lambda: replan_stage(run, p)))
     p = extended(run, p)

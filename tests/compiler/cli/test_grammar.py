@@ -285,3 +285,24 @@ def test_sample_draws_a_3d_grammar_seen_from_z(
     assert ink.mean() > 0.05
     rows, cols = np.nonzero(ink[90:, :])  # the bottom rows: only the trunk
     assert 40 < cols.min() and cols.max() < 60
+
+
+def test_check_targets_says_what_unguided_smc_reaches(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--targets: one line of what unguided SMC reaches on 3 targets, then the warning when
+    it is low (a speck of a grammar on upright bars), none when it reaches them."""
+    from fixtures.datasets import make_dataset
+    from fixtures.grammars import REACHES_BARS, SPECK
+
+    bars = make_dataset(tmp_path / "bars", 3)
+    for name, text, warned in (("speck", SPECK, True), ("thick", REACHES_BARS, False)):
+        g = tmp_path / f"{name}.lsys"
+        g.write_text(text)
+        assert main(["check", str(g), "--samples", "5", "--targets", str(bars)]) == 0
+        out = capsys.readouterr().out.splitlines()
+        line = [x for x in out if x.startswith("unguided SMC, 600 particles, on 3 targets of ")]
+        assert len(line) == 1, out
+        assert (out[-1].startswith(f"warning: {g}: unguided SMC with 600 ")) == warned
+    assert main(["check", str(g), "--no-samples", "--targets", str(tmp_path / "none")]) != 0
+    assert "--targets" in capsys.readouterr().err
