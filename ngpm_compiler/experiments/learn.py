@@ -5,12 +5,15 @@ Stages, each finished one recorded in OUT/learn.json (with its wall time) and sk
 the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
 explodes or cannot get a viewport; copy the grammar into OUT, with the proposed viewport
 when it has none), `targets` (training: scribbles + varied, mirrored, or --targets;
-validation: varied and procedural shapes of other seeds), `measure` (two unguided trace
+validation: varied and procedural shapes of other seeds), `reach` (what unguided SMC
+reaches on 3 training targets: a warning when it is too little for a guide to learn from),
+`measure` (two unguided trace
 jobs per worker, run as the rounds run them: seconds per particle), `plan`
 (learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
 trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
 by the best round so far, training on every round's traces, validation: expert iteration
-as learning/rounds.py, rounds scored under equal, default proposal settings), `tune`
+as learning/rounds.py, rounds scored under equal, default proposal settings), `fill_<e>_<k>`
+(rounds with a stronger teacher added while the measured costs leave room), `tune`
 (learning/tune.py on the best round), `curve` (similarity vs N, guided and unguided, on the
 validation targets), then OUT/report.md and curve.png. OUT/guide.onnx is written after
 every round and after tuning.

@@ -148,7 +148,10 @@ def _validation(costs: Costs, budget: float) -> tuple[int, int, float, str]:
     for k, rep in VAL_CHOICES:
         v = validation_seconds(costs, k, rep)
         if v * (1 + MAX_ROUNDS + MAX_STRONG) <= VAL_SHARE * budget:
-            return k, rep, v, f"{k} targets per set, {rep} run(s) each: fits {VAL_SHARE:.0%}"
+            why = f"{k} targets per set, {rep} run(s) each: fits {VAL_SHARE:.0%}"
+            if rep > 2:  # the noise the extra runs cut (VAL_CHOICES)
+                why += " (runs at N = 10 vary by 0.2: 2 per target cannot order rounds)"
+            return k, rep, v, why
     k, rep = VAL_CHOICES[-1]
     return k, rep, validation_seconds(costs, k, rep), f"{k} target per set (the least)"
 
