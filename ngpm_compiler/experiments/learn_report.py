@@ -204,7 +204,7 @@ def extension_lines(stages: dict[str, Any]) -> list[str]:
     for name in names:
         e = stages[name]["result"]
         p, after = e["plan"], e["after_round"]
-        last = p["rounds"] if p["rounds"] > after else after
+        last = max(after, p["rounds"] + len(p.get("more", ())))
         old = [r for r in rounds if r["round"] <= after]
         new = [r for r in rounds if after < r["round"] <= last]
         head = (
