@@ -25,6 +25,12 @@ GRAMMAR_HELP = (
 )
 
 
+CHECK_TARGETS_HELP = (
+    "a folder of 2D targets: grow into 3 of them with 600 unguided particles (as ngpmc "
+    "learn does before its traces; a few seconds; default: none)"
+)
+
+
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("compile", help="compile a .lsys grammar into a Python sampler")
     p.add_argument("grammar", help="the .lsys file")
@@ -45,13 +51,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "warning when it is too little for a guide to learn from.",
     )
     p.add_argument("grammar", help="the .lsys file")
-    p.add_argument(
-        "--targets",
-        type=argtypes.path,
-        metavar="DIR",
-        help="a folder of 2D targets: grow into 3 of them with 600 unguided particles "
-        "(as ngpmc learn does before its traces; a few seconds; default: none)",
-    )
+    p.add_argument("--targets", type=argtypes.path, metavar="DIR", help=CHECK_TARGETS_HELP)
     p.add_argument(
         "--no-samples",
         action="store_true",
