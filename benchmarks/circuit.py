@@ -10,8 +10,11 @@ repeats) and mean CPU seconds per configuration, the unguided N that matches the
 (log-interpolated, evaluation.runs.n_to_match) and the equal-score time ratio: the unguided
 CPU time to reach the guided score (evaluation.runs.time_to_reach) over guided SMC's.
 
-Usage: python benchmarks/circuit.py [--guide PATH] [--repeats 20] [--guided-n 10[,5,...]]
-       [--ladder 10,20,50,100,200,400,600,1000] [--md docs/results/circuit_guide.md]
+Usage: python benchmarks/circuit.py [--guide PATH] [--previous PATH] [--repeats 20]
+       [--guided-n 10[,5,...]] [--ladder 10,20,50,100,200,400,600,1000]
+       [--md docs/results/circuit_guide.md]
+--previous adds a second guide (rows "previous") at the same guided N and seeds, run right
+after the first in every repeat: a new guide against the one it replaces, in one run.
 CPU seconds, not wall: the machine may be shared. --md also writes what it prints, with the
 load average, as Markdown (docs/results/circuit_guide.md, which scripts/headline.py copies
 into docs/results/README.md).
@@ -59,6 +62,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--guide", help="circuit guide .onnx (default: the bundled one)")
     ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--previous", help="a second guide .onnx run beside it (rows 'previous')")
     ap.add_argument("--guided-n", default="10", help="guided N, comma-separated (default 10)")
     ap.add_argument("--ladder", default=LADDER)
     ap.add_argument("--md", help="also write the table and the ratio to this Markdown file")
@@ -69,14 +73,15 @@ def main() -> int:
     )
     ladder = [int(x) for x in args.ladder.split(",")]
     guided_ns = [int(x) for x in args.guided_n.split(",")]
+    models: list[tuple[str, Any, list[int]]] = [("guided", guide, guided_ns)]
+    if args.previous:
+        models.append(("previous", Guide.load(args.previous, program), guided_ns))
+    models.append(("unguided", None, ladder))
     one_run(program, guide, 2, 0)  # kernels loaded (or compiled) before timing
     one_run(program, None, 2, 0)
     rows = []
     for rep in range(args.repeats):
-        for model, proposal, ns in (
-            ("guided", guide, guided_ns),
-            ("unguided", None, ladder),
-        ):
+        for model, proposal, ns in models:
             for n in ns:
                 score, cpu, prims = one_run(program, proposal, n, run_seed(0, rep, n, 0))
                 rows.append(
@@ -90,15 +95,16 @@ def main() -> int:
                         "primitives": prims,
                     }
                 )
+    prev = f" (previous: `{args.previous}`)" if args.previous else ""
     lines = [
-        f"Guide: `{Path(guide.path).name}`. {args.repeats} repeats (seeds); mean score "
+        f"Guide: `{Path(guide.path).name}`{prev}. {args.repeats} repeats (seeds); mean score "
         "(equation 2's argument) with its 95% interval over repeats, mean CPU seconds and "
         "primitives per run.",
         "",
         "| run | N | score | 95% CI | CPU s | primitives |",
         "|---|---|---|---|---|---|",
     ]
-    for model, ns in (("guided", guided_ns), ("unguided", ladder)):
+    for model, _, ns in models:
         for n in ns:
             sub = [r for r in rows if r["model"] == model and r["n"] == n]
             m, lo, hi = t_interval([r["similarity"] for r in sub])
@@ -110,13 +116,13 @@ def main() -> int:
     summary = summarize(rows, "circuit")
     ns, scores, secs = curve(summary, "unguided")
     lines.append("")
-    for g in (r for r in summary if r["model"] == "guided"):
+    for g in (r for r in summary if r["model"] != "unguided"):
         cross = n_to_match(summary, g["mean_similarity"])
         t_u = time_to_reach(scores, secs, g["mean_similarity"])
         ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
         more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
         lines.append(
-            f"Guided N = {g['n']} scores {g['mean_similarity']:.3f} in "
+            f"{g['model'].capitalize()} N = {g['n']} scores {g['mean_similarity']:.3f} in "
             f"{g['mean_seconds']:.3f} s; unguided SMC matches it at N ~ {cross:.0f} in "
             f"{t_u:.3f} s: **{ratio:.1f}x** faster at equal score{more}."
         )
