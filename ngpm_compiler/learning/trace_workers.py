@@ -36,7 +36,11 @@ def worker_setup(
 
     program = load_grammar(grammar, text)
     proposal = None if guide is None else backends.load_guide(guide, program)
-    return {"program": program, "targets": targets, "guide": proposal, "likelihood": likelihood,
+    return {
+        "program": program,
+        "targets": targets,
+        "guide": proposal,
+        "likelihood": likelihood,
         "sigma": sigma,
     }
 
