@@ -12,7 +12,8 @@ missing; the sets `scripts/train_topiary3d_guide.sh` tunes on).
 Sites (`--traces DIR[,DIR]`): per site, the NLL per trace of the recorded values under the
 prior and under the guide (temperatures 1), the teacher's choice frequencies per derivation
 depth for categorical sites, so a site whose recorded values follow the prior (nothing to
-learn) shows as one.
+learn) shows as one; then the target and partial windows' values per level (the window's
+cells are listed x slowest, so the turtle's own cell is the middle one).
 
 Usage: python benchmarks/teacher3d.py [--settings 1:0.02,10:0.02,100:0.02,100:0.05,...]
        [--targets DIR,DIR] [--guide G.onnx] [--traces DIR,DIR]
@@ -111,6 +112,26 @@ def sites(program: Any, guide: Any, traces: str) -> None:
             if site.kind == "categorical":
                 choice_table(data, ts.layouts[site.index]["local"].start + 13, program)
         print(f"  all sites {total[0]:.1f} -> {total[1]:.1f}")
+        windows(ts)
+
+
+def windows(ts: Any) -> None:
+    """Stats of the target and partial windows at each level over the busiest site's rows:
+    mean of the cells inside the grid, std of the turtle's own cell, and the range over
+    traces of the per-trace mean of that cell (does the target window vary?)."""
+    site = max(ts.data, key=lambda i: len(ts.data[i].values))
+    data, lay = ts.data[site], ts.layouts[site]
+    for group in ("target", "partial"):
+        block = data.features[:, lay[group]]
+        k = block.shape[1] // 4
+        for lv in range(4):
+            cells = block[:, lv * k : (lv + 1) * k]
+            own = cells[:, k // 2]
+            per = [own[data.jobs == j].mean() for j in np.unique(data.jobs)]
+            print(
+                f"  {group} level {lv}: mean {cells[cells >= 0].mean():.2f}, turtle's cell "
+                f"std {own.std():.2f}, per-trace mean {min(per):.2f} .. {max(per):.2f}"
+            )
 
 
 def choice_table(data: Any, depth_col: int, program: Any) -> None:
