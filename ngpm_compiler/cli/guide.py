@@ -81,6 +81,12 @@ def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
         "unguided, the prior proposes)",
     )
     add_min_primitives(p)
+    p.add_argument(
+        "--sigma",
+        type=argtypes.positive_number(1.0),
+        help="a 3D grammar's voxel likelihood sigma (default 0.02, the paper's; a softer "
+        "one, e.g. 0.05, keeps more particles alive: a stronger teacher at equal particles)",
+    )
     p.set_defaults(handler=cmd_traces)
 
 
@@ -413,6 +419,7 @@ def cmd_traces(args: argparse.Namespace) -> int:
         ray_address=args.ray_address,
         guide=args.guide,
         min_primitives=args.min_primitives,
+        sigma=args.sigma,
     )
     if args.guide is not None and not Path(args.guide).is_file():
         raise NgpmError(f"--guide {args.guide}: no such file")

@@ -121,10 +121,12 @@ def run_job(
     guide: Proposal | None = None,
     max_modules: int | None = None,
     likelihood: str = "shape",
+    sigma: float | None = None,
 ) -> tuple[Trace, int]:
     """SMC (guided by `guide`, else unguided) on one target under `likelihood`; the best
     particle's trace and primitive count. Under "circuit" the target gives the start and
-    canvas size only, and the features see no target (as `grow` runs it).
+    canvas size only, and the features see no target (as `grow` runs it). sigma: the 3D
+    voxel likelihood's (None: the default).
 
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
@@ -142,6 +144,7 @@ def run_job(
         likelihood,
         trace=TraceRecording.VALUES,
         max_modules=max_modules,
+        sigma=sigma,
     ).smc.best
     values = [(s, v) for s, _, v in best.trace or []]
     if program.dim == 3:

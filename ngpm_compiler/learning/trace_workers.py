@@ -24,10 +24,11 @@ def worker_setup(
     targets: list[Target],
     guide: str | bytes | None = None,
     likelihood: str = "shape",
+    sigma: float | None = None,
 ) -> dict[str, Any]:
     """A worker's state from the grammar file's name and text, the targets, the guide
-    (its path, or its file's bytes for workers on other machines) and the likelihood, so a
-    worker on another machine reads no file."""
+    (its path, or its file's bytes for workers on other machines), the likelihood and its
+    sigma (3D, None: the default), so a worker on another machine reads no file."""
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -35,7 +36,13 @@ def worker_setup(
 
     program = load_grammar(grammar, text)
     proposal = None if guide is None else backends.load_guide(guide, program)
-    return {"program": program, "targets": targets, "guide": proposal, "likelihood": likelihood}
+    return {
+        "program": program,
+        "targets": targets,
+        "guide": proposal,
+        "likelihood": likelihood,
+        "sigma": sigma,
+    }
 
 
 def do_job(args: JobArgs) -> tuple[dict[str, np.ndarray], float]:
@@ -53,6 +60,7 @@ def do_job(args: JobArgs) -> tuple[dict[str, np.ndarray], float]:
             guide=pool.state().get("guide"),
             max_modules=max_modules,
             likelihood=pool.state().get("likelihood", "shape"),
+            sigma=pool.state().get("sigma"),
         )
     except SMCFailed:  # every particle died: a property of the job, so it is dropped
         trace, n_prims = [], -1

@@ -81,6 +81,7 @@ class TraceConfig:
     ray_address: str | None = None  # a Ray cluster (None: a local Ray instance)
     guide: str | None = None  # guide .onnx proposing in SMC (None: the prior)
     likelihood: str = "shape"  # or "circuit": every job grows into grow.circuit_target
+    sigma: float | None = None  # a 3D grammar's voxel likelihood sigma (None: 0.02)
 
 
 def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> dict[str, Any]:
@@ -99,6 +100,7 @@ def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> di
         # only under the circuit likelihood, so shape traces recorded before it was an
         # option still resume
         **({"likelihood": cfg.likelihood} if cfg.likelihood != "shape" else {}),
+        **({"sigma": cfg.sigma} if cfg.sigma is not None else {}),
     }
 
 
@@ -193,6 +195,11 @@ def generate_traces(
 
     program = load_grammar(cfg.grammar)
     check_frame(program, cfg.grammar)
+    if cfg.sigma is not None and not (program.dim == 3 and cfg.sigma > 0):
+        raise TraceError(
+            f"--sigma {cfg.sigma}: a positive sigma of a 3D grammar's voxel likelihood "
+            f"({cfg.grammar} is {program.dim}D)"
+        )
     if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
         backends.load_guide(cfg.guide, program)
     targets = trace_targets(cfg, program)
@@ -299,7 +306,7 @@ def generate_traces(
         cfg.backend,
         cfg.workers,
         worker_setup,
-        (cfg.grammar, text, targets, guide, cfg.likelihood),
+        (cfg.grammar, text, targets, guide, cfg.likelihood, cfg.sigma),
         cfg.ray_address,
     )
     complete = False

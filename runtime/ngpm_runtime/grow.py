@@ -103,6 +103,7 @@ def grow(
     start: tuple[float, ...] | None = None,
     canvas_size: tuple[int, int] | None = None,
     max_modules: int | None = None,
+    sigma: float | None = None,
 ) -> GrowResult:
     """SMC (guided when `guide` is given) into `target`; the best particle and its score.
 
@@ -115,6 +116,8 @@ def grow(
     canvas_size (default: the target's size) and max_modules (the grammar's "max modules"
     cap, overridden) go to `smc`, which resamples as the guide's settings say
     (`Guide.settings.ess_threshold`; unguided SMC resamples every step).
+    sigma: the voxel likelihood's sigma (3D only; default 0.02, the paper's): a softer
+    one (e.g. 0.05) keeps more particles alive, which makes stronger trace teachers.
 
     A 3D grammar grows into a `VolumeTarget` (volume/target.py) with the voxel likelihood
     ("shape" only; canvas_size is not used; start may be (x, y, z, heading)).
@@ -131,7 +134,10 @@ def grow(
             trace,
             start,
             max_modules,
+            sigma,
         )
+    if sigma is not None:
+        raise NgpmError("sigma is an option of 3D grammars' voxel likelihood only")
     target = cast("Target | None", target)  # a 2D grammar: a picture's Target
     viewport = _viewport(program)
     like: Likelihood = make_likelihood(likelihood, program, target)
@@ -174,6 +180,7 @@ def _grow3d(
     trace: TraceRecording,
     start: tuple[float, ...] | None,
     max_modules: int | None,
+    sigma: float | None = None,
 ) -> GrowResult:
     """grow() of a 3D grammar into a VolumeTarget: similarity and image are the best
     particle's voxels on the target's grid."""
@@ -184,7 +191,7 @@ def _grow3d(
         raise NgpmError(f"a 3D grammar grows with the shape likelihood only, not {likelihood!r}")
     if target is None or not hasattr(target, "occupancy"):
         raise NgpmError(f"{printable(program.name)} is a 3D grammar: it grows into a 3D target")
-    like = volume_likelihood(program, target)
+    like = volume_likelihood(program, target, sigma)
     t0 = time.perf_counter()
     options = SMCOptions(
         seed=seed,

@@ -6,15 +6,18 @@ from __future__ import annotations
 from typing import Any
 
 from ngpm_runtime.errors import ProgramError, printable
+from ngpm_runtime.inference.likelihood import SHAPE_SIGMA
 from ngpm_runtime.program import Program
 from ngpm_runtime.volume.features import FeatureMaker3D
 from ngpm_runtime.volume.likelihood import VoxelLikelihood, check_box
 from ngpm_runtime.volume.raster import VoxelCanvas, VoxelGrid
 
 
-def volume_likelihood(program: Program, target: Any) -> VoxelLikelihood:
-    """Equation 1 on voxels against a VolumeTarget, bounds against the program's box."""
-    return VoxelLikelihood(target, check_box(program.box, printable(program.name)))
+def volume_likelihood(program: Program, target: Any, sigma: float | None = None) -> VoxelLikelihood:
+    """Equation 1 on voxels against a VolumeTarget, bounds against the program's box
+    (sigma: the equation's, default SHAPE_SIGMA)."""
+    box = check_box(program.box, printable(program.name))
+    return VoxelLikelihood(target, box, SHAPE_SIGMA if sigma is None else sigma)
 
 
 def run_grid(program: Program, likelihood: Any, volume: Any) -> VoxelGrid:

@@ -87,3 +87,21 @@ def test_traces_of_a_3d_grammar_into_pictures_is_a_one_line_error(tmp_path: Path
     with pytest.raises(NgpmError, match="3D target set") as err:
         generate_traces(TraceConfig(TOPIARY, str(data), 2, 4, workers=1), tmp_path / "t", False)
     assert "\n" not in str(err.value)
+
+
+def test_traces_sigma_is_recorded_in_the_key_and_is_3d_only(tmp_path: Path, pipeline: Path) -> None:
+    from fixtures.datasets import make_dataset
+
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
+
+    cfg = TraceConfig(TOPIARY, str(pipeline / "set"), 2, 4, workers=1, sigma=0.05)
+    m = generate_traces(cfg, tmp_path / "soft", False)
+    assert m["key"]["sigma"] == 0.05 and m["kept"] == 2
+    with pytest.raises(NgpmError, match="differs in sigma") as err:  # resume
+        generate_traces(TraceConfig(TOPIARY, cfg.targets, 2, 4, workers=1), tmp_path / "soft")
+    assert "\n" not in str(err.value)
+    vines = str(REPO / "grammars" / "vines.lsys")
+    data = make_dataset(tmp_path / "pics")
+    with pytest.raises(NgpmError, match="3D grammar") as err:
+        generate_traces(TraceConfig(vines, str(data), 2, 4, workers=1, sigma=0.05), tmp_path / "v")
+    assert "\n" not in str(err.value)

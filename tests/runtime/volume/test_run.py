@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from fixtures.tiny_programs import make_program
 from fixtures.volume3d import ball_target
+from ngpm_runtime.bundled import bundled_program
 from ngpm_runtime.errors import NgpmError, ProgramError
 from ngpm_runtime.grow import grow
 from ngpm_runtime.inference.smc import SMCOptionError, SMCOptions, TraceRecording, smc
@@ -50,6 +51,21 @@ def test_grow_into_a_volume(tree, crown) -> None:
     )
     first = grow(tree, moved, None, 2, seed=0).primitives[0]
     assert first[0] == "seg3" and first[1:4] == (10.0, 0.0, -50.0)
+
+
+def test_grow_takes_the_voxel_likelihood_sigma(tree, crown) -> None:
+    soft = grow(tree, crown, None, 12, seed=3, sigma=0.05)
+    vox = voxelize(soft.primitives, VoxelGrid.of_target(crown))
+    full = VoxelLikelihood(crown, tree.box, sigma=0.05).full(vox, _box(soft.primitives))
+    assert soft.smc.best.log_likelihood == pytest.approx(full, rel=1e-9)
+    sharp = VoxelLikelihood(crown, tree.box).full(vox, _box(soft.primitives))
+    assert sharp < full  # the default sigma (0.02) is sharper
+    assert (
+        grow(tree, crown, None, 12, seed=3, sigma=0.02).primitives
+        == grow(tree, crown, None, 12, seed=3).primitives
+    )
+    with pytest.raises(NgpmError, match="3D grammars"):
+        grow(bundled_program(), None, None, 2, sigma=0.05)  # vines: 2D
 
 
 def _box(prims) -> np.ndarray:
