@@ -291,14 +291,15 @@ def diagnose(
     time_smc: float = 3.0,
 ) -> Diagnosis:
     """Branching from the grammar; with `samples` > 0, forward samples (for about `budget`
-    seconds; a batch still running at 4x `budget` counts as runaway), a proposed viewport (when the grammar has none) and, with `time_smc` > 0, the
-    time of one 600-particle SMC run (measured for at most `time_smc` seconds)."""
+    seconds; a batch still running at 4x `budget`, 8 s at least, counts as runaway), a
+    proposed viewport (when the grammar has none) and, with `time_smc` > 0, the time of one
+    600-particle SMC run (measured for at most `time_smc` seconds)."""
     program = compiled.program()
     diag = Diagnosis(compiled.filename, program, supercritical(compiled.checked))
     if samples <= 0:
         return diag
     s = diag.samples = forward_samples(
-        program, samples, budget=budget, hard_cap=4 * budget, seed=seed
+        program, samples, budget=budget, hard_cap=max(8.0, 4 * budget), seed=seed
     )
     if program.viewport is None and s.box is not None:
         diag.viewport = propose_viewport(s.box)
