@@ -291,8 +291,9 @@ def diagnose(
     time_smc: float = 3.0,
 ) -> Diagnosis:
     """Branching from the grammar; with `samples` > 0, forward samples (for about `budget`
-    seconds; a batch still running at 4x `budget` counts as runaway), a proposed viewport (when the grammar has none) and, with `time_smc` > 0, the
-    time of one 600-particle SMC run (measured for at most `time_smc` seconds)."""
+    seconds; a batch still running at 4x `budget` counts as runaway), a proposed viewport
+    (when the grammar has none) and, with `time_smc` > 0, the time of one 600-particle SMC
+    run (measured for at most `time_smc` seconds)."""
     program = compiled.program()
     diag = Diagnosis(compiled.filename, program, supercritical(compiled.checked))
     if samples <= 0:

@@ -85,6 +85,24 @@ def reach_lines(diag: dict[str, Any] | None) -> list[str]:
     return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] else [])]
 
 
+def targets_lines(stages: dict[str, Any]) -> list[str]:
+    """Which targets the run trained and validated on, and why envelopes when it switched
+    to them (the `envelopes` stage)."""
+    switch = (stages.get("envelopes") or {}).get("result")
+    t = (stages.get("targets") or {}).get("result")
+    if switch is not None and switch["switched"]:
+        t = switch["targets"]
+    if not t or t["train"] == [""]:
+        return []
+    val = ", ".join(f"{k} (`{Path(v).name}`)" for k, v in t["validation"].items())
+    train = ", ".join(f"`{Path(d).name}`" for d in t["train"])
+    return [
+        "",
+        f"Targets: training {train}; validation {val}.",
+        *(["", f"**{switch['line']}**"] if switch else []),
+    ]
+
+
 def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
     lines = [
         "| round | teacher | traces trained on | validation NLL | validation similarity "
@@ -249,6 +267,7 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "",
         *(f"    {x}" for x in diag.get("lines", [])),
         *reach_lines((stages.get("reach") or {}).get("result")),
+        *targets_lines(stages),
         "",
         "## Rounds",
         "",
