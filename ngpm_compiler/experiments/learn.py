@@ -5,9 +5,11 @@ Stages, each finished one recorded in OUT/learn.json (with its wall time) and sk
 the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
 explodes or cannot get a viewport; copy the grammar into OUT, with the proposed viewport
 when it has none), `targets` (training: scribbles + varied, mirrored, or --targets;
-validation: varied and procedural shapes of other seeds), `reach` (what unguided SMC
-reaches on 3 training targets: a warning when it is too little for a guide to learn from),
-`measure` (two unguided trace
+validation: varied and procedural shapes of other seeds; --targets envelopes: envelopes
+of the grammar's own samples, datasets/envelopes.py), `reach` (what unguided SMC reaches on
+3 training targets: a warning when it is too little for a guide to learn from),
+`envelopes` (without --targets, after a low reach: training and validation switch to the
+grammar's envelopes when unguided SMC reaches them better), `measure` (two unguided trace
 jobs per worker, run as the rounds run them: seconds per particle), `plan`
 (learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
 trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided

@@ -73,8 +73,9 @@ def latest_plan(stages: dict[str, Any]) -> dict[str, Any] | None:
     return dict(p) if p is not None else None
 
 
-def reach_lines(diag: dict[str, Any] | None) -> list[str]:
-    """What unguided SMC reached on a few training targets (the `reach` stage)."""
+def reach_lines(diag: dict[str, Any] | None, warn: bool = True) -> list[str]:
+    """What unguided SMC reached on a few training targets (the `reach` stage); its warning
+    in bold when `warn` (not when the run switched to envelopes: their line says why)."""
     if not diag:
         return []
     line = (
@@ -82,7 +83,11 @@ def reach_lines(diag: dict[str, Any] | None) -> list[str]:
         f"similarity {diag['similarity']:.3f}; its best drawings cover {diag['drawn']:.0%} "
         f"of the canvas and {diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
     )
-    return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] else [])]
+    return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] and warn else [])]
+
+
+def _switched(stages: dict[str, Any]) -> bool:
+    return bool(((stages.get("envelopes") or {}).get("result") or {}).get("switched"))
 
 
 def targets_lines(stages: dict[str, Any]) -> list[str]:
@@ -266,7 +271,7 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Grammar",
         "",
         *(f"    {x}" for x in diag.get("lines", [])),
-        *reach_lines((stages.get("reach") or {}).get("result")),
+        *reach_lines((stages.get("reach") or {}).get("result"), not _switched(stages)),
         *targets_lines(stages),
         "",
         "## Rounds",
