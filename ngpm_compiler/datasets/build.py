@@ -141,8 +141,7 @@ def build_dataset(
 
     Existing `NAME_####.png` files with sidecars are kept as they are (resume). Source
     items that cannot be used are skipped with a DatasetWarning. With mirror=True every
-    target also gets a mirrored copy `NAME_####_m.png`. `grammar`: the .lsys file whose
-    samples the `envelopes` set is made from (its hash is part of the build's settings).
+    target also gets a mirrored copy `NAME_####_m.png`. `grammar`: envelopes' .lsys file.
     """
     spec = DATASETS.get(name)
     if spec is None:
