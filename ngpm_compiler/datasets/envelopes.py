@@ -89,7 +89,7 @@ def _program(grammar: str | os.PathLike[str] | None) -> Program:
         raise DatasetError("envelopes are made from a grammar's samples: give --grammar FILE")
     if not Path(grammar).is_file():
         raise DatasetError(f"{grammar}: no such grammar file")
-    program = load_grammar(grammar)
+    program = load_grammar(Path(grammar))
     if program.dim != 2:
         raise DatasetError(f"{grammar}: a 3D grammar; envelopes are 2D targets")
     if program.viewport is None:
