@@ -53,7 +53,8 @@ def _add_build(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         "--grammar",
         type=_path,
         default=None,
-        help="the .lsys grammar whose forward samples `envelopes` are made from",
+        help="the .lsys grammar whose forward samples `envelopes` are made from (default "
+        "none: required by envelopes, refused by the other sets)",
     )
     build.add_argument(
         "--resolution",
