@@ -224,7 +224,9 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
     program = compiled.program()
     if program.dim != 2:
         raise LearnError(f"{cfg.grammar}: a 3D grammar; ngpmc learn trains guides of 2D ones")
-    quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look
+    # a tiny budget gets a quicker look, but not so quick that forward samples hit their time
+    # cap (4x their budget) and a grammar that ends is refused as one that does not
+    quick = min(1.0, max(0.25, cfg.budget / 600))
     diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=3 * quick)
     _refuse_exploding(cfg.grammar, diag)
     text = compiled.source_text
