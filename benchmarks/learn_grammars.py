@@ -9,16 +9,20 @@ to an .lsys file) it runs `ngpmc learn GRAMMAR -o OUT/NAME/learn --budget B` (it
 process; a finished run is a quick no-op and an interrupted one resumes), then scores
 OUT/NAME/learn/guide.onnx on held-out targets that neither learn's training nor its
 validation uses (`varied` strokes and procedural `shapes` of other seeds, built once in
-OUT/heldout): guided SMC at N = 10 against unguided SMC at each N of `--ns`, every run of
-a grammar shuffled together (interleaved, so a changing load hits both alike) and cached
-in OUT/NAME/heldout (evaluation/heldout.py). A grammar whose OUT/NAME/result.json was
-written under the same settings is skipped, so the command resumes where it stopped.
+OUT/heldout; for a grammar whose learn trained on envelopes of its own samples, because
+unguided SMC reaches the generic targets too poorly, envelopes of seeds 2001 and 2002
+instead, built in OUT/NAME/heldout_envelopes): guided SMC at N = 10 against unguided SMC
+at each N of `--ns`, every run of a grammar shuffled together (interleaved, so a changing
+load hits both alike) and cached in OUT/NAME/heldout (evaluation/heldout.py). A grammar
+whose OUT/NAME/result.json was written under the same settings is skipped, so the command
+resumes where it stopped.
 
 Per grammar: learn's wall time, its rounds and best validation similarity, the mean over
 both held-out sets of the per-target median similarity at each N, the unguided N that
 matches the guide at N = 10 (log-interpolated; "> N" when no N of the ladder does), and
 the time ratio at equal similarity (unguided seconds to reach the guide's N = 10
-similarity over the guide's seconds; "> x" when unguided never reaches it). Written to
+similarity over the guide's seconds; "> x" when unguided never reaches it), and the
+held-out targets it was scored on. Written to
 OUT/learn_grammars.csv and OUT/learn_grammars.md, and into the `<!-- begin learn-grammars
 -->` block of `--page` (default docs/results/learn_grammars.md, made when missing; its
 source file learn_grammars.csv is copied beside it). The machine may be shared: the load
@@ -46,6 +50,8 @@ from ngpm_compiler.evaluation.runs import UNGUIDED, n_to_match, speedups, summar
 
 REPO = Path(__file__).resolve().parents[1]
 HELDOUT = {"varied": ("varied", 2001), "shapes": ("shapes", 2002)}  # name: (dataset, seed)
+# a grammar learn trained on envelopes of (experiments/learn.py) is scored on these
+HELDOUT_ENVELOPES = {"envelopes_2001": ("envelopes", 2001), "envelopes_2002": ("envelopes", 2002)}
 GUIDED_N = 10
 BLOCK = "learn-grammars"
 CSV_FIELDS = ("grammar", "model", "n", "targets", "mean_similarity", "mean_seconds")
@@ -75,6 +81,28 @@ def heldout_sets(out: Path, count: int) -> dict[str, str]:
     for name, (dataset, seed) in HELDOUT.items():
         d = out / "heldout" / f"{name}_{count}"
         build_dataset(dataset, d, count=count, seed=seed)
+        sets[name] = str(d)
+    return sets
+
+
+def learned_targets(out: Path) -> str:
+    """What learn trained on: "envelopes" of the grammar (--targets envelopes, or switched
+    to after its reach check) or "generic" targets."""
+    state = json.loads((out / "learn" / "learn.json").read_text(encoding="utf-8"))
+    stages = state["stages"]
+    switch = (stages.get("envelopes") or {}).get("result") or {}
+    kind = stages["targets"]["result"].get("kind")
+    return "envelopes" if switch.get("switched") or kind == "envelopes" else "generic"
+
+
+def envelope_sets(grammar: Path, out: Path, count: int) -> dict[str, str]:
+    """Held-out envelopes of `grammar` (learn's copy, with its viewport), in OUT/NAME."""
+    from ngpm_compiler.datasets.build import build_dataset
+
+    sets = {}
+    for name, (dataset, seed) in HELDOUT_ENVELOPES.items():
+        d = out / "heldout_envelopes" / f"{name}_{count}"
+        build_dataset(dataset, d, count=count, seed=seed, grammar=grammar)
         sets[name] = str(d)
     return sets
 
@@ -132,10 +160,9 @@ def evaluate(name: str, grammar: Path, out: Path, sets: dict[str, str], args: An
     """The guide and unguided SMC on the held-out sets (runs cached); summary over both."""
     from ngpm_compiler.evaluation.heldout import run_heldout
 
-    learned = sorted((out / "learn").glob("*.lsys"))  # with a proposed viewport, if any
     res = run_heldout(
         out / "heldout",
-        str(learned[0] if learned else grammar),
+        str(grammar),
         sets,
         {"guide": str(out / "learn" / "guide.onnx")},
         k=args.targets,
@@ -165,9 +192,15 @@ def one_grammar(name: str, out: Path, sets: dict[str, str], args: Any) -> dict[s
     grammar = grammar_file(name, out)
     print(f"{name}: ngpmc learn {grammar} --budget {args.budget}", flush=True)
     wall = run_learn(grammar, out / name, args)
+    learned = sorted((out / name / "learn").glob("*.lsys"))  # with a proposed viewport
+    grammar = learned[0] if learned else grammar
+    kind = learned_targets(out / name)
+    if kind == "envelopes":
+        sets = envelope_sets(grammar, out / name, args.targets)
     summary = evaluate(name, grammar, out / name, sets, args)
     result = {
         "grammar": name,
+        "heldout": "envelopes" if kind == "envelopes" else ", ".join(HELDOUT),
         "settings": settings(args),
         "learn_call_seconds": round(wall, 1),
         **learn_facts(out / name),
@@ -184,8 +217,8 @@ def table(results: list[dict[str, Any]], ns: list[int]) -> list[str]:
         f"unguided N = {n}" for n in ns
     )
     lines = [
-        head + " | unguided N to match | time ratio at equal similarity |",
-        "|---|---|---|---|" + "---|" * len(ns) + "---|---|",
+        head + " | unguided N to match | time ratio at equal similarity | held-out targets |",
+        "|---|---|---|---|" + "---|" * len(ns) + "---|---|---|",
     ]
     for r in results:
         u = {int(k): v for k, v in r["unguided"].items()}
@@ -197,7 +230,8 @@ def table(results: list[dict[str, Any]], ns: list[int]) -> list[str]:
         cells = [f"{u[n]:.3f}" if n in u else "" for n in ns]
         lines.append(
             f"| {r['grammar']} | {r['learn_minutes']:.1f}{stop} | {r['rounds']} | "
-            f"**{r['guided']:.3f}** | " + " | ".join(cells) + f" | {match} | {ratio} |"
+            f"**{r['guided']:.3f}** | " + " | ".join(cells) + f" | {match} | {ratio} | "
+            f"{r.get('heldout', ', '.join(HELDOUT))} |"
         )
     return lines
 
@@ -205,6 +239,8 @@ def table(results: list[dict[str, Any]], ns: list[int]) -> list[str]:
 def block(results: list[dict[str, Any]], args: Any, load: tuple[float, float]) -> str:
     """The text of the page's learn-grammars block."""
     sets = ", ".join(f"`{d}` seed {s}" for d, s in HELDOUT.values())
+    seeds = " and ".join(str(seed) for _, seed in HELDOUT_ENVELOPES.values())
+    sets += f"; envelopes of its own samples, seeds {seeds}, for a grammar learn trained on them"
     return "\n".join(
         [
             f"`ngpmc learn --budget {args.budget}` per grammar, then on held-out targets "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+from pathlib import Path
 
 import pytest
 from repo_paths import REPO
@@ -49,7 +50,10 @@ def test_table_and_page_block(tmp_path):
         **lg.figures(summary(0.7)),
     }
     lines = lg.table([result], [10, 100, 1000])
-    assert lines[2] == "| bush | 44.5 | 4 | **0.700** | 0.100 | 0.300 | 0.500 | > 1000 | >20.0x |"
+    row = "| bush | 44.5 | 4 | **0.700** | 0.100 | 0.300 | 0.500 | > 1000 | >20.0x |"
+    assert lines[2] == row + " varied, shapes |"  # a result without "heldout": the generic sets
+    env = lg.table([{**result, "heldout": "envelopes"}], [10, 100, 1000])
+    assert env[0].endswith("| held-out targets |") and env[2] == row + " envelopes |"
     worse = {**result, **lg.figures(summary(0.05))}
     assert "| **0.050** | 0.100 | 0.300 | 0.500 | <= 10 |" in lg.table([worse], [10, 100, 1000])[2]
     page = tmp_path / "page.md"
@@ -83,3 +87,19 @@ def test_one_tiny_grammar_end_to_end_and_resumed(tmp_path, capsys):
     capsys.readouterr()
     assert lg.main(argv) == 0
     assert "chain: done before" in capsys.readouterr().out
+
+
+def test_a_grammar_learned_on_envelopes_is_scored_on_held_out_envelopes(tmp_path):
+    lg = load()
+    learn = tmp_path / "bush" / "learn"
+    learn.mkdir(parents=True)
+    state = {"stages": {"targets": {"result": {"kind": "generic"}}}}
+    (learn / "learn.json").write_text(json.dumps(state))
+    assert lg.learned_targets(tmp_path / "bush") == "generic"
+    state["stages"]["envelopes"] = {"result": {"switched": True}}
+    (learn / "learn.json").write_text(json.dumps(state))
+    assert lg.learned_targets(tmp_path / "bush") == "envelopes"
+    sets = lg.envelope_sets(REPO / "grammars" / "bush.lsys", tmp_path / "bush", 2)
+    assert list(sets) == ["envelopes_2001", "envelopes_2002"]
+    index = json.loads((Path(sets["envelopes_2001"]) / "index.json").read_text())
+    assert index["seed"] == 2001 and index["grammar"] == "bush.lsys" and index["count"] == 2

@@ -56,8 +56,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--targets",
         type=argtypes.paths,
         default=(),
-        help="training-target directories, comma-separated (default: build scribbles and "
-        "varied strokes)",
+        help="training-target directories, comma-separated, or 'envelopes': filled "
+        "silhouettes of the grammar's own samples, validated on other seeds' (default: build "
+        "scribbles and varied strokes, and switch to envelopes when unguided SMC reaches "
+        "those too poorly; a folder named envelopes: ./envelopes)",
     )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
@@ -76,8 +78,10 @@ def cmd_learn(args: argparse.Namespace) -> int:
             "the circuit likelihood has no targets: drop --targets (its runs start at the "
             "bottom middle of the viewport, heading up)"
         )
+    if "envelopes" in args.targets and list(args.targets) != ["envelopes"]:
+        raise NgpmError("--targets envelopes takes no other folders beside it")
     for d in args.targets:
-        if not Path(d).is_dir():
+        if d != "envelopes" and not Path(d).is_dir():
             raise NgpmError(f"--targets {d}: no such directory of targets")
     cfg = LearnConfig(
         grammar=args.grammar,

@@ -12,7 +12,7 @@ from ngpm_runtime.image.targets import POLARITIES, load_dataset, load_target
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.outpaths import check_output_file
 from ngpm_compiler.datasets.build import DATASETS, build_dataset
-from ngpm_compiler.datasets.common import DatasetWarning
+from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
 from ngpm_compiler.datasets.sheets import contact_sheet
 
 
@@ -49,6 +49,13 @@ def _add_build(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
         help="how to read --from images (default auto)",
     )
     build.add_argument("--mirror", action="store_true", help="also write mirrored copies")
+    build.add_argument(
+        "--grammar",
+        type=_path,
+        default=None,
+        help="the .lsys grammar whose forward samples `envelopes` are made from (default "
+        "none: required by envelopes, refused by the other sets)",
+    )
     build.add_argument(
         "--resolution",
         type=argtypes.integer(8, 128),
@@ -121,6 +128,8 @@ def _help(parser: argparse.ArgumentParser) -> int:
 
 
 def _build(args: argparse.Namespace) -> int:
+    if args.grammar is not None and args.name != "envelopes":
+        raise DatasetError(f"--grammar is for the envelopes set, not {args.name}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DatasetWarning)
         files = build_dataset(
@@ -134,6 +143,7 @@ def _build(args: argparse.Namespace) -> int:
             mirror=args.mirror,
             polarity=args.polarity,
             resolution=args.resolution,
+            grammar=args.grammar,
         )
     skipped = [w for w in caught if issubclass(w.category, DatasetWarning)]
     for w in skipped:

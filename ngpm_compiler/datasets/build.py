@@ -25,6 +25,7 @@ from ngpm_runtime.volume.target import VolumeTarget
 
 from ngpm_compiler.datasets.clipart import build_clipart
 from ngpm_compiler.datasets.common import DatasetError, DatasetWarning
+from ngpm_compiler.datasets.envelopes import build_envelopes, grammar_sha
 from ngpm_compiler.datasets.glyphs import build_glyphs
 from ngpm_compiler.datasets.scribbles import build_scribbles
 from ngpm_compiler.datasets.sets3d import (
@@ -82,6 +83,13 @@ DATASETS: dict[str, DatasetSpec] = {
         300,
         build_varied,
     ),
+    "envelopes": DatasetSpec(
+        "envelopes",
+        "filled silhouettes of --grammar FILE's own forward samples in its viewport, "
+        "start at the grammar's start (training; held out: another --seed)",
+        300,
+        build_envelopes,
+    ),
     "clipart": DatasetSpec(
         "clipart",
         "silhouettes of public-domain clip art (default: Openclipart animals from "
@@ -126,13 +134,14 @@ def build_dataset(
     mirror: bool = False,
     polarity: str = "auto",
     resolution: int = 32,
+    grammar: str | os.PathLike[str] | None = None,
 ) -> list[Path]:
     """Build dataset `name` into out_dir; returns the PNG paths (the .npz paths of a 3D
     set, made at `resolution` voxels a side; `size` is for 2D sets) in index order.
 
     Existing `NAME_####.png` files with sidecars are kept as they are (resume). Source
     items that cannot be used are skipped with a DatasetWarning. With mirror=True every
-    target also gets a mirrored copy `NAME_####_m.png`.
+    target also gets a mirrored copy `NAME_####_m.png`. `grammar`: envelopes' .lsys file.
     """
     spec = DATASETS.get(name)
     if spec is None:
@@ -154,6 +163,7 @@ def build_dataset(
         "mirror": mirror,
         "font": str(font) if font is not None else None,
         "source_dir": str(source_dir) if source_dir is not None else None,
+        **_grammar_params(name, grammar),
     }
     _check_previous(out / "index.json", params)
     _write_index(out, {**params, "complete": False, "files": []})
@@ -169,6 +179,7 @@ def build_dataset(
             font=font,
             source_dir=source_dir,
             polarity=polarity,
+            grammar=grammar,
         )
         write = _write_volume if spec.dim == 3 else _write_target
         for i, (target, source) in enumerate(items):
@@ -192,6 +203,17 @@ def build_dataset(
         },
     )
     return files
+
+
+def _grammar_params(name: str, grammar: str | os.PathLike[str] | None) -> dict[str, Any]:
+    """The grammar of an `envelopes` build ({} for other sets, whose index has none)."""
+    if name != "envelopes":
+        return {}
+    if grammar is None:
+        raise DatasetError("envelopes are made from a grammar's samples: give --grammar FILE")
+    if not Path(grammar).is_file():
+        raise DatasetError(f"{grammar}: no such grammar file")
+    return {"grammar": Path(grammar).name, "grammar_sha": grammar_sha(grammar)}
 
 
 def _write_target(target: Target, out: Path, stem: str, mirror: bool) -> list[tuple[Path, bool]]:

@@ -5,9 +5,11 @@ Stages, each finished one recorded in OUT/learn.json (with its wall time) and sk
 the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
 explodes or cannot get a viewport; copy the grammar into OUT, with the proposed viewport
 when it has none), `targets` (training: scribbles + varied, mirrored, or --targets;
-validation: varied and procedural shapes of other seeds), `reach` (what unguided SMC
-reaches on 3 training targets: a warning when it is too little for a guide to learn from),
-`measure` (two unguided trace
+validation: varied and procedural shapes of other seeds; --targets envelopes: envelopes
+of the grammar's own samples, datasets/envelopes.py), `reach` (what unguided SMC reaches on
+3 training targets: a warning when it is too little for a guide to learn from),
+`envelopes` (without --targets, after a low reach: training and validation switch to the
+grammar's envelopes when unguided SMC reaches them better), `measure` (two unguided trace
 jobs per worker, run as the rounds run them: seconds per particle), `plan`
 (learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
 trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
@@ -45,6 +47,7 @@ from typing import Any
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
 
+from ngpm_compiler.evaluation.diagnose import REACH_LOW, reach_line
 from ngpm_compiler.experiments.learn_plan import (
     CURVE_REPEATS,
     GUIDED_PARTICLES,
@@ -72,6 +75,10 @@ TRAIN_DATASETS = ("scribbles", "varied")
 # validation targets are held out (targets_stage checks it)
 VALIDATION = {"varied": ("varied", 9001), "shapes": ("shapes", 9101)}
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
+# `--targets envelopes`: the grammar's own envelopes (datasets/envelopes.py), also chosen
+# when unguided SMC reaches the generic targets too poorly; validated on another seed's
+ENVELOPES = "envelopes"
+ENVELOPE_VALIDATION = {"envelopes": ("envelopes", 9201)}
 # particles of the measured jobs when the budget is under 2 minutes (else round 0's: a job's
 # fixed cost at 100 particles made lily's 6-minute run plan for 6x its per-particle cost)
 MEASURE_SMALL = 100
@@ -171,7 +178,7 @@ def _key(cfg: LearnConfig) -> dict[str, Any]:
         "grammar_sha": hashlib.sha256(text).hexdigest(),
         "likelihood": cfg.likelihood,
         "seed": cfg.seed,
-        "targets": [str(Path(t).resolve()) for t in cfg.targets],
+        "targets": [t if t == ENVELOPES else str(Path(t).resolve()) for t in cfg.targets],
         "validation": {k: str(Path(v).resolve()) for k, v in sorted(cfg.validation.items())},
     }
 
@@ -217,7 +224,8 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
     program = compiled.program()
     if program.dim != 2:
         raise LearnError(f"{cfg.grammar}: a 3D grammar; ngpmc learn trains guides of 2D ones")
-    quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look
+    quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look (diagnose keeps
+    # its forward samples' time cap at 8 s at least: a quick look refuses no grammar that ends)
     diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=3 * quick)
     _refuse_exploding(cfg.grammar, diag)
     text = compiled.source_text
@@ -260,8 +268,9 @@ def _refuse_exploding(filename: str, diag: Any) -> None:
         raise LearnError(first)
 
 
-def targets_stage(run: Run) -> dict[str, Any]:
-    """Training and validation target directories (built under OUT/targets)."""
+def targets_stage(run: Run, grammar: str | None = None) -> dict[str, Any]:
+    """Training and validation target directories (built under OUT/targets; envelopes of
+    `grammar`, OUT's copy (default the config's), with --targets envelopes)."""
     from ngpm_compiler.datasets.build import build_dataset
 
     cfg, root = run.cfg, run.out / "targets"
@@ -269,6 +278,8 @@ def targets_stage(run: Run) -> dict[str, Any]:
         from ngpm_compiler.evaluation.heldout import CIRCUIT_SETS
 
         return {"train": [""], "validation": dict(CIRCUIT_SETS)}
+    if cfg.targets == [ENVELOPES]:
+        return envelope_targets(run, grammar or cfg.grammar)
     train = list(cfg.targets)
     seen = {(name, cfg.seed + i) for i, name in enumerate(TRAIN_DATASETS)}
     if not cfg.targets and seen & set(VALIDATION.values()) and not cfg.validation:
@@ -277,7 +288,7 @@ def targets_stage(run: Run) -> dict[str, Any]:
             "choose another seed"
         )
     if not train:
-        count = 300 if cfg.budget >= 1800 else max(8, min(300, int(cfg.budget / 6)))
+        count = _train_count(cfg.budget)
         for i, name in enumerate(TRAIN_DATASETS):
             build_dataset(name, root / name, count=count, seed=cfg.seed + i, mirror=True)
             train.append(str(root / name))
@@ -286,23 +297,64 @@ def targets_stage(run: Run) -> dict[str, Any]:
         for name, (dataset, seed) in VALIDATION.items():
             build_dataset(dataset, root / f"val_{name}", count=VAL_COUNT, seed=seed)
             validation[name] = str(root / f"val_{name}")
-    return {"train": train, "validation": validation}
+    return {"train": train, "validation": validation, "kind": "given" if cfg.targets else "generic"}
+
+
+def _train_count(budget: float) -> int:
+    """Training targets built per set: 300 from a 30-minute budget, fewer below."""
+    return 300 if budget >= 1800 else max(8, min(300, int(budget / 6)))
+
+
+def envelope_targets(run: Run, grammar: str) -> dict[str, Any]:
+    """Envelopes of the grammar's forward samples (datasets/envelopes.py) under OUT/targets:
+    training (seed --seed, mirrored) and validation (ENVELOPE_VALIDATION's seed)."""
+    from ngpm_compiler.datasets.build import build_dataset
+
+    cfg, root = run.cfg, run.out / "targets"
+    if cfg.seed in {seed for _, seed in ENVELOPE_VALIDATION.values()}:
+        raise LearnError(
+            f"--seed {cfg.seed} would build training envelopes equal to the validation "
+            "envelopes; choose another seed"
+        )
+    count = _train_count(cfg.budget)
+    build_dataset(
+        ENVELOPES, root / ENVELOPES, count=count, seed=cfg.seed, mirror=True, grammar=grammar
+    )
+    validation = {}
+    for name, (dataset, seed) in ENVELOPE_VALIDATION.items():
+        build_dataset(dataset, root / f"val_{name}", count=VAL_COUNT, seed=seed, grammar=grammar)
+        validation[name] = str(root / f"val_{name}")
+    return {"train": [str(root / ENVELOPES)], "validation": validation, "kind": ENVELOPES}
+
+
+def targets_of(run: Run) -> dict[str, Any]:
+    """The targets the run trains and validates on: the `targets` stage's, or the
+    envelopes the `envelopes` stage switched to."""
+    stages = run.state["stages"]
+    switch = stages.get("envelopes")
+    if switch is not None and switch["result"]["switched"]:
+        return dict(switch["result"]["targets"])
+    return dict(stages["targets"]["result"])
 
 
 REACH_SHARE = 0.02  # of the budget the reachability runs may take
 
 
 def reach_stage(run: Run, d: dict[str, Any], train: str) -> dict[str, Any]:
+    """The reachability of the first training directory, with the warning line."""
+    r = reach_of(run, d, train)
+    return {
+        **asdict(r),
+        "low": r.low,
+        "warning": reach_line(r, Path(run.cfg.grammar).name) if r.low else None,
+    }
+
+
+def reach_of(run: Run, d: dict[str, Any], train: str) -> Any:
     """What unguided SMC reaches on a few training targets (evaluation/diagnose.py
-    reachability), with REACH_N particles or as many as fit REACH_SHARE of the budget; a
-    warning line when it is low (learn goes on: the warning says what to change)."""
-    from ngpm_compiler.evaluation.diagnose import (
-        REACH_N,
-        REACH_TARGETS,
-        TARGET_N,
-        reach_line,
-        reachability,
-    )
+    reachability), with REACH_N particles or as many as fit REACH_SHARE of the budget (the
+    stage's warning says what to change when it is low; learn goes on)."""
+    from ngpm_compiler.evaluation.diagnose import REACH_N, REACH_TARGETS, TARGET_N, reachability
     from ngpm_compiler.evaluation.heldout import load_sets
     from ngpm_compiler.language.compile import load_grammar
 
@@ -311,12 +363,39 @@ def reach_stage(run: Run, d: dict[str, Any], train: str) -> dict[str, Any]:
     fit = int(REACH_SHARE * run.cfg.budget / (REACH_TARGETS * per_run))
     n = max(10, min(REACH_N, fit))
     targets = load_sets({"train": train}, REACH_TARGETS, program)["train"]
-    r = reachability(program, targets, n, seed=run.cfg.seed)
-    return {
-        **asdict(r),
-        "low": r.low,
-        "warning": reach_line(r, Path(run.cfg.grammar).name) if r.low else None,
-    }
+    return reachability(program, targets, n, seed=run.cfg.seed)
+
+
+def envelopes_stage(run: Run, d: dict[str, Any], generic: dict[str, Any]) -> dict[str, Any]:
+    """After a low `reach` on the generic targets: build the grammar's envelopes, measure
+    what unguided SMC reaches on them, and switch training and validation to them when it
+    reaches more; the one-line reason (with both similarities) for the log and the report."""
+    from ngpm_compiler.datasets.common import DatasetError
+
+    name = Path(run.cfg.grammar).name
+    try:
+        targets = envelope_targets(run, d["grammar"])
+    except DatasetError as err:
+        line = f"{generic['warning']} (no envelopes of its own samples either: {err})"
+        return {"switched": False, "targets": None, "reach": None, "line": line}
+    r = reach_of(run, d, targets["train"][0])
+    switched = r.similarity > generic["similarity"]
+    seen = (
+        f"unguided SMC with {generic['n']} particles reaches similarity "
+        f"{generic['similarity']:.3f} on the generic training targets (below {REACH_LOW}) "
+        f"and {r.similarity:.3f} on envelopes of {name}'s own samples"
+    )
+    if switched:
+        line = (
+            f"targets: {seen}: training and validating on envelopes instead "
+            f"({run.out / 'targets'}; --targets DIR chooses others)"
+        )
+    else:
+        line = (
+            f"{generic['warning']} (envelopes of its own samples reach {r.similarity:.3f}, "
+            "no better: keeping the generic targets)"
+        )
+    return {"switched": switched, "targets": targets, "reach": asdict(r), "line": line}
 
 
 def measure_stage(
@@ -346,7 +425,7 @@ def measure_stage(
 
 def _costs(run: Run) -> Costs:
     c = run.state.get("costs", {})
-    sets = len(run.state["stages"]["targets"]["result"]["validation"])
+    sets = len(targets_of(run)["validation"])
     return Costs(
         unguided=float(c["unguided"]),
         guided=float(c.get("guided", 0.0)),
@@ -369,7 +448,7 @@ def measure_guided(run: Run, p: Plan) -> None:
     training times, into the run's costs."""
     r0 = run.state["stages"]["round_00"]["result"]
     d = run.state["stages"]["diagnose"]["result"]
-    train = run.state["stages"]["targets"]["result"]["train"]
+    train = targets_of(run)["train"]
     costs = run.state["costs"]
     costs["guided"] = measure_stage(run, d["grammar"], train[0], GUIDED_PARTICLES, r0["guide"])
     c = _costs(run)
@@ -479,7 +558,7 @@ def _rounds_config(run: Run, p: Plan, r: int) -> Any:
     """Round r's settings (its traces and teacher particles: Plan.round_settings)."""
     from ngpm_compiler.learning.rounds import RoundsConfig
 
-    t = run.state["stages"]["targets"]["result"]
+    t = targets_of(run)
     n, particles = p.round_settings(r) if r > 0 else (p.traces, p.guided_particles)
     return RoundsConfig(
         grammar=run.state["stages"]["diagnose"]["result"]["grammar"],
@@ -755,7 +834,7 @@ def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
     if not p.choice_temperatures or best is None:
         return None
     tuned = f"tuned{final_suffix(run)}.onnx"
-    t = run.state["stages"]["targets"]["result"]
+    t = targets_of(run)
     grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
     sites = load_grammar(grammar).sites
     if any(not KINDS[s.kind].continuous for s in sites):
@@ -790,7 +869,7 @@ def curve_stage(run: Run, p: Plan) -> list[dict[str, Any]]:
     from ngpm_compiler.evaluation.heldout import run_heldout
     from ngpm_compiler.evaluation.runs import summarize
 
-    t = run.state["stages"]["targets"]["result"]
+    t = targets_of(run)
     grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
     rows: dict[tuple[Any, ...], dict[str, Any]] = {}
     ns = sorted(set(p.curve_guided))
@@ -847,17 +926,34 @@ def learn(cfg: LearnConfig, log: Log = print) -> dict[str, Any]:
     return {"guide": guide, "report": str(report), "stopped": stopped, "state": run.state}
 
 
+def switch_targets(
+    run: Run, d: dict[str, Any], t: dict[str, Any], reach: dict[str, Any]
+) -> dict[str, Any]:
+    """The targets to go on with: the grammar's envelopes when the generic targets (built
+    without --targets) are out of reach and unguided SMC reaches the envelopes better, else
+    `t` with the reach warning shown. Decided before the first measurement only, so a run
+    resumed from an older learn.json does not change targets halfway."""
+    if not reach["warning"]:
+        return t
+    stages = run.state["stages"]
+    if t.get("kind", "generic") != "generic" or ("envelopes" not in stages and "measure" in stages):
+        run.log(reach["warning"])
+        return t
+    res = run.stage("envelopes", lambda: envelopes_stage(run, d, reach))
+    run.log(res["line"])
+    return targets_of(run)
+
+
 def _stages(run: Run) -> None:
     d = run.stage("diagnose", lambda: diagnose_stage(run))
     for line in d["lines"]:
         run.log(line)
     if d["viewport_proposed"]:
         run.log(f"grammar: {d['grammar']}, with the proposed viewport (use it with the guide)")
-    t = run.stage("targets", lambda: targets_stage(run))
+    t = run.stage("targets", lambda: targets_stage(run, d["grammar"]))
     if run.cfg.likelihood == "shape":
         reach = run.stage("reach", lambda: reach_stage(run, d, t["train"][0]))
-        if reach["warning"]:
-            run.log(reach["warning"])
+        t = switch_targets(run, d, t, reach)
     run.clock.check("measuring")
     small = run.cfg.budget < 120
     particles = MEASURE_SMALL if small else UNGUIDED_PARTICLES

@@ -73,8 +73,9 @@ def latest_plan(stages: dict[str, Any]) -> dict[str, Any] | None:
     return dict(p) if p is not None else None
 
 
-def reach_lines(diag: dict[str, Any] | None) -> list[str]:
-    """What unguided SMC reached on a few training targets (the `reach` stage)."""
+def reach_lines(diag: dict[str, Any] | None, warn: bool = True) -> list[str]:
+    """What unguided SMC reached on a few training targets (the `reach` stage); its warning
+    in bold when `warn` (not when the run switched to envelopes: their line says why)."""
     if not diag:
         return []
     line = (
@@ -82,7 +83,29 @@ def reach_lines(diag: dict[str, Any] | None) -> list[str]:
         f"similarity {diag['similarity']:.3f}; its best drawings cover {diag['drawn']:.0%} "
         f"of the canvas and {diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
     )
-    return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] else [])]
+    return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] and warn else [])]
+
+
+def _switched(stages: dict[str, Any]) -> bool:
+    return bool(((stages.get("envelopes") or {}).get("result") or {}).get("switched"))
+
+
+def targets_lines(stages: dict[str, Any]) -> list[str]:
+    """Which targets the run trained and validated on, and why envelopes when it switched
+    to them (the `envelopes` stage)."""
+    switch = (stages.get("envelopes") or {}).get("result")
+    t = (stages.get("targets") or {}).get("result")
+    if switch is not None and switch["switched"]:
+        t = switch["targets"]
+    if not t or t["train"] == [""]:
+        return []
+    val = ", ".join(f"{k} (`{Path(v).name}`)" for k, v in t["validation"].items())
+    train = ", ".join(f"`{Path(d).name}`" for d in t["train"])
+    return [
+        "",
+        f"Targets: training {train}; validation {val}.",
+        *(["", f"**{switch['line']}**"] if switch else []),
+    ]
 
 
 def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
@@ -248,7 +271,8 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Grammar",
         "",
         *(f"    {x}" for x in diag.get("lines", [])),
-        *reach_lines((stages.get("reach") or {}).get("result")),
+        *reach_lines((stages.get("reach") or {}).get("result"), not _switched(stages)),
+        *targets_lines(stages),
         "",
         "## Rounds",
         "",

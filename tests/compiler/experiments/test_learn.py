@@ -415,3 +415,76 @@ def test_a_grammar_that_cannot_reach_the_targets_warns_and_goes_on(tmp_path, tin
     report = Path(res["report"]).read_text()
     grammar_section = report.split("## Grammar")[1].split("## Rounds")[0]
     assert warning[0] in grammar_section
+
+
+BUSH = str(Path(CHAIN).with_name("bush.lsys"))
+
+
+def few_targets(monkeypatch) -> None:
+    """Small target sets, so that building them takes a moment."""
+    monkeypatch.setattr(learn_mod, "_train_count", lambda budget: 6)
+    monkeypatch.setattr(learn_mod, "VAL_COUNT", 3)
+
+
+def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch, tiny_plan):
+    """The bush (a bounded plant) cannot reach scribbles and varied strokes: without
+    --targets, learn trains and validates on envelopes of its own samples, says so in one
+    line and in the report, and a resumed run keeps them."""
+    few_targets(monkeypatch)
+    cfg = LearnConfig(grammar=BUSH, out=str(tmp_path / "out"), workers=1, progress=False)
+    logs: list[str] = []
+    res = learn(cfg, log=logs.append)
+    lines = [m for m in logs if m.startswith("targets: unguided SMC with ")]
+    assert len(lines) == 1 and "training and validating on envelopes instead" in lines[0]
+    assert not [m for m in logs if m.startswith("warning:")]
+    done = stages(tmp_path / "out")
+    switch = done["envelopes"]["result"]
+    assert switch["switched"] and done["reach"]["result"]["low"]
+    assert switch["reach"]["similarity"] > max(0.15, done["reach"]["result"]["similarity"])
+    assert list(switch["targets"]["validation"]) == ["envelopes"]
+    manifest = json.loads((tmp_path / "out/rounds/round_0/traces_0/manifest.json").read_text())
+    assert manifest["key"]["targets"][0] == "envelopes_0000"
+    for runs in ("rounds/validation/heldout.csv", "work/curve/heldout.csv"):
+        rows = (tmp_path / "out" / runs).read_text().splitlines()[1:]
+        assert rows and {r.split(",")[0] for r in rows} == {"envelopes"}
+    report = Path(res["report"]).read_text()
+    assert lines[0] in report and "validation envelopes (`val_envelopes`)" in report
+    logs.clear()
+    learn(cfg, log=logs.append)  # resumed: every stage done, the same targets
+    assert stages(tmp_path / "out") == done
+    assert any(m.startswith("targets: unguided SMC with ") for m in logs)
+
+
+def test_a_run_measured_before_the_switch_existed_keeps_its_targets(tmp_path):
+    """A learn.json whose reach was low but which went on measuring (made before envelopes
+    existed) is not switched halfway: the warning, and the same targets."""
+    run = _stage_run(tmp_path, 0)
+    run.state = {"stages": {"measure": {"seconds": 1.0, "result": 0.01}}}
+    logs: list[str] = []
+    run.log = logs.append
+    t = {"train": ["a"], "validation": {"varied": "b"}}
+    reach = {"warning": "warning: bush.lsys: unguided SMC ..."}
+    assert learn_mod.switch_targets(run, {"grammar": BUSH}, t, reach) is t
+    assert logs == [reach["warning"]] and "envelopes" not in run.state["stages"]
+
+
+def test_cli_learn_targets_envelopes_asks_for_them(tmp_path, capsys, monkeypatch, tiny_plan):
+    few_targets(monkeypatch)
+    out = tmp_path / "out"
+    argv = ["learn", BUSH, "-o", str(out), "--budget", "10m", "--targets", "envelopes"]
+    assert main([*argv, "--workers", "1"]) == 0
+    state = json.loads((out / "learn.json").read_text())
+    assert state["key"]["targets"] == ["envelopes"]
+    t = state["stages"]["targets"]["result"]
+    assert t["kind"] == "envelopes" and t["train"] == [str(out / "targets" / "envelopes")]
+    assert t["validation"] == {"envelopes": str(out / "targets" / "val_envelopes")}
+    assert "envelopes" not in state["stages"] and not state["stages"]["reach"]["result"]["low"]
+    assert main(["learn", BUSH, "-o", str(tmp_path / "o2"), "--targets", f"envelopes,{out}"])
+    assert "--targets envelopes takes no other folders" in capsys.readouterr().err
+
+
+def test_a_seed_that_would_train_on_the_validation_envelopes_is_refused(tmp_path):
+    run = _stage_run(tmp_path, learn_mod.ENVELOPE_VALIDATION["envelopes"][1])
+    run.cfg.targets = [learn_mod.ENVELOPES]
+    with pytest.raises(LearnError, match="validation envelopes; choose another seed"):
+        learn_mod.targets_stage(run, BUSH)
