@@ -147,10 +147,12 @@ def test_quick_tour_runs_scaled_down(tmp_path: Path, monkeypatch) -> None:
             ess=(None,),
             curve_guided=(1, 3),
             curve_unguided=(3, 10),
+            more=(),
         )
 
     monkeypatch.setattr(learn, "plan", tiny)
     monkeypatch.setattr(learn, "replan", lambda p, left, costs, trained: p)
+    monkeypatch.setattr(learn, "fill", lambda *args: None)  # no rounds added
 
     def smaller(argv: list[str]) -> list[str]:
         return argv + {"learn": ["--workers", "1"]}.get(argv[0], [])
