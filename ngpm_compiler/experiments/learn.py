@@ -51,6 +51,7 @@ from ngpm_compiler.evaluation.diagnose import REACH_LOW, reach_line
 from ngpm_compiler.experiments.learn_plan import (
     CURVE_REPEATS,
     GUIDED_PARTICLES,
+    MIN_TRACES,
     TRAIN_FIXED,
     TRAIN_SECONDS,
     UNGUIDED_PARTICLES,
@@ -60,8 +61,10 @@ from ngpm_compiler.experiments.learn_plan import (
     fill,
     plan,
     replan,
+    reserve_seconds,
     round_seconds,
     trace_allowance,
+    traces_that_fit,
     train_per_trace,
     validation_seconds,
 )
@@ -715,8 +718,7 @@ def _allowance(
         + costs.train * trained
         + validation_seconds(costs, rc.val_targets, rc.val_repeats)
     )
-    reserve = after + p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
-    return trace_allowance(planned, run.clock.left(), reserve)
+    return trace_allowance(planned, run.clock.left(), after + _reserve(run, p))
 
 
 def _rounds(run: Run) -> list[dict[str, Any]]:
@@ -745,23 +747,32 @@ def write_guide(run: Run) -> str | None:
 
 def run_rounds(run: Run, p: Plan) -> bool:
     """The guided rounds while the plan has them and the next one fits (its cost estimated
-    from the measured rounds, keeping tuning's and the curve's share); False when one was
-    skipped for want of time."""
-    reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    from the measured rounds, keeping tuning's and the curve's share); a round that does
+    not fit whole runs when MIN_TRACES of its traces fit (it stops recording at its share
+    of the budget, as any round does); False when one was skipped for want of time."""
     for r in range(1, p.last_round + 1):
         name = f"round_{r:02d}"
         if name not in run.state["stages"]:
+            room = run.clock.left() - _reserve(run, p)
             est = _next_round_estimate(run, p, r)
-            if est > run.clock.left() - reserve:
+            if est > room:
+                costs, val = _round_costs(run, p)
+                n, particles = p.round_settings(r)
+                fit = traces_that_fit(costs, particles, _rounds(run)[-1]["traces"], val, room)
+                if fit < MIN_TRACES:
+                    run.log(
+                        f"round {r}: skipped: it would take about {_minutes(est)}, "
+                        f"{_minutes(room)} are left before tuning"
+                    )
+                    run.state.setdefault("notes", []).append(
+                        f"round {r} skipped: estimated {_minutes(est)}, "
+                        f"{_minutes(room)} left before tuning and the curve"
+                    )
+                    return False
                 run.log(
-                    f"round {r}: skipped: it would take about {_minutes(est)}, "
-                    f"{_minutes(run.clock.left() - reserve)} are left before tuning"
+                    f"round {r}: about {min(fit, n)} of its {n} traces fit the "
+                    f"{_minutes(room)} left before tuning: it records until its share"
                 )
-                run.state.setdefault("notes", []).append(
-                    f"round {r} skipped: estimated {_minutes(est)}, "
-                    f"{_minutes(run.clock.left() - reserve)} left before tuning and the curve"
-                )
-                return False
         run.stage(name, lambda r=r: round_stage(run, p, r))
         write_guide(run)
     return True
@@ -792,12 +803,12 @@ def _fill_plan(run: Run, p: Plan) -> Plan | None:
     if p.rounds == 0 or _rounds(run)[-1]["round"] < p.last_round:
         return None  # round 0 alone was planned (no guided costs), or a round was skipped
     costs, val = _round_costs(run, p)
-    reserve = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
-    return fill(p, run.clock.left(), costs, _rounds(run)[-1]["traces"], val, reserve)
+    return fill(p, run.clock.left(), costs, _rounds(run)[-1]["traces"], val, _reserve(run, p))
 
 
 def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
-    """The costs the last rounds measured, and one round's validation seconds."""
+    """The costs the last rounds measured, and one round's validation seconds (a guided
+    round's validation also times the evaluation runs: round 0's includes start-up)."""
     rows = _rounds(run)
     last = rows[-1]
     costs = _costs(run)
@@ -808,7 +819,22 @@ def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
         train=train_per_trace(last["seconds"]["train"], last["traces"]),
     )
     val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
+    if last["round"] > 0 and last["seconds"]["validation"]:
+        runs = costs.sets * p.val_targets * p.val_repeats
+        costs = replace(costs, val_run=val * max(1, costs.workers) / max(1, runs))
     return costs, val
+
+
+def _reserve(run: Run, p: Plan) -> float:
+    """Seconds kept for tuning and the curve: the plan's estimates until a guided round
+    has measured them anew (learn_plan.reserve_seconds), then the smaller of the two."""
+    planned = p.estimates.get("tune", 0.0) + p.estimates.get("curve", 0.0)
+    rows = _rounds(run)
+    if not rows or rows[-1]["round"] == 0:
+        return planned
+    costs, val = _round_costs(run, p)
+    curve_done = any(k.startswith("curve") for k in run.state["stages"])
+    return min(planned, reserve_seconds(p, costs, val, curve_done))
 
 
 def _next_round_estimate(run: Run, p: Plan, r: int) -> float:

@@ -459,6 +459,28 @@ def fill(
     )
 
 
+def reserve_seconds(p: Plan, costs: Costs, val: float, curve_done: bool = False) -> float:
+    """Seconds to keep for tuning and the curve at the measured `costs` (`val`: one
+    round's validation seconds as the last round measured it; `curve_done`: the unguided
+    curve runs are cached). The plan's own estimates are made from round 0's validation,
+    whose first guided runs also load the guide and its kernels: 4x too high (bush: 267 s
+    planned for a tuning that took 20 s)."""
+    tune = len(p.choice_temperatures) * len(p.ess) * val
+    k, rep = p.val_targets, min(p.val_repeats, CURVE_REPEATS)
+    curve = STAGE_SECONDS * len(p.curve_guided) + costs.runs(k, rep, p.curve_guided, True)
+    if not curve_done:
+        curve += costs.runs(k, rep, p.curve_unguided, False)
+    return tune + curve
+
+
+def traces_that_fit(costs: Costs, particles: int, trained: int, val: float, room: float) -> int:
+    """Guided traces of `particles` particles one round can record in `room` seconds and
+    still train on them beside the `trained` traces before it and score its guide."""
+    per = costs.trace(particles, True) / max(1, costs.workers) + costs.train
+    left = room - TRAIN_FIXED - costs.train * trained - val
+    return max(0, int(left / per)) if per > 0 else 0
+
+
 def train_per_trace(seconds: float, traces: int) -> float:
     """Training seconds per trace from one training on `traces` traces that took `seconds`:
     what it took beyond TRAIN_FIXED, per trace (at least a twentieth of TRAIN_SECONDS); the

@@ -16,7 +16,7 @@ from fixtures.grammars import EXPLODING, EXPLODING_LINE, SPECK
 from ngpm_compiler.cli import main
 from ngpm_compiler.experiments import learn as learn_mod
 from ngpm_compiler.experiments.learn import BudgetSpent, LearnConfig, LearnError, learn
-from ngpm_compiler.experiments.learn_plan import Plan
+from ngpm_compiler.experiments.learn_plan import MIN_TRACES, Plan
 
 # a few seconds of work whatever the budget (the planner has its own tests): so that these
 # tests do not depend on the machine's speed, they run this plan under a budget of minutes
@@ -400,6 +400,26 @@ def test_time_left_after_the_planned_rounds_adds_a_round_with_a_stronger_teacher
     report = Path(res["report"]).read_text()
     assert "round 2: 4 traces with 12 particles" in report
     assert "- after round 1: one more" in report
+
+
+@pytest.mark.parametrize("fit", [MIN_TRACES, MIN_TRACES - 1])
+def test_a_round_too_long_for_the_time_left_runs_when_enough_of_its_traces_fit(
+    tmp_path, monkeypatch, tiny_plan, fit
+):
+    """A planned round estimated over the time left before tuning runs anyway (its traces
+    stop at their share) when MIN_TRACES of them fit; with fewer it is skipped."""
+    monkeypatch.setattr(learn_mod, "_next_round_estimate", lambda run, p, r: 1e9)
+    monkeypatch.setattr(learn_mod, "traces_that_fit", lambda *args: fit)
+    lines: list[str] = []
+    learn(small(tmp_path), log=lines.append)
+    st = stages(tmp_path / "out")
+    notes = json.loads((tmp_path / "out" / "learn.json").read_text()).get("notes", [])
+    if fit >= MIN_TRACES:
+        assert "round_01" in st
+        assert any("about 5 of its 5 traces fit" in m for m in lines)
+    else:
+        assert "round_01" not in st
+        assert any(n.startswith("round 1 skipped") for n in notes)
 
 
 def test_a_grammar_that_cannot_reach_the_targets_warns_and_goes_on(tmp_path, tiny_plan):

@@ -29,9 +29,11 @@ from ngpm_compiler.experiments.learn_plan import (
     parse_budget,
     plan,
     replan,
+    reserve_seconds,
     round_seconds,
     strong_rounds,
     trace_allowance,
+    traces_that_fit,
     train_per_trace,
 )
 
@@ -276,3 +278,27 @@ def test_fill_adds_the_strong_rounds_that_fit_after_the_last_round():
     assert q.estimates["more rounds"] <= 12 * 60 - 100
     assert q.reasons[-1].startswith(f"after round {p.last_round}: ")
     assert fill(p, 60, costs, 12000, 10.0, 100.0) is None
+
+
+def test_reserve_seconds_times_tuning_and_the_curve_at_the_measured_costs():
+    p = replan(plan(45 * 60, VINES), 40 * 60, VINES, 800)
+    grid = len(p.choice_temperatures) * len(p.ess)
+    assert grid > 0
+    full = reserve_seconds(p, VINES, 6.0)
+    assert reserve_seconds(p, VINES, 12.0) == pytest.approx(full + grid * 6.0)
+    cached = reserve_seconds(p, VINES, 6.0, curve_done=True)
+    assert 0 < cached < full  # the unguided curve runs are not counted again
+    assert reserve_seconds(replace(p, choice_temperatures=(), ess=()), VINES, 6.0) < full
+
+
+@pytest.mark.parametrize("room", [300.0, 900.0, 2400.0])
+def test_traces_that_fit_fill_the_room_and_no_more(room):
+    trained, val = 3000, 8.0
+    n = traces_that_fit(VINES, GUIDED_PARTICLES, trained, val, room)
+    assert n > 0
+    assert round_seconds(VINES, n, GUIDED_PARTICLES, True, trained + n, val) <= room
+    assert round_seconds(VINES, n + 1, GUIDED_PARTICLES, True, trained + n + 1, val) > room
+
+
+def test_no_traces_fit_a_room_smaller_than_training_and_validation():
+    assert traces_that_fit(VINES, GUIDED_PARTICLES, 3000, 8.0, TRAIN_FIXED) == 0
