@@ -708,16 +708,14 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
 def _allowance(
     run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]], teacher: str | None
 ) -> float:
-    """Seconds this round's traces may take (learn_plan.trace_allowance)."""
-    costs = _costs(run)
+    """Seconds this round's traces may take (learn_plan.trace_allowance), at the costs the
+    rounds so far measured (as the round's own estimate and the fill plan were made)."""
+    costs, val = _round_costs(run, p) if rows else (_costs(run), 0.0)
     particles = rc.particles if teacher else rc.unguided_particles
     planned = rc.n * costs.trace(particles, teacher is not None) / max(1, costs.workers)
     trained = (rows[-1]["traces"] if rows else 0) + rc.n
-    after = (
-        TRAIN_FIXED
-        + costs.train * trained
-        + validation_seconds(costs, rc.val_targets, rc.val_repeats)
-    )
+    val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
+    after = TRAIN_FIXED + costs.train * trained + val
     return trace_allowance(planned, run.clock.left(), after + _reserve(run, p))
 
 
