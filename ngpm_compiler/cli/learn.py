@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "unguided traces, train, run expert-iteration rounds with guided teachers, tune the "
         "best round, and write OUT/guide.onnx and OUT/report.md; the plan (traces, particles, "
         "rounds) fits --budget, and the run stops at it with the best guide so far. Run the "
-        "same command again to resume (a finished stage is skipped).",
+        "same command again to resume (a finished stage is skipped). A 3D grammar (a "
+        "'viewport:' box) learns on 3D targets (blobs3d and extruded).",
     )
     p.add_argument("grammar", help="the grammar's .lsys file")
     p.add_argument(
@@ -59,7 +60,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="training-target directories, comma-separated, or 'envelopes': filled "
         "silhouettes of the grammar's own samples, validated on other seeds' (default: build "
         "scribbles and varied strokes, and switch to envelopes when unguided SMC reaches "
-        "those too poorly; a folder named envelopes: ./envelopes)",
+        "those too poorly; a folder named envelopes: ./envelopes; a 3D grammar: 3D target "
+        "sets, default blobs3d and extruded)",
     )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")

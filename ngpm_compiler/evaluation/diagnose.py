@@ -404,6 +404,7 @@ def warning_lines(diag: Diagnosis) -> list[str]:
 # --------------------------------------------------------------------------- reachability
 
 REACH_N = 600  # particles of the reachability runs (round 0's teacher)
+REACH_N_3D = 100  # a 3D grammar's (3D runs cost more per particle; the 3D guide's teacher)
 REACH_TARGETS = 3  # training targets it runs on
 # below this mean similarity unguided SMC reaches the targets too poorly for a guide to learn
 # from: on learn's scribbles and varied targets ivy, lily and vines reach 0.3 and more at
@@ -414,7 +415,8 @@ REACH_LOW = 0.15
 @dataclass
 class Reach:
     """What unguided SMC reaches on a few targets: the best particle's similarity, and the
-    share of the canvas its drawing and the target's ink cover (means over the targets)."""
+    share of the canvas its drawing and the target's ink cover (means over the targets;
+    a 3D grammar's: of the box's voxels)."""
 
     n: int
     targets: list[str]
@@ -423,6 +425,7 @@ class Reach:
     ink: float  # share of the canvas the targets' ink covers
     covered: float  # share of the targets' ink the best particles draw on
     seconds: float
+    dim: int = 2
 
     @property
     def low(self) -> bool:
@@ -430,14 +433,16 @@ class Reach:
 
 
 def reachability(program: Program, targets: list[Any], n: int = REACH_N, seed: int = 0) -> Reach:
-    """Unguided SMC with n particles into each of `targets` (2D shape targets)."""
+    """Unguided SMC with n particles into each of `targets` (2D shape targets, or a 3D
+    grammar's VolumeTargets: the best tree's voxels against the occupancy)."""
     from ngpm_runtime.grow import grow
 
     sims, drawn, ink, covered = [], [], [], []
     t0 = time.perf_counter()
     for i, target in enumerate(targets):
         res = grow(program, target, None, n, seed + i)
-        img, mask = np.asarray(res.image) > 0, np.asarray(target.mask) > 0
+        ink_of = target.occupancy if program.dim == 3 else target.mask
+        img, mask = np.asarray(res.image) > 0, np.asarray(ink_of) > 0
         sims.append(res.similarity)
         drawn.append(float(img.mean()))
         ink.append(float(mask.mean()))
@@ -450,6 +455,7 @@ def reachability(program: Program, targets: list[Any], n: int = REACH_N, seed: i
         float(np.mean(ink)),
         float(np.mean(covered)),
         time.perf_counter() - t0,
+        program.dim,
     )
 
 
@@ -459,8 +465,27 @@ def reach_line(r: Reach, filename: str) -> str:
     head = (
         f"warning: {printable(filename)}: unguided SMC with {r.n} particles reaches similarity "
         f"{r.similarity:.3f} on {len(r.targets)} training targets (below {REACH_LOW}: too "
-        f"little for a guide to learn from): its best drawings cover {r.drawn:.0%} of the "
-        f"canvas and {r.covered:.0%} of the targets' ink, which covers {r.ink:.0%}"
+        "little for a guide to learn from): "
+    )
+    if r.dim == 3:
+        head += (
+            f"its best trees fill {r.drawn:.0%} of the box and {r.covered:.0%} of the targets' "
+            f"voxels, which fill {r.ink:.0%}"
+        )
+        if r.drawn < r.ink:
+            fix = (
+                "it grows too small or too little for these targets: fit the box ('viewport:') "
+                "to what it grows, lengthen the derivation, or train on other targets (--targets)"
+            )
+        else:
+            fix = (
+                "it grows over more than the targets hold: widen the box, grow thinner or "
+                "fewer branches, or train on fuller targets (--targets)"
+            )
+        return f"{head}; {fix}"
+    head += (
+        f"its best drawings cover {r.drawn:.0%} of the canvas and {r.covered:.0%} of the "
+        f"targets' ink, which covers {r.ink:.0%}"
     )
     if r.drawn < r.ink:
         fix = (

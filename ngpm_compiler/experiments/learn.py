@@ -1,5 +1,5 @@
 """`ngpmc learn`: the project's guide-training recipe (scripts/train_vines_guide.sh) as one
-resumable, budget-aware run for any 2D grammar.
+resumable, budget-aware run for any 2D or 3D grammar.
 
 Stages, each finished one recorded in OUT/learn.json (with its wall time) and skipped when
 the same command runs again: `diagnose` (evaluation/diagnose.py: refuse a grammar that
@@ -9,7 +9,7 @@ validation: varied and procedural shapes of other seeds; --targets envelopes: en
 of the grammar's own samples, datasets/envelopes.py), `reach` (what unguided SMC reaches on
 3 training targets: a warning when it is too little for a guide to learn from),
 `envelopes` (without --targets, after a low reach: training and validation switch to the
-grammar's envelopes when unguided SMC reaches them better), `measure` (two unguided trace
+grammar's envelopes when unguided SMC reaches them better; 2D only), `measure` (two unguided trace
 jobs per worker, run as the rounds run them: seconds per particle), `plan`
 (learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
 trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
@@ -29,6 +29,11 @@ Inside a stage the library's own resumption holds: trace shards, a training chec
 and the validation run cache, so Ctrl-C loses only the unfinished part. The budget counts
 the wall time of every run on OUT; past it the run stops at the next trace, epoch or
 stage, keeps the best finished round's guide, and writes the report.
+
+A 3D grammar (a `viewport:` box of six numbers) learns the same way into 3D target sets
+(datasets/sets3d.py): training on `blobs3d` and `extruded` targets, mirrored when built,
+validation on other seeds of both (never the held-out `revolved` set), features `all` (3D
+rows have no context group).
 
 Short traces are kept as data, as `ngpmc traces` and `iterate` keep them by default
 (learning/trace_jobs.MIN_PRIMITIVES: 1, not the paper's 10).
@@ -77,6 +82,10 @@ TRAIN_DATASETS = ("scribbles", "varied")
 # name: (dataset, seed); the seeds differ from the training sets' (cfg.seed + i), so the
 # validation targets are held out (targets_stage checks it)
 VALIDATION = {"varied": ("varied", 9001), "shapes": ("shapes", 9101)}
+# a 3D grammar's: features, training sets and validation sets (held out as above)
+FEATURES_3D = "all"
+TRAIN_DATASETS_3D = ("blobs3d", "extruded")
+VALIDATION_3D = {"blobs3d": ("blobs3d", 9001), "extruded": ("extruded", 9101)}
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
 # `--targets envelopes`: the grammar's own envelopes (datasets/envelopes.py), also chosen
 # when unguided SMC reaches the generic targets too poorly; validated on another seed's
@@ -225,8 +234,8 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
     cfg = run.cfg
     compiled = compile_grammar(Path(cfg.grammar), filename=cfg.grammar)
     program = compiled.program()
-    if program.dim != 2:
-        raise LearnError(f"{cfg.grammar}: a 3D grammar; ngpmc learn trains guides of 2D ones")
+    if program.dim == 3:
+        return _diagnose_3d(cfg, compiled, program)
     quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look (diagnose keeps
     # its forward samples' time cap at 8 s at least: a quick look refuses no grammar that ends)
     diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=3 * quick)
@@ -248,7 +257,49 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
         "viewport_proposed": proposed,
         "smc_seconds": diag.timing.seconds if diag.timing else None,
         "lines": sample_lines(diag),
+        "dim": 2,
     }
+
+
+def _diagnose_3d(cfg: LearnConfig, compiled: Any, program: Any) -> dict[str, Any]:
+    """diagnose_stage for a 3D grammar: its box (required: 3D targets are placed in it),
+    the shape likelihood, the forward samples' check; the grammar copied into OUT."""
+    from ngpm_compiler.evaluation.diagnose import diagnose, sample_lines
+
+    if cfg.likelihood != "shape":
+        raise LearnError(
+            f"{cfg.grammar}: a 3D grammar learns with the shape likelihood (voxels); "
+            f"--likelihood {cfg.likelihood} is for 2D grammars"
+        )
+    if cfg.targets == [ENVELOPES]:
+        raise LearnError(
+            f"{cfg.grammar}: --targets envelopes is for 2D grammars; give 3D target sets "
+            "(ngpmc targets build blobs3d ...) or none"
+        )
+    if program.box is None:
+        raise LearnError(
+            f"{cfg.grammar}: a 3D grammar needs its box to grow into targets: add a "
+            "'viewport: XMIN XMAX YMIN YMAX ZMIN ZMAX' line"
+        )
+    quick = min(1.0, cfg.budget / 600)
+    diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=0)
+    _refuse_exploding(cfg.grammar, diag)
+    grammar = Path(cfg.out) / Path(cfg.grammar).name
+    atomic_write(grammar, compiled.source_text.encode("utf-8"))
+    return {
+        "grammar": str(grammar),
+        "viewport_proposed": None,
+        "smc_seconds": None,
+        "lines": sample_lines(diag),
+        "dim": 3,
+    }
+
+
+def dim_of(run: Run) -> int:
+    """2 or 3: the grammar's dimension as the `diagnose` stage found it (2 before it, and in
+    a learn.json older than 3D learning)."""
+    done = run.state.get("stages", {}).get("diagnose")
+    return int(done["result"].get("dim", 2)) if done else 2
 
 
 def _refuse_exploding(filename: str, diag: Any) -> None:
@@ -283,21 +334,24 @@ def targets_stage(run: Run, grammar: str | None = None) -> dict[str, Any]:
         return {"train": [""], "validation": dict(CIRCUIT_SETS)}
     if cfg.targets == [ENVELOPES]:
         return envelope_targets(run, grammar or cfg.grammar)
+    three = dim_of(run) == 3
+    datasets = TRAIN_DATASETS_3D if three else TRAIN_DATASETS
+    val_sets = VALIDATION_3D if three else VALIDATION
     train = list(cfg.targets)
-    seen = {(name, cfg.seed + i) for i, name in enumerate(TRAIN_DATASETS)}
-    if not cfg.targets and seen & set(VALIDATION.values()) and not cfg.validation:
+    seen = {(name, cfg.seed + i) for i, name in enumerate(datasets)}
+    if not cfg.targets and seen & set(val_sets.values()) and not cfg.validation:
         raise LearnError(
             f"--seed {cfg.seed} would build training targets equal to the validation targets; "
             "choose another seed"
         )
     if not train:
         count = _train_count(cfg.budget)
-        for i, name in enumerate(TRAIN_DATASETS):
+        for i, name in enumerate(datasets):
             build_dataset(name, root / name, count=count, seed=cfg.seed + i, mirror=True)
             train.append(str(root / name))
     validation = dict(cfg.validation)
     if not validation:
-        for name, (dataset, seed) in VALIDATION.items():
+        for name, (dataset, seed) in val_sets.items():
             build_dataset(dataset, root / f"val_{name}", count=VAL_COUNT, seed=seed)
             validation[name] = str(root / f"val_{name}")
     return {"train": train, "validation": validation, "kind": "given" if cfg.targets else "generic"}
@@ -357,14 +411,20 @@ def reach_of(run: Run, d: dict[str, Any], train: str) -> Any:
     """What unguided SMC reaches on a few training targets (evaluation/diagnose.py
     reachability), with REACH_N particles or as many as fit REACH_SHARE of the budget (the
     stage's warning says what to change when it is low; learn goes on)."""
-    from ngpm_compiler.evaluation.diagnose import REACH_N, REACH_TARGETS, TARGET_N, reachability
+    from ngpm_compiler.evaluation.diagnose import (
+        REACH_N,
+        REACH_N_3D,
+        REACH_TARGETS,
+        TARGET_N,
+        reachability,
+    )
     from ngpm_compiler.evaluation.heldout import load_sets
     from ngpm_compiler.language.compile import load_grammar
 
     program = load_grammar(d["grammar"])
     per_run = (d["smc_seconds"] or 1.0) / TARGET_N  # seconds per particle
     fit = int(REACH_SHARE * run.cfg.budget / (REACH_TARGETS * per_run))
-    n = max(10, min(REACH_N, fit))
+    n = max(10, min(REACH_N_3D if program.dim == 3 else REACH_N, fit))
     targets = load_sets({"train": train}, REACH_TARGETS, program)["train"]
     return reachability(program, targets, n, seed=run.cfg.seed)
 
@@ -418,7 +478,7 @@ def measure_stage(
         workers=run.cfg.workers,
         min_primitives=MIN_PRIMITIVES,
         guide=guide,
-        **_trace_options(run.cfg.likelihood),
+        **_trace_options(run.cfg.likelihood, dim_of(run)),
     )
     out = run.out / "measure" / ("guided" if guide else "unguided")
     m = generate_traces(tc, out, progress=False, on_job=lambda _j: run.clock.check("measuring"))
@@ -574,17 +634,17 @@ def _rounds_config(run: Run, p: Plan, r: int) -> Any:
         unguided_particles=p.unguided_particles,
         val_targets=p.val_targets,
         val_repeats=p.val_repeats,
-        feature_set=FEATURES,
+        feature_set=FEATURES_3D if dim_of(run) == 3 else FEATURES,
         workers=run.cfg.workers,
         seed=run.cfg.seed,
         likelihood=run.cfg.likelihood,
     )
 
 
-def _trace_options(likelihood: str) -> dict[str, Any]:
-    """TraceConfig's likelihood and mirroring: shape targets get mirrored copies, the
-    circuit likelihood has no targets to mirror."""
-    return {"likelihood": likelihood, "mirror": likelihood == "shape"}
+def _trace_options(likelihood: str, dim: int) -> dict[str, Any]:
+    """TraceConfig's likelihood and mirroring: 2D shape targets get mirrored copies, the
+    circuit likelihood has no targets to mirror, and 3D sets are mirrored when built."""
+    return {"likelihood": likelihood, "mirror": likelihood == "shape" and dim == 2}
 
 
 def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tuple[list[str], float]:
@@ -614,7 +674,7 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
             workers=rc.workers,
             min_primitives=MIN_PRIMITIVES,
             guide=teacher,
-            **_trace_options(rc.likelihood),
+            **_trace_options(rc.likelihood, dim_of(run)),
         )
         try:
             m = generate_traces(
@@ -960,7 +1020,8 @@ def switch_targets(
     if not reach["warning"]:
         return t
     stages = run.state["stages"]
-    if t.get("kind", "generic") != "generic" or ("envelopes" not in stages and "measure" in stages):
+    old = "envelopes" not in stages and "measure" in stages
+    if t.get("kind", "generic") != "generic" or old or dim_of(run) == 3:
         run.log(reach["warning"])
         return t
     res = run.stage("envelopes", lambda: envelopes_stage(run, d, reach))

@@ -80,9 +80,18 @@ def reach_lines(diag: dict[str, Any] | None, warn: bool = True) -> list[str]:
         return []
     line = (
         f"unguided SMC, {diag['n']} particles, on {len(diag['targets'])} training targets: "
-        f"similarity {diag['similarity']:.3f}; its best drawings cover {diag['drawn']:.0%} "
-        f"of the canvas and {diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
+        f"similarity {diag['similarity']:.3f}; "
     )
+    if diag.get("dim", 2) == 3:
+        line += (
+            f"its best trees fill {diag['drawn']:.0%} of the box and {diag['covered']:.0%} "
+            f"of the targets' voxels ({diag['ink']:.0%})"
+        )
+    else:
+        line += (
+            f"its best drawings cover {diag['drawn']:.0%} of the canvas and "
+            f"{diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
+        )
     return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] and warn else [])]
 
 
@@ -307,10 +316,18 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Notes",
         "",
         *(f"- {n}" for n in state.get("notes", [])),
-        "- features all+context, 4 mixture components, early stopping (patience 4 epochs); "
-        "traces whose best particle drew fewer than 10 primitives are kept as data",
+        f"- features {_features(stages)}, 4 mixture components, early stopping (patience 4 "
+        "epochs); traces whose best particle drew fewer than 10 primitives are kept as data",
     ]
     return atomic_write(out / "report.md", "\n".join(lines) + "\n")
+
+
+def _features(stages: dict[str, Any]) -> str:
+    """The feature set the rounds trained with (a 3D grammar's rows have no context)."""
+    from ngpm_compiler.experiments.learn import FEATURES, FEATURES_3D
+
+    dim = ((stages.get("diagnose") or {}).get("result") or {}).get("dim", 2)
+    return FEATURES_3D if dim == 3 else FEATURES
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fixtures.datasets import make_dataset
 from fixtures.grammars import BOUNDED, EXPLODING, EXPLODING_LINE, LOOP, REACHES_BARS, SPECK
@@ -14,6 +15,7 @@ from repo_paths import REPO
 from ngpm_compiler.evaluation.diagnose import (
     REACH_LOW,
     RUNAWAY,
+    Reach,
     diagnose,
     forward_samples,
     mean_matrix,
@@ -181,6 +183,28 @@ def test_a_grammar_that_cannot_reach_the_targets_is_low_and_says_why(tmp_path):
     assert line.startswith("warning: speck.lsys: unguided SMC with 10 particles reaches ")
     assert "draws too small or too little" in line and "\n" not in line
     assert f"cover {r.drawn:.0%} of the canvas and {r.covered:.0%} of the targets' ink" in line
+
+
+def test_a_3d_grammar_reaches_voxels_and_its_warning_speaks_of_the_box():
+    """reachability of a 3D grammar into VolumeTargets compares the best tree's voxels with
+    the occupancy; the warning names the box and its fix."""
+    from ngpm_runtime.volume.target import VolumeTarget
+
+    program = load_grammar(str(REPO / "grammars" / "topiary3d.lsys"))
+    occ = np.zeros((16, 16, 16), bool)
+    occ[4:12, 2:14, 4:12] = True
+    lo, hi = np.array(program.box[::2]), np.array(program.box[1::2])
+    voxel = float((hi - lo).max()) / 16
+    target = VolumeTarget(occ, lo, voxel, np.array([0.0, lo[1], 0.0]), name="block")
+    r = reachability(program, [target], n=4)
+    assert r.dim == 3 and r.targets == ["block"] and 0 < r.drawn < 1
+    assert r.ink == pytest.approx(occ.mean()) and 0 <= r.covered <= 1
+    small = Reach(100, ["a"], 0.05, 0.02, 0.2, 0.05, 1.0, dim=3)
+    line = reach_line(small, "shrub.lsys")
+    assert "its best trees fill 2% of the box and 5% of the targets' voxels, which fill 20%" in line
+    assert "grows too small" in line and "'viewport:'" in line and "\n" not in line
+    big = Reach(100, ["a"], 0.05, 0.5, 0.2, 0.9, 1.0, dim=3)
+    assert "grows over more than the targets hold" in reach_line(big, "shrub.lsys")
 
 
 def test_a_grammar_that_reaches_the_targets_is_not_low(tmp_path):

@@ -508,3 +508,67 @@ def test_a_seed_that_would_train_on_the_validation_envelopes_is_refused(tmp_path
     run.cfg.targets = [learn_mod.ENVELOPES]
     with pytest.raises(LearnError, match="validation envelopes; choose another seed"):
         learn_mod.targets_stage(run, BUSH)
+
+
+SHRUB3D = """\
+# a small 3D shrub: each bud grows on and forks, or ends in a ball of foliage
+derivation length: 4
+viewport: -12 12 0 24 -12 12
+Axiom: !(1.2) A
+A --> F(4) /(gauss(0, 60)) [&(gauss(35, 10)) A] A : 0.5
+A --> F(3) @O(uniform(1.5, 4)) : 0.5
+"""
+
+
+def test_cli_learn_a_3d_grammar_learns_on_3d_targets(tmp_path, capsys, monkeypatch, tiny_plan):
+    """A 3D grammar learns as a 2D one does, on 3D target sets built for it (blobs3d and
+    extruded, validation of other seeds), with the 3D features (no context group); the
+    reach line speaks of the box, and the guide grows into a 3D target."""
+    from ngpm_runtime.inference.guide import Guide
+
+    from ngpm_compiler.language.compile import load_grammar
+
+    few_targets(monkeypatch)
+    grammar = tmp_path / "shrub3d.lsys"
+    grammar.write_text(SHRUB3D)
+    out = tmp_path / "out"
+    assert main(["learn", str(grammar), "-o", str(out), "--budget", "10m", "--workers", "1"]) == 0
+    onnx.checker.check_model(onnx.load(str(out / "guide.onnx")))
+    done = stages(out)
+    assert "round_01" in done and "tune" in done and "curve" in done
+    assert done["diagnose"]["result"]["dim"] == 3
+    t = done["targets"]["result"]
+    assert [Path(d).name for d in t["train"]] == ["blobs3d", "extruded"]
+    assert sorted(t["validation"]) == ["blobs3d", "extruded"]
+    assert "envelopes" not in done and done["reach"]["result"]["dim"] == 3
+    key = json.loads((out / "rounds/round_0/traces_0/manifest.json").read_text())["key"]
+    assert key["targets"][0].startswith("blobs3d_") and not key["mirror"]
+    program = load_grammar(str(grammar))
+    assert Guide.load(out / "guide.onnx", program).feature_set == "all"
+    report = (out / "report.md").read_text()
+    assert "of the box" in report and "- features all," in report
+    target = next((out / "targets" / "val_blobs3d").glob("*.npz"))
+    tree = tmp_path / "tree.glb"
+    args = ["grow", str(target), "--grammar", str(grammar), "--guide", str(out / "guide.onnx")]
+    assert main([*args, "-N", "3", "-o", str(tree)]) == 0
+    assert tree.read_bytes()[:4] == b"glTF"
+
+
+@pytest.mark.parametrize(
+    ("text", "extra", "message"),
+    [
+        (SHRUB3D, ["--likelihood", "circuit"], "a 3D grammar learns with the shape likelihood"),
+        (SHRUB3D, ["--targets", "envelopes"], "--targets envelopes is for 2D grammars"),
+        (
+            SHRUB3D.replace("viewport: -12 12 0 24 -12 12\n", "dimensions: 3\n"),
+            [],
+            "a 3D grammar needs its box to grow into targets",
+        ),
+    ],
+)
+def test_a_3d_grammar_it_cannot_learn_for_is_one_line(tmp_path, capsys, text, extra, message):
+    grammar = tmp_path / "shrub3d.lsys"
+    grammar.write_text(text)
+    assert main(["learn", str(grammar), "-o", str(tmp_path / "out"), *extra]) == 1
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
