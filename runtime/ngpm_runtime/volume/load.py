@@ -237,6 +237,11 @@ def load_volume_dataset(
         raise VolumeError(
             f"dataset {directory} is incomplete (interrupted build); run the same build again"
         )
+    if any(f.suffix.lower() != ".npz" for f in files):
+        raise VolumeError(
+            f"{directory} is a set of pictures, not of 3D targets: a 3D grammar grows into "
+            "3D target sets (`ngpmc targets build blobs3d -o DIR`, docs/3d.md)"
+        )
     targets = [VolumeTarget.from_npz(f) for f in files]
     if program is None:
         return targets

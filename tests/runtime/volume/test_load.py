@@ -206,6 +206,10 @@ def test_load_volume_dataset(tmp_path):
     (tmp_path / "index.json").write_text('{"files": ["a.npz"], "complete": false}')
     with pytest.raises(VolumeError, match="incomplete"):
         load_volume_dataset(tmp_path)
+    # a set of pictures (a 2D dataset's index) is named as such, not read as .npz files
+    (tmp_path / "index.json").write_text('{"files": ["a.npz", "b.png"], "complete": true}')
+    with pytest.raises(VolumeError, match="is a set of pictures, not of 3D targets"):
+        load_volume_dataset(tmp_path)
 
 
 def test_auto_start_takes_the_largest_part_bottom_middle():
