@@ -459,42 +459,36 @@ def reachability(program: Program, targets: list[Any], n: int = REACH_N, seed: i
     )
 
 
+# the words of the reach warning: 2D (canvas, ink) and 3D (box, voxels)
+_REACH_WORDS = {
+    2: {
+        "seen": "its best drawings cover {drawn:.0%} of the canvas and {covered:.0%} of the "
+        "targets' ink, which covers {ink:.0%}",
+        "small": "it draws too small or too little for these targets: fit the viewport to what "
+        "it draws, lengthen the derivation, or train on targets of its size (--targets)",
+        "big": "it draws over more than the targets hold: widen the viewport, draw thinner or "
+        "fewer strokes, or train on fuller targets (--targets)",
+    },
+    3: {
+        "seen": "its best trees fill {drawn:.0%} of the box and {covered:.0%} of the targets' "
+        "voxels, which fill {ink:.0%}",
+        "small": "it grows too small or too little for these targets: fit the box "
+        "('viewport:') to what it grows, lengthen the derivation, or train on other targets "
+        "(--targets)",
+        "big": "it grows over more than the targets hold: widen the box, grow thinner or fewer "
+        "branches, or train on fuller targets (--targets)",
+    },
+}
+
+
 def reach_line(r: Reach, filename: str) -> str:
     """The one-line warning for a grammar unguided SMC reaches the targets poorly with: the
     cause in numbers and what to change."""
-    head = (
+    words = _REACH_WORDS[r.dim]
+    seen = words["seen"].format(drawn=r.drawn, covered=r.covered, ink=r.ink)
+    fix = words["small"] if r.drawn < r.ink else words["big"]
+    return (
         f"warning: {printable(filename)}: unguided SMC with {r.n} particles reaches similarity "
         f"{r.similarity:.3f} on {len(r.targets)} training targets (below {REACH_LOW}: too "
-        "little for a guide to learn from): "
+        f"little for a guide to learn from): {seen}; {fix}"
     )
-    if r.dim == 3:
-        head += (
-            f"its best trees fill {r.drawn:.0%} of the box and {r.covered:.0%} of the targets' "
-            f"voxels, which fill {r.ink:.0%}"
-        )
-        if r.drawn < r.ink:
-            fix = (
-                "it grows too small or too little for these targets: fit the box ('viewport:') "
-                "to what it grows, lengthen the derivation, or train on other targets (--targets)"
-            )
-        else:
-            fix = (
-                "it grows over more than the targets hold: widen the box, grow thinner or "
-                "fewer branches, or train on fuller targets (--targets)"
-            )
-        return f"{head}; {fix}"
-    head += (
-        f"its best drawings cover {r.drawn:.0%} of the canvas and {r.covered:.0%} of the "
-        f"targets' ink, which covers {r.ink:.0%}"
-    )
-    if r.drawn < r.ink:
-        fix = (
-            "it draws too small or too little for these targets: fit the viewport to what it "
-            "draws, lengthen the derivation, or train on targets of its size (--targets)"
-        )
-    else:
-        fix = (
-            "it draws over more than the targets hold: widen the viewport, draw thinner or "
-            "fewer strokes, or train on fuller targets (--targets)"
-        )
-    return f"{head}; {fix}"

@@ -235,7 +235,7 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
     compiled = compile_grammar(Path(cfg.grammar), filename=cfg.grammar)
     program = compiled.program()
     if program.dim == 3:
-        return _diagnose_3d(cfg, compiled, program)
+        _check_3d(cfg, program)
     quick = min(1.0, cfg.budget / 600)  # a tiny budget gets a quicker look (diagnose keeps
     # its forward samples' time cap at 8 s at least: a quick look refuses no grammar that ends)
     diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=3 * quick)
@@ -257,15 +257,13 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
         "viewport_proposed": proposed,
         "smc_seconds": diag.timing.seconds if diag.timing else None,
         "lines": sample_lines(diag),
-        "dim": 2,
+        "dim": program.dim,
     }
 
 
-def _diagnose_3d(cfg: LearnConfig, compiled: Any, program: Any) -> dict[str, Any]:
-    """diagnose_stage for a 3D grammar: its box (required: 3D targets are placed in it),
-    the shape likelihood, the forward samples' check; the grammar copied into OUT."""
-    from ngpm_compiler.evaluation.diagnose import diagnose, sample_lines
-
+def _check_3d(cfg: LearnConfig, program: Any) -> None:
+    """LearnError for what a 3D grammar cannot learn with: another likelihood than the
+    shape (voxels), envelopes, or no box to place 3D targets in."""
     if cfg.likelihood != "shape":
         raise LearnError(
             f"{cfg.grammar}: a 3D grammar learns with the shape likelihood (voxels); "
@@ -281,18 +279,6 @@ def _diagnose_3d(cfg: LearnConfig, compiled: Any, program: Any) -> dict[str, Any
             f"{cfg.grammar}: a 3D grammar needs its box to grow into targets: add a "
             "'viewport: XMIN XMAX YMIN YMAX ZMIN ZMAX' line"
         )
-    quick = min(1.0, cfg.budget / 600)
-    diag = diagnose(compiled, samples=40, seed=cfg.seed, budget=2 * quick, time_smc=0)
-    _refuse_exploding(cfg.grammar, diag)
-    grammar = Path(cfg.out) / Path(cfg.grammar).name
-    atomic_write(grammar, compiled.source_text.encode("utf-8"))
-    return {
-        "grammar": str(grammar),
-        "viewport_proposed": None,
-        "smc_seconds": None,
-        "lines": sample_lines(diag),
-        "dim": 3,
-    }
 
 
 def dim_of(run: Run) -> int:
