@@ -102,6 +102,7 @@ def proposal_draw(
     site: Site, args: np.ndarray, params: np.ndarray, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
     """`proposal_sample` and `proposal_logpdf` of the drawn values in one pass: returns
-    (values, log q). The log q values equal `proposal_logpdf(site, args, params, values)`."""
+    (values, log q). The log q values equal `proposal_logpdf(site, args, params, values)` (to
+    rounding: the kernel's log and exp may round a last bit apart from numpy's)."""
     kind, args = _check_args(site, args)
     return kind.proposal_draw(args, params, rng)

@@ -166,7 +166,8 @@ def test_prior_draw_log_density_matches_prior_logpdf() -> None:
 
 
 def test_proposal_draw_log_q_equals_proposal_logpdf() -> None:
-    """The fused draw returns exactly the proposal density of its own values."""
+    """The fused draw returns the proposal density of its own values (the compiled kernel
+    and numpy's logpdf may round a last bit apart, as LLVM's and numpy's log/exp do)."""
     r = rng(3)
     n = 40
     k3 = 3  # mixture components
@@ -184,7 +185,7 @@ def test_proposal_draw_log_q_equals_proposal_logpdf() -> None:
     for site, args, params in cases:
         values, log_q = proposal_draw(site, args, params, rng(7))
         want = proposal_logpdf(site, args, params, values)
-        np.testing.assert_array_equal(log_q, want)
+        np.testing.assert_allclose(log_q, want, rtol=1e-13, atol=1e-13)
         assert np.isfinite(log_q).all()
         # the same values as proposal_sample from the same generator state
         np.testing.assert_array_equal(values, proposal_sample(site, args, params, rng(7)))
