@@ -55,6 +55,8 @@ from ngpm_runtime.files import atomic_write
 from ngpm_compiler.evaluation.diagnose import REACH_LOW, reach_line
 from ngpm_compiler.experiments.learn_plan import (
     CURVE_REPEATS,
+    FEATURES,
+    FEATURES_3D,
     GUIDED_PARTICLES,
     MIN_TRACES,
     TRAIN_FIXED,
@@ -77,13 +79,11 @@ from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
 from ngpm_compiler.progress import Log
 
 STATE_FORMAT = "ngpm-learn/1"
-FEATURES = "all+context"
 TRAIN_DATASETS = ("scribbles", "varied")
 # name: (dataset, seed); the seeds differ from the training sets' (cfg.seed + i), so the
 # validation targets are held out (targets_stage checks it)
 VALIDATION = {"varied": ("varied", 9001), "shapes": ("shapes", 9101)}
-# a 3D grammar's: features, training sets and validation sets (held out as above)
-FEATURES_3D = "all"
+# a 3D grammar's training and validation sets (held out as above)
 TRAIN_DATASETS_3D = ("blobs3d", "extruded")
 VALIDATION_3D = {"blobs3d": ("blobs3d", 9001), "extruded": ("extruded", 9101)}
 VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
