@@ -56,7 +56,6 @@ from ngpm_compiler.evaluation.diagnose import REACH_LOW, reach_line
 from ngpm_compiler.experiments.learn_plan import (
     CURVE_REPEATS,
     FEATURES,
-    FEATURES_3D,
     GUIDED_PARTICLES,
     MIN_TRACES,
     TRAIN_FIXED,
@@ -620,7 +619,7 @@ def _rounds_config(run: Run, p: Plan, r: int) -> Any:
         unguided_particles=p.unguided_particles,
         val_targets=p.val_targets,
         val_repeats=p.val_repeats,
-        feature_set=FEATURES_3D if dim_of(run) == 3 else FEATURES,
+        feature_set=FEATURES[dim_of(run)],
         workers=run.cfg.workers,
         seed=run.cfg.seed,
         likelihood=run.cfg.likelihood,

@@ -25,8 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-FEATURES = "all+context"  # the guides' feature set
-FEATURES_3D = "all"  # a 3D grammar's (3D rows have no context group)
+FEATURES = {2: "all+context", 3: "all"}  # the guides' feature set (3D rows have no context)
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
 MIN_PARTICLES = 20

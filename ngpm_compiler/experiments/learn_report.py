@@ -12,7 +12,7 @@ from typing import Any
 from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.evaluation.runs import UNGUIDED, n_to_match
-from ngpm_compiler.experiments.learn_plan import FEATURES, FEATURES_3D
+from ngpm_compiler.experiments.learn_plan import FEATURES
 
 NOT_TUNED = "Not tuned (no grid in the plan, or no budget left)."
 
@@ -325,8 +325,7 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
 
 def _features(stages: dict[str, Any]) -> str:
     """The feature set the rounds trained with (a 3D grammar's rows have no context)."""
-    dim = ((stages.get("diagnose") or {}).get("result") or {}).get("dim", 2)
-    return FEATURES_3D if dim == 3 else FEATURES
+    return FEATURES[((stages.get("diagnose") or {}).get("result") or {}).get("dim", 2)]
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:
