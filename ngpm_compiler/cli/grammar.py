@@ -181,7 +181,12 @@ def reach_check(filename: str, diag: Any, folder: str) -> list[str]:
     line, and the warning when low)."""
     from dataclasses import replace
 
-    from ngpm_compiler.evaluation.diagnose import REACH_TARGETS, reach_line, reachability
+    from ngpm_compiler.evaluation.diagnose import (
+        REACH_TARGETS,
+        reach_line,
+        reach_seen,
+        reachability,
+    )
     from ngpm_compiler.evaluation.heldout import load_sets
 
     program = diag.program
@@ -199,8 +204,7 @@ def reach_check(filename: str, diag: Any, folder: str) -> list[str]:
     r = reachability(program, targets)
     out = [
         f"unguided SMC, {r.n} particles, on {len(targets)} targets of {printable(folder)}: "
-        f"similarity {r.similarity:.3f}; its best drawings cover {r.drawn:.0%} of the canvas "
-        f"and {r.covered:.0%} of the targets' ink ({r.ink:.0%})"
+        f"similarity {r.similarity:.3f}; {reach_seen(r.drawn, r.covered, r.ink, r.dim)}"
     ]
     return [*out, reach_line(r, filename)] if r.low else out
 

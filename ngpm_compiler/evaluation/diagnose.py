@@ -481,14 +481,20 @@ _REACH_WORDS = {
 }
 
 
+def reach_seen(drawn: float, covered: float, ink: float, dim: int = 2) -> str:
+    """'its best drawings cover ...': what the best particles and the targets cover, in the
+    words of the grammar's dimension (canvas and ink, or box and voxels)."""
+    return _REACH_WORDS[dim]["seen"].format(drawn=drawn, covered=covered, ink=ink)
+
+
 def reach_line(r: Reach, filename: str) -> str:
     """The one-line warning for a grammar unguided SMC reaches the targets poorly with: the
     cause in numbers and what to change."""
     words = _REACH_WORDS[r.dim]
-    seen = words["seen"].format(drawn=r.drawn, covered=r.covered, ink=r.ink)
     fix = words["small"] if r.drawn < r.ink else words["big"]
     return (
         f"warning: {printable(filename)}: unguided SMC with {r.n} particles reaches similarity "
         f"{r.similarity:.3f} on {len(r.targets)} training targets (below {REACH_LOW}: too "
-        f"little for a guide to learn from): {seen}; {fix}"
+        f"little for a guide to learn from): {reach_seen(r.drawn, r.covered, r.ink, r.dim)}; "
+        f"{fix}"
     )

@@ -11,6 +11,7 @@ from typing import Any
 
 from ngpm_runtime.files import atomic_write
 
+from ngpm_compiler.evaluation.diagnose import reach_seen
 from ngpm_compiler.evaluation.runs import UNGUIDED, n_to_match
 from ngpm_compiler.experiments.learn_plan import FEATURES
 
@@ -82,17 +83,8 @@ def reach_lines(diag: dict[str, Any] | None, warn: bool = True) -> list[str]:
     line = (
         f"unguided SMC, {diag['n']} particles, on {len(diag['targets'])} training targets: "
         f"similarity {diag['similarity']:.3f}; "
+        f"{reach_seen(diag['drawn'], diag['covered'], diag['ink'], diag.get('dim', 2))}"
     )
-    if diag.get("dim", 2) == 3:
-        line += (
-            f"its best trees fill {diag['drawn']:.0%} of the box and {diag['covered']:.0%} "
-            f"of the targets' voxels ({diag['ink']:.0%})"
-        )
-    else:
-        line += (
-            f"its best drawings cover {diag['drawn']:.0%} of the canvas and "
-            f"{diag['covered']:.0%} of the targets' ink ({diag['ink']:.0%})"
-        )
     return ["", line, *(["", f"**{diag['warning']}**"] if diag["warning"] and warn else [])]
 
 
