@@ -9,8 +9,9 @@ A round with features or a RoundProposal packs its particles' state in one pass 
 unpacks it with one kernel call into the run's arrays (`_round_rows`, `_Buffers`).
 Particles are served in index order. Then the new primitives are rasterized, the likelihood
 increments applied and, every step or when the ESS drops below `ess_threshold * N`, the
-particles are resampled. Weights carry `log prior - log q` of every site, so any proposal
-gives a correct answer.
+particles are resampled (in between, once some have finished, a live particle with a
+negligible share of the weight plays Russian roulette: `Population.roulette`). Weights
+carry `log prior - log q` of every site, so any proposal gives a correct answer.
 
 The parts: `smc()` checks its `SMCOptions` and builds a `_Run`; `_Run.step` derives
 (`_derive`), serves the waiting sites (`_serve`, `_weigh`), rasterizes and applies the
@@ -177,6 +178,14 @@ class SMCResult:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+# a live particle's share of the weight below which it plays Russian roulette
+# (Population.roulette); this small, it changed no run of the bundled guides but the
+# runaways' (docs/results, "Circuits")
+NEGLIGIBLE_LIVE = 1e-100
+LOG_NEGLIGIBLE_LIVE = math.log(NEGLIGIBLE_LIVE)
+_ROULETTE_STREAM = 0x524F55  # the roulette's random stream, beside the run's
+
+
 def _logsumexp(a: np.ndarray) -> float:
     m = float(np.max(a))
     if not math.isfinite(m):
@@ -285,6 +294,24 @@ class Population:
                 parts[i].status = "dead"
         self.live = [i for i in self.live if parts[i].status == "live"]
 
+    def roulette(self, rng: np.random.Generator, log_share: float = LOG_NEGLIGIBLE_LIVE) -> None:
+        """Russian roulette for the live particles whose share of the total weight is below
+        exp(log_share) (NEGLIGIBLE_LIVE): each stays with probability share / exp(log_share),
+        its weight then raised to that share, else its weight becomes zero (it is dead).
+        Exact in expectation, and every other particle stays as it is. `step` runs it once
+        some particles have finished, when resampling waits for a low ESS: a particle that
+        ran away (far worse than the rest, growing to a cap) kept the run going for
+        thousands of steps after the others had finished."""
+        live = self.live
+        log_w = self.log_w
+        cut = _logsumexp(log_w) + log_share
+        idx = np.asarray(live, dtype=np.intp)
+        low = idx[log_w[idx] < cut]
+        if not len(low):
+            return
+        keep = np.log(rng.random(len(low))) < log_w[low] - cut
+        log_w[low] = np.where(keep, cut, -np.inf)
+
     def take(self, anc: np.ndarray) -> None:
         """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
         self.parts, self.live = _take_particles(self.parts, anc)
@@ -311,6 +338,8 @@ class _Run:
         self.trace = options.trace
         self.observers = observers
         self.rng = np.random.Generator(np.random.PCG64(options.seed))
+        self.seed = options.seed
+        self._roulette: np.random.Generator | None = None
         self.proposal: Proposal = PriorProposal() if proposal is None else proposal
         self.is_prior = type(self.proposal) is PriorProposal
         self.batched = isinstance(self.proposal, RoundProposal)
@@ -425,11 +454,22 @@ class _Run:
                 f"every particle's weight is zero after step {self.steps} "
                 f"({self.n} particles, program {self.program.name})"
             )
+        if ess_threshold is not None and len(pop.live) < self.n:
+            pop.roulette(self._roulette_rng)
         pop.update_live()
         ess = _ess(pop.log_w)
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
             self._resample()
+
+    @property
+    def _roulette_rng(self) -> np.random.Generator:
+        """The roulette's own random stream (from the run's seed), made when first needed:
+        the draws of every other particle stay those of a run without it."""
+        if self._roulette is None:
+            seq = np.random.SeedSequence([self.seed, _ROULETTE_STREAM])
+            self._roulette = np.random.Generator(np.random.PCG64(seq))
+        return self._roulette
 
     def _step_done(self, drawn: list[int]) -> None:
         state, parts = self.state, self.pop.parts

@@ -20,6 +20,7 @@ from ngpm_runtime.inference.smc import (
     replay,
     smc,
 )
+from ngpm_runtime.program import Site
 
 
 def disk_mask(size: int = 50) -> np.ndarray:
@@ -539,3 +540,54 @@ def test_a_program_without_sites_records_full_traces() -> None:
     r = smc(prog, None, 3, options=SMCOptions(trace=TraceRecording.FULL, canvas_size=(8, 8)))
     assert all(p.trace == [] and len(p.primitives) == 3 for p in r.particles)
     assert replay(prog, []).primitives == r.particles[0].primitives
+
+
+def test_roulette_is_exact_in_expectation() -> None:
+    """A live particle below the share plays Russian roulette: it stays with probability
+    share / threshold at the threshold's weight, else it is dead; the others stay as they
+    are, and its expected weight is what it was."""
+    from ngpm_runtime.inference.smc import Population
+
+    rng = np.random.default_rng(0)
+    kept = []
+    for _ in range(20000):
+        pop = Population([None, None, None])  # type: ignore[list-item]  # weights only
+        pop.live = [1, 2]
+        pop.log_w[:] = [0.0, -0.5, -5.0]  # particle 2's share 0.0037, below 0.01
+        pop.roulette(rng, np.log(0.01))
+        assert pop.log_w[0] == 0.0 and pop.log_w[1] == -0.5
+        kept.append(np.exp(pop.log_w[2]))
+    kept_a = np.array(kept)
+    assert 0.3 < (kept_a > 0).mean() < 0.45  # stays with probability share / 0.01
+    assert abs(kept_a.mean() / np.exp(-5.0) - 1) < 0.05
+
+
+def test_a_runaway_particle_does_not_hold_up_the_run() -> None:
+    """Resampling at a low ESS only: a particle that goes on drawing long after the others
+    finished, its weight negligible (1e-100 of the total), is dropped by the roulette; it
+    used to keep the run going to its cap (a circuit run: 5000 steps instead of ~250)."""
+    sites = [Site(index=0, id="A/choice", kind="categorical", k=2, probs=(0.5, 0.5), module="A")]
+
+    def produce_a(ctx):
+        return [("F", 1.0)] if ctx.choose(0, (0.5, 0.5)) == 0 else [("F", 1.0), ("B", 0.0)]
+
+    def produce_b(ctx, k):
+        return [("F", 1.0), ("B", k + 1)] if k < 300 else []
+
+    class PerPrimitive(Likelihood):  # -300 per primitive: the long ones fall behind fast
+        needs_canvas = False
+
+        def start(self, n):
+            return {}
+
+        def increment(self, state, canvas, draw):
+            return np.full(len(draw.idx), -300.0)
+
+    prog = make_program({"A": produce_a, "B": produce_b}, sites=sites)
+    r = smc(prog, PerPrimitive(), 8, options=SMCOptions(seed=3, ess_threshold=0.01))
+    lengths = sorted(len(p.primitives) for p in r.particles)
+    assert lengths[0] == 1 and r.steps <= 4  # without the roulette: 302 steps
+    assert {p.status for p in r.particles} == {"done", "dead"} and r.info["resamples"] == 0
+    assert r.best.primitives and len(r.best.primitives) == 1
+    again = smc(prog, PerPrimitive(), 8, options=SMCOptions(seed=3, ess_threshold=0.01))
+    assert np.array_equal(r.log_weights, again.log_weights)  # seeded: the same
