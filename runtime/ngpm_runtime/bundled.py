@@ -7,7 +7,8 @@ Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the re
   `ngpmc compile grammars/vines.lsys -o runtime/ngpm_runtime/data`
 - `vines_guide.onnx`: `bash scripts/train_vines_guide.sh work/vines`, then copied here
 - `vines_circuit_guide.onnx` (the vines guide for the circuit likelihood):
-  `bash scripts/train_circuit_guide.sh work/circuit`, then copied here
+  `bash scripts/train_circuit_guide.sh work/circuit` (`ngpmc learn --likelihood circuit`),
+  then `work/circuit/guide.onnx` copied here
 - `topiary3d_sampler.py`, `topiary3d_sites.json`:
   `ngpmc compile grammars/topiary3d.lsys -o runtime/ngpm_runtime/data`
 - `topiary3d_guide.onnx`: `bash scripts/train_topiary3d_guide.sh work/topiary3d`, then
