@@ -299,18 +299,20 @@ class Population:
         exp(log_share) (NEGLIGIBLE_LIVE): each stays with probability share / exp(log_share),
         its weight then raised to that share, else its weight becomes zero (it is dead).
         Exact in expectation, and every other particle stays as it is. `step` runs it once
-        some particles have finished, when resampling waits for a low ESS: a particle that
+        some particles have stopped, when resampling waits for a low ESS: a particle that
         ran away (far worse than the rest, growing to a cap) kept the run going for
         thousands of steps after the others had finished."""
-        live = self.live
         log_w = self.log_w
         cut = _logsumexp(log_w) + log_share
-        idx = np.asarray(live, dtype=np.intp)
+        idx = np.asarray(self.live, dtype=np.intp)
         low = idx[log_w[idx] < cut]
         if not len(low):
             return
         keep = np.log(rng.random(len(low))) < log_w[low] - cut
         log_w[low] = np.where(keep, cut, -np.inf)
+        for i in low[~keep].tolist():
+            self.parts[i].status = "dead"
+        self.live = [i for i in self.live if self.parts[i].status == "live"]
 
     def take(self, anc: np.ndarray) -> None:
         """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
@@ -454,9 +456,9 @@ class _Run:
                 f"every particle's weight is zero after step {self.steps} "
                 f"({self.n} particles, program {self.program.name})"
             )
-        if ess_threshold is not None and len(pop.live) < self.n:
-            pop.roulette(self._roulette_rng)
         pop.update_live()
+        if ess_threshold is not None and 0 < len(pop.live) < self.n:
+            pop.roulette(self._roulette_rng)
         ess = _ess(pop.log_w)
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):

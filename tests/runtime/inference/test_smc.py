@@ -546,17 +546,20 @@ def test_roulette_is_exact_in_expectation() -> None:
     """A live particle below the share plays Russian roulette: it stays with probability
     share / threshold at the threshold's weight, else it is dead; the others stay as they
     are, and its expected weight is what it was."""
+    from ngpm_runtime.geometry.derive import Particle
     from ngpm_runtime.inference.smc import Population
 
     rng = np.random.default_rng(0)
     kept = []
     for _ in range(20000):
-        pop = Population([None, None, None])  # type: ignore[list-item]  # weights only
+        pop = Population([Particle(None, (0.0, 0.0, 0.0, 1.0)) for _ in range(3)])
         pop.live = [1, 2]
         pop.log_w[:] = [0.0, -0.5, -5.0]  # particle 2's share 0.0037, below 0.01
         pop.roulette(rng, np.log(0.01))
         assert pop.log_w[0] == 0.0 and pop.log_w[1] == -0.5
         kept.append(np.exp(pop.log_w[2]))
+        assert pop.live == ([1, 2] if kept[-1] else [1])
+        assert pop.parts[2].status == ("live" if kept[-1] else "dead")
     kept_a = np.array(kept)
     assert 0.3 < (kept_a > 0).mean() < 0.45  # stays with probability share / 0.01
     assert abs(kept_a.mean() / np.exp(-5.0) - 1) < 0.05
