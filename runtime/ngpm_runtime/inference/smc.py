@@ -179,8 +179,8 @@ class SMCResult:
 
 
 # a live particle's share of the weight below which it plays Russian roulette
-# (Population.roulette); this small, it changed no run of the bundled guides but the
-# runaways' (docs/results, "Circuits")
+# (Population.roulette); this small, it changed none of 48 held-out runs of the bundled
+# vines guide (docs/results, "Circuits")
 NEGLIGIBLE_LIVE = 1e-100
 LOG_NEGLIGIBLE_LIVE = math.log(NEGLIGIBLE_LIVE)
 _ROULETTE_STREAM = 0x524F55  # the roulette's random stream, beside the run's
@@ -467,7 +467,7 @@ class _Run:
     @property
     def _roulette_rng(self) -> np.random.Generator:
         """The roulette's own random stream (from the run's seed), made when first needed:
-        the draws of every other particle stay those of a run without it."""
+        the run's stream is not drawn from (a run changes only once a particle is dropped)."""
         if self._roulette is None:
             seq = np.random.SeedSequence([self.seed, _ROULETTE_STREAM])
             self._roulette = np.random.Generator(np.random.PCG64(seq))
