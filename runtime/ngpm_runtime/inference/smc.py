@@ -310,9 +310,8 @@ class Population:
             return
         keep = np.log(rng.random(len(low))) < log_w[low] - cut
         log_w[low] = np.where(keep, cut, -np.inf)
-        for i in low[~keep].tolist():
-            self.parts[i].status = "dead"
-        self.live = [i for i in self.live if self.parts[i].status == "live"]
+        if not keep.all():
+            self.update_live()  # the dropped ones: dead, out of `live`
 
     def take(self, anc: np.ndarray) -> None:
         """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
