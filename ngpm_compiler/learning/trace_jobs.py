@@ -170,16 +170,19 @@ def run_job(
     return trace, len(best.primitives)
 
 
-def site_layouts(program: Program, target: Any = None) -> dict[int, dict[str, slice]]:
+def site_layouts(
+    program: Program, target: Any = None, window: str | None = None
+) -> dict[int, dict[str, slice]]:
     """FeatureMaker.layout for every site (traces record the context group too); a 3D
-    grammar's: FeatureMaker3D.layout on the target's grid (its context group empty)."""
+    grammar's: FeatureMaker3D.layout on the target's grid with `window` (None: the
+    default; its context group empty)."""
     from ngpm_runtime.image.features import FeatureMaker
 
     if program.dim == 3:
-        from ngpm_runtime.volume.features import FeatureMaker3D
+        from ngpm_runtime.volume.features import DEFAULT_WINDOW, FeatureMaker3D
         from ngpm_runtime.volume.raster import VoxelGrid
 
-        fm3 = FeatureMaker3D(program, VoxelGrid.of_target(target))
+        fm3 = FeatureMaker3D(program, VoxelGrid.of_target(target), window=window or DEFAULT_WINDOW)
         out = {s.index: fm3.layout(s) for s in program.sites}
         for lay in out.values():  # every traces manifest has the group: empty in 3D
             lay["context"] = slice(lay["partial"].stop, lay["partial"].stop)

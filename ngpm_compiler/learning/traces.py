@@ -84,7 +84,9 @@ class TraceConfig:
     sigma: float | None = None  # a 3D grammar's voxel likelihood sigma (None: 0.02)
 
 
-def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> dict[str, Any]:
+def _config_key(
+    cfg: TraceConfig, program: Program, targets: list[Target], window: str | None = None
+) -> dict[str, Any]:
     """What a traces directory's jobs depend on; a rerun with another key is refused."""
     return {
         "grammar_hash": program.grammar_hash,
@@ -101,6 +103,8 @@ def _config_key(cfg: TraceConfig, program: Program, targets: list[Target]) -> di
         # option still resume
         **({"likelihood": cfg.likelihood} if cfg.likelihood != "shape" else {}),
         **({"sigma": cfg.sigma} if cfg.sigma is not None else {}),
+        # a 3D grammar's window, once windows turned with the turtle (volume/features.py)
+        **({"window": window} if window == "frame" else {}),
     }
 
 
@@ -200,13 +204,18 @@ def generate_traces(
             f"--sigma {cfg.sigma}: a positive sigma of a 3D grammar's voxel likelihood "
             f"({cfg.grammar} is {program.dim}D)"
         )
+    window = None  # a 3D teacher's window is the one its traces record
     if cfg.guide is not None:  # a guide that does not load or fit: one error, before workers
-        backends.load_guide(cfg.guide, program)
+        window = backends.load_guide(cfg.guide, program).feature_window
     targets = trace_targets(cfg, program)
-    layouts = site_layouts(program, targets[0])
+    if program.dim == 3 and window is None:
+        from ngpm_runtime.volume.features import DEFAULT_WINDOW
+
+        window = DEFAULT_WINDOW
+    layouts = site_layouts(program, targets[0], window)
     store = TraceStore(out_dir, layout_widths(layouts))
     store.dir.mkdir(parents=True, exist_ok=True)
-    key = _config_key(cfg, program, targets)
+    key = _config_key(cfg, program, targets, window)
     old = store.manifest()
     if old is not None and old.get("key") != key:
         theirs = old.get("key", {})

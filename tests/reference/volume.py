@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 from ngpm_runtime.geometry.turtle import Prim
-from ngpm_runtime.volume.features import N_LOCAL_BASE
+from ngpm_runtime.volume.features import FRAME_WINDOWS, N_LOCAL_BASE
 from ngpm_runtime.volume.kernels import BOUNDS_SCALE, EPS
 from ngpm_runtime.volume.raster import MIN_RADIUS, N_LEVELS, VoxelGrid, volume_pyramid
 
@@ -203,6 +203,13 @@ def _unit(a: float) -> float:
     return -10.0 if a != a else min(max(a, -10.0), 10.0)
 
 
+def _frame_cell(base, o, t, a, scale, size) -> int:
+    """The cell along axis a of the point o[0] H + o[1] L + o[2] U cells from `base`."""
+    v = base + (o[0] * t[3 + a] + o[1] * t[6 + a] + o[2] * t[9 + a]) * scale
+    v = -2.0 if v != v else v
+    return int(min(max(math.floor(v), -2.0), size + 1.0))
+
+
 def feature_rows(fm, voxels, turtles, depths, target_occupancy) -> np.ndarray:
     """FeatureMaker3D's common columns of particles with canvases `voxels` (n, ...) from
     scratch (no canvas: None)."""
@@ -223,8 +230,14 @@ def feature_rows(fm, voxels, turtles, depths, target_occupancy) -> np.ndarray:
             cell = [
                 int(min(max(math.floor(u[a] * size[a]), -2.0), size[a] + 1.0)) for a in range(3)
             ]
+            side = ext[0] / size[0]
             for q, o in enumerate(offs):
                 at = tuple(cell[a] + o[a] for a in range(3))
+                if fm.window in FRAME_WINDOWS:  # o[0] H + o[1] L + o[2] U, in cells
+                    at = tuple(
+                        _frame_cell(u[a] * size[a], o, t, a, side * size[a] / ext[a], size[a])
+                        for a in range(3)
+                    )
                 inside = all(0 <= at[a] < size[a] for a in range(3))
                 col = N_LOCAL_BASE + len(offs) * lv + q
                 out[k, col] = 0.0 if tl is None else (tl[lv][at] if inside else -1.0)

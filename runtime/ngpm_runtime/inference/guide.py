@@ -141,6 +141,12 @@ class Guide:
         self.feature_set: str = meta["features"]["feature_set"]
         self.uses_features = self.feature_set != "const"
         self.feature_context = "context" in self.feature_set.split("+")
+        # a 3D guide's window (volume/features.py: its layouts say which); None in 2D
+        self.feature_window: str | None = None
+        if program.dim == 3:
+            from ngpm_runtime.volume.features import window_of
+
+            self.feature_window = window_of(meta["features"]["layouts"])
         self.K = int(meta["K"])
         self.training: dict[str, Any] = meta["training"]
         self.fallback_sites: list[int] = [

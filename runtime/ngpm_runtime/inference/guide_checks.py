@@ -32,7 +32,8 @@ MAX_K = 1000  # mixture components
 MAX_WEIGHT = 1e12  # |float parameter|; export's are far smaller (inputs scale by <= 1e6)
 MAX_INT = 1_000_000  # |integer constant|: column indices and widths
 JSON_KEYS = ("sites", "features", "nets", "training")
-GROUPS = ("local", "target", "partial", "context")
+# "frame": an empty group, the mark of 3D windows that turn with the turtle (volume/features)
+GROUPS = ("local", "target", "partial", "frame", "context")
 # the operators `ngpmc export` writes; all cost linear time
 GUIDE_OPS = frozenset(
     {

@@ -421,8 +421,9 @@ class _Run:
                 self.trim = N_CONTEXT
 
     def _make_volume(self, options: SMCOptions, need_features: bool) -> None:
-        """A 3D grammar's voxel canvas and FeatureMaker3D (volume/run.py); they have the
-        interface of the 2D ones that the run uses."""
+        """A 3D grammar's voxel canvas and FeatureMaker3D (volume/run.py) with the guide's
+        window (a proposal without one: the default); they have the interface of the 2D
+        ones that the run uses."""
         from ngpm_runtime.volume.run import canvas_and_features
 
         canvas, fmaker = canvas_and_features(
@@ -432,6 +433,7 @@ class _Run:
             options.volume,
             need_features,
             options.target_mask,
+            getattr(self.proposal, "feature_window", None),
         )
         self.canvas, self.fmaker = cast(Any, canvas), cast(Any, fmaker)
 

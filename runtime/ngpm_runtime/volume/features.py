@@ -8,10 +8,14 @@ depth / derivation_length] + module parameters (site.arity) + prior arguments
 target. The turtle's voxel at a level of size (sx, sy, sz) is floor(u * s) per axis, with u
 its position in the grid scaled to [0, 1].
 
-Two windows: "cube", the 3x3x3 cells (27 per level, 2 x 27 x 4 = 216 columns), and
-"cross", the cell and its 6 face neighbours (7 per level, 56 columns), which costs about a
-quarter of the window work and of the network's first layer (`python benchmarks/smc3d.py
---features`).
+Windows: "cube", the 3x3x3 cells (27 per level, 2 x 27 x 4 = 216 columns) on the grid's
+axes; "frame" (the default), 3x3x3 cells that turn with the turtle: the cell holding the
+point a H + b L + c U cells of the level from the turtle, for a, b, c in -1, 0, 1 (so
+"the target lies to my left" is one column whatever the turtle's heading); and "cross", the
+cell and its 6 face neighbours (7 per level, 56 columns), which costs about a quarter of
+the window work and of the network's first layer (`python benchmarks/smc3d.py
+--features`). A guide's layouts name a frame window by an empty `frame` group (a guide
+without it reads "cube" windows, as every guide before "frame" did).
 """
 
 from __future__ import annotations
@@ -33,8 +37,10 @@ _CROSS = np.array(
     [(-1, 0, 0), (0, -1, 0), (0, 0, -1), (0, 0, 0), (0, 0, 1), (0, 1, 0), (1, 0, 0)],
     dtype=np.int64,
 )
-WINDOWS = {"cube": _CUBE, "cross": _CROSS}
-DEFAULT_WINDOW = "cube"
+WINDOWS = {"cube": _CUBE, "cross": _CROSS, "frame": _CUBE}
+FRAME_WINDOWS = ("frame",)  # windows that turn with the turtle (offsets along H, L, U)
+DEFAULT_WINDOW = "frame"  # what new traces record; a guide's layouts name its own
+OLD_WINDOW = "cube"  # a guide whose layouts name no window reads these (made before "frame")
 _NO_TARGET = np.zeros(0, dtype=np.float32)
 _NO_VOXELS = np.zeros((0, 1, 1, 1), dtype=np.uint8)
 _NO_COUNTS = np.zeros((0, 0), dtype=np.uint16)
@@ -192,6 +198,7 @@ class FeatureMaker3D:
             self._geom,
             self.sizes,
             self.offs,
+            self.window in FRAME_WINDOWS,
             self.tstart,
             self.target_flat,
             vox,
@@ -255,19 +262,30 @@ class FeatureMaker3D:
 
 
 def layout3d(site: Site, window: str = DEFAULT_WINDOW) -> dict[str, slice]:
-    """Column ranges of a site's feature groups (local, target, partial) with `window`."""
+    """Column ranges of a site's feature groups (local, target, partial) with `window`; a
+    window that turns with the turtle adds the empty group `frame` (its mark)."""
     nl = FeatureMaker3D.n_local(site)
     nw = len(WINDOWS[window]) * N_LEVELS
-    return {
+    out = {
         "local": slice(0, nl),
         "target": slice(nl, nl + nw),
         "partial": slice(nl + nw, nl + 2 * nw),
     }
+    if window in FRAME_WINDOWS:
+        out["frame"] = slice(nl + 2 * nw, nl + 2 * nw)
+    return out
+
+
+def window_of(layouts: Any) -> str:
+    """The window stored layouts ({site: {group: range}}) were made with: "frame" when they
+    carry its mark, else the windows every guide read before it (OLD_WINDOW)."""
+    marked = [isinstance(lay, dict) and "frame" in lay for lay in dict(layouts).values()]
+    return "frame" if any(marked) else OLD_WINDOW
 
 
 def check_guide_layouts(path: str, meta: dict[str, Any], program: Program) -> None:
     """GuideError unless a guide's stored feature layouts are the ones a 3D run computes
-    (the default window's; 3D rows have no context group)."""
+    (with the window they name; 3D rows have no context group)."""
     features = meta["features"]
     if "context" in str(features["feature_set"]).split("+"):
         raise GuideError(
@@ -275,11 +293,12 @@ def check_guide_layouts(path: str, meta: dict[str, Any], program: Program) -> No
             f"{program.name} is a 3D grammar (train it with --features all)"
         )
     stored = features["layouts"]
+    window = window_of(stored)
     for site in program.sites:
         lay = stored.get(str(site.index))
         if lay is None:
             continue
-        ours = {g: [sl.start, sl.stop] for g, sl in layout3d(site).items()}
+        ours = {g: [sl.start, sl.stop] for g, sl in layout3d(site, window).items()}
         theirs = {g: [int(v) for v in lay[g]] for g in lay if g != "context"}
         if theirs != ours:
             raise GuideError(

@@ -367,6 +367,7 @@ def volume_features(
     geom: np.ndarray,
     sizes: np.ndarray,
     offs: np.ndarray,
+    frame: bool,
     tstart: np.ndarray,
     target: np.ndarray,
     vox: np.ndarray,
@@ -375,7 +376,9 @@ def volume_features(
 ) -> None:
     """FeatureMaker3D's site-independent columns of n particles into out (n, n_common)
     float32: position (3), H, L, U (9), width, depth / derivation length, then the target's
-    and the canvas's windows (offsets offs (K, 3)) at the levels sizes (L, 3).
+    and the canvas's windows (offsets offs (K, 3)) at the levels sizes (L, 3). With `frame`
+    an offset (a, b, c) is a*H + b*L + c*U cells of the level (a cell's x side long) from
+    the turtle's point, and reads the cell it falls in.
 
     turtle (n, 13): x, y, z, H, L, U, width; geom = (lo x, lo y, lo z, extent x, y, z,
     derivation length); target: its levels one after another (level lv at tstart[lv];
@@ -388,6 +391,7 @@ def volume_features(
     have_t, have_c = target.shape[0] > 0, vox.shape[0] > 0
     u = np.empty(3)
     cell = np.empty(3, dtype=np.int64)
+    fcell = np.empty(3, dtype=np.int64)
     for k in range(n):
         for a in range(3):
             u[a] = (turtle[k, a] - geom[a]) / geom[3 + a]
@@ -406,8 +410,20 @@ def volume_features(
                 s = float(sizes[lv, a])
                 cell[a] = int(_min(_max(math.floor(u[a] * s), -2.0), s + 1.0))
             scale = np.float32(1.0 / 8.0**lv)
+            side = geom[3] / sizes[lv, 0]  # a cell's x side, world units
             for q in range(nk):
-                i, j, c = cell[0] + offs[q, 0], cell[1] + offs[q, 1], cell[2] + offs[q, 2]
+                if frame:
+                    for a in range(3):
+                        s = float(sizes[lv, a])
+                        d = offs[q, 0] * turtle[k, 3 + a] + offs[q, 1] * turtle[k, 6 + a]
+                        scale_a = side * s / geom[3 + a]
+                        v = u[a] * s + (d + offs[q, 2] * turtle[k, 9 + a]) * scale_a
+                        if v != v:
+                            v = -2.0
+                        fcell[a] = int(_min(_max(math.floor(v), -2.0), s + 1.0))
+                    i, j, c = fcell[0], fcell[1], fcell[2]
+                else:
+                    i, j, c = cell[0] + offs[q, 0], cell[1] + offs[q, 1], cell[2] + offs[q, 2]
                 col = nl + nk * lv + q
                 if not (0 <= i < sx and 0 <= j < sy and 0 <= c < sz):
                     out[k, col] = -1.0 if have_t else 0.0

@@ -8,7 +8,7 @@ from typing import Any
 from ngpm_runtime.errors import ProgramError, printable
 from ngpm_runtime.inference.likelihood import SHAPE_SIGMA
 from ngpm_runtime.program import Program
-from ngpm_runtime.volume.features import FeatureMaker3D
+from ngpm_runtime.volume.features import DEFAULT_WINDOW, FeatureMaker3D
 from ngpm_runtime.volume.likelihood import VoxelLikelihood, check_box
 from ngpm_runtime.volume.raster import VoxelCanvas, VoxelGrid
 
@@ -40,10 +40,12 @@ def canvas_and_features(
     volume: Any,
     need_features: bool,
     target_mask: Any = None,
+    window: str | None = None,
 ) -> tuple[VoxelCanvas | None, FeatureMaker3D | None]:
     """smc()'s canvas and feature maker for a 3D grammar. The likelihood: None, one that
     needs no canvas (it gets PrimBatches), or a VoxelLikelihood; `volume` (a VolumeTarget,
-    optional) is what the features' target windows read (default: the likelihood's)."""
+    optional) is what the features' target windows read (default: the likelihood's);
+    `window` the features' window (volume/features.py; None: the default)."""
     name = printable(program.name)
     if target_mask is not None:
         raise ProgramError(
@@ -63,7 +65,7 @@ def canvas_and_features(
         return canvas, None
     if volume is None and isinstance(likelihood, VoxelLikelihood):
         volume = likelihood.source
-    return canvas, FeatureMaker3D(program, grid, volume)
+    return canvas, FeatureMaker3D(program, grid, volume, window=window or DEFAULT_WINDOW)
 
 
 def start_pose(program: Program, target: Any) -> tuple[float, float, float, float]:

@@ -105,3 +105,25 @@ def test_traces_sigma_is_recorded_in_the_key_and_is_3d_only(tmp_path: Path, pipe
     with pytest.raises(NgpmError, match="3D grammar") as err:
         generate_traces(TraceConfig(vines, str(data), 2, 4, workers=1, sigma=0.05), tmp_path / "v")
     assert "\n" not in str(err.value)
+
+
+def test_new_3d_traces_and_guides_read_frame_windows(pipeline: Path) -> None:
+    """Traces recorded now read windows that turn with the turtle: the manifest's key and
+    layouts say so, the guide trained on them reads them in SMC; a guide whose layouts
+    lack the mark (the bundled topiary3d's, made before) keeps reading cube windows."""
+    from ngpm_runtime import bundled
+    from ngpm_runtime.inference.guide import Guide
+    from ngpm_runtime.volume.run import canvas_and_features
+    from ngpm_runtime.volume.target import VolumeTarget
+
+    program = load_grammar(TOPIARY)
+    manifest = json.loads((pipeline / "traces" / "manifest.json").read_text())
+    assert manifest["key"]["window"] == "frame"
+    assert all("frame" in lay for lay in manifest["layouts"].values())
+    guide = Guide.load(pipeline / "g.onnx", program)
+    assert guide.feature_window == "frame"
+    assert bundled.bundled_guide3d().feature_window == "cube"
+    target = VolumeTarget.from_npz(pipeline / "set" / "blobs3d_0000.npz")
+    for window in (guide.feature_window, "cube"):
+        _, fm = canvas_and_features(program, None, 2, target, True, None, window)
+        assert fm is not None and fm.window == window

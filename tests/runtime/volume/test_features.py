@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from fixtures.volume3d import GRID, ball_target, random_prim3
 from ngpm_runtime.program import Program, Site
-from ngpm_runtime.volume.features import WINDOWS, FeatureMaker3D
+from ngpm_runtime.volume.features import WINDOWS, FeatureMaker3D, layout3d, window_of
 from ngpm_runtime.volume.raster import VoxelCanvas
 from reference import volume as ref
 
@@ -120,3 +120,46 @@ def test_rows_from_equal_features_round_per_site() -> None:
     got = fm.rows_from(canvas, idx, rows, depths, extra, n_extra)
     np.testing.assert_array_equal(got[:4, : fm.n_features(SITE)], want[0])
     np.testing.assert_array_equal(got[4:, : fm.n_features(other)], want[1])
+
+
+@pytest.mark.parametrize(
+    "frame", [((1, 0, 0), (0, 1, 0), (0, 0, 1)), ((0, 0, 1), (1, 0, 0), (0, 1, 0))]
+)
+def test_frame_windows_turn_with_the_turtle(frame: tuple) -> None:
+    """A "frame" window's cell (a, b, c) is the grid cell a H + b L + c U away: with the
+    turtle's frame on the grid's axes (in any order) it is a "cube" cell, permuted."""
+    rng = np.random.default_rng(3)
+    target = ball_target(GRID, (0.0, 2.0, -0.5), 2.0)
+    canvas = VoxelCanvas(4, GRID)
+    for _ in range(6):
+        canvas.draw(np.arange(4), [random_prim3(rng) for _ in range(4)])
+    lo, top = np.array(GRID.lo), np.array(GRID.lo) + GRID.extent()
+    turtles = [
+        (*rng.uniform(lo + 0.2 * (top - lo), top - 0.2 * (top - lo)), *np.ravel(frame), 1.0)
+        for _ in range(4)
+    ]
+    h, l_, u = (np.array(v) for v in frame)
+    args = (SITE, canvas, np.arange(4), turtles, np.zeros(4), np.zeros((4, 2)), np.zeros((4, 2)))
+    cube = FeatureMaker3D(PROGRAM, GRID, target, window="cube").features(*args)
+    turned = FeatureMaker3D(PROGRAM, GRID, target, window="frame").features(*args)
+    offs = [tuple(o) for o in WINDOWS["cube"].tolist()]
+    at = [offs.index(tuple(a * h + b * l_ + c * u)) for a, b, c in offs]
+    for group in ("target", "partial"):
+        sl = layout3d(SITE, "cube")[group]
+        for lv in range(4):
+            base = sl.start + 27 * lv
+            np.testing.assert_array_equal(
+                turned[:, base : base + 27], cube[:, [base + q for q in at]]
+            )
+    assert layout3d(SITE, "frame")["frame"] == slice(sl.stop, sl.stop)
+    assert "frame" not in layout3d(SITE, "cube")
+
+
+def test_the_window_of_stored_layouts() -> None:
+    """Layouts with the empty `frame` group are a frame window's; without it, the cube's
+    (every guide made before frame windows)."""
+    frame = {"0": {"local": [0, 18], "target": [18, 126], "partial": [126, 234]}}
+    assert window_of(frame) == "cube"
+    frame["0"]["frame"] = [234, 234]
+    assert window_of(frame) == "frame"
+    assert window_of({}) == "cube"
