@@ -6,7 +6,7 @@
 OLD_RUNTIME_DIR holds an older `ngpm_runtime` package (for example `git worktree add
 /tmp/old <commit>`, then /tmp/old/runtime). Each round runs, as fresh processes, this file's
 `--child` with the old runtime and with this checkout's, one after the other (alternating
-which goes first). A child grows the bundled topiary3d into the first `--k` targets of the
+which goes first). A child grows the bundled vines3d into the first `--k` targets of the
 held-out `revolved` set (built in work/revolved when missing, as benchmarks/eval3d.py does),
 seeds 0 and 1: guided N = 10 with the bundled guide, unguided N = 100, on one core. It prints
 the CPU seconds per run and a hash of every run's trees, similarity, weights and evidence:

@@ -3,7 +3,7 @@ targets (the `revolved` set: round shapes, never trained on), one core, interlea
 
 For every target and repeat the runs (guided N = 10, then unguided at each N) go in a
 shuffled order, so a load change on the shared machine touches every model alike. Each run
-is `grow()` of the 3D grammar (default: the bundled topiary3d and its guide) into the
+is `grow()` of the 3D grammar (default: the bundled vines3d and its guide) into the
 target at its resolution; its CPU seconds (time.process_time) and the best tree's
 similarity are kept. Printed and written to OUT/eval3d.md (rows in OUT/eval3d_runs.csv):
 the mean over targets of the per-target median similarity and the mean CPU seconds per
@@ -146,7 +146,7 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", default=str(ROOT / "work" / "revolved"))
-    ap.add_argument("--grammar", help="3D grammar (default: the bundled topiary3d)")
+    ap.add_argument("--grammar", help="3D grammar (default: the bundled vines3d)")
     ap.add_argument("--guide", help="guide .onnx (default: the bundled 3D guide)")
     ap.add_argument("--k", type=int, default=24, help="targets (spread over the set)")
     ap.add_argument("--repeats", type=int, default=2)

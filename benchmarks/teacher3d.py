@@ -7,7 +7,7 @@ targets of the best tree's similarity (the usual scale, sigma-free) and CPU seco
 one run per target (seed = the target's index), beside forward samples (N = 1) and the
 guide at N = 10 under its own settings. The default targets are validation sets, never the
 held-out `revolved`: blobs3d and extruded, 8 each, seed 1 (built in work/teacher3d when
-missing; the sets `scripts/train_topiary3d_guide.sh` tunes on).
+missing).
 
 Sites (`--traces DIR[,DIR]`): per site, the NLL per trace of the recorded values under the
 prior and under the guide (temperatures 1), the teacher's choice frequencies per derivation

@@ -1,5 +1,5 @@
 """`ngpmc demo`: grow guided and unguided vines into the built-in targets, and the bundled
-3D shrub into 3D targets, side by side (ngpm_compiler.experiments.demo does the work)."""
+3D vine into 3D targets, side by side (ngpm_compiler.experiments.demo does the work)."""
 
 from __future__ import annotations
 
@@ -45,7 +45,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "--no-3d",
         dest="with_3d",
         action="store_false",
-        help="leave out the 3D rows (the bundled topiary3d grown into 3D targets)",
+        help="leave out the 3D rows (the bundled vines3d grown into 3D targets)",
     )
     p.set_defaults(handler=cmd_demo)
 
@@ -66,7 +66,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     if args.with_3d:
         print(
-            f"then topiary3d into {len(SOURCES)} 3D targets, guided with {args.particles} "
+            f"then vines3d into {len(SOURCES)} 3D targets, guided with {args.particles} "
             f"particles and unguided with {UNGUIDED_FACTOR * args.particles} ...",
             flush=True,
         )

@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         help="target image; a .txt sidecar beside it gives the start "
         "(`x y` then `dx dy`), else it is found automatically; or a 3D target: a mesh "
         "(.obj, .stl, .ply, .glb) or .npz, grown by a 3D grammar (default: the bundled "
-        "topiary3d and its guide) into -o tree.glb",
+        "vines3d and its guide) into -o tree.glb",
     )
     p.add_argument("--grammar", help=f"{GRAMMAR_HELP} (default: the bundled vines model)")
     p.add_argument(

@@ -1,6 +1,6 @@
 """`ngpmc grow` into a 3D target: a mesh (.obj, .stl, .ply, .glb), a saved target (.npz)
 or a picture made 3D (--extrude, --revolve), grown by a 3D grammar (by default the bundled
-topiary3d with its guide); writes the best tree's mesh and a picture (target | tree)."""
+vines3d with its guide); writes the best tree's mesh and a picture (target | tree)."""
 
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def _outputs(args: argparse.Namespace, image: str) -> tuple[Path, Path | None]:
 
 
 def _program(program: Program | None, image: str) -> Program:
-    """The grammar to grow: the given 3D one, else the bundled topiary3d."""
+    """The grammar to grow: the given 3D one, else the bundled vines3d."""
     from ngpm_runtime import bundled
 
     if program is None:
@@ -85,7 +85,7 @@ def _program(program: Program | None, image: str) -> Program:
     if program.dim != 3:
         raise NgpmError(
             f"{image} is a 3D target and {program.name} a 2D grammar: give a 3D grammar "
-            "(or none: the bundled topiary3d)"
+            "(or none: the bundled vines3d)"
         )
     return program
 

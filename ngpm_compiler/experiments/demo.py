@@ -4,7 +4,7 @@ Each configuration runs `--runs` times (seeds seed, seed+1, ...): the table give
 similarity and seconds over the runs, the pictures show the median run. Writes `demo.png`
 (rows: targets; columns: target | guided | unguided, similarity and seconds under each),
 one render of each median run and `summary.md`, and prints the summary. Then the 3D rows
-(experiments/demo3d.py): the bundled topiary3d shrub grown into 3D targets, guided and
+(experiments/demo3d.py): the bundled vines3d vine grown into 3D targets, guided and
 unguided at about the same time, drawn below the 2D rows and tabulated after them. Uses only
 the package data (ngpm_runtime.bundled) and targets made here: nothing is trained or
 downloaded.
@@ -414,7 +414,7 @@ def write_demo(
     """Run the demo and write its renders, `demo.png` and `summary.md` into `out_dir`.
 
     program, guide: default to the bundled vines model and its guide; guide3d: to the
-    bundled topiary3d guide (its program is the 3D rows' grammar); with_3d=False leaves the
+    bundled vines3d guide (its program is the 3D rows' grammar); with_3d=False leaves the
     3D rows out. Returns (rows, 3D rows, files written: the renders, then demo.png and
     summary.md)."""
     from ngpm_runtime.bundled import bundled_guide, bundled_guide3d, bundled_program

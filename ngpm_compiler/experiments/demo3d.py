@@ -1,10 +1,10 @@
-"""The demo's 3D rows (issue #26): the bundled topiary3d shrub grown into 3D targets it was
+"""The demo's 3D rows (issue #26): the bundled vines3d vine grown into 3D targets it was
 not trained on, guided by its bundled guide and unguided at about the same time.
 
-Targets (32^3 voxels, placed in topiary3d's box as `ngpmc grow` places them):
+Targets (32^3 voxels, placed in vines3d's box as `ngpmc grow` places them):
 `vase`, the mesh file `demo_vase.obj` the project makes (datasets/demo_targets.vase_mesh)
 and ships; `glyph_extruded`, the 2D demo's glyph picture pushed into a slab a quarter of its
-side deep (`ngpmc grow demo_glyph.png --extrude 0.25`: the shrub starts at the picture's 2D
+side deep (`ngpmc grow demo_glyph.png --extrude 0.25`: the vine starts at the picture's 2D
 start, the end of the S's stroke, and grows up out of the slab, so no run gets far);
 `tree_revolved` and `mushroom_revolved`, targets 7 and 8 of the held-out `revolved` set
 (`ngpmc targets build revolved`, seed 0). Guided runs use `particles` particles, unguided
@@ -78,7 +78,7 @@ def run_demo3d(
 ) -> list[Demo3DRow]:
     """Guided (`particles`) and unguided (UNGUIDED_FACTOR x `particles`) SMC into every 3D
     target, seeds seed .. seed + runs - 1; program and guide default to the bundled
-    topiary3d and its guide."""
+    vines3d and its guide."""
     from ngpm_runtime.bundled import bundled_guide3d, bundled_program3d
     from ngpm_runtime.grow import grow
 

@@ -1,5 +1,5 @@
 """Package data: the vines model, its pretrained guide and the demo targets; the 3D
-topiary3d model and its guide (the default of `ngpmc grow shape.obj`).
+vines3d model and its guide (the default of `ngpmc grow shape.obj`).
 
 Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the repository):
 
@@ -9,10 +9,10 @@ Everything lives in `ngpm_runtime/data/` (`runtime/ngpm_runtime/data/` in the re
 - `vines_circuit_guide.onnx` (the vines guide for the circuit likelihood):
   `bash scripts/train_circuit_guide.sh work/circuit` (`ngpmc learn --likelihood circuit`),
   then `work/circuit/guide.onnx` copied here
-- `topiary3d_sampler.py`, `topiary3d_sites.json`:
-  `ngpmc compile grammars/topiary3d.lsys -o runtime/ngpm_runtime/data`
-- `topiary3d_guide.onnx`: `bash scripts/train_topiary3d_guide.sh work/topiary3d`, then
-  copied here
+- `vines3d_sampler.py`, `vines3d_sites.json`:
+  `ngpmc compile grammars/vines3d.lsys -o runtime/ngpm_runtime/data`
+- `vines3d_guide.onnx`: `bash scripts/train_vines3d_guide.sh work/vines3d`
+  (`ngpmc learn grammars/vines3d.lsys`), then `work/vines3d/guide.onnx` copied here
 - `demo_<name>.png` + `demo_<name>.txt`: the demo's targets (image + start sidecar), and
   `demo_vase.obj`, the mesh of its 3D rows, made by
   `ngpm_compiler.datasets.demo_targets.write_demo_targets("runtime/ngpm_runtime/data")`
@@ -41,9 +41,9 @@ CIRCUIT_GUIDE_FILE = "vines_circuit_guide.onnx"
 DEMO_TARGETS = ("glyph", "horse", "heart", "spiral")  # demo order
 REGENERATE = "bash scripts/train_vines_guide.sh work/vines"
 REGENERATE_CIRCUIT = "bash scripts/train_circuit_guide.sh work/circuit"
-SAMPLER_3D = "topiary3d_sampler.py"
-GUIDE_3D = "topiary3d_guide.onnx"
-REGENERATE_3D = "bash scripts/train_topiary3d_guide.sh work/topiary3d"
+SAMPLER_3D = "vines3d_sampler.py"
+GUIDE_3D = "vines3d_guide.onnx"
+REGENERATE_3D = "bash scripts/train_vines3d_guide.sh work/vines3d"
 
 
 def data_path(name: str) -> Path:
@@ -86,26 +86,26 @@ def bundled_program() -> Program:
 
 
 def bundled_program3d() -> Program:
-    """The 3D topiary3d Program from the generated sampler shipped with the package."""
+    """The 3D vines3d Program from the generated sampler shipped with the package."""
     path = data_path(SAMPLER_3D)
     if not path.is_file():
         raise ProgramError(
             f"{path}: the bundled 3D sampler is missing "
-            "(regenerate: ngpmc compile grammars/topiary3d.lsys "
+            "(regenerate: ngpmc compile grammars/vines3d.lsys "
             "-o runtime/ngpm_runtime/data)"
         )
     return _cached_program(str(path), path.stat().st_mtime)
 
 
 def bundled_guide3d(program: Program | None = None) -> Guide:
-    """The pretrained topiary3d guide for `program` (default: bundled_program3d())."""
+    """The pretrained vines3d guide for `program` (default: bundled_program3d())."""
     from ngpm_runtime.inference.guide import Guide
 
     path = data_path(GUIDE_3D)
     if not path.is_file():
         raise GuideError(
             f"{path}: the bundled 3D guide is missing (regenerate it with "
-            f"`{REGENERATE_3D}` and copy work/topiary3d/{GUIDE_3D} there)"
+            f"`{REGENERATE_3D}` and copy work/vines3d/guide.onnx there as {GUIDE_3D})"
         )
     return Guide.load(path, bundled_program3d() if program is None else program)
 

@@ -96,7 +96,7 @@ def test_summary_md_holds_the_3d_rows_and_matches_stdout(demo_run) -> None:
     out, proc = demo_run
     text = (out / "summary.md").read_text(encoding="utf-8")
     head, _, section = text.partition("\n## 3D\n")
-    assert section and "topiary3d" in section
+    assert section and "vines3d" in section
     assert not [ln for ln in head.splitlines() if ROW3D_RE.match(ln)]
     rows = {m.group(1): m.groups()[1:] for m in map(ROW3D_RE.match, section.splitlines()) if m}
     assert list(rows) == list(demo3d.SOURCES)

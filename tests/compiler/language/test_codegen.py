@@ -57,7 +57,7 @@ def compiled(name: str):
 @pytest.mark.parametrize("name", GRAMMARS)
 def test_golden(name: str) -> None:
     """golden/<name>_sampler.py equals fresh output (UPDATE_GOLDEN=1 rewrites it); a grammar
-    whose sampler the runtime ships (vines, topiary3d) has that file as its golden file."""
+    whose sampler the runtime ships (vines, vines3d) has that file as its golden file."""
     code = compiled(name).source_code
     shipped = DATA / f"{name}_sampler.py"
     path = shipped if shipped.is_file() else GOLDEN / f"{name}_sampler.py"

@@ -110,8 +110,7 @@ def test_traces_sigma_is_recorded_in_the_key_and_is_3d_only(tmp_path: Path, pipe
 def test_new_3d_traces_and_guides_read_frame_windows(pipeline: Path) -> None:
     """Traces recorded now read windows that turn with the turtle: the manifest's key and
     layouts say so, the guide trained on them reads them in SMC; a guide whose layouts
-    lack the mark (the bundled topiary3d's, made before) keeps reading cube windows."""
-    from ngpm_runtime import bundled
+    lack the mark (made before) keeps reading cube windows."""
     from ngpm_runtime.inference.guide import Guide
     from ngpm_runtime.volume.run import canvas_and_features
     from ngpm_runtime.volume.target import VolumeTarget
@@ -122,7 +121,6 @@ def test_new_3d_traces_and_guides_read_frame_windows(pipeline: Path) -> None:
     assert all("frame" in lay for lay in manifest["layouts"].values())
     guide = Guide.load(pipeline / "g.onnx", program)
     assert guide.feature_window == "frame"
-    assert bundled.bundled_guide3d().feature_window == "cube"
     target = VolumeTarget.from_npz(pipeline / "set" / "blobs3d_0000.npz")
     for window in (guide.feature_window, "cube"):
         _, fm = canvas_and_features(program, None, 2, target, True, None, window)
