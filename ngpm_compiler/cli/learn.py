@@ -63,6 +63,14 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
         "those too poorly; a folder named envelopes: ./envelopes; a 3D grammar: 3D target "
         "sets, default blobs3d and extruded)",
     )
+    p.add_argument(
+        "--tune-teachers",
+        action="store_true",
+        help="tune each guided round's teacher (the best round's guide) on the validation "
+        "targets first, as the final guide is tuned, and record its traces with those "
+        "settings (a teacher under the default settings can be weaker than round 0's "
+        "unguided one: docs/3d.md, 'Guided 3D growth'; default: off)",
+    )
     argtypes.add_workers(p)
     p.add_argument("--seed", type=argtypes.seed, default=0, help="base seed (default 0)")
     p.set_defaults(handler=cmd_learn)
@@ -94,6 +102,7 @@ def cmd_learn(args: argparse.Namespace) -> int:
         workers=args.workers,
         seed=args.seed,
         progress=True,
+        tune_teachers=args.tune_teachers,
     )
     res = learn(cfg, log=_log)
     spent = res["state"]["spent"]

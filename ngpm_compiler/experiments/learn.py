@@ -123,6 +123,7 @@ class LearnConfig:
     workers: int = 2
     seed: int = 0
     progress: bool = True
+    tune_teachers: bool = False  # tune a guided round's teacher first (tuned_teacher)
 
 
 class Clock:
@@ -191,6 +192,7 @@ def _key(cfg: LearnConfig) -> dict[str, Any]:
         "seed": cfg.seed,
         "targets": [t if t == ENVELOPES else str(Path(t).resolve()) for t in cfg.targets],
         "validation": {k: str(Path(v).resolve()) for k, v in sorted(cfg.validation.items())},
+        **({"tune_teachers": True} if cfg.tune_teachers else {}),  # runs before it resume
     }
 
 
@@ -727,6 +729,9 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     best = max(rows, key=lambda x: x["validation"]) if rows else None
     teacher = best["guide"] if best else None
     t0 = time.perf_counter()
+    setting = ""
+    if best is not None and run.cfg.tune_teachers:
+        teacher, setting = tuned_teacher(run, p, best)
     dirs, per_particle = record(run, rc, r, teacher, _allowance(run, p, rc, rows, teacher))
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
     t1 = time.perf_counter()
@@ -736,7 +741,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     score = validate(rc, f"round_{r}", path, run.log)
     return {
         "round": r,
-        "teacher": f"guided N={rc.particles} by round {best['round']}"
+        "teacher": f"guided N={rc.particles} by round {best['round']}{setting}"
         if best
         else f"unguided N={rc.unguided_particles}",
         "traces": summary["traces"],
@@ -891,38 +896,67 @@ def _next_round_estimate(run: Run, p: Plan, r: int) -> float:
 # --------------------------------------------------------------------------- tune, curve
 
 
-def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
-    """learning/tune.py on the best round's guide (None: no grid in the plan), into
-    OUT/work/tuned.onnx (tuned_<k>.onnx when a rerun's extension k renewed tuning)."""
+def _tune(run: Run, p: Plan, guide: str, out: Path, work: Path, repeats: int) -> dict[str, Any]:
+    """learning/tune.py's grid of the plan (choice temperatures x ESS thresholds; a grammar
+    without choices: temperatures) for `guide` on the validation targets, into `out`."""
     from ngpm_runtime.inference.sitekinds import KINDS
 
     from ngpm_compiler.language.compile import load_grammar
     from ngpm_compiler.learning.tune import grid, tune
 
-    best = best_round(run)
-    if not p.choice_temperatures or best is None:
-        return None
-    tuned = f"tuned{final_suffix(run)}.onnx"
-    t = targets_of(run)
     grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
     sites = load_grammar(grammar).sites
     if any(not KINDS[s.kind].continuous for s in sites):
         settings = grid((1.0,), p.choice_temperatures, p.ess)
     else:  # no choices to sharpen: the same number of continuous temperatures
         settings = grid(p.choice_temperatures, (1.0,), p.ess)
-    res = tune(
+    return tune(
         grammar,
-        best["guide"],
-        t["validation"],
-        run.out / "work" / tuned,
-        run.out / "work" / "tune",
+        guide,
+        targets_of(run)["validation"],
+        out,
+        work,
         settings,
         k=p.val_targets,
-        repeats=p.val_repeats,
+        repeats=repeats,
         workers=run.cfg.workers,
         seed=run.cfg.seed,
         log=run.log,
         likelihood=run.cfg.likelihood,
+    )
+
+
+def tuned_teacher(run: Run, p: Plan, best: dict[str, Any]) -> tuple[str, str]:
+    """With --tune-teachers: the best round's guide tuned as the final guide is (half the
+    validation runs), the teacher of the next guided round, and its setting's label for the
+    report. Made once per round (OUT/rounds/round_<r>/teacher.onnx; its tune runs cached).
+    A teacher under the default settings can be weaker than round 0's unguided teacher
+    (docs/3d.md, "Guided 3D growth")."""
+    folder = Path(best["guide"]).parent
+    out = folder / "teacher.onnx"
+    if not p.choice_temperatures:
+        return best["guide"], ""
+    if not out.is_file():
+        run.clock.check(f"tuning round {best['round']}'s guide as a teacher")
+        _tune(run, p, best["guide"], out, folder / "teacher_tune", max(1, p.val_repeats // 2))
+    from ngpm_compiler.jobs.backends import load_guide
+    from ngpm_compiler.language.compile import load_grammar
+
+    grammar = run.state["stages"]["diagnose"]["result"]["grammar"]
+    label = load_guide(str(out), load_grammar(grammar)).settings.label()
+    run.log(f"teacher: round {best['round']}'s guide tuned to {label} ({out})")
+    return str(out), f", tuned {label}"
+
+
+def tune_stage(run: Run, p: Plan) -> dict[str, Any] | None:
+    """learning/tune.py on the best round's guide (None: no grid in the plan), into
+    OUT/work/tuned.onnx (tuned_<k>.onnx when a rerun's extension k renewed tuning)."""
+    best = best_round(run)
+    if not p.choice_temperatures or best is None:
+        return None
+    tuned = f"tuned{final_suffix(run)}.onnx"
+    res = _tune(
+        run, p, best["guide"], run.out / "work" / tuned, run.out / "work" / "tune", p.val_repeats
     )
     return {
         "guide": str(run.out / "work" / tuned),

@@ -572,3 +572,31 @@ def test_a_3d_grammar_it_cannot_learn_for_is_one_line(tmp_path, capsys, text, ex
     assert main(["learn", str(grammar), "-o", str(tmp_path / "out"), *extra]) == 1
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
+
+
+def test_tune_teachers_records_the_guided_round_with_the_tuned_teacher(tmp_path, capsys, tiny_plan):
+    """--tune-teachers: the guided round's teacher is round 0's guide tuned on the
+    validation targets (its settings in the report's teacher column), its traces recorded
+    with that file; the option is part of the run's key (a run without it is refused)."""
+    from ngpm_runtime.inference.guide import Guide
+
+    from ngpm_compiler.language.compile import load_grammar
+
+    data = make_dataset(tmp_path / "data", 3)
+    out = tmp_path / "out"
+    argv = ["learn", CHAIN, "-o", str(out), "--budget", "10m", "--targets", str(data)]
+    assert main([*argv, "--workers", "1", "--tune-teachers"]) == 0
+    done = stages(out)
+    teacher = out / "rounds" / "round_0" / "teacher.onnx"
+    settings = Guide.load(teacher, load_grammar(CHAIN)).settings
+    assert settings.choice_temperature in (1.0, 0.5)
+    want = f"guided N=10 by round 0, tuned {settings.label()}"
+    assert done["round_01"]["result"]["teacher"] == want
+    manifest = json.loads(
+        next((out / "rounds" / "round_1").glob("traces_*/manifest.json")).read_text()
+    )
+    assert manifest["config"]["guide"] == str(teacher)
+    assert want in (out / "report.md").read_text()
+    capsys.readouterr()
+    assert main([*argv, "--workers", "1"]) != 0  # another configuration: refused
+    assert "tune_teachers" in capsys.readouterr().err
