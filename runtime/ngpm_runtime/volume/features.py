@@ -179,10 +179,21 @@ class FeatureMaker3D:
         return self._site_rows(sites, common, params, prior_args)
 
     def _common(
-        self, canvas: VoxelCanvas | None, idx: np.ndarray, turtle: np.ndarray, depth: np.ndarray
+        self,
+        canvas: VoxelCanvas | None,
+        idx: np.ndarray,
+        turtle: np.ndarray,
+        depth: np.ndarray,
+        extra: np.ndarray | None = None,
+        n_extra: np.ndarray | None = None,
     ) -> np.ndarray:
-        """(n, n_common) float32: turtle columns, depth and the windows, one kernel call."""
-        out = np.empty((len(idx), self.n_common), dtype=np.float32)
+        """(n, n_common + extra's columns) float32: turtle columns, depth, extra[k,
+        :n_extra[k]] and the windows (none: the site-independent columns), one kernel
+        call."""
+        n = len(idx)
+        if extra is None or n_extra is None:
+            extra, n_extra = np.zeros((n, 0)), np.zeros(n, dtype=np.int64)
+        out = np.empty((n, self.n_common + extra.shape[1]), dtype=np.float32)
         if canvas is not None and canvas.grid != self.grid:
             raise TargetError(f"voxel canvas {canvas.grid} is not the features' {self.grid}")
         vox = _NO_VOXELS if canvas is None else canvas.voxels
@@ -204,6 +215,8 @@ class FeatureMaker3D:
             vox,
             counts,
             starts,
+            np.ascontiguousarray(extra, dtype=np.float64),
+            np.ascontiguousarray(n_extra, dtype=np.int64),
         )
         return out
 
@@ -220,14 +233,7 @@ class FeatureMaker3D:
         (n, 13) and depths (n,): the local base columns, extra[k, :n_extra[k]] (module
         parameters and prior arguments, fitted to the site), then the windows (as 2D
         FeatureMaker.rows_from; SMC's rounds call it)."""
-        common = self._common(canvas, idx, turtle, depth)
-        out = np.zeros((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
-        out[:, :N_LOCAL_BASE] = common[:, :N_LOCAL_BASE]
-        for e in np.unique(n_extra).tolist():
-            at = np.flatnonzero(n_extra == e)
-            out[at, N_LOCAL_BASE : N_LOCAL_BASE + e] = extra[at, :e]
-            out[at, N_LOCAL_BASE + e : self.n_common + e] = common[at, N_LOCAL_BASE:]
-        return out
+        return self._common(canvas, idx, turtle, depth, extra, n_extra)
 
     def _site_rows(
         self,

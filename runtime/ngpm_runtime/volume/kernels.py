@@ -373,10 +373,13 @@ def volume_features(
     vox: np.ndarray,
     pyr: np.ndarray,
     pstart: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
 ) -> None:
-    """FeatureMaker3D's site-independent columns of n particles into out (n, n_common)
-    float32: position (3), H, L, U (9), width, depth / derivation length, then the target's
-    and the canvas's windows (offsets offs (K, 3)) at the levels sizes (L, 3). With `frame`
+    """FeatureMaker3D's rows of n particles into out (n, n_common + extra's columns)
+    float32: position (3), H, L, U (9), width, depth / derivation length, extra[k,
+    :n_extra[k]] (module parameters and prior arguments), then the target's and the
+    canvas's windows (offsets offs (K, 3)) at the levels sizes (L, 3), then zeros. With `frame`
     an offset (a, b, c) is a*H + b*L + c*U cells of the level (a cell's x side long) from
     the turtle's point, and reads the cell it falls in.
 
@@ -401,6 +404,13 @@ def volume_features(
         out[k, 13] = depth[k] / geom[6]
         if have_c and not 0 <= idx[k] < vox.shape[0]:
             raise IndexError("features: particle index out of range")
+        e = n_extra[k]
+        if not 0 <= e <= extra.shape[1] or nl + e + 2 * nw > out.shape[1]:
+            raise IndexError("features: extra columns out of range")
+        for a in range(e):
+            out[k, nl + a] = extra[k, a]
+        for a in range(nl + e + 2 * nw, out.shape[1]):
+            out[k, a] = 0.0
         for a in range(3):
             if not math.isfinite(u[a]):
                 u[a] = _unit(u[a])
@@ -424,7 +434,7 @@ def volume_features(
                     i, j, c = fcell[0], fcell[1], fcell[2]
                 else:
                     i, j, c = cell[0] + offs[q, 0], cell[1] + offs[q, 1], cell[2] + offs[q, 2]
-                col = nl + nk * lv + q
+                col = nl + e + nk * lv + q
                 if not (0 <= i < sx and 0 <= j < sy and 0 <= c < sz):
                     out[k, col] = -1.0 if have_t else 0.0
                     out[k, col + nw] = -1.0 if have_c else 0.0
