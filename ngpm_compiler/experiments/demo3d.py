@@ -22,9 +22,9 @@ from typing import Any
 RESOLUTION = 32
 EXTRUDE = 0.25
 REVOLVED = {7: "tree_revolved", 8: "mushroom_revolved"}  # index in the revolved set -> name
-# unguided particles per guided particle: unguided N = 20 takes about as long as guided
-# N = 10 on these targets (docs/results/demo.md: 0.60 s and 0.56 s a run)
-UNGUIDED_FACTOR = 2
+# unguided particles per guided particle: unguided N = 60 takes about as long as guided
+# N = 10 of the bundled vines3d on these targets (at N = 20: 0.02 s against 0.10 s a run)
+UNGUIDED_FACTOR = 6
 SOURCES = {
     "vase": "mesh demo_vase.obj",
     "glyph_extruded": f"glyph picture, --extrude {EXTRUDE:g}",
