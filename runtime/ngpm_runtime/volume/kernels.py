@@ -359,6 +359,29 @@ def _unit(a: float) -> float:
 
 
 @jit
+def _frame_cell(
+    cell: np.ndarray,
+    u: np.ndarray,
+    size: np.ndarray,
+    t: np.ndarray,
+    o: np.ndarray,
+    side: float,
+    geom: np.ndarray,
+) -> None:
+    """Into cell (3,): the cell of a level of `size` holding the point o[0] H + o[1] L +
+    o[2] U cells (`side` world units each) from the turtle t at u (grid scaled to [0, 1]);
+    -2 or size + 1 past the grid's sides."""
+    for a in range(3):
+        s = float(size[a])
+        d = o[0] * t[3 + a] + o[1] * t[6 + a]
+        scale_a = side * s / geom[3 + a]
+        v = u[a] * s + (d + o[2] * t[9 + a]) * scale_a
+        if v != v:
+            v = -2.0
+        cell[a] = int(_min(_max(math.floor(v), -2.0), s + 1.0))
+
+
+@jit
 def volume_features(
     out: np.ndarray,
     turtle: np.ndarray,
@@ -380,8 +403,7 @@ def volume_features(
     float32: position (3), H, L, U (9), width, depth / derivation length, extra[k,
     :n_extra[k]] (module parameters and prior arguments), then the target's and the
     canvas's windows (offsets offs (K, 3)) at the levels sizes (L, 3), then zeros. With `frame`
-    an offset (a, b, c) is a*H + b*L + c*U cells of the level (a cell's x side long) from
-    the turtle's point, and reads the cell it falls in.
+    an offset (a, b, c) reads the cell a H + b L + c U cells away (_frame_cell).
 
     turtle (n, 13): x, y, z, H, L, U, width; geom = (lo x, lo y, lo z, extent x, y, z,
     derivation length); target: its levels one after another (level lv at tstart[lv];
@@ -423,14 +445,7 @@ def volume_features(
             side = geom[3] / sizes[lv, 0]  # a cell's x side, world units
             for q in range(nk):
                 if frame:
-                    for a in range(3):
-                        s = float(sizes[lv, a])
-                        d = offs[q, 0] * turtle[k, 3 + a] + offs[q, 1] * turtle[k, 6 + a]
-                        scale_a = side * s / geom[3 + a]
-                        v = u[a] * s + (d + offs[q, 2] * turtle[k, 9 + a]) * scale_a
-                        if v != v:
-                            v = -2.0
-                        fcell[a] = int(_min(_max(math.floor(v), -2.0), s + 1.0))
+                    _frame_cell(fcell, u, sizes[lv], turtle[k], offs[q], side, geom)
                     i, j, c = fcell[0], fcell[1], fcell[2]
                 else:
                     i, j, c = cell[0] + offs[q, 0], cell[1] + offs[q, 1], cell[2] + offs[q, 2]
