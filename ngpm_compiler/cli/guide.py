@@ -13,6 +13,7 @@ from ngpm_runtime.image.features import FEATURE_SETS
 
 from ngpm_compiler.cli import argtypes
 from ngpm_compiler.cli.grammar import GRAMMAR_HELP
+from ngpm_compiler.experiments.learn_plan import TUNE_CHOICES
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -246,8 +247,8 @@ def _register_iterate(subparsers: argparse._SubParsersAction[argparse.ArgumentPa
 # `ngpmc tune`'s default grid of proposal settings (learning/tune.py)
 TUNE_GRID: dict[str, tuple[float | None, ...]] = {
     "temperature": (1.0,),
-    "choice_temperature": (1.0, 0.7, 0.5, 0.3, 0.2),
-    "ess_threshold": (None, 0.5),
+    "choice_temperature": TUNE_CHOICES[0][0],
+    "ess_threshold": TUNE_CHOICES[0][1],
 }
 
 

@@ -1048,7 +1048,21 @@ def switch_targets(
     return targets_of(run)
 
 
+def warm_kernels(run: Run) -> None:
+    """Compile the SMC kernels first when their disk cache is cold (a fresh install or
+    checkout), so that the reach and measure stages time runs, not compiles: a cold 3D run
+    measured trace jobs 3x and `reach` 10x slower, and planned 685 round-0 traces for 70
+    minutes where a warm one plans 1021 for 45."""
+    from ngpm_runtime.warmup import cache_is_cold, warm_up
+
+    if "measure" in run.state["stages"] or not cache_is_cold():
+        return
+    run.log("kernels: compiling them for this machine before the timed stages (once)")
+    run.log(f"kernels: compiled in {warm_up():.0f} s")
+
+
 def _stages(run: Run) -> None:
+    warm_kernels(run)
     d = run.stage("diagnose", lambda: diagnose_stage(run))
     for line in d["lines"]:
         run.log(line)

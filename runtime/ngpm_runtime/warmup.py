@@ -72,6 +72,7 @@ def warm_up() -> float:
     grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
     program3d, block, guide3d = _tiny_3d()
     grow(program3d, block, guide3d, n_particles=2, seed=0, max_modules=40)  # 3D kernels
+    grow(program3d, block, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
     return time.perf_counter() - t0
 
 

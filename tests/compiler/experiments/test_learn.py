@@ -600,3 +600,27 @@ def test_tune_teachers_records_the_guided_round_with_the_tuned_teacher(tmp_path,
     capsys.readouterr()
     assert main([*argv, "--workers", "1"]) != 0  # another configuration: refused
     assert "tune_teachers" in capsys.readouterr().err
+
+
+def test_a_cold_kernel_cache_is_filled_before_the_timed_stages(tmp_path, monkeypatch, tiny_plan):
+    """The reach and measure stages time SMC runs: with the kernels' disk cache cold they
+    would time numba's compiles, so learn compiles first (once: not when resumed)."""
+    import ngpm_runtime.warmup as warmup
+
+    calls: list[str] = []
+    real_measure = learn_mod.measure_stage
+
+    def measure(*args, **kwargs):
+        calls.append("measure")
+        return real_measure(*args, **kwargs)
+
+    monkeypatch.setattr(warmup, "cache_is_cold", lambda: True)
+    monkeypatch.setattr(warmup, "warm_up", lambda: calls.append("warm_up") or 1.0)
+    monkeypatch.setattr(learn_mod, "measure_stage", measure)
+    lines: list[str] = []
+    cfg = small(tmp_path)
+    learn(cfg, log=lines.append)
+    assert calls[:2] == ["warm_up", "measure"] and calls.count("warm_up") == 1
+    assert any("kernels: compiled in 1 s" in line for line in lines)
+    learn(cfg, log=lines.append)  # resumed: measured already, nothing compiled
+    assert calls.count("warm_up") == 1

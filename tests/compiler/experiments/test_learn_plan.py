@@ -51,8 +51,9 @@ def test_a_large_budget_gets_the_recipe():
     assert (p.unguided_particles, p.guided_particles) == (UNGUIDED_PARTICLES, GUIDED_PARTICLES)
     assert p.rounds >= 2 and p.traces >= MIN_TRACES
     assert (p.val_targets, p.val_repeats) == (12, 8)
-    temps, ess = TUNE_CHOICES[0]
-    assert (p.choice_temperatures, p.ess) == (temps, ess)
+    # the widest tune grid where it fits its share, else the next
+    assert (p.choice_temperatures, p.ess) == TUNE_CHOICES[1]
+    assert (plan(3 * 3600, VINES).choice_temperatures, p.ess) == TUNE_CHOICES[0]
     assert p.curve_guided == CURVE_GUIDED
     assert planned_seconds(p, VINES) <= 2 * 3600
     assert "guided round(s) of" in p.reasons[1]
