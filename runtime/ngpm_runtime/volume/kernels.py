@@ -274,6 +274,11 @@ def draw(
         _box(kind, par[k], verts, v0, v1, bbox[k])
         face = _face(verts, v0, v1) if kind == POLY3 else np.zeros(4)
         span = _range(bbox[k], grid, 2.0 * mr if kind == LEAF3 else mr, shape)
+        # a segment's and a sphere's test inlined on scalars (as _covers: same arithmetic)
+        p = par[k]
+        c0, c1, c2, c3, c4, c5 = p[0], p[1], p[2], p[3], p[4], p[5]
+        rr = _max(abs(p[6]) / 2.0, mr) if kind == SEG3 else _max(abs(p[3]), mr)
+        r2 = rr * rr
         for i in range(span[0, 0], span[0, 1] + 1):
             px = lo_x + (i + 0.5) * size
             for j in range(span[1, 0], span[1, 1] + 1):
@@ -282,7 +287,14 @@ def draw(
                     if vox[pi, i, j, q] != 0:
                         continue
                     pz = lo_z + (q + 0.5) * size
-                    if not _covers(kind, par[k], verts, v0, v1, face, mr, px, py, pz):
+                    if kind == SPHERE:
+                        dx, dy, dz = px - c0, py - c1, pz - c2
+                        inside = dx * dx + dy * dy + dz * dz < r2
+                    elif kind == SEG3:
+                        inside = _in_segment(c0, c1, c2, c3, c4, c5, r2, px, py, pz)
+                    else:
+                        inside = _covers(kind, p, verts, v0, v1, face, mr, px, py, pz)
+                    if not inside:
                         continue
                     vox[pi, i, j, q] = 1
                     if m == hit_k.shape[0]:
