@@ -240,6 +240,20 @@ def draw(
         if empty[k]:
             continue
         pi, kind, v0, v1 = idx[k], kinds[k], vstart[k], vstart[k + 1]
+        # segments', disks' and leaves' tests inlined, their per-primitive terms hoisted
+        # (as _covers, operation for operation)
+        p = par[k]
+        ex, ey = p[2] - p[0], p[3] - p[1]
+        l2 = ex * ex + ey * ey
+        inv = 1.0 / l2 if l2 > 0 else 0.0
+        exi, eyi = ex * inv, ey * inv
+        seg_r2 = (p[4] * p[4]) / 4.0
+        disk_r2 = p[2] * p[2]
+        rad = np.radians(p[2])
+        lc, ls = math.cos(rad), math.sin(rad)
+        la, lb = abs(p[3]) / 2.0, abs(p[4]) / 2.0
+        lx, ly = p[0] + p[3] / 2.0 * lc, p[1] + p[3] / 2.0 * ls
+        lcb, lsb, lca, lsa, lab2 = lc * lb, ls * lb, lc * la, ls * la, (la * lb) ** 2
         for i in range(ky):
             r = y0[k] + i
             y = ymax - (r + 0.5) * sy
@@ -247,7 +261,24 @@ def draw(
                 c = x0[k] + j
                 if image[pi, r, c] != 0:
                     continue
-                if not _covers(kind, par[k], verts, v0, v1, xmin + (c + 0.5) * sx, y):
+                x = xmin + (c + 0.5) * sx
+                if kind == SEG:
+                    dx, dy = x - p[0], y - p[1]
+                    t = dx * exi + dy * eyi
+                    t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+                    qx, qy = dx - t * ex, dy - t * ey
+                    inside = qx * qx + qy * qy < seg_r2
+                elif kind == DISK:
+                    dx, dy = x - p[0], y - p[1]
+                    inside = dx * dx + dy * dy < disk_r2
+                elif kind == LEAF:
+                    dx, dy = x - lx, y - ly
+                    u = dx * lcb + dy * lsb
+                    v = dy * lca - dx * lsa
+                    inside = u * u + v * v < lab2
+                else:
+                    inside = _covers(kind, p, verts, v0, v1, x, y)
+                if not inside:
                     continue
                 new[k, i, j] = True
                 image[pi, r, c] = 1
