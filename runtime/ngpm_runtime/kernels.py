@@ -221,7 +221,10 @@ def draw(
     into canvas idx[k] of image (N, H, W) uint8, and its new pixels into the padded pyramid
     rows (N, T) float32 (T == 0: no pyramid). view = (xmin, ymax, sx, sy); wp, starts: the
     padded layout. Returns bbox (n, 4), y0, x0 (n,), new (n, ky, kx) bool and the new
-    pixels as (batch row, row * W + col) in row-major order."""
+    pixels as (batch row, row * W + col) in row-major order.
+
+    Long because segments', disks' and leaves' pixel tests are inlined, their
+    per-primitive terms computed once: `_covers` called per pixel took 2-3x as long."""
     n = idx.shape[0]
     h, w = image.shape[1], image.shape[2]
     bbox = np.empty((n, 4))

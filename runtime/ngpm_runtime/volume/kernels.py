@@ -372,25 +372,25 @@ def _unit(a: float) -> float:
 
 @jit
 def _frame_cell(
-    cell: np.ndarray,
-    u: np.ndarray,
-    size: np.ndarray,
-    t: np.ndarray,
-    o: np.ndarray,
-    side: float,
-    geom: np.ndarray,
-) -> None:
-    """Into cell (3,): the cell of a level of `size` holding the point o[0] H + o[1] L +
-    o[2] U cells (`side` world units each) from the turtle t at u (grid scaled to [0, 1]);
-    -2 or size + 1 past the grid's sides."""
-    for a in range(3):
-        s = float(size[a])
-        d = o[0] * t[3 + a] + o[1] * t[6 + a]
-        scale_a = side * s / geom[3 + a]
-        v = u[a] * s + (d + o[2] * t[9 + a]) * scale_a
-        if v != v:
-            v = -2.0
-        cell[a] = int(_min(_max(math.floor(v), -2.0), s + 1.0))
+    base: float,
+    o0: float,
+    o1: float,
+    o2: float,
+    h: float,
+    lft: float,
+    up: float,
+    scale: float,
+    s: float,
+) -> int:
+    """One axis of the cell at o0 H + o1 L + o2 U cells from the turtle: base = the turtle's
+    position scaled to [0, 1] times the level's size s on this axis, (h, lft, up) the frame's
+    components on it, scale = a cell's side * s / the grid's extent; -2 or s + 1 past the
+    grid's sides."""
+    d = o0 * h + o1 * lft
+    v = base + (d + o2 * up) * scale
+    if v != v:
+        v = -2.0
+    return int(_min(_max(math.floor(v), -2.0), s + 1.0))
 
 
 @jit
@@ -421,15 +421,19 @@ def volume_features(
     derivation length); target: its levels one after another (level lv at tstart[lv];
     empty: no target, its cells read 0); vox (N, nx, ny, nz) and pyr (N, P) the canvases
     and their count pyramids (vox with no particles: no canvas, cells read 0). Cells
-    outside the grid read -1."""
+    outside the grid read -1.
+
+    Long because the frame window's per-level terms are computed here once, not per cell
+    (_frame_cell takes scalars: the hot loop makes no array views)."""
     n = idx.shape[0]
     nl, nk = 14, offs.shape[0]
     nw = nk * sizes.shape[0]
     have_t, have_c = target.shape[0] > 0, vox.shape[0] > 0
     u = np.empty(3)
     cell = np.empty(3, dtype=np.int64)
-    fcell = np.empty(3, dtype=np.int64)
+    lvs, lvb, lvu = np.empty(3), np.empty(3), np.empty(3)
     for k in range(n):
+        t = turtle[k]
         for a in range(3):
             u[a] = (turtle[k, a] - geom[a]) / geom[3 + a]
             out[k, a] = u[a] * 2.0 + -1.0
@@ -455,10 +459,15 @@ def volume_features(
                 cell[a] = int(_min(_max(math.floor(u[a] * s), -2.0), s + 1.0))
             scale = np.float32(1.0 / 8.0**lv)
             side = geom[3] / sizes[lv, 0]  # a cell's x side, world units
+            for a in range(3):  # _frame_cell's per-level terms
+                s = float(sizes[lv, a])
+                lvs[a], lvb[a], lvu[a] = s, u[a] * s, side * s / geom[3 + a]
             for q in range(nk):
                 if frame:
-                    _frame_cell(fcell, u, sizes[lv], turtle[k], offs[q], side, geom)
-                    i, j, c = fcell[0], fcell[1], fcell[2]
+                    o0, o1, o2 = offs[q, 0], offs[q, 1], offs[q, 2]
+                    i = _frame_cell(lvb[0], o0, o1, o2, t[3], t[6], t[9], lvu[0], lvs[0])
+                    j = _frame_cell(lvb[1], o0, o1, o2, t[4], t[7], t[10], lvu[1], lvs[1])
+                    c = _frame_cell(lvb[2], o0, o1, o2, t[5], t[8], t[11], lvu[2], lvs[2])
                 else:
                     i, j, c = cell[0] + offs[q, 0], cell[1] + offs[q, 1], cell[2] + offs[q, 2]
                 col = nl + e + nk * lv + q
