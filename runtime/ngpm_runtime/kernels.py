@@ -865,7 +865,7 @@ def _net(
     """One site network on feature row x[r] (float32, as onnxruntime): tanh(x[cols] @ w1'
     + b1), bounds * tanh(h @ w2' + b2), then its head; into out[:n_out] (xg, h, o: float32
     buffers of at least the input, hidden and output widths)."""
-    n_in, hid, n_out, head, k = t[NET_IN], t[NET_HIDDEN], t[NET_OUT], t[NET_HEAD], t[NET_K]
+    n_in, hid = t[NET_IN], t[NET_HIDDEN]
     at_c, at_w = t[NET_COLS_AT], t[NET_W1]
     for i in range(n_in):  # the columns it reads, gathered first (the loop below is faster)
         xg[i] = x[r, cols[at_c + i]]
@@ -875,6 +875,48 @@ def _net(
         wr = w[at_w + i * hid : at_w + (i + 1) * hid]
         for j in range(hid):
             h[j] += xi * wr[j]
+    _finish(h, t, w, out, o)
+
+
+@jit
+def _net2(
+    x: np.ndarray,
+    r: int,
+    t: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    out: np.ndarray,
+    out2: np.ndarray,
+    xg: np.ndarray,
+    xg2: np.ndarray,
+    h: np.ndarray,
+    h2: np.ndarray,
+    o: np.ndarray,
+) -> None:
+    """_net on rows r and r + 1 of one site, its first layer's weights read once for both
+    (each row's sums in the same order as alone)."""
+    n_in, hid = t[NET_IN], t[NET_HIDDEN]
+    at_c, at_w = t[NET_COLS_AT], t[NET_W1]
+    for i in range(n_in):
+        xg[i] = x[r, cols[at_c + i]]
+        xg2[i] = x[r + 1, cols[at_c + i]]
+    h[:hid] = 0.0
+    h2[:hid] = 0.0
+    for i in range(n_in):
+        xi, xi2 = xg[i], xg2[i]
+        wr = w[at_w + i * hid : at_w + (i + 1) * hid]
+        for j in range(hid):
+            h[j] += xi * wr[j]
+            h2[j] += xi2 * wr[j]
+    _finish(h, t, w, out, o)
+    _finish(h2, t, w, out2, o)
+
+
+@jit
+def _finish(h: np.ndarray, t: np.ndarray, w: np.ndarray, out: np.ndarray, o: np.ndarray) -> None:
+    """A site network after its first layer's sums h: + b1, tanh, bounds * tanh(h @ w2' +
+    b2), then its head; into out[:n_out] (o: a float32 buffer of the output width)."""
+    hid, n_out, head, k = t[NET_HIDDEN], t[NET_OUT], t[NET_HEAD], t[NET_K]
     b1 = w[t[NET_B1] : t[NET_B1] + hid]
     for j in range(hid):
         h[j] += b1[j]
@@ -1109,14 +1151,21 @@ def guide_round(
     for s in range(nets.shape[0]):
         width = max(width, nets[s, NET_IN], nets[s, NET_HIDDEN], nets[s, NET_OUT])
     xg = np.empty(width, dtype=np.float32)
+    xg2 = np.empty(width, dtype=np.float32)
     h = np.empty(width, dtype=np.float32)
+    h2 = np.empty(width, dtype=np.float32)
     o = np.empty(width, dtype=np.float32)
+    done = -1  # the row whose network ran with the row before it
     for r in range(n):
         s = site[r]
         t = nets[s]
         p = params[r]
-        if t[NET_ON]:
-            _net(x, r, t, w, cols, p, xg, h, o)
+        if t[NET_ON] and r != done:
+            if r + 1 < n and site[r + 1] == s:
+                _net2(x, r, t, w, cols, p, params[r + 1], xg, xg2, h, h2, o)
+                done = r + 1
+            else:
+                _net(x, r, t, w, cols, p, xg, h, o)
         kind, m = kinds[s], n_par[r]
         _temper(kind, p, m, temps[0], temps[1])
         if not draw:
