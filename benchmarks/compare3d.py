@@ -34,9 +34,9 @@ ROOT = HERE.parent
 MODES = (("guided N=10", True, 10), ("unguided N=100", False, 100))
 PARTS = {  # part -> (file, function) whose cumulative time it is
     "site rounds": ("inference/smc.py", "_serve"),
-    "  3D feature rows": ("volume/features.py", "features_round"),
-    "  guide networks, draws": ("inference/guide.py", "propose_round"),
-    "derivation": ("geometry/derive.py", "advance"),
+    "  3D feature rows": ("volume/features.py", "rows_from"),
+    "  guide networks, draws": ("inference/guide.py", "propose_rows"),
+    "derivation": ("geometry/derive.py", "advance_all"),
     "resampling": ("inference/smc.py", "_resample"),
     "drawing voxels": ("volume/raster.py", "draw"),
     "likelihood increments": ("volume/likelihood.py", "increment"),
