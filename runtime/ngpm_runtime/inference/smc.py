@@ -186,18 +186,24 @@ LOG_NEGLIGIBLE_LIVE = math.log(NEGLIGIBLE_LIVE)
 _ROULETTE_STREAM = 0x524F55  # the roulette's random stream, beside the run's
 
 
-def _logsumexp(a: np.ndarray) -> float:
-    m = float(np.max(a))
+def _logsumexp(a: np.ndarray, m: float | None = None) -> float:
+    """log sum exp(a); m: a's max when known."""
+    if m is None:
+        m = float(np.max(a))
     if not math.isfinite(m):
         return m
     return m + math.log(float(np.sum(np.exp(a - m))))
 
 
-def _ess(log_w: np.ndarray) -> float:
-    lse = _logsumexp(log_w)
+def _ess(log_w: np.ndarray, m: float | None = None) -> tuple[float, float]:
+    """(ESS, log sum exp(log_w)); m: log_w's max when known (2 m is then 2 log_w's, exactly:
+    doubling a float is exact)."""
+    if m is None:
+        m = float(np.max(log_w))
+    lse = _logsumexp(log_w, m)
     if not math.isfinite(lse):
-        return 0.0
-    return float(math.exp(2.0 * lse - _logsumexp(2.0 * log_w)))
+        return 0.0, lse
+    return float(math.exp(2.0 * lse - _logsumexp(2.0 * log_w, 2.0 * m))), lse
 
 
 def forward(
@@ -294,24 +300,25 @@ class Population:
                 parts[i].status = "dead"
         self.live = [i for i in self.live if parts[i].status == "live"]
 
-    def roulette(self, rng: np.random.Generator, log_share: float = LOG_NEGLIGIBLE_LIVE) -> None:
+    def roulette(self, rng: np.random.Generator, log_share: float = LOG_NEGLIGIBLE_LIVE) -> bool:
         """Russian roulette for the live particles whose share of the total weight is below
         exp(log_share) (NEGLIGIBLE_LIVE): each stays with probability share / exp(log_share),
         its weight then raised to that share, else its weight becomes zero (it is dead).
         Exact in expectation, and every other particle stays as it is. `step` runs it once
         some particles have stopped, when resampling waits for a low ESS: a particle that
         ran away (far worse than the rest, growing to a cap) kept the run going for
-        thousands of steps after the others had finished."""
+        thousands of steps after the others had finished. Returns whether a weight changed."""
         log_w = self.log_w
         cut = _logsumexp(log_w) + log_share
         idx = np.asarray(self.live, dtype=np.intp)
         low = idx[log_w[idx] < cut]
         if not len(low):
-            return
+            return False
         keep = np.log(rng.random(len(low))) < log_w[low] - cut
         log_w[low] = np.where(keep, cut, -np.inf)
         if not keep.all():
             self.update_live()  # the dropped ones: dead, out of `live`
+        return True
 
     def take(self, anc: np.ndarray) -> None:
         """Resampling: particle k becomes old particle anc[k]; weights reset to 0."""
@@ -446,24 +453,28 @@ class _Run:
         self._observe(drawn, empty)
         if self.observers:
             self._step_done(drawn)
-        if (pop.log_w == np.inf).any():
+        top: float | None = float(np.max(pop.log_w))  # one pass: +inf, all zero, the ESS
+        if top != top:  # a NaN weight: the checks one by one
+            top = None
+        if top == np.inf or (top is None and (pop.log_w == np.inf).any()):
             raise SMCFailed(
                 f"a weight became +inf at step {self.steps} (program "
                 f"{self.program.name}): a proposal gave zero density to its own "
                 "value or a likelihood returned +inf"
             )
-        if not np.isfinite(pop.log_w).any():
+        if top == -np.inf or (top is None and not np.isfinite(pop.log_w).any()):
             raise SMCFailed(
                 f"every particle's weight is zero after step {self.steps} "
                 f"({self.n} particles, program {self.program.name})"
             )
         pop.update_live()
         if ess_threshold is not None and 0 < len(pop.live) < self.n:
-            pop.roulette(self._roulette_rng)
-        ess = _ess(pop.log_w)
+            if pop.roulette(self._roulette_rng):
+                top = None  # weights changed
+        ess, lse = _ess(pop.log_w, top)
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
-            self._resample()
+            self._resample(lse)
 
     @property
     def _roulette_rng(self) -> np.random.Generator:
@@ -736,9 +747,10 @@ class _Run:
         if empty and self.blank_ll is not None:
             pop.add_loglik(np.asarray(empty, dtype=np.intp), np.float64(self.blank_ll))
 
-    def _resample(self) -> None:
+    def _resample(self, lse: float) -> None:
+        """Resample (lse: log sum exp of the weights, from the ESS)."""
         pop = self.pop
-        self.log_z += _logsumexp(pop.log_w) - math.log(self.n)
+        self.log_z += lse - math.log(self.n)
         anc = draw_ancestors(self.resample, pop.log_w, self.rng)
         pop.take(anc)
         take_arrays(self.like_state, anc)
