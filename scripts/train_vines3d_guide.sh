@@ -5,7 +5,9 @@
 # SMC traces (600 particles), expert-iteration rounds with guided teachers, tuning. The
 # held-out `revolved` set is never used (python benchmarks/eval3d.py scores the guide on
 # it; docs/results/README.md, "3D"). The plan fits the budget to the measured speed of the
-# machine, so a busier machine records fewer traces per round.
+# machine, so a busier machine records fewer traces per round. The bundled file is the
+# 45-minute run of 2026-11-25 (docs/results/3d/learn_vines3d.md) re-tuned with the tune grid
+# learn's tune stage has since run (choice temperatures down to 0.05; tune_vines3d.md there).
 # Usage: bash scripts/train_vines3d_guide.sh [WORKDIR]   (resumes a stopped run in WORKDIR)
 # Then: cp WORKDIR/guide.onnx runtime/ngpm_runtime/data/vines3d_guide.onnx
 set -euo pipefail
