@@ -124,8 +124,37 @@ def report(rows: list[dict[str, Any]], ns: list[int], load_avg: str) -> str:
             if math.isnan(tu)
             else f"{tu:.3f} ({ratio:.1f}x the guided run's)"
         ),
+        "",
+        *paired(rows, ns),
     ]
     return "\n".join(lines) + "\n"
+
+
+def paired(rows: list[dict[str, Any]], ns: list[int]) -> list[str]:
+    """Guided N = 10 minus unguided at each N, target by target (the median of each's
+    runs): the mean difference with half its 95% interval over targets, and on how many
+    targets the guide scored higher (the same seeds and targets: a sharper test of "as good
+    as unguided N" than two overlapping intervals)."""
+    import statistics
+
+    by: dict[tuple[str, int, str], list[float]] = {}
+    for r in rows:
+        by.setdefault((r["model"], int(r["n"]), r["target"]), []).append(float(r["similarity"]))
+    targets = sorted({r["target"] for r in rows})
+    guided = [statistics.median(by[(GUIDED, 10, t)]) for t in targets]
+    lines = []
+    for n in ns:
+        d = [
+            g - statistics.median(by[(UNGUIDED, n, t)])
+            for g, t in zip(guided, targets, strict=True)
+        ]
+        half = 1.96 * statistics.stdev(d) / len(d) ** 0.5 if len(d) > 1 else float("nan")
+        wins = sum(x > 0 for x in d)
+        lines.append(
+            f"guided N=10 - unguided N={n}, per target: {statistics.mean(d):+.3f} +- {half:.3f} "
+            f"(guided higher on {wins} of {len(d)})"
+        )
+    return lines
 
 
 def pictures(program: Any, guide: Any, targets: list[Any], n_big: int, out: Path) -> None:
