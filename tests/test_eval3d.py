@@ -1,0 +1,38 @@
+"""benchmarks/eval3d.py: the report's paired differences (guided N = 10 minus unguided at
+each N, target by target) on made-up runs."""
+
+from __future__ import annotations
+
+import importlib.util
+
+from repo_paths import REPO
+
+
+def load():
+    path = REPO / "benchmarks" / "eval3d.py"
+    spec = importlib.util.spec_from_file_location("eval3d", path)
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run(model: str, n: int, target: str, sim: float) -> dict:
+    return {"model": model, "n": n, "target": target, "similarity": sim, "seconds": 0.1}
+
+
+def test_paired_differences_use_each_targets_median():
+    ev = load()
+    rows = []
+    for t, (g, u) in enumerate(((0.6, 0.5), (0.7, 0.5), (0.4, 0.5))):
+        name = f"t{t}"
+        rows += [
+            run(ev.GUIDED, 10, name, g),
+            run(ev.GUIDED, 10, name, g),
+            run(ev.GUIDED, 10, name, 0.0),
+        ]
+        rows += [run(ev.UNGUIDED, 100, name, u), run(ev.UNGUIDED, 100, name, u)]
+    (line,) = ev.paired(rows, [100])
+    # medians: guided 0.6, 0.7, 0.4 (the 0.0 runs are outvoted); differences 0.1, 0.2, -0.1
+    assert line.startswith("guided N=10 - unguided N=100, per target: +0.067 +- 0.173")
+    assert line.endswith("(guided higher on 2 of 3)")
