@@ -3,18 +3,11 @@ each N, target by target) on made-up runs."""
 
 from __future__ import annotations
 
-import importlib.util
-
-from repo_paths import REPO
+from repo_paths import load_script
 
 
 def load():
-    path = REPO / "benchmarks" / "eval3d.py"
-    spec = importlib.util.spec_from_file_location("eval3d", path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/eval3d.py")
 
 
 def run(model: str, n: int, target: str, sim: float) -> dict:

@@ -4,7 +4,6 @@ its counts are true."""
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import shlex
 from pathlib import Path
@@ -13,18 +12,14 @@ from types import ModuleType
 import numpy as np
 import pytest
 from PIL import Image
-from repo_paths import REPO
+from repo_paths import REPO, load_script
 
 PICTURES = REPO / "docs" / "img" / "3d"
 
 
 @pytest.fixture(scope="module")
 def gallery() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("gallery3d", REPO / "scripts" / "gallery3d.py")
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/gallery3d.py")
 
 
 def drawn(pic: Image.Image) -> np.ndarray:

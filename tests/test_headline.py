@@ -4,21 +4,16 @@ of the results pages and the lab notebook must lead to a file."""
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import shutil
 from pathlib import Path
 
 import pytest
-from repo_paths import REPO
+from repo_paths import REPO, load_script
 
 
 def load_headline():
-    spec = importlib.util.spec_from_file_location("headline", REPO / "scripts" / "headline.py")
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("scripts/headline.py")
 
 
 def test_pages_quote_the_results_files() -> None:

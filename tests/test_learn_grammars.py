@@ -3,23 +3,17 @@ a summary, the page's block, the resumable run on one tiny grammar)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
-from repo_paths import REPO
+from repo_paths import REPO, load_script
 
 from ngpm_compiler.evaluation.runs import UNGUIDED
 
 
 def load():
-    path = REPO / "benchmarks" / "learn_grammars.py"
-    spec = importlib.util.spec_from_file_location("learn_grammars", path)
-    assert spec and spec.loader
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("benchmarks/learn_grammars.py")
 
 
 def summary(guided: float) -> list[dict]:
