@@ -170,6 +170,12 @@ def pictures(program: Any, guide: Any, targets: list[Any], n_big: int, out: Path
         save_png(render_side_by_side(meshes, 256), out / "pictures" / f"{t.name}.png")
 
 
+def _shown(path: str) -> str:
+    """`path` relative to the checkout when it lies inside it (as a command would be typed)."""
+    p = Path(path).resolve()
+    return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else path
+
+
 def main() -> None:
     from ngpm_compiler.evaluation.runs import write_csv
 
@@ -195,6 +201,14 @@ def main() -> None:
     from ngpm_runtime.files import atomic_write
 
     command = f"python benchmarks/eval3d.py --k {args.k} --repeats {args.repeats} --ns {args.ns}"
+    for flag, value, default in (
+        ("--targets", args.targets, str(ROOT / "work" / "revolved")),
+        ("--grammar", args.grammar, None),
+        ("--guide", args.guide, None),
+        ("--out", args.out, str(ROOT / "docs" / "results" / "3d")),
+    ):
+        if value != default:  # the command as run, so the page says which set it scored
+            command += f" {flag} {_shown(value)}"
     atomic_write(out / "eval3d.md", f"`{command}`\n\n{text}".encode())
     pictures(program, guide, targets[: args.pictures], max(ns), out)
 
