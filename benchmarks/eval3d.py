@@ -170,16 +170,21 @@ def pictures(program: Any, guide: Any, targets: list[Any], n_big: int, out: Path
         save_png(render_side_by_side(meshes, 256), out / "pictures" / f"{t.name}.png")
 
 
-def _shown(path: str) -> str:
-    """`path` relative to the checkout when it lies inside it (as a command would be typed)."""
-    p = Path(path).resolve()
-    return str(p.relative_to(ROOT)) if p.is_relative_to(ROOT) else path
+def command_line(ap: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """The command as run, for the report's first line: the options that shape the table,
+    and the paths given that are not the defaults (inside the checkout, relative to it)."""
+    command = f"python benchmarks/eval3d.py --k {args.k} --repeats {args.repeats} --ns {args.ns}"
+    for dest in ("targets", "grammar", "guide", "out"):
+        value = getattr(args, dest)
+        if value != ap.get_default(dest):
+            path = Path(value).resolve()
+            shown = str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else value
+            command += f" --{dest} {shown}"
+    return command
 
 
-def main() -> None:
-    from ngpm_compiler.evaluation.runs import write_csv
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--targets", default=str(ROOT / "work" / "revolved"))
     ap.add_argument("--grammar", help="3D grammar (default: the bundled vines3d)")
     ap.add_argument("--guide", help="guide .onnx (default: the bundled 3D guide)")
@@ -188,6 +193,13 @@ def main() -> None:
     ap.add_argument("--ns", default="10,30,100,300,600", help="unguided particle counts")
     ap.add_argument("--pictures", type=int, default=3, help="targets drawn (first k)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "results" / "3d"))
+    return ap
+
+
+def main() -> None:
+    from ngpm_compiler.evaluation.runs import write_csv
+
+    ap = parser()
     args = ap.parse_args()
     ns = sorted({int(x) for x in args.ns.split(",")})
     program, guide, targets = load(args)
@@ -200,16 +212,7 @@ def main() -> None:
     print(text)
     from ngpm_runtime.files import atomic_write
 
-    command = f"python benchmarks/eval3d.py --k {args.k} --repeats {args.repeats} --ns {args.ns}"
-    for flag, value, default in (
-        ("--targets", args.targets, str(ROOT / "work" / "revolved")),
-        ("--grammar", args.grammar, None),
-        ("--guide", args.guide, None),
-        ("--out", args.out, str(ROOT / "docs" / "results" / "3d")),
-    ):
-        if value != default:  # the command as run, so the page says which set it scored
-            command += f" {flag} {_shown(value)}"
-    atomic_write(out / "eval3d.md", f"`{command}`\n\n{text}".encode())
+    atomic_write(out / "eval3d.md", f"`{command_line(ap, args)}`\n\n{text}".encode())
     pictures(program, guide, targets[: args.pictures], max(ns), out)
 
 
