@@ -1198,6 +1198,81 @@ def guide_round(
 
 
 @jit
+def serve_round(
+    flat: np.ndarray,
+    n_turtle: int,
+    shape: np.ndarray,
+    idx: np.ndarray,
+    site: np.ndarray,
+    turtle: np.ndarray,
+    depth: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    x: np.ndarray,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+    table: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    kinds: np.ndarray,
+    temps: np.ndarray,
+    n_out: np.ndarray,
+    params: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+) -> tuple[int, int]:
+    """A guided SMC round whose every site has a network here, in one call: the packed
+    state into the rows (unpack_round's arguments, flat to n_args), their features into x
+    (feature_windows', view to cell_t), proposal parameters, draws, log q and log prior
+    into out (guide_round's, table to n_out: the outputs per site) and the site weights
+    into log_w and log_prior (add_weights; not when a row's prior arguments are bad).
+    The same kernels in the same order as the round's separate calls, so every number is
+    theirs. Flat arguments: numba's dispatch types arrays fast, tuples slowly. Returns
+    (row count, first bad row or -1)."""
+    n = unpack_round(flat, n_turtle, shape, idx, site, turtle, depth, extra, n_extra, args, n_args)
+    xr = x[:n]
+    feature_windows(
+        xr,
+        turtle[:n],
+        depth[:n],
+        idx[:n],
+        view,
+        size,
+        offs,
+        target,
+        canvas,
+        ctx,
+        ctx_geom,
+        cells,
+        cell_t,
+        extra[:n],
+        n_extra[:n],
+    )
+    n_par = np.empty(n, dtype=np.int64)
+    for r in range(n):
+        n_par[r] = n_out[site[r]]
+    o = out[:n]
+    bad = guide_round(
+        xr, site[:n], table, w, cols, kinds, temps, params[:n], n_par, args[:n], n_args[:n], u, z, o
+    )
+    if bad < 0:
+        add_weights(log_w, log_prior, idx[:n], o[:, 1], o[:, 2])
+    return n, bad
+
+
+@jit
 def _uniform_lq(p: np.ndarray, k: int, lo: float, hi: float, v: float) -> float:
     """Log density of v under the logit-normal mixture proposal on (lo, hi)
     (sitekinds.Uniform.proposal_logpdf)."""

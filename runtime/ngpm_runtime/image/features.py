@@ -294,28 +294,19 @@ class FeatureMaker:
         kernels.feature_windows. SMC's rounds call it (their rows unpacked by
         kernels.unpack_round)."""
         out = np.empty((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
+        self._k.feature_windows(out, turtle, depth, idx, *self.window_args(canvas), extra, n_extra)
+        return out
+
+    def window_args(self, canvas: Canvas | None) -> tuple[np.ndarray, ...]:
+        """kernels.feature_windows' arguments past the rows and the particles' state, in
+        its order: view, level sizes, window offsets, target pyramid, the canvas rows and
+        the context's geometry (kernels.serve_round takes them as one tuple)."""
         if canvas is not self._canvas or self._args is None:  # checked once per canvas
             self._args = self._kernel_args(canvas)
             self._canvas = canvas
         view, size, offs, target, rays, geom, cells, t = self._args
-        self._k.feature_windows(
-            out,
-            turtle,
-            depth,
-            idx,
-            view,
-            size,
-            offs,
-            target,
-            _NO_CANVAS if canvas is None or not size.shape[1] else canvas.padded,
-            rays,
-            geom,
-            cells,
-            t,
-            extra,
-            n_extra,
-        )
-        return out
+        rows = _NO_CANVAS if canvas is None or not size.shape[1] else canvas.padded
+        return (view, size, offs, target, rows, rays, geom, cells, t)
 
     def _kernel_args(self, canvas: Canvas | None) -> tuple[np.ndarray, ...]:
         """kernels.feature_windows' arguments for `canvas` (TargetError if its size is not

@@ -165,7 +165,7 @@ class Guide:
         for i, net in self.nets.items():
             if 0 <= i < len(self._n_out):
                 self._n_out[i] = int(net["n_out"])
-        self._widest = int(self._n_out.max(initial=1))
+        self.widest = int(self._n_out.max(initial=1))
         # the features each site's net reads (-1: no net)
         self._n_f = [
             int(self.nets[s.index]["n_f"]) if s.index in self.nets else -1 for s in program.sites
@@ -432,23 +432,59 @@ class Guide:
             sites = [s for s, on in zip(sites, served, strict=True) if on]
             counts = [m for m, on in zip(counts, served, strict=True) if on]
         n = len(site)
-        params = np.empty((n, self._widest))
+        params = np.empty((n, self.widest))
         if len(self._numpy_nets) < len(nets):
             self._onnx_rows(sites, counts, x, params)
         u = rng.random(n)
-        mixture = self._mixture
-        z = rng.standard_normal(n) if any(mixture[s.index] for s in sites) else _NO_ROWS
+        z = rng.standard_normal(n) if self.needs_normals(sites) else _NO_ROWS
         out = res if n == len(res) else np.empty((n, 3))
         bad = self._kernel(x, site, params, args, n_args, out, u, z)
-        if bad >= 0:  # the error naming the site and the cause
-            pos = 0
-            for s, m in zip(sites, counts, strict=True):
-                if pos <= bad < pos + m:
-                    _bad_args(s, args[pos : pos + m, : n_args[pos]])
-                pos += m
+        if bad >= 0:
+            self.bad_row(sites, counts, args, n_args, bad)
         if out is not res:
             res[keep] = out
         return res
+
+    def round_tables(self, sites: list[Site]) -> tuple[Any, ...] | None:
+        """kernels.serve_round's network arguments (net table, weights, columns, site
+        kinds, temperatures, outputs per site) when its kernel evaluates the net of every
+        site in `sites` from features; else None (propose_rows serves the round)."""
+        nets = self._numpy_nets
+        if not self.uses_features or any(s.index not in nets for s in sites):
+            return None
+        table, w, cols = self._tables()
+        return (table, w, cols, self._kinds_code, self._temperatures(), self._n_out)
+
+    def needs_normals(self, sites: list[Site]) -> bool:
+        """Whether a round's draws at `sites` take a standard normal per row (a mixture)."""
+        mixture = self._mixture
+        return any(mixture[s.index] for s in sites)
+
+    def check_width(self, site: Site, m: int, width: int) -> None:
+        """GuideError when `site`'s feature rows (m of them) are not as wide as its net reads."""
+        want = self._n_f[site.index]
+        if width != want and want >= 0:
+            raise GuideError(
+                f"{self.path}: site {site.index} expects {want} features per row, got "
+                f"shape ({m}, {width}) (features changed since training?)"
+            )
+
+    def bad_row(
+        self,
+        sites: list[Site],
+        counts: list[int],
+        args: np.ndarray,
+        n_args: np.ndarray,
+        bad: int,
+    ) -> NoReturn:
+        """The error for the round's row `bad`, whose prior arguments its site's prior
+        cannot take (the kernel found it): naming the site and the cause."""
+        pos = 0
+        for s, m in zip(sites, counts, strict=True):
+            if pos <= bad < pos + m:
+                _bad_args(s, args[pos : pos + m, : n_args[pos]])
+            pos += m
+        raise ProgramError(f"{self.path}: a round's row {bad} has bad prior arguments")
 
     def _round_features(self, rows: RoundRows, served: list[bool]) -> np.ndarray:
         """The round's float32 feature rows for the kernel, checked against the width
@@ -462,12 +498,7 @@ class Guide:
             width = max([n_f[s] for s in on] + [0])
             return np.zeros((len(rows.site), width), dtype=np.float32)
         for s, m, w in zip(rows.sites, rows.counts, rows.widths, strict=True):
-            want = n_f[s.index]
-            if w != want and want >= 0:
-                raise GuideError(
-                    f"{self.path}: site {s.index} expects {want} features per row, got "
-                    f"shape ({m}, {w}) (features changed since training?)"
-                )
+            self.check_width(s, m, w)
         return x
 
     def _prior_rows(

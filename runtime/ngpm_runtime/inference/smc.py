@@ -382,6 +382,11 @@ class _Run:
         self.buffers = (
             _Buffers(program, n, self.t_width) if self.batched or self.fmaker is not None else None
         )
+        # a guide whose kernel serves a whole round (Guide.round_tables), with 2D features
+        self.round_tables: Any = None
+        if self.batched and self.use_features and hasattr(self.fmaker, "window_args"):
+            self.round_tables = getattr(self.proposal, "round_tables", None)
+        self.width_ok: set[int] = set()  # sites whose feature width the guide accepted
         self.log_z = 0.0
         self.ess_history: list[float] = []
         self.steps = 0
@@ -516,10 +521,15 @@ class _Run:
         # (site served, its particles) of this round; -1: the particles not waiting
         served: list[tuple[int, list[int]]] = [(-1, run)]
         while True:
-            for a, group in served:
+            # one deriver call for the round's groups, one after the other
+            group = served[0][1] if len(served) == 1 else [i for _, g in served for i in g]
+            codes = advance_all([parts[i] for i in group])
+            pos = 0
+            for a, g in served:
                 asked: set[int] = set()  # the sites asked for right after site `a`
-                codes = advance_all([parts[i] for i in group])
-                for i, code in zip(group, codes, strict=True):
+                for i in g:
+                    code = codes[pos]
+                    pos += 1
                     if code == DRAWN:
                         drawn.append(i)
                     elif code == NEED:
@@ -560,6 +570,10 @@ class _Run:
         if self.buffers is None:  # no features, no RoundProposal: one site
             self._serve_site(objs[0], groups[0])
             return
+        tables = self.round_tables(objs) if self.round_tables is not None else None
+        if tables is not None:
+            self._serve_kernel(objs, groups, tables)
+            return
         rows, idx = self._round_rows(objs, groups)
         x = rows.features
         if x is not None and not self.use_features:  # features for the trace only
@@ -579,6 +593,48 @@ class _Run:
             m = len(g)
             self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
             pos += m
+
+    def _serve_kernel(self, sites: list[Site], groups: list[list[int]], tables: tuple) -> None:
+        """A round whose every site the guide's kernel serves (Guide.round_tables): the
+        packed state, features, nets, draws and weights in one kernels.serve_round call;
+        the numbers, and the run's random draws, are those of the separate calls."""
+        packed, top_k = self._pack(sites, groups)
+        buf = self.buffers
+        guide: Any = self.proposal  # a Guide (round_tables is its method)
+        assert buf is not None and self.fmaker is not None
+        m = 0
+        for site, g in zip(sites, groups, strict=True):
+            if site.index not in self.width_ok:  # once per site and run
+                guide.check_width(site, len(g), self.n_feat[site.index] - self.trim)
+                self.width_ok.add(site.index)
+            m += len(g)
+        rng = self.rng
+        u = rng.random(m)
+        z = rng.standard_normal(m) if guide.needs_normals(sites) else _NO_ROWS
+        pop = self.pop
+        n, bad = self.kernels.serve_round(
+            packed,
+            *buf.state(top_k),
+            buf.rows(self.fmaker.n_common),
+            *self.fmaker.window_args(self.canvas),
+            *tables,
+            buf.params(guide.widest),
+            u,
+            z,
+            buf.out,
+            pop.log_w,
+            pop.log_prior,
+        )
+        if bad >= 0:
+            counts = [len(g) for g in groups]
+            guide.bad_row(sites, counts, buf.args[:n], buf.n_args[:n], bad)
+        vals = buf.out[:n, 0].tolist()
+        x = buf.x[:n].copy() if self.trace is TraceRecording.FULL else None
+        pos = 0
+        for site, g in zip(sites, groups, strict=True):
+            k = len(g)
+            self._record(site, g, vals[pos : pos + k], None if x is None else x[pos : pos + k])
+            pos += k
 
     def _record(self, site: Site, idx: list[int], vals: list[float], x: np.ndarray | None) -> None:
         """The values (and, for full traces, the feature rows x, cut to the site's width)
@@ -654,9 +710,14 @@ class _Run:
         self, sites: list[Site], groups: list[list[int]]
     ) -> tuple[RoundRows, np.ndarray]:
         """The round's rows (and the particle of each): the waiting particles' state
-        packed into one float64 vector in one pass (kernels.unpack_round's layout),
-        unpacked into the run's buffers by one kernel call, and their feature rows (one
-        kernel call)."""
+        packed (_pack), unpacked into the run's buffers by one kernel call, and their
+        feature rows (one kernel call)."""
+        packed, top_k = self._pack(sites, groups)
+        return self._unpack(packed, sites, groups, top_k)
+
+    def _pack(self, sites: list[Site], groups: list[list[int]]) -> tuple[np.ndarray, int]:
+        """The waiting particles' state packed into one float64 vector in one pass
+        (kernels.unpack_round's layout), and the most prior arguments a row has."""
         parts = self.pop.parts
         t_width = self.t_width
         flat: list[Any] = []
@@ -692,7 +753,7 @@ class _Run:
             raise ProgramError(
                 f"program {self.program.name}: a turtle state holds something else than numbers"
             ) from None
-        return self._unpack(packed, sites, groups, top_k)
+        return packed, top_k
 
     def _unpack(
         self, packed: np.ndarray, sites: list[Site], groups: list[list[int]], top_k: int
@@ -819,15 +880,18 @@ class _Buffers:
         self.n_extra = np.zeros(n, dtype=np.int64)
         self.args = np.zeros((n, int(shape[:, 1].max(initial=0))))
         self.n_args = np.zeros(n, dtype=np.int64)
+        self.x: np.ndarray | None = None  # kernels.serve_round's rows, value/log q/log p
+        self._params = np.zeros((n, 1))
+        self.out = np.zeros((n, 3))
+        self._state: tuple[Any, ...] | None = None
 
-    def unpack(self, packed: np.ndarray, widest_args: int) -> int:
-        """The rows packed in `packed` (kernels.unpack_round's layout) into the buffers;
-        returns their count."""
+    def state(self, widest_args: int) -> tuple[Any, ...]:
+        """unpack_round's arguments past the packed vector (kernels.serve_round's)."""
         if widest_args > self.args.shape[1]:
             self.args = np.zeros((self.n, widest_args))
-        return int(
-            self.unpack_round(
-                packed,
+            self._state = None
+        if self._state is None:
+            self._state = (
                 self.t_width,
                 self.shape,
                 self.idx,
@@ -839,7 +903,25 @@ class _Buffers:
                 self.args,
                 self.n_args,
             )
-        )
+        return self._state
+
+    def rows(self, n_common: int) -> np.ndarray:
+        """The feature rows' buffer (n, n_common + extra columns) float32."""
+        width = n_common + self.extra.shape[1]
+        if self.x is None or self.x.shape[1] != width:
+            self.x = np.zeros((self.n, width), dtype=np.float32)
+        return self.x
+
+    def params(self, widest: int) -> np.ndarray:
+        """The proposal parameters' buffer (n, widest) float64."""
+        if self._params.shape[1] < widest:
+            self._params = np.zeros((self.n, widest))
+        return self._params
+
+    def unpack(self, packed: np.ndarray, widest_args: int) -> int:
+        """The rows packed in `packed` (kernels.unpack_round's layout) into the buffers;
+        returns their count."""
+        return int(self.unpack_round(packed, *self.state(widest_args)))
 
 
 def _check_rows(site: Site, parts: list[Particle]) -> None:

@@ -82,3 +82,25 @@ def test_seeded_guided_runs_repeat_the_record() -> None:
     want = json.loads(RECORD.read_text())
     changed = sorted(k for k in want if got.get(k) != want[k])
     assert got.keys() == want.keys() and not changed, f"runs that changed: {changed}"
+
+
+def test_round_kernel_equals_the_separate_calls(monkeypatch) -> None:
+    """kernels.serve_round (a round whose every site the guide's kernel serves) gives what
+    the round's separate calls give (unpack, features, propose_rows, weights), bit for bit,
+    full traces included; and guided runs of the bundled guide take it."""
+    from ngpm_runtime import kernels
+    from ngpm_runtime.inference.guide import Guide
+
+    program = bundled_program()
+    guide = default_guide(program)
+    target = demo_targets()[0]
+    calls = []
+    serve = kernels.serve_round
+    monkeypatch.setattr(kernels, "serve_round", lambda *a: calls.append(1) or serve(*a))
+    modes = (TraceRecording.VALUES, TraceRecording.FULL)
+    fused = [_digest(program, guide, target, 0, t) for t in modes]
+    assert calls
+    monkeypatch.setattr(Guide, "round_tables", lambda self, sites: None)
+    calls.clear()
+    assert [_digest(program, guide, target, 0, t) for t in modes] == fused
+    assert not calls
