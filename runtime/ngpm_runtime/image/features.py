@@ -294,7 +294,24 @@ class FeatureMaker:
         kernels.feature_windows. SMC's rounds call it (their rows unpacked by
         kernels.unpack_round)."""
         out = np.empty((len(idx), self.n_common + extra.shape[1]), dtype=np.float32)
-        self._k.feature_windows(out, turtle, depth, idx, *self.window_args(canvas), extra, n_extra)
+        view, size, offs, target, rows, rays, geom, cells, t = self.window_args(canvas)
+        self._k.feature_windows(
+            out,
+            turtle,
+            depth,
+            idx,
+            view,
+            size,
+            offs,
+            target,
+            rows,
+            rays,
+            geom,
+            cells,
+            t,
+            extra,
+            n_extra,
+        )
         return out
 
     def window_args(self, canvas: Canvas | None) -> tuple[np.ndarray, ...]:

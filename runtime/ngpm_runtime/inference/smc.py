@@ -594,7 +594,9 @@ class _Run:
             self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
             pos += m
 
-    def _serve_kernel(self, sites: list[Site], groups: list[list[int]], tables: tuple) -> None:
+    def _serve_kernel(
+        self, sites: list[Site], groups: list[list[int]], tables: tuple[Any, ...]
+    ) -> None:
         """A round whose every site the guide's kernel serves (Guide.round_tables): the
         packed state, features, nets, draws and weights in one kernels.serve_round call;
         the numbers, and the run's random draws, are those of the separate calls."""
@@ -612,10 +614,11 @@ class _Run:
         u = rng.random(m)
         z = rng.standard_normal(m) if guide.needs_normals(sites) else _NO_ROWS
         pop = self.pop
+        x = buf.rows(self.fmaker.n_common)
         n, bad = self.kernels.serve_round(
             packed,
             *buf.state(top_k),
-            buf.rows(self.fmaker.n_common),
+            x,
             *self.fmaker.window_args(self.canvas),
             *tables,
             buf.params(guide.widest),
@@ -629,11 +632,12 @@ class _Run:
             counts = [len(g) for g in groups]
             guide.bad_row(sites, counts, buf.args[:n], buf.n_args[:n], bad)
         vals = buf.out[:n, 0].tolist()
-        x = buf.x[:n].copy() if self.trace is TraceRecording.FULL else None
+        feats = x[:n].copy() if self.trace is TraceRecording.FULL else None
         pos = 0
         for site, g in zip(sites, groups, strict=True):
             k = len(g)
-            self._record(site, g, vals[pos : pos + k], None if x is None else x[pos : pos + k])
+            f = None if feats is None else feats[pos : pos + k]
+            self._record(site, g, vals[pos : pos + k], f)
             pos += k
 
     def _record(self, site: Site, idx: list[int], vals: list[float], x: np.ndarray | None) -> None:
