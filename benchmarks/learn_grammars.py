@@ -112,7 +112,7 @@ def run_learn(grammar: Path, out: Path, args: argparse.Namespace) -> float:
     out.mkdir(parents=True, exist_ok=True)
     argv = [sys.executable, "-m", "ngpm_compiler.cli", "learn", str(grammar), "-o"]
     argv += [str(out / "learn"), "--budget", args.budget, "--workers", str(args.workers)]
-    argv += ["--seed", str(args.seed)]
+    argv += ["--seed", str(args.seed)] + (["--tune-teachers"] if args.tune_teachers else [])
     t0 = time.perf_counter()
     with open(out / "learn.log", "ab") as log:
         code = subprocess.call(argv, stdout=log, stderr=subprocess.STDOUT)
@@ -178,7 +178,10 @@ def evaluate(name: str, grammar: Path, out: Path, sets: dict[str, str], args: An
 
 def settings(args: argparse.Namespace) -> dict[str, Any]:
     keys = ("budget", "targets", "repeats", "ns", "workers", "seed")
-    return {k: getattr(args, k) for k in keys}
+    out = {k: getattr(args, k) for k in keys}
+    if args.tune_teachers:  # only when on: results recorded before the option stay valid
+        out["tune_teachers"] = True
+    return out
 
 
 def one_grammar(name: str, out: Path, sets: dict[str, str], args: Any) -> dict[str, Any]:
@@ -248,7 +251,8 @@ def block(results: list[dict[str, Any]], args: Any, load: tuple[float, float]) -
             "mean over targets of the median similarity), guided N = 10 against unguided "
             f"SMC; {os.cpu_count()} cores, load average {load[0]:.1f} at the start and "
             f"{load[1]:.1f} at the end (`python benchmarks/learn_grammars.py --budget "
-            f"{args.budget} --grammars {','.join(args.grammars)}`).",
+            f"{args.budget} --grammars {','.join(args.grammars)}"
+            f"{' --tune-teachers' if args.tune_teachers else ''}`).",
             "",
             *table(results, list(args.ns)),
         ]
@@ -290,6 +294,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--ns", default="10,30,100,300,1000", help="unguided N (10,...,1000)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--tune-teachers", action="store_true", help="pass --tune-teachers to ngpmc learn"
+    )
     ap.add_argument("--page", default=str(REPO / "docs" / "results" / "learn_grammars.md"))
     args = ap.parse_args(argv)
     args.grammars = [g.strip() for g in args.grammars.split(",") if g.strip()]

@@ -97,3 +97,21 @@ def test_a_grammar_learned_on_envelopes_is_scored_on_held_out_envelopes(tmp_path
     assert list(sets) == ["envelopes_2001", "envelopes_2002"]
     index = json.loads((Path(sets["envelopes_2001"]) / "index.json").read_text())
     assert index["seed"] == 2001 and index["grammar"] == "bush.lsys" and index["count"] == 2
+
+
+def test_tune_teachers_reaches_learn_and_keys_the_result(monkeypatch, tmp_path):
+    """--tune-teachers is passed to `ngpmc learn` and recorded in the settings (a result
+    recorded without it stays valid for runs without it)."""
+    import argparse
+
+    lg = load()
+    base = dict(budget="45m", targets=12, repeats=2, ns=[10], workers=2, seed=0)
+    plain = argparse.Namespace(**base, tune_teachers=False)
+    tuned = argparse.Namespace(**base, tune_teachers=True)
+    assert "tune_teachers" not in lg.settings(plain)
+    assert lg.settings(tuned) == {**lg.settings(plain), "tune_teachers": True}
+    calls = []
+    monkeypatch.setattr(lg.subprocess, "call", lambda argv, **_k: calls.append(argv) or 0)
+    lg.run_learn(tmp_path / "g.lsys", tmp_path / "out", tuned)
+    lg.run_learn(tmp_path / "g.lsys", tmp_path / "out", plain)
+    assert "--tune-teachers" in calls[0] and "--tune-teachers" not in calls[1]

@@ -211,7 +211,8 @@ def open_run(cfg: LearnConfig, log: Log) -> Run:
         except ValueError:
             raise LearnError(f"{path}: not valid JSON; remove it or use another -o") from None
         if old.get("format") != STATE_FORMAT or old.get("key") != key:
-            diff = sorted(k for k in key if old.get("key", {}).get(k) != key[k])
+            was = old.get("key", {})
+            diff = sorted(k for k in key.keys() | was.keys() if was.get(k) != key.get(k))
             raise LearnError(
                 f"{out}: holds a learn run of another configuration (differs in "
                 f"{', '.join(diff) or 'format'}); use another -o"

@@ -217,6 +217,12 @@ def test_another_configuration_in_the_same_folder_is_refused(tmp_path):
     cfg.seed = 1
     with pytest.raises(LearnError, match="holds a learn run of another configuration .*seed"):
         learn_mod.open_run(cfg, lambda _m: None)
+    cfg.seed, cfg.out = 0, str(tmp_path / "tuned")
+    cfg.tune_teachers = True  # a key only the folder's run has is named too
+    learn_mod.open_run(cfg, lambda _m: None)
+    cfg.tune_teachers = False
+    with pytest.raises(LearnError, match="differs in tune_teachers\\)"):
+        learn_mod.open_run(cfg, lambda _m: None)
 
 
 def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatch, tiny_plan):
