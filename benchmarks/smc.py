@@ -20,9 +20,12 @@ top functions by own time.
 for comparing two versions run in turn (benchmarks/compare_steps.py).
 --trace-jobs: the 600-particle trace job (values recorded, best replayed) next to recording
 features for every particle.
+--round-kernel: guided N=10 with a round in one kernels.serve_round call against the
+round's separate calls, alternating run by run in one process (`--repeats` rounds).
 
 Usage: python benchmarks/smc.py [--guide PATH] [--glyphs 6] [--silhouettes 6] [--seeds 2]
        [--equal-sim [--ladder 10,20,...] [--repeats 3]] [--nets] [--profile] [--trace-jobs]
+       [--round-kernel [--repeats 3]]
 Needs the compiler (ngpm_compiler) for the datasets. CPU seconds are reported as well as
 wall seconds: the machine may be shared.
 """
@@ -314,6 +317,33 @@ def nets(guide: Any) -> None:
         print(f"{rows:5d} {1e6 * a:8.1f} {1e6 * b:8.1f}")
 
 
+def round_kernel(program: Any, guide: Any, targets: list, repeats: int) -> None:
+    """Guided N=10 with each round in one kernels.serve_round call against the round's
+    separate calls (Guide.round_tables switched off), the two alternating run by run in
+    this process (so a changing load hits both alike): median CPU ms per step of each and
+    the median of the paired ratios. The runs are bit-identical, so only time differs."""
+    from ngpm_runtime.inference.guide import Guide
+
+    fused = Guide.round_tables
+    ms: dict[bool, list[float]] = {True: [], False: []}
+    try:
+        for rep in range(repeats):
+            for seed in range(2):
+                for _, t in targets:
+                    for on in (True, False) if (rep + seed) % 2 == 0 else (False, True):
+                        Guide.round_tables = fused if on else lambda self, sites: None
+                        r = one_run(program, t, guide, 10, seed)
+                        ms[on].append(1000 * r["cpu"] / r["steps"])
+    finally:
+        Guide.round_tables = fused
+    ratio = statistics.median(a / b for a, b in zip(ms[False], ms[True], strict=True))
+    print(
+        f"\nround kernel: guided N=10, {len(ms[True])} runs each, alternating: "
+        f"{statistics.median(ms[False]):.3f} ms/step CPU with the separate calls, "
+        f"{statistics.median(ms[True]):.3f} with serve_round; paired ratio {ratio:.2f}x"
+    )
+
+
 def trace_jobs(program: Any, targets: list) -> None:
     """The 600-particle trace job (traces.run_job) and the same run with features for
     every particle (trace=TraceRecording.FULL), CPU seconds per job."""
@@ -362,6 +392,7 @@ def main() -> None:
     ap.add_argument("--nets", action="store_true")
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--trace-jobs", action="store_true")
+    ap.add_argument("--round-kernel", action="store_true")
     ap.add_argument("--json", default=None, help="write the step table's runs here")
     args = ap.parse_args()
 
@@ -388,6 +419,9 @@ def main() -> None:
         return
     if args.nets:
         nets(guide)
+    if args.round_kernel:
+        round_kernel(program, guide, targets, args.repeats)
+        return
     step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:
         equal_similarity(
