@@ -884,7 +884,9 @@ class _Buffers:
         self.n_extra = np.zeros(n, dtype=np.int64)
         self.args = np.zeros((n, int(shape[:, 1].max(initial=0))))
         self.n_args = np.zeros(n, dtype=np.int64)
-        self.x: np.ndarray | None = None  # kernels.serve_round's rows, value/log q/log p
+        # kernels.serve_round's feature rows, proposal parameters and (value, log q, log
+        # prior) per row
+        self.x: np.ndarray | None = None
         self._params = np.zeros((n, 1))
         self.out = np.zeros((n, 3))
         self._state: tuple[Any, ...] | None = None
