@@ -585,14 +585,7 @@ class _Run:
             vals = res[:, 0].tolist()
         else:  # one site, with features (recorded traces)
             vals = self._propose_one(objs[0], rows, idx)
-        if len(groups) == 1:
-            self._record(objs[0], groups[0], vals, x)
-            return
-        pos = 0
-        for site, g in zip(objs, groups, strict=True):
-            m = len(g)
-            self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
-            pos += m
+        self._record_round(objs, groups, vals, x)
 
     def _serve_kernel(
         self, sites: list[Site], groups: list[list[int]], tables: tuple[Any, ...]
@@ -631,14 +624,21 @@ class _Run:
         if bad >= 0:
             counts = [len(g) for g in groups]
             guide.bad_row(sites, counts, buf.args[:n], buf.n_args[:n], bad)
-        vals = buf.out[:n, 0].tolist()
         feats = x[:n].copy() if self.trace is TraceRecording.FULL else None
+        self._record_round(sites, groups, buf.out[:n, 0].tolist(), feats)
+
+    def _record_round(
+        self, sites: list[Site], groups: list[list[int]], vals: list[float], x: np.ndarray | None
+    ) -> None:
+        """`_record` for each site of a round: vals (and x's rows) are its groups' in turn."""
+        if len(groups) == 1:
+            self._record(sites[0], groups[0], vals, x)
+            return
         pos = 0
         for site, g in zip(sites, groups, strict=True):
-            k = len(g)
-            f = None if feats is None else feats[pos : pos + k]
-            self._record(site, g, vals[pos : pos + k], f)
-            pos += k
+            m = len(g)
+            self._record(site, g, vals[pos : pos + m], None if x is None else x[pos : pos + m])
+            pos += m
 
     def _record(self, site: Site, idx: list[int], vals: list[float], x: np.ndarray | None) -> None:
         """The values (and, for full traces, the feature rows x, cut to the site's width)
