@@ -705,6 +705,32 @@ def take_rows(
 
 
 @jit
+def chain_rows(head: np.ndarray, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of lists kept as linked rows (compiled_run._Pool: `head[i]` particle i's
+    newest row, `prev[r]` the row before r, -1 none): every list's rows oldest first, one
+    list after the other, and where each starts (n + 1,)."""
+    n = head.shape[0]
+    starts = np.zeros(n + 1, dtype=np.int64)
+    pos = 0
+    for i in range(n):
+        starts[i] = pos
+        r = head[i]
+        while r >= 0:
+            pos += 1
+            r = prev[r]
+    starts[n] = pos
+    out = np.empty(pos, dtype=np.int64)
+    for i in range(n):
+        r = head[i]
+        j = starts[i + 1] - 1
+        while r >= 0:
+            out[j] = r
+            j -= 1
+            r = prev[r]
+    return out, starts
+
+
+@jit
 def unpack_round(
     flat: np.ndarray,
     n_turtle: int,

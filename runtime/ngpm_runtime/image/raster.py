@@ -244,7 +244,20 @@ class Canvas:
         idx = np.asarray(idx, dtype=np.intp).reshape(-1)
         if len(prims) != len(idx):
             raise ValueError("draw: one primitive per listed particle")
-        codes, par, verts, vstart = _pack(prims)
+        return self.draw_packed(idx, *_pack(prims))
+
+    def draw_packed(
+        self,
+        idx: np.ndarray,
+        codes: np.ndarray,
+        par: np.ndarray,
+        verts: np.ndarray = _NO_VERTS,
+        vstart: np.ndarray | None = None,
+    ) -> DrawBatch:
+        """`draw` of primitives given as the draw kernel takes them (`_pack`'s arrays:
+        kind codes, parameters (n, <= 5), polygon vertices and their starts)."""
+        if vstart is None:
+            vstart = np.zeros(len(idx) + 1, dtype=np.intp)
         bbox, y0, x0, new, hit_k, hit_pix = self._k.draw(
             self.image,
             self.padded,

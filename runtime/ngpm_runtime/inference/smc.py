@@ -184,6 +184,10 @@ class SMCResult:
 NEGLIGIBLE_LIVE = 1e-100
 LOG_NEGLIGIBLE_LIVE = math.log(NEGLIGIBLE_LIVE)
 _ROULETTE_STREAM = 0x524F55  # the roulette's random stream, beside the run's
+USE_COMPILED = True  # unguided runs on the compiled deriver where it can (compiled_run.py)
+# particles from which a run compiles its grammar's deriver (about 7 s the first time, a
+# disk cache later); smaller runs use it once this process has it
+COMPILE_FROM = 100
 
 
 def _logsumexp(a: np.ndarray, m: float | None = None) -> float:
@@ -236,16 +240,46 @@ def smc(
     check_run_options(n_particles, options.seed, options.max_modules)
     n = int(n_particles)
     threshold = _check_options(n, proposal, options)
-    run = _Run(program, likelihood, n, proposal, options, tuple(observers))
-    max_steps = options.max_steps
+    args = (program, likelihood, n, proposal, options, tuple(observers))
+    compiled = _compiled_deriver(*args)
+    if compiled is not None:
+        from ngpm_runtime.inference.compiled_run import CompiledRun, KernelFailed
+
+        try:
+            return _finish(CompiledRun(compiled, *args), threshold, options.max_steps, t0)
+        except KernelFailed:  # the Python deriver runs it again and reports the error
+            pass
+    return _finish(_Run(*args), threshold, options.max_steps, t0)
+
+
+def _finish(run: _Run, threshold: float | None, max_steps: int | None, t0: float) -> SMCResult:
+    """Step `run` until no particle is live (or max_steps); its result."""
     while run.pop.live:
         if max_steps is not None and run.steps >= max_steps:
-            for i in run.pop.live:
-                run.pop.parts[i].status = "limit"
-                run.pop.parts[i].limit = "max steps"
+            run.stop_live("max steps")
             break
         run.step(threshold)
     return run.result(time.perf_counter() - t0)
+
+
+def _compiled_deriver(
+    program: Program,
+    likelihood: Likelihood | None,
+    n: int,
+    proposal: Proposal | None,
+    options: SMCOptions,
+    observers: tuple[SMCObserver, ...],
+) -> Any:
+    """The program's compiled deriver when the run can use it (compiled_run.py): the
+    prior proposal, no feature traces, no observers, a 2D grammar the kernel can run, and
+    COMPILE_FROM particles or more unless the process has the deriver already."""
+    if not USE_COMPILED or observers or options.trace is TraceRecording.FULL:
+        return None
+    if program.dim != 2 or not (proposal is None or type(proposal) is PriorProposal):
+        return None
+    from ngpm_runtime.geometry.compiled import compiled_deriver
+
+    return compiled_deriver(program, compile=n >= COMPILE_FROM)
 
 
 def _check_options(n: int, proposal: Proposal | None, options: SMCOptions) -> float | None:
@@ -783,32 +817,48 @@ class _Run:
     def _observe(self, drawn: list[int], empty: list[int]) -> None:
         """Rasterize the new primitives and apply the likelihood increments (and the blank
         image's log-likelihood to particles that ended without drawing)."""
+        parts = self.pop.parts
+        drawn.sort()
+        # a particle that drew has its primitive in `last`
+        self._observe_prims(drawn, empty, cast("list[Prim]", [parts[i].last for i in drawn]))
+        cap = self.cap
+        for i in drawn:
+            p = parts[i]
+            if p.stack is None:
+                p.status = "done"
+            elif p.n_prims >= cap:
+                p.status = "limit"
+                p.limit = "max primitives"
+
+    def _observe_prims(
+        self,
+        drawn: list[int],
+        empty: list[int],
+        prims: Sequence[Prim],
+        packed: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        """Rasterize `prims` (one per particle of `drawn`, ascending; `packed`: the same
+        as the draw kernel's codes and parameters) and apply the likelihood increments,
+        and the blank image's to the particles of `empty`."""
         pop = self.pop
-        parts = pop.parts
         if drawn:
-            drawn.sort()
             idx = np.asarray(drawn, dtype=np.intp)
-            # a particle that drew has its primitive in `last`
-            prims = cast("list[Prim]", [parts[i].last for i in drawn])
             batch: DrawBatch | PrimBatch
             if self.canvas is not None:
-                batch = self.canvas.draw(idx, prims)
-                batch.prims = prims
+                if packed is None:
+                    batch = self.canvas.draw(idx, cast("list[Prim]", prims))
+                else:
+                    batch = self.canvas.draw_packed(idx, *packed)
+                batch.prims = cast("list[Prim]", prims)
             else:
-                batch = PrimBatch(idx, np.array([prim_bbox(q) for q in prims]), prims)
+                batch = PrimBatch(
+                    idx, np.array([prim_bbox(q) for q in prims]), cast("list[Prim]", prims)
+                )
             if self.likelihood is not None:
                 inc = np.asarray(
                     self.likelihood.increment(self.like_state, self.canvas, batch), dtype=np.float64
                 )
                 pop.add_loglik(idx, np.where(np.isnan(inc), -np.inf, inc))
-            cap = self.cap
-            for i in drawn:
-                p = parts[i]
-                if p.stack is None:
-                    p.status = "done"
-                elif p.n_prims >= cap:
-                    p.status = "limit"
-                    p.limit = "max primitives"
         if empty and self.blank_ll is not None:
             pop.add_loglik(np.asarray(empty, dtype=np.intp), np.float64(self.blank_ll))
 
@@ -818,6 +868,7 @@ class _Run:
         self.log_z += lse - math.log(self.n)
         anc = draw_ancestors(self.resample, pop.log_w, self.rng)
         pop.take(anc)
+        self._take_state(anc)
         take_arrays(self.like_state, anc)
         if self.canvas is not None:
             self.canvas.take(anc)
@@ -826,6 +877,15 @@ class _Run:
             take_arrays(self.state.arrays, anc)
             for obs in self.observers:
                 obs.resampled(anc)
+
+    def _take_state(self, anc: np.ndarray) -> None:
+        """Resampling of state kept outside the population (CompiledRun's arrays)."""
+
+    def stop_live(self, reason: str) -> None:
+        """The live particles stop with status "limit" and this reason ("max steps")."""
+        for i in self.pop.live:
+            self.pop.parts[i].status = "limit"
+            self.pop.parts[i].limit = reason
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.pop

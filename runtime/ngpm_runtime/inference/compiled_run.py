@@ -1,0 +1,403 @@
+"""Unguided SMC on the compiled deriver (issue #22): the population as arrays.
+
+`CompiledRun` is smc._Run with the particles' derivation state in arrays (module stacks,
+turtles, turtle stacks, replay values, requests) that geometry/compiled.py's `advance`
+kernel steps, all waiting particles of a round in one call. Everything else is _Run's:
+rounds served site by site in SiteOrder's order, the prior's draws from the run's
+generator, weights, likelihood, resampling. So a seeded run draws the same values and
+gives the same particles, weights and images as the Python deriver's run, bit for bit
+(tests/runtime/inference/test_compiled_run.py).
+
+Used by `smc()` for the prior proposal without feature traces or observers on a grammar
+the compiled deriver can run (`use_compiled`); when the kernel raises (a math domain error,
+a runaway grammar), `smc()` runs the Python deriver instead, which reports the error.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from itertools import repeat
+from typing import Any, overload
+
+import numpy as np
+
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
+from ngpm_runtime.geometry.derive import DONE, DRAWN, MAX_PRIMITIVES, MAX_WORK, NEED
+from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.inference.smc import (
+    FinalParticle,
+    Population,
+    SMCResult,
+    TraceRecording,
+    _limit_counts,
+    _logsumexp,
+    _Run,
+)
+
+LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
+STATUS = ("live", "done", "limit", "dead")
+LIMITS = (None, "max modules", "max primitives", "max steps")
+_PRIM_KINDS = ("seg", "disk", "leaf")
+
+
+class KernelFailed(Exception):
+    """The compiled deriver raised: the run is done again by the Python deriver."""
+
+
+class RowPopulation(Population):
+    """Population whose particles are rows of arrays: `status` and `limit` per row."""
+
+    def __init__(self, n: int) -> None:
+        super().__init__([])
+        self.n = n
+        self.log_w = np.zeros(n)
+        self.log_prior = np.zeros(n)
+        self.log_lik = np.zeros(n)
+        self.live = list(range(n))
+        self.status = np.zeros(n, dtype=np.int8)
+        self.limit = np.zeros(n, dtype=np.int8)
+
+    def update_live(self) -> None:
+        status = self.status
+        status[(self.log_w == -np.inf) & (status == LIVE)] = DEAD
+        self.live = np.flatnonzero(status == LIVE).tolist()
+
+    def take(self, anc: np.ndarray) -> None:
+        self.status = self.status[anc]
+        self.limit = self.limit[anc]
+        self.live = np.flatnonzero(self.status == LIVE).tolist()
+        self.log_prior = self.log_prior[anc]
+        self.log_lik = self.log_lik[anc]
+        self.log_w = np.zeros(self.n)
+
+    def stop_live(self, reason: int) -> None:
+        for i in self.live:
+            self.status[i] = LIMITED
+            self.limit[i] = reason
+
+
+class CompiledRun(_Run):
+    """_Run with the derivation in the compiled deriver's arrays (see the module's doc)."""
+
+    def __init__(self, deriver: CompiledDeriver, *args: Any) -> None:
+        super().__init__(*args)
+        n = self.n
+        info = deriver.info
+        self.kernel = deriver.advance
+        self.max_succ = info.max_succ
+        self.pop_start = self.pop.parts[0].turtle
+        self.pop = self.rows = RowPopulation(n)
+        self.stack = np.zeros((n, 64, info.width))
+        self.stack[:, 0, 1] = -1.0  # the axiom's pseudo-module at depth -1
+        self.sp = np.ones(n, dtype=np.int64)
+        start = self.pop_start  # the Python deriver's start pose (start_particles)
+        self.turtle = np.tile(np.asarray(start, dtype=np.float64), (n, 1))
+        self.tstack = np.zeros((n, 16, 4))
+        self.tsp = np.zeros(n, dtype=np.int64)
+        self.vals = np.zeros((n, 8))
+        self.nv = np.zeros(n, dtype=np.int64)
+        self.need = np.zeros((n, 2 + info.max_args))
+        self.need[:, 0] = -1.0
+        self.prim = np.zeros(n, dtype=np.int64)
+        self.prim_par = np.zeros((n, 5))
+        self.n_prims = np.zeros(n, dtype=np.int64)
+        self.work = np.zeros(n, dtype=np.int64)
+        self.resume = np.zeros((n, 2), dtype=np.int64)
+        self.prim_pool = _Pool(n, 6)  # kind code, 5 parameters
+        self.trace_pool = _Pool(n, 2)  # site, value
+        self.dlen = int(self.program.derivation_length)
+        self.max_modules = int(self.deriver.max_modules)
+
+    # ---- derivation ----------------------------------------------------------------------
+
+    def _advance(self, ids: np.ndarray) -> np.ndarray:
+        """The kernel over particles ids (growing a full stack and going on): outcomes."""
+        codes = np.zeros(len(ids), dtype=np.int64)
+        todo = ids
+        where = np.arange(len(ids))
+        while True:
+            part = np.zeros(len(todo), dtype=np.int64)
+            try:
+                self.kernel(
+                    todo,
+                    self.stack,
+                    self.sp,
+                    self.turtle,
+                    self.tstack,
+                    self.tsp,
+                    self.vals,
+                    self.nv,
+                    self.need,
+                    self.prim,
+                    self.prim_par,
+                    self.n_prims,
+                    self.work,
+                    self.resume,
+                    part,
+                    self.dlen,
+                    float(self.program.angle),
+                    self.max_modules,
+                    MAX_WORK,
+                    MAX_PRIMITIVES,
+                )
+            except Exception as err:  # numba's errors: the Python deriver says what
+                raise KernelFailed(str(err)) from None
+            codes[where] = part
+            grow = part == GROW
+            if not grow.any():
+                return codes
+            todo, where = todo[grow], where[grow]
+            if int(self.sp[todo].max()) - 1 + self.max_succ > self.stack.shape[1]:
+                self.stack = _grown(self.stack, 1)
+            if int(self.tsp[todo].max()) >= self.tstack.shape[1]:
+                self.tstack = _grown(self.tstack, 1)
+
+    def _derive(self) -> tuple[list[int], list[int]]:
+        """smc._Run._derive over the arrays: the same rounds, in the same order."""
+        pop = self.rows
+        order = self.order
+        live = np.asarray(pop.live, dtype=np.int64)
+        sites = self.need[live, 0].astype(np.int64)
+        waiting: dict[int, np.ndarray] = {}
+        _join(waiting, live[sites >= 0], sites[sites >= 0])
+        drawn: list[np.ndarray] = []
+        empty: list[np.ndarray] = []
+        a, group = -1, live[sites < 0]
+        while True:
+            codes = self._advance(group)
+            drawn.append(group[codes == DRAWN])
+            asks = codes == NEED
+            asked = self.need[group[asks], 0].astype(np.int64)
+            _join(waiting, group[asks], asked)
+            if a >= 0:
+                for b in np.unique(asked).tolist():
+                    order.saw(a, b)
+            ended = group[(codes != DRAWN) & ~asks]
+            if len(ended):
+                done = codes[(codes != DRAWN) & ~asks] == DONE
+                pop.status[ended] = np.where(done, FINISHED, LIMITED)
+                pop.limit[ended[~done]] = 1
+                empty.append(ended[self.n_prims[ended] == 0])
+            if not waiting:
+                out = np.concatenate(drawn)
+                out.sort()
+                return out.tolist(), np.concatenate(empty).tolist() if empty else []
+            a = order.pick(waiting)  # type: ignore[arg-type]  # sized values
+            group = np.sort(waiting.pop(a))
+            self._serve_rows(a, group)
+
+    def _serve_rows(self, s: int, ia: np.ndarray) -> None:
+        """smc._Run._serve_site for the prior, reading the requests from the arrays."""
+        program = self.program
+        if not 0 <= s < len(program.sites):
+            raise ProgramError(f"program {program.name} asked for unknown site {s}")
+        site = program.sites[s]
+        k = int(self.need[ia[0], 1])  # one count per site (the kernel checked the rows)
+        args = self.need[ia, 2 : 2 + k]
+        values, log_q = self.proposal.propose(site, args, None, self.rng)
+        values = np.asarray(values, dtype=np.float64)
+        self._weigh(ia.astype(np.intp), None, log_q)
+        nv = self.nv
+        top = nv[ia]
+        if int(top.max()) >= self.vals.shape[1]:
+            self.vals = _grown(self.vals, 1)
+        self.vals[ia, top] = values
+        nv[ia] = top + 1
+        self.need[ia, 0] = -1.0
+        if self.trace is TraceRecording.VALUES:
+            self.trace_pool.add(ia, np.full(len(ia), s), values)
+
+    # ---- the rest of a step ---------------------------------------------------------------
+
+    def _observe(self, drawn: list[int], empty: list[int]) -> None:
+        """_Run._observe on the arrays: the step's primitives, the particles that ended or
+        hit the primitive cap."""
+        idx = np.asarray(drawn, dtype=np.int64)
+        codes = self.prim[idx]
+        par = self.prim_par[idx]
+        self.prim_pool.add(idx, codes, par)
+        self._observe_prims(drawn, empty, PrimRows(codes, par), (codes.astype(np.int8), par))
+        pop = self.rows
+        ended = self.sp[idx] == 0
+        pop.status[idx[ended]] = FINISHED
+        capped = idx[~ended & (self.n_prims[idx] >= self.cap)]
+        pop.status[capped] = LIMITED
+        pop.limit[capped] = 2
+
+    def _take_state(self, anc: np.ndarray) -> None:
+        """Resampling of the derivation state: row k becomes old row anc[k]."""
+        for name in ("sp", "turtle", "tsp", "nv", "need", "n_prims", "work"):
+            setattr(self, name, getattr(self, name)[anc])
+        for name, used in (("stack", self.sp), ("tstack", self.tsp), ("vals", self.nv)):
+            old = getattr(self, name)
+            new = np.empty_like(old)  # the same capacity; the rows in use copied
+            m = int(used.max(initial=0))
+            new[:, :m] = old[anc, :m]
+            setattr(self, name, new)
+        self.prim_pool.take(anc)
+        self.trace_pool.take(anc)
+
+    def stop_live(self, reason: str) -> None:
+        self.rows.stop_live(LIMITS.index(reason))
+
+    def result(self, seconds: float) -> SMCResult:
+        pop = self.rows
+        log_w = pop.log_w
+        log_z = self.log_z + _logsumexp(log_w) - np.log(self.n)
+        prims = self.prim_pool.lists(_made_prims)
+        traces: list[Any] = [None] * self.n
+        if self.trace is not TraceRecording.NONE:
+            traces = self.trace_pool.lists(_made_trace)
+        finals = [
+            FinalParticle(
+                primitives=prims[i],
+                log_prior=lp,
+                log_likelihood=ll,
+                log_weight=lw,
+                trace=traces[i],
+                status=STATUS[st],
+                limit=LIMITS[lim] if st == LIMITED else None,
+            )
+            for i, (lp, ll, lw, st, lim) in enumerate(
+                zip(
+                    pop.log_prior.tolist(),
+                    pop.log_lik.tolist(),
+                    log_w.tolist(),
+                    pop.status.tolist(),
+                    pop.limit.tolist(),
+                    strict=True,
+                )
+            )
+        ]
+        score = np.where(np.isfinite(log_w), pop.log_prior + pop.log_lik, -np.inf)
+        status = {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}
+        return SMCResult(
+            particles=finals,
+            log_weights=log_w.copy(),
+            best=finals[int(np.argmax(score))],
+            log_evidence=float(log_z),
+            ess_history=self.ess_history,
+            steps=self.steps,
+            seconds=seconds,
+            info={
+                "particle_steps": self.particle_steps,
+                "resamples": self.n_resample,
+                "status": status,
+                "limits": _limit_counts(finals),
+                "deriver": "compiled",
+            },
+        )
+
+
+def _join(waiting: dict[int, np.ndarray], idx: np.ndarray, sites: np.ndarray) -> None:
+    """Particles idx wait at sites: into `waiting` (site -> particles)."""
+    if not len(idx):
+        return
+    for s in np.unique(sites).tolist():
+        new = idx[sites == s]
+        old = waiting.get(s)
+        waiting[s] = new if old is None else np.concatenate((old, new))
+
+
+class PrimRows(Sequence[Prim]):
+    """Primitives held as the draw kernel's arrays (kind codes, parameters), made into
+    tuples when read (DrawBatch.prims for a likelihood that reads them)."""
+
+    def __init__(self, codes: np.ndarray, par: np.ndarray) -> None:
+        self.codes = codes
+        self.par = par
+
+    def __len__(self) -> int:
+        return len(self.codes)
+
+    @overload
+    def __getitem__(self, k: int) -> Prim: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[Prim]: ...
+
+    def __getitem__(self, k: int | slice) -> Prim | list[Prim]:
+        if isinstance(k, slice):
+            return [self[j] for j in range(*k.indices(len(self)))]
+        return _prim(int(self.codes[k]), self.par[k].tolist())
+
+
+def _prim(code: int, row: list[float]) -> Prim:
+    return (_PRIM_KINDS[code], *row[: 3 if code == 1 else 5])
+
+
+class _Pool:
+    """Per-particle lists that share their past, as cons lists do (the primitives drawn,
+    the values drawn): rows (value columns, previous row) in arrays; `head[i]` is particle
+    i's newest row (-1: none); resampling copies heads only."""
+
+    def __init__(self, n: int, width: int) -> None:
+        self.head = np.full(n, -1, dtype=np.int64)
+        self.prev = np.zeros(1024, dtype=np.int64)
+        self.cols = np.zeros((1024, width))
+        self.top = 0
+
+    def add(self, idx: np.ndarray, *columns: np.ndarray) -> None:
+        m = len(idx)
+        if not m:
+            return
+        if self.top + m > len(self.prev):
+            size = max(2 * len(self.prev), self.top + m)
+            self.prev = np.resize(self.prev, size)
+            self.cols = np.resize(self.cols, (size, self.cols.shape[1]))
+        rows = np.arange(self.top, self.top + m)
+        self.prev[rows] = self.head[idx]
+        c = 0
+        for col in columns:
+            block = col.reshape(m, -1)
+            self.cols[rows, c : c + block.shape[1]] = block
+            c += block.shape[1]
+        self.head[idx] = rows
+        self.top += m
+
+    def take(self, anc: np.ndarray) -> None:
+        self.head = self.head[anc]
+
+    def lists(self, made: Callable[[np.ndarray, np.ndarray], list[Any]]) -> list[list[Any]]:
+        """Every particle's list, oldest first: its rows as `made(rows, columns)` makes
+        them (one item per row; a row shared by several lists is made once)."""
+        from ngpm_runtime import kernels
+
+        ids, starts = kernels.chain_rows(self.head, self.prev)
+        rows = np.unique(ids)
+        table: list[Any] = [None] * self.top
+        for r, item in zip(rows.tolist(), made(rows, self.cols[rows]), strict=True):
+            table[r] = item
+        flat = ids.tolist()
+        at = starts.tolist()
+        return [[table[r] for r in flat[at[i] : at[i + 1]]] for i in range(len(at) - 1)]
+
+
+def _made_prims(rows: np.ndarray, cols: np.ndarray) -> list[Prim]:
+    """Primitive tuples of prim pool rows (kind code, parameters)."""
+    out: list[Any] = [None] * len(rows)
+    codes = cols[:, 0]
+    for code, kind in enumerate(_PRIM_KINDS):
+        at = np.flatnonzero(codes == code)
+        if len(at):
+            width = 3 if kind == "disk" else 5
+            made = zip(repeat(kind), *(cols[at, 1 + j].tolist() for j in range(width)))
+            for k, prim in zip(at.tolist(), made, strict=True):
+                out[k] = prim
+    return out
+
+
+def _made_trace(rows: np.ndarray, cols: np.ndarray) -> list[Any]:
+    """(site, None, value) of trace pool rows (site, value)."""
+    sites = cols[:, 0].astype(np.int64).tolist()
+    return list(zip(sites, repeat(None), cols[:, 1].tolist()))
+
+
+def _grown(a: np.ndarray, axis: int) -> np.ndarray:
+    """`a` with its `axis` twice as long (zeros past the old end)."""
+    shape = list(a.shape)
+    shape[axis] *= 2
+    out = np.zeros(shape, dtype=a.dtype)
+    out[tuple(slice(0, s) for s in a.shape)] = a
+    return out

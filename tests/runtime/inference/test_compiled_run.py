@@ -1,0 +1,219 @@
+"""Unguided SMC on the compiled deriver (inference/compiled_run.py, geometry/compiled.py)
+against the Python deriver, the reference: the same seeded run gives the same particles,
+primitives, traces, weights and evidence, bit for bit; an error the kernel cannot decide
+like Python is the Python deriver's located error."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fixtures.tiny_programs import SumXLikelihood
+from ngpm_runtime.errors import ProgramError
+from ngpm_runtime.geometry.compiled import compiled_deriver
+from ngpm_runtime.inference import smc as smc_module
+from ngpm_runtime.inference.likelihood import ShapeLikelihood
+from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
+from repo_paths import REPO
+
+from ngpm_compiler.language.compile import load_grammar
+
+# conditions, stochastic groups, every random call, math, F rewritten, cut, halt, ignored
+# modules, default arguments, disks, leaves, turn-around
+A_RULE = (
+    "A(n, d) : n > 0 --> F(uniform(0.5, 1.5)) [ +(gauss(20, 5) * (1 + d % 2)) B(n - 1) ]"
+    " -(categorical(1, 2, 3) * 10) A(n - 1, d + 1) : 0.7"
+)
+FEATURES = f"""
+#define W 0.4
+viewport: -12 12 -12 12
+derivation length: 9
+angle: 30
+
+Axiom: !(W) A(4, 0) Q(2)
+
+production:
+
+{A_RULE}
+                   | F(abs(sin(d * 30)) + 0.2) @O(0.3 + flip(0.3) * 0.2) [ f % F ] : 0.3
+A(n, d) --> ~l(1 + sqrt(n + 1), 0.5 + min(d, 2) / 4) | + F
+B(m) : m > 1 and m < 3 --> F(2 ^ -1) + B(m - 1) X(floor(m * 1.7), atan2(m, 2))
+B(m) : m >= 3 --> F [ - F(gauss(1, max(0, m - 3))) ] halt : 0.2 | F F : 0.8
+F --> F F(0.5)
+"""
+
+# nesting deeper than the arrays' first capacity (64 stack rows, 16 turtle states) and more
+# values in one production than the first 8 columns: the kernel grows them and goes on
+DEEP = """
+viewport: -40 40 -40 40
+derivation length: 200
+
+Axiom: D(90)
+
+production:
+
+D(k) : k > 0 --> [ +(gauss(0, 5)) f(0.2) D(k - 1) ] F(0.3) : 0.9 | M F : 0.1
+"""
+DEEP += "M --> " + " ".join(["+(gauss(0, 1))"] * 10) + " F\n"
+
+
+def grammar(tmp_path: Path, text: str, name: str = "g.lsys"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return load_grammar(path)
+
+
+def disk_mask(size: int = 32) -> np.ndarray:
+    yy, xx = np.mgrid[:size, :size]
+    return (yy - size / 2) ** 2 + (xx - size / 2) ** 2 < (size / 3) ** 2
+
+
+def both(monkeypatch, program, likelihood, n, **options):
+    """The same run on the compiled deriver and on the Python one."""
+    out = []
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        opts = SMCOptions(**options)
+        out.append(smc(program, likelihood, n, options=opts))
+    assert out[0].info.get("deriver") == "compiled"
+    assert out[1].info.get("deriver") is None
+    return out
+
+
+def assert_same(a, b) -> None:
+    assert a.steps == b.steps
+    assert a.log_evidence == b.log_evidence
+    assert a.ess_history == b.ess_history
+    np.testing.assert_array_equal(a.log_weights, b.log_weights)
+    for p, q in zip(a.particles, b.particles, strict=True):
+        assert p == q  # primitives, log prior / likelihood / weight, trace, status, limit
+    assert a.best == b.best
+    for key in ("particle_steps", "resamples", "status", "limits"):
+        assert a.info[key] == b.info[key]
+
+
+def test_vines_runs_equal_python(monkeypatch) -> None:
+    program = load_grammar(REPO / "grammars" / "vines.lsys")
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    for seed in range(3):
+        a, b = both(
+            monkeypatch,
+            program,
+            like,
+            40,
+            seed=seed,
+            canvas_size=mask.shape,
+            target_mask=mask,
+            trace=TraceRecording.VALUES,
+        )
+        assert a.info["resamples"] > 0
+        assert_same(a, b)
+
+
+@pytest.mark.parametrize("name", ["lily", "grass", "canopy", "stochastic_plant", "chain"])
+def test_shipped_grammars_equal_python(monkeypatch, name: str) -> None:
+    program = load_grammar(REPO / "grammars" / f"{name}.lsys")
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    a, b = both(monkeypatch, program, like, 24, seed=7, canvas_size=mask.shape, target_mask=mask)
+    assert_same(a, b)
+
+
+def test_features_equal_python(monkeypatch, tmp_path: Path) -> None:
+    program = grammar(tmp_path, FEATURES)
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    kinds = {s.kind for s in program.sites}
+    assert kinds == {"normal", "uniform", "bernoulli", "categorical"}
+    drawn = set()
+    for seed in range(4):
+        a, b = both(
+            monkeypatch,
+            program,
+            like,
+            30,
+            seed=seed,
+            canvas_size=mask.shape,
+            target_mask=mask,
+            trace=TraceRecording.VALUES,
+            ess_threshold=0.5,
+        )
+        assert_same(a, b)
+        a, b = both(monkeypatch, program, None, 30, seed=seed)
+        assert_same(a, b)
+        drawn |= {q[0] for p in a.particles for q in p.primitives}
+    assert drawn == {"seg", "disk", "leaf"}
+    # a likelihood without a canvas reads the batch's primitives (PrimRows)
+    a, b = both(monkeypatch, program, SumXLikelihood(), 20, seed=1)
+    assert_same(a, b)
+
+
+def test_deep_grammar_grows_its_arrays(monkeypatch, tmp_path: Path) -> None:
+    program = grammar(tmp_path, DEEP)
+    for seed in range(3):
+        a, b = both(monkeypatch, program, None, 6, seed=seed, trace=TraceRecording.VALUES)
+        assert_same(a, b)
+    assert max(len(p.trace) for p in a.particles) > 8
+
+
+def test_caps_equal_python(monkeypatch, tmp_path: Path) -> None:
+    program = grammar(
+        tmp_path,
+        "derivation length: 30\nmax modules: 200\nAxiom: A\nproduction:\n"
+        "A --> A F(uniform(0, 1)) A : 0.5 | F : 0.5\n",
+    )
+    for seed in range(3):
+        a, b = both(monkeypatch, program, None, 8, seed=seed, max_primitives=40, max_steps=60)
+        assert_same(a, b)
+    assert {p.limit for p in a.particles} - {None}
+
+
+@pytest.mark.parametrize(
+    "rule, error",
+    [
+        ("A(x) --> F(sqrt(x - 2)) A(x - 1)", "math domain error"),
+        ("A(x) --> F(1 / x) A(x - 1)", "ZeroDivisionError"),
+        ("A(x) --> F(gauss(0, x - 2)) A(x - 1)", "standard deviation must be >= 0"),
+        ("A(x) --> F(pow(x - 3, 0.5)) A(x - 1)", "math domain error"),
+        ("A(x) --> F(exp(x * 300)) A(x - 1)", "math range error"),
+    ],
+)
+def test_errors_are_the_python_derivers(monkeypatch, tmp_path: Path, rule: str, error: str):
+    program = grammar(tmp_path, f"derivation length: 9\nAxiom: A(4)\nproduction:\n{rule}\n")
+    messages = []
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        with pytest.raises(ProgramError) as err:
+            smc(program, None, 3, options=SMCOptions(seed=0))
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+    assert error in messages[0]
+
+
+def test_what_the_kernel_does_not_run(tmp_path: Path) -> None:
+    """Interpretation rules, polygons and 3D grammars stay with the Python deriver."""
+    interp = grammar(
+        tmp_path,
+        "Axiom: A\nproduction:\nA --> L F\ninterpretation:\nL --> ~l(1, 1)\n",
+        "i.lsys",
+    )
+    poly = grammar(tmp_path, "Axiom: A\nproduction:\nA --> { . f + . f + . }\n", "p.lsys")
+    three = load_grammar(REPO / "grammars" / "tree3d.lsys")
+    for program in (interp, poly, three):
+        assert compiled_deriver(program) is None
+        res = smc(program, None, 2, options=SMCOptions(seed=0))
+        assert res.info.get("deriver") is None
+
+
+def test_small_runs_compile_nothing(tmp_path: Path) -> None:
+    """A run of fewer than COMPILE_FROM particles uses the compiled deriver only once the
+    process has it (a larger run compiled it): a quick sample pays no compile time."""
+    program = grammar(
+        tmp_path, "derivation length: 5\nAxiom: A\nproduction:\nA --> F(gauss(1, 0.1)) A\n"
+    )
+    small = smc_module.COMPILE_FROM - 1
+    assert smc(program, None, small).info.get("deriver") is None
+    assert smc(program, None, smc_module.COMPILE_FROM).info.get("deriver") == "compiled"
+    assert smc(program, None, small).info.get("deriver") == "compiled"
