@@ -705,6 +705,16 @@ def take_rows(
 
 
 @jit
+def link_rows(head: np.ndarray, prev: np.ndarray, top: int, ids: np.ndarray) -> None:
+    """Rows top, top + 1, ... become the newest of lists ids[0], ids[1], ... in turn
+    (compiled_run._Pool; a list may get several)."""
+    for r in range(ids.shape[0]):
+        i = ids[r]
+        prev[top + r] = head[i]
+        head[i] = top + r
+
+
+@jit
 def chain_rows(head: np.ndarray, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rows of lists kept as linked rows (compiled_run._Pool: `head[i]` particle i's
     newest row, `prev[r]` the row before r, -1 none): every list's rows oldest first, one
@@ -1310,3 +1320,281 @@ def _uniform_lq(p: np.ndarray, k: int, lo: float, hi: float, v: float) -> float:
     _, lz = _mixture_draw(p, k, 0.0, 1.0, 0.0, 0.0, zz, True)
     out = lz - (math.log(width) + math.log(uu) + math.log1p(-uu))
     return -np.inf if out != out else out
+
+
+# ---- unguided rounds on the compiled deriver (inference/compiled_run.py) -------------------
+
+LOG_2PI = float(np.log(2.0 * np.pi))  # as sitekinds.LOG_2PI
+DRAWN, NEED, DONE = 1, 2, 3  # derive.py's outcomes
+
+
+@jit
+def _saw(reach: np.ndarray, a: int, b: int) -> None:
+    """SiteOrder.saw: site b was asked for right after site a (reach: its closure)."""
+    if reach[a, b]:
+        return
+    new = reach[b].copy()
+    new[b] = True
+    for x in range(reach.shape[0]):
+        if x == a or reach[x, a]:
+            for y in range(reach.shape[1]):
+                if new[y]:
+                    reach[x, y] = True
+
+
+@jit
+def _pick(reach: np.ndarray, wait_n: np.ndarray) -> int:
+    """SiteOrder.pick: a waiting site no other waiting site leads to, most particles
+    first, the lowest index on ties (-1: none waits)."""
+    m = wait_n.shape[0]
+    n_wait = 0
+    only = -1
+    for s in range(m):
+        if wait_n[s] > 0:
+            n_wait += 1
+            only = s
+    if n_wait <= 1:
+        return only
+    blocked = np.zeros(m, dtype=np.bool_)
+    for a in range(m):
+        if wait_n[a] > 0:
+            for b in range(m):
+                if b != a and wait_n[b] > 0 and reach[a, b]:
+                    blocked[b] = True
+    free = False
+    for s in range(m):
+        if wait_n[s] > 0 and not blocked[s]:
+            free = True
+    best = -1
+    for s in range(m):
+        if wait_n[s] > 0 and (not blocked[s] or not free):
+            if best < 0 or wait_n[s] > wait_n[best]:
+                best = s
+    return best
+
+
+@jit
+def _fsum(a: np.ndarray) -> float:
+    """math.fsum (Shewchuk's exact partial sums)."""
+    partials = np.zeros(a.shape[0] + 1)
+    m = 0
+    for x in a:
+        i = 0
+        for j in range(m):
+            y = partials[j]
+            if abs(x) < abs(y):
+                x, y = y, x
+            hi = x + y
+            lo = y - (hi - x)
+            if lo != 0.0:
+                partials[i] = lo
+                i += 1
+            x = hi
+        partials[i] = x
+        m = i + 1
+    total = 0.0
+    for j in range(m):
+        total += partials[j]
+    return total
+
+
+@jit
+def _prior_draw(
+    kind: int, args: np.ndarray, rng: np.random.Generator, out_v: np.ndarray, out_lp: np.ndarray
+) -> None:
+    """sitekinds' prior_draw for the rows of `args` (one site): the same generator call,
+    the same values and log prior (numpy's arithmetic in numpy's order)."""
+    n, k = args.shape
+    if kind == 0:  # normal
+        z = rng.standard_normal(n)
+        point = False
+        for r in range(n):
+            sd = abs(args[r, 1])
+            out_v[r] = args[r, 0] + sd * z[r]
+            if not sd > 0:
+                point = True
+        for r in range(n):
+            sd = abs(args[r, 1])
+            if not point:
+                out_lp[r] = -0.5 * z[r] * z[r] - np.log(sd) - 0.5 * LOG_2PI
+            elif sd == 0:
+                out_lp[r] = 0.0 if out_v[r] == args[r, 0] else -np.inf
+            else:
+                zz = (out_v[r] - args[r, 0]) / sd
+                lp = -0.5 * zz * zz - np.log(sd) - 0.5 * LOG_2PI
+                out_lp[r] = lp if lp == lp else -np.inf
+    elif kind == 1:  # uniform
+        u = rng.random(n)
+        for r in range(n):
+            a = min(args[r, 0], args[r, 1])
+            b = max(args[r, 0], args[r, 1])
+            width = b - a
+            out_v[r] = a + width * u[r]
+            out_lp[r] = -np.log(width if width > 0 else 1.0)
+    elif kind == 2:  # bernoulli
+        u = rng.random(n)
+        for r in range(n):
+            p = min(max(args[r, 0], 0.0), 1.0)
+            if u[r] < p:
+                out_v[r] = 1.0
+                out_lp[r] = np.log(p)
+            else:
+                out_v[r] = 0.0
+                out_lp[r] = np.log(1.0 - p)
+    else:  # categorical
+        same = n > 1
+        for r in range(1, n):
+            for j in range(k):
+                if args[r, j] != args[0, j]:
+                    same = False
+        if same:  # one distribution for every row (a stochastic group)
+            cum = np.empty(k)
+            c = 0.0
+            for j in range(k):
+                c += args[0, j]
+                cum[j] = c
+            total = _fsum(args[0])
+            u = rng.random(n)
+            for r in range(n):
+                x = u[r] * cum[k - 1]
+                j = 0
+                while j < k and cum[j] <= x:
+                    j += 1
+                j = min(j, k - 1)
+                out_v[r] = j
+                out_lp[r] = np.log(args[0, j] / total)
+        else:
+            p = np.empty((n, k))
+            for r in range(n):
+                total = _pairwise_sum(args[r])
+                for j in range(k):
+                    p[r, j] = args[r, j] / total
+            u = rng.random(n)
+            cum = np.empty(k)
+            for r in range(n):
+                c = 0.0
+                for j in range(k):
+                    c += p[r, j]
+                    cum[j] = c
+                x = u[r] * cum[k - 1]
+                j = 0
+                for i in range(k):
+                    if cum[i] <= x:
+                        j += 1
+                j = min(j, k - 1)
+                out_v[r] = j
+                out_lp[r] = np.log(p[r, j])
+
+
+@jit
+def start_rounds(
+    live: np.ndarray, need: np.ndarray, wait_ids: np.ndarray, wait_n: np.ndarray
+) -> np.ndarray:
+    """A step's first round (smc._Run._derive): the live particles not waiting (to
+    advance); the waiting ones into wait_ids[site, :wait_n[site]]."""
+    group = np.empty(live.shape[0], dtype=np.int64)
+    g = 0
+    wait_n[:] = 0
+    for i in live:
+        s = int(need[i, 0])
+        if s < 0:
+            group[g] = i
+            g += 1
+        else:
+            wait_ids[s, wait_n[s]] = i
+            wait_n[s] += 1
+    return group[:g]
+
+
+@jit
+def prior_round(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: int,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    site_kind: np.ndarray,
+    rng: np.random.Generator,
+    log_prior: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    rec: np.ndarray,
+) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """One round of smc._Run._derive for the prior proposal, after the compiled deriver
+    advanced `group` (outcomes `codes`; `served` the site its particles were served, -1 in
+    a step's first round): the outcomes sorted into drawn, empty (counts[0], counts[1]),
+    statuses and the waiting lists; SiteOrder's next site served (the prior's draws,
+    sitekinds' prior_draw, from `rng`; log prior added; values appended for replay, and
+    to rec as (particle, site, value) rows, counts[2], when rec has columns). Returns the
+    served particles (to advance next), the site (-1: the step is over), vals and rec
+    (new arrays when they grew)."""
+    asked = np.zeros(wait_n.shape[0], dtype=np.bool_)
+    for j in range(group.shape[0]):
+        i = group[j]
+        code = codes[j]
+        if code == DRAWN:
+            drawn[counts[0]] = i
+            counts[0] += 1
+        elif code == NEED:
+            s = int(need[i, 0])
+            asked[s] = True
+            wait_ids[s, wait_n[s]] = i
+            wait_n[s] += 1
+        else:
+            status[i] = 1 if code == DONE else 2
+            if code != DONE:
+                limit[i] = 1
+            if n_prims[i] == 0:
+                empty[counts[1]] = i
+                counts[1] += 1
+    if served >= 0:
+        for s in range(asked.shape[0]):
+            if asked[s]:
+                _saw(reach, served, s)
+    a = _pick(reach, wait_n)
+    if a < 0:
+        return group[:0], -1, vals, rec
+    m = wait_n[a]
+    nxt = np.sort(wait_ids[a, :m])
+    wait_n[a] = 0
+    k = int(need[nxt[0], 1])
+    args = np.empty((m, k))
+    top = 0
+    for r in range(m):
+        i = nxt[r]
+        for j in range(k):
+            args[r, j] = need[i, 2 + j]
+        top = max(top, nv[i])
+    v = np.empty(m)
+    lp = np.empty(m)
+    _prior_draw(site_kind[a], args, rng, v, lp)
+    if top >= vals.shape[1]:
+        more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
+        more[:, : vals.shape[1]] = vals
+        vals = more
+    for r in range(m):
+        i = nxt[r]
+        log_prior[i] += lp[r]
+        vals[i, nv[i]] = v[r]
+        nv[i] += 1
+        need[i, 0] = -1.0
+    if rec.shape[1] > 0:
+        n_rec = counts[2]
+        if n_rec + m > rec.shape[0]:
+            more = np.zeros((2 * (n_rec + m), 3))
+            more[:n_rec] = rec[:n_rec]
+            rec = more
+        for r in range(m):
+            rec[n_rec + r, 0] = nxt[r]
+            rec[n_rec + r, 1] = a
+            rec[n_rec + r, 2] = v[r]
+        counts[2] = n_rec + m
+    return nxt, a, vals, rec

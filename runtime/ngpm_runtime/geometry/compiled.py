@@ -312,6 +312,7 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
             codes[q] = stop
         else:
             codes[q] = DRAWN if drew else DONE
+
 '''
 
 

@@ -21,10 +21,10 @@ from typing import Any, overload
 
 import numpy as np
 
-from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
-from ngpm_runtime.geometry.derive import DONE, DRAWN, MAX_PRIMITIVES, MAX_WORK, NEED
+from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.inference.smc import (
     FinalParticle,
     Population,
@@ -85,6 +85,17 @@ class CompiledRun(_Run):
         n = self.n
         info = deriver.info
         self.kernel = deriver.advance
+        sites = self.program.sites
+        m = max(len(sites), 1)
+        self.reach = np.zeros((m, m), dtype=np.bool_)  # SiteOrder's closure
+        self.site_kind = np.array([KINDS[s.kind].code for s in sites] or [0], dtype=np.int64)
+        self.wait_ids = np.zeros((m, n), dtype=np.int64)  # a round's waiting particles
+        self.wait_n = np.zeros(m, dtype=np.int64)
+        self.drawn = np.zeros(n, dtype=np.int64)
+        self.empty = np.zeros(n, dtype=np.int64)
+        self.counts = np.zeros(3, dtype=np.int64)  # drawn, empty, values recorded
+        record = self.trace is TraceRecording.VALUES
+        self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
         self.pop_start = self.pop.parts[0].turtle
         self.pop = self.rows = RowPopulation(n)
@@ -154,59 +165,49 @@ class CompiledRun(_Run):
                 self.tstack = _grown(self.tstack, 1)
 
     def _derive(self) -> tuple[list[int], list[int]]:
-        """smc._Run._derive over the arrays: the same rounds, in the same order."""
-        pop = self.rows
-        order = self.order
-        live = np.asarray(pop.live, dtype=np.int64)
-        sites = self.need[live, 0].astype(np.int64)
-        waiting: dict[int, np.ndarray] = {}
-        _join(waiting, live[sites >= 0], sites[sites >= 0])
-        drawn: list[np.ndarray] = []
-        empty: list[np.ndarray] = []
-        a, group = -1, live[sites < 0]
+        """smc._Run._derive over the arrays: the same rounds in the same order (each round
+        one call of the compiled deriver and one of kernels.prior_round, which serves the
+        next site with the prior's draws from the run's generator)."""
+        from ngpm_runtime import kernels
+
+        rows = self.rows
+        counts = self.counts
+        counts[:] = 0
+        group = kernels.start_rounds(
+            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
+        )
+        site = -1
         while True:
             codes = self._advance(group)
-            drawn.append(group[codes == DRAWN])
-            asks = codes == NEED
-            asked = self.need[group[asks], 0].astype(np.int64)
-            _join(waiting, group[asks], asked)
-            if a >= 0:
-                for b in np.unique(asked).tolist():
-                    order.saw(a, b)
-            ended = group[(codes != DRAWN) & ~asks]
-            if len(ended):
-                done = codes[(codes != DRAWN) & ~asks] == DONE
-                pop.status[ended] = np.where(done, FINISHED, LIMITED)
-                pop.limit[ended[~done]] = 1
-                empty.append(ended[self.n_prims[ended] == 0])
-            if not waiting:
-                out = np.concatenate(drawn)
-                out.sort()
-                return out.tolist(), np.concatenate(empty).tolist() if empty else []
-            a = order.pick(waiting)  # type: ignore[arg-type]  # sized values
-            group = np.sort(waiting.pop(a))
-            self._serve_rows(a, group)
-
-    def _serve_rows(self, s: int, ia: np.ndarray) -> None:
-        """smc._Run._serve_site for the prior, reading the requests from the arrays."""
-        program = self.program
-        if not 0 <= s < len(program.sites):
-            raise ProgramError(f"program {program.name} asked for unknown site {s}")
-        site = program.sites[s]
-        k = int(self.need[ia[0], 1])  # one count per site (the kernel checked the rows)
-        args = self.need[ia, 2 : 2 + k]
-        values, log_q = self.proposal.propose(site, args, None, self.rng)
-        values = np.asarray(values, dtype=np.float64)
-        self._weigh(ia.astype(np.intp), None, log_q)
-        nv = self.nv
-        top = nv[ia]
-        if int(top.max()) >= self.vals.shape[1]:
-            self.vals = _grown(self.vals, 1)
-        self.vals[ia, top] = values
-        nv[ia] = top + 1
-        self.need[ia, 0] = -1.0
-        if self.trace is TraceRecording.VALUES:
-            self.trace_pool.add(ia, np.full(len(ia), s), values)
+            group, site, self.vals, self.rec = kernels.prior_round(
+                group,
+                codes,
+                site,
+                self.need,
+                self.n_prims,
+                self.wait_ids,
+                self.wait_n,
+                self.drawn,
+                self.empty,
+                counts,
+                rows.status,
+                rows.limit,
+                self.reach,
+                self.site_kind,
+                self.rng,
+                rows.log_prior,
+                self.vals,
+                self.nv,
+                self.rec,
+            )
+            if site < 0:
+                break
+        n_rec = int(counts[2])
+        if n_rec:
+            rec = self.rec[:n_rec]
+            self.trace_pool.add(rec[:, 0].astype(np.int64), rec[:, 1:])
+        drawn = np.sort(self.drawn[: counts[0]])
+        return drawn.tolist(), self.empty[: counts[1]].tolist()
 
     # ---- the rest of a step ---------------------------------------------------------------
 
@@ -290,16 +291,6 @@ class CompiledRun(_Run):
         )
 
 
-def _join(waiting: dict[int, np.ndarray], idx: np.ndarray, sites: np.ndarray) -> None:
-    """Particles idx wait at sites: into `waiting` (site -> particles)."""
-    if not len(idx):
-        return
-    for s in np.unique(sites).tolist():
-        new = idx[sites == s]
-        old = waiting.get(s)
-        waiting[s] = new if old is None else np.concatenate((old, new))
-
-
 class PrimRows(Sequence[Prim]):
     """Primitives held as the draw kernel's arrays (kind codes, parameters), made into
     tuples when read (DrawBatch.prims for a likelihood that reads them)."""
@@ -339,21 +330,23 @@ class _Pool:
         self.top = 0
 
     def add(self, idx: np.ndarray, *columns: np.ndarray) -> None:
+        """Rows made of `columns` (one row per entry of idx) become the newest of lists
+        idx, in turn (an index may repeat)."""
         m = len(idx)
         if not m:
             return
+        from ngpm_runtime import kernels
+
         if self.top + m > len(self.prev):
             size = max(2 * len(self.prev), self.top + m)
             self.prev = np.resize(self.prev, size)
             self.cols = np.resize(self.cols, (size, self.cols.shape[1]))
-        rows = np.arange(self.top, self.top + m)
-        self.prev[rows] = self.head[idx]
         c = 0
         for col in columns:
             block = col.reshape(m, -1)
-            self.cols[rows, c : c + block.shape[1]] = block
+            self.cols[self.top : self.top + m, c : c + block.shape[1]] = block
             c += block.shape[1]
-        self.head[idx] = rows
+        kernels.link_rows(self.head, self.prev, self.top, np.asarray(idx, dtype=np.int64))
         self.top += m
 
     def take(self, anc: np.ndarray) -> None:
