@@ -1406,7 +1406,7 @@ def _prior_draw(
     the same values and log prior (numpy's arithmetic in numpy's order)."""
     n, k = args.shape
     if kind == 0:  # normal
-        z = rng.standard_normal(n)
+        z = np.asarray(rng.standard_normal(n))
         point = False
         for r in range(n):
             sd = abs(args[r, 1])
@@ -1424,7 +1424,7 @@ def _prior_draw(
                 lp = -0.5 * zz * zz - np.log(sd) - 0.5 * LOG_2PI
                 out_lp[r] = lp if lp == lp else -np.inf
     elif kind == 1:  # uniform
-        u = rng.random(n)
+        u = np.asarray(rng.random(n))
         for r in range(n):
             a = min(args[r, 0], args[r, 1])
             b = max(args[r, 0], args[r, 1])
@@ -1432,7 +1432,7 @@ def _prior_draw(
             out_v[r] = a + width * u[r]
             out_lp[r] = -np.log(width if width > 0 else 1.0)
     elif kind == 2:  # bernoulli
-        u = rng.random(n)
+        u = np.asarray(rng.random(n))
         for r in range(n):
             p = min(max(args[r, 0], 0.0), 1.0)
             if u[r] < p:
@@ -1454,7 +1454,7 @@ def _prior_draw(
                 c += args[0, j]
                 cum[j] = c
             total = _fsum(args[0])
-            u = rng.random(n)
+            u = np.asarray(rng.random(n))
             for r in range(n):
                 x = u[r] * cum[k - 1]
                 j = 0
@@ -1469,7 +1469,7 @@ def _prior_draw(
                 total = _pairwise_sum(args[r])
                 for j in range(k):
                     p[r, j] = args[r, j] / total
-            u = rng.random(n)
+            u = np.asarray(rng.random(n))
             cum = np.empty(k)
             for r in range(n):
                 c = 0.0

@@ -8,7 +8,8 @@ or `$NUMBA_CACHE_DIR`). Later processes load it in well under a second.
 `cache_is_cold()` tells whether a kernel has no cache file yet (the CLI prints a one-line
 note then). `warm_up()` fills the cache by running tiny SMC runs of
 the bundled vines model through every kernel path (unguided, guided, circuit, full
-traces); `python -m ngpm_runtime.warmup` runs it, e.g. right after `pip install` or in a
+traces, the vines grammar's compiled deriver: geometry/compiled.py, whose modules live in
+its own cache folder); `python -m ngpm_runtime.warmup` runs it, e.g. right after `pip install` or in a
 Docker build.
 """
 
@@ -50,7 +51,7 @@ def cache_is_cold() -> bool:
 
 
 COLD_NOTE = (
-    "compiling the SMC kernels for this machine (once, about 20 s; later runs load them "
+    "compiling the SMC kernels for this machine (once, about 30 s; later runs load them "
     "from disk; `python -m ngpm_runtime.warmup` does it ahead of time)"
 )
 
@@ -60,7 +61,7 @@ def warm_up() -> float:
     returns the seconds it took."""
     from ngpm_runtime.bundled import bundled_program, default_guide, demo_targets
     from ngpm_runtime.grow import grow
-    from ngpm_runtime.inference.smc import TraceRecording
+    from ngpm_runtime.inference.smc import COMPILE_FROM, TraceRecording
 
     t0 = time.perf_counter()
     program = bundled_program()
@@ -70,6 +71,8 @@ def warm_up() -> float:
     grow(program, target, guide, n_particles=2, seed=0, max_modules=40)
     grow(program, target, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
     grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
+    # unguided runs of COMPILE_FROM particles or more: the vines deriver (compiled.py)
+    grow(program, target, None, n_particles=COMPILE_FROM, seed=0, trace=TraceRecording.VALUES)
     program3d, block, guide3d = _tiny_3d()
     grow(program3d, block, guide3d, n_particles=2, seed=0, max_modules=40)  # 3D kernels
     grow(program3d, block, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
