@@ -22,10 +22,12 @@ for comparing two versions run in turn (benchmarks/compare_steps.py).
 features for every particle.
 --round-kernel: guided N=10 with a round in one kernels.serve_round call against the
 round's separate calls, alternating run by run in one process (`--repeats` rounds).
+--compiled: unguided N=200/600/2000 and the 600-particle trace job on the compiled deriver
+(inference/compiled_run.py) against the Python deriver, alternating run by run.
 
 Usage: python benchmarks/smc.py [--guide PATH] [--glyphs 6] [--silhouettes 6] [--seeds 2]
        [--equal-sim [--ladder 10,20,...] [--repeats 3]] [--nets] [--profile] [--trace-jobs]
-       [--round-kernel [--repeats 3]]
+       [--round-kernel [--repeats 3]] [--compiled [--repeats 3]]
 Needs the compiler (ngpm_compiler) for the datasets. CPU seconds are reported as well as
 wall seconds: the machine may be shared.
 """
@@ -344,6 +346,47 @@ def round_kernel(program: Any, guide: Any, targets: list, repeats: int) -> None:
     )
 
 
+def compiled_deriver(program: Any, targets: list, repeats: int) -> None:
+    """Unguided SMC (N = 200, 600, 2000) and the 600-particle trace job on the compiled
+    deriver (inference/compiled_run.py) against the Python deriver (smc.USE_COMPILED off),
+    alternating run by run in this process: median CPU seconds per run of each, the
+    median of the paired ratios, and whether every pair gave the same similarity (the
+    runs are bit-identical)."""
+    from ngpm_runtime.inference import smc as smc_module
+
+    from ngpm_compiler.learning.trace_jobs import run_job
+
+    one_run(program, targets[0][1], None, smc_module.COMPILE_FROM, 0)  # compile, load
+    print(f"\ncompiled deriver vs Python deriver, alternating, {repeats} repeat(s):")
+    print(f"{'':22s} {'Python s':>9s} {'compiled s':>10s} {'ratio':>6s} {'equal':>6s}")
+    for label in ("unguided N=200", "unguided N=600", "unguided N=2000", "trace job N=600"):
+        secs: dict[bool, list[float]] = {True: [], False: []}
+        same = True
+        for rep in range(repeats):
+            for ti, (_, t) in enumerate(targets):
+                sims = []
+                for on in (True, False) if (rep + ti) % 2 == 0 else (False, True):
+                    smc_module.USE_COMPILED = on
+                    try:
+                        if label.startswith("trace"):
+                            c0 = time.process_time()
+                            trace, n_prims = run_job(program, t, rep, 600)
+                            secs[on].append(time.process_time() - c0)
+                            sims.append(repr((n_prims, [(s, v) for s, _, v in trace])))
+                        else:
+                            r = one_run(program, t, None, int(label.split("=")[1]), rep)
+                            secs[on].append(r["cpu"])
+                            sims.append(repr(r["sim"]))
+                    finally:
+                        smc_module.USE_COMPILED = True
+                same = same and sims[0] == sims[1]
+        ratio = statistics.median(b / a for a, b in zip(secs[True], secs[False], strict=True))
+        print(
+            f"{label:22s} {statistics.median(secs[False]):9.4f} "
+            f"{statistics.median(secs[True]):10.4f} {ratio:5.2f}x {str(same):>6s}"
+        )
+
+
 def trace_jobs(program: Any, targets: list) -> None:
     """The 600-particle trace job (traces.run_job) and the same run with features for
     every particle (trace=TraceRecording.FULL), CPU seconds per job."""
@@ -393,6 +436,7 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--trace-jobs", action="store_true")
     ap.add_argument("--round-kernel", action="store_true")
+    ap.add_argument("--compiled", action="store_true")
     ap.add_argument("--json", default=None, help="write the step table's runs here")
     args = ap.parse_args()
 
@@ -421,6 +465,9 @@ def main() -> None:
         nets(guide)
     if args.round_kernel:
         round_kernel(program, guide, targets, args.repeats)
+        return
+    if args.compiled:
+        compiled_deriver(program, targets, args.repeats)
         return
     step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:
