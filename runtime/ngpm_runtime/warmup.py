@@ -9,8 +9,8 @@ or `$NUMBA_CACHE_DIR`). Later processes load it in well under a second.
 note then). `warm_up()` fills the cache by running tiny SMC runs of
 the bundled vines model through every kernel path (unguided, guided, circuit, full
 traces, the vines grammar's compiled deriver: geometry/compiled.py, whose modules live in
-its own cache folder); `python -m ngpm_runtime.warmup` runs it, e.g. right after `pip install` or in a
-Docker build.
+its own cache folder); `python -m ngpm_runtime.warmup` runs it, e.g. right after `pip
+install` or in a Docker build.
 """
 
 from __future__ import annotations

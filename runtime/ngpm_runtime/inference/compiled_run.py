@@ -29,6 +29,7 @@ from ngpm_runtime.inference.smc import (
     FinalParticle,
     Population,
     SMCResult,
+    SMCState,
     TraceRecording,
     _limit_counts,
     _logsumexp,
@@ -99,6 +100,8 @@ class CompiledRun(_Run):
         self.max_succ = info.max_succ
         self.pop_start = self.pop.parts[0].turtle
         self.pop = self.rows = RowPopulation(n)
+        self.state = SMCState(n, self.rows.log_lik)
+        self.step_prims = PrimRows(np.zeros(0, dtype=np.int64), np.zeros((0, 5)))
         self.stack = np.zeros((n, 64, info.width))
         self.stack[:, 0, 1] = -1.0  # the axiom's pseudo-module at depth -1
         self.sp = np.ones(n, dtype=np.int64)
@@ -218,13 +221,24 @@ class CompiledRun(_Run):
         codes = self.prim[idx]
         par = self.prim_par[idx]
         self.prim_pool.add(idx, codes, par)
-        self._observe_prims(drawn, empty, PrimRows(codes, par), (codes.astype(np.int8), par))
+        self.step_prims = PrimRows(codes, par)
+        self._observe_prims(drawn, empty, self.step_prims, (codes.astype(np.int8), par))
         pop = self.rows
         ended = self.sp[idx] == 0
         pop.status[idx[ended]] = FINISHED
         capped = idx[~ended & (self.n_prims[idx] >= self.cap)]
         pop.status[capped] = LIMITED
         pop.limit[capped] = 2
+
+    def _step_done(self, drawn: list[int]) -> None:
+        """_Run._step_done with the step's primitives from the arrays."""
+        state = self.state
+        state.steps = self.steps
+        state.log_likelihood = self.rows.log_lik
+        state.drawn = drawn
+        state.prims = list(self.step_prims)
+        for obs in self.observers:
+            obs.step_done(state)
 
     def _take_state(self, anc: np.ndarray) -> None:
         """Resampling of the derivation state: row k becomes old row anc[k]."""

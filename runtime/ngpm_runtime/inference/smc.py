@@ -271,10 +271,13 @@ def _compiled_deriver(
     observers: tuple[SMCObserver, ...],
 ) -> Any:
     """The program's compiled deriver when the run can use it (compiled_run.py): the
-    prior proposal, no feature traces, no observers, a 2D grammar the kernel can run, and
+    prior proposal, no feature traces, no observer of site draws, a 2D grammar the kernel
+    can run, and
     COMPILE_FROM particles or more unless the process has the deriver already."""
-    if not USE_COMPILED or observers or options.trace is TraceRecording.FULL:
+    if not USE_COMPILED or options.trace is TraceRecording.FULL:
         return None
+    if any(type(o).site_drawn is not SMCObserver.site_drawn for o in observers):
+        return None  # it watches every draw: the Python deriver's rounds tell it
     if program.dim != 2 or not (proposal is None or type(proposal) is PriorProposal):
         return None
     from ngpm_runtime.geometry.compiled import compiled_deriver

@@ -217,3 +217,41 @@ def test_small_runs_compile_nothing(tmp_path: Path) -> None:
     assert smc(program, None, small).info.get("deriver") is None
     assert smc(program, None, smc_module.COMPILE_FROM).info.get("deriver") == "compiled"
     assert smc(program, None, small).info.get("deriver") == "compiled"
+
+
+class Steps(smc_module.SMCObserver):
+    """Records what a step observer sees."""
+
+    def __init__(self) -> None:
+        self.seen: list = []
+
+    def step_done(self, state) -> None:
+        self.seen.append((state.steps, list(state.drawn), list(state.prims)))
+
+    def resampled(self, ancestors) -> None:
+        self.seen.append(("resampled", ancestors.tolist()))
+
+
+def test_step_observers_see_the_same(monkeypatch) -> None:
+    """A step observer (progress bars, the web page) keeps the compiled deriver and sees
+    what it sees with the Python one; an observer of site draws gets the Python one."""
+    program = load_grammar(REPO / "grammars" / "vines.lsys")
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    seen = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        obs = Steps()
+        opts = SMCOptions(seed=2, canvas_size=mask.shape, target_mask=mask)
+        res = smc(program, like, 12, options=opts, observers=[obs])
+        assert res.info.get("deriver") == ("compiled" if use else None)
+        seen.append(obs.seen)
+    assert seen[0] == seen[1]
+
+    class Draws(smc_module.SMCObserver):
+        def site_drawn(self, site, idx, values) -> None:
+            pass
+
+    res = smc(program, like, 12, options=opts, observers=[Draws()])
+    assert res.info.get("deriver") is None
