@@ -22,8 +22,9 @@ for comparing two versions run in turn (benchmarks/compare_steps.py).
 features for every particle.
 --round-kernel: guided N=10 with a round in one kernels.serve_round call against the
 round's separate calls, alternating run by run in one process (`--repeats` rounds).
---compiled: unguided N=200/600/2000 and the 600-particle trace job on the compiled deriver
-(inference/compiled_run.py) against the Python deriver, alternating run by run.
+--compiled: guided N=10, unguided N=200/600/2000 and the 600-particle trace job on the
+compiled deriver (inference/compiled_run.py) against the Python deriver, alternating run by
+run.
 
 Usage: python benchmarks/smc.py [--guide PATH] [--glyphs 6] [--silhouettes 6] [--seeds 2]
        [--equal-sim [--ladder 10,20,...] [--repeats 3]] [--nets] [--profile] [--trace-jobs]
@@ -346,9 +347,9 @@ def round_kernel(program: Any, guide: Any, targets: list, repeats: int) -> None:
     )
 
 
-def compiled_deriver(program: Any, targets: list, repeats: int) -> None:
-    """Unguided SMC (N = 200, 600, 2000) and the 600-particle trace job on the compiled
-    deriver (inference/compiled_run.py) against the Python deriver (smc.USE_COMPILED off),
+def compiled_deriver(program: Any, guide: Any, targets: list, repeats: int) -> None:
+    """Guided N = 10, unguided SMC (N = 200, 600, 2000) and the 600-particle trace job on
+    the compiled deriver (inference/compiled_run.py) against the Python deriver (smc.USE_COMPILED off),
     alternating run by run in this process: median CPU seconds per run of each, the
     median of the paired ratios, and whether every pair gave the same similarity (the
     runs are bit-identical)."""
@@ -359,7 +360,8 @@ def compiled_deriver(program: Any, targets: list, repeats: int) -> None:
     one_run(program, targets[0][1], None, smc_module.COMPILE_FROM, 0)  # compile, load
     print(f"\ncompiled deriver vs Python deriver, alternating, {repeats} repeat(s):")
     print(f"{'':22s} {'Python s':>9s} {'compiled s':>10s} {'ratio':>6s} {'equal':>6s}")
-    for label in ("unguided N=200", "unguided N=600", "unguided N=2000", "trace job N=600"):
+    labels = ("guided N=10", "unguided N=200", "unguided N=600", "unguided N=2000")
+    for label in labels + ("trace job N=600",):
         secs: dict[bool, list[float]] = {True: [], False: []}
         same = True
         for rep in range(repeats):
@@ -374,7 +376,8 @@ def compiled_deriver(program: Any, targets: list, repeats: int) -> None:
                             secs[on].append(time.process_time() - c0)
                             sims.append(repr((n_prims, [(s, v) for s, _, v in trace])))
                         else:
-                            r = one_run(program, t, None, int(label.split("=")[1]), rep)
+                            n = int(label.split("=")[1])
+                            r = one_run(program, t, guide if n == 10 else None, n, rep)
                             secs[on].append(r["cpu"])
                             sims.append(repr(r["sim"]))
                     finally:
@@ -467,7 +470,7 @@ def main() -> None:
         round_kernel(program, guide, targets, args.repeats)
         return
     if args.compiled:
-        compiled_deriver(program, targets, args.repeats)
+        compiled_deriver(program, guide, targets, args.repeats)
         return
     step_table(program, guide, targets, args.seeds, args.json)
     if args.equal_sim:

@@ -1487,6 +1487,213 @@ def _prior_draw(
 
 
 @jit
+def sort_outcomes(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+) -> None:
+    """A round's outcomes (smc._Run._derive): particles group[j] (served at site
+    served[j], -1 none) that drew into drawn (counts[0]), those that ask for a value into
+    the waiting lists (SiteOrder.saw: their site follows the one they were served), those
+    that ended into status (1 done, 2 limit: max modules) and, without a primitive, into
+    empty (counts[1])."""
+    m = wait_n.shape[0]
+    asked = np.zeros((m, m), dtype=np.bool_)
+    for j in range(group.shape[0]):
+        i = group[j]
+        code = codes[j]
+        if code == DRAWN:
+            drawn[counts[0]] = i
+            counts[0] += 1
+        elif code == NEED:
+            s = int(need[i, 0])
+            if served[j] >= 0:
+                asked[served[j], s] = True
+            wait_ids[s, wait_n[s]] = i
+            wait_n[s] += 1
+        else:
+            status[i] = 1 if code == DONE else 2
+            if code != DONE:
+                limit[i] = 1
+            if n_prims[i] == 0:
+                empty[counts[1]] = i
+                counts[1] += 1
+    for a in range(m):
+        for s in range(m):
+            if asked[a, s]:
+                _saw(reach, a, s)
+
+
+@jit
+def free_sites(reach: np.ndarray, wait_n: np.ndarray) -> np.ndarray:
+    """SiteOrder.free: every waiting site no other waiting site leads to, ascending, or
+    [pick] when a cycle leaves none (empty: none waits)."""
+    m = wait_n.shape[0]
+    out = np.empty(m, dtype=np.int64)
+    n = 0
+    for s in range(m):
+        if wait_n[s] > 0:
+            blocked = False
+            for a in range(m):
+                if a != s and wait_n[a] > 0 and reach[a, s]:
+                    blocked = True
+            if not blocked:
+                out[n] = s
+                n += 1
+    if n == 0:
+        a = _pick(reach, wait_n)
+        if a >= 0:
+            out[0] = a
+            n = 1
+    return out[:n]
+
+
+@jit
+def pack_waiting(
+    sites: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    n_turtle: int,
+    need: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The waiting particles of `sites` as smc._Run._pack packs them (unpack_round's
+    layout, each site's particles ascending; the waiting module is on top of a particle's
+    stack), taken out of the waiting lists; and the particles in row order."""
+    size = 0
+    rows = 0
+    for s in sites:
+        m = wait_n[s]
+        i = wait_ids[s, 0]
+        a = int(stack[i, sp[i] - 1, 2])
+        k = int(need[i, 1])
+        size += 4 + m * (2 + n_turtle + a + k)
+        rows += m
+    flat = np.empty(size)
+    order = np.empty(rows, dtype=np.int64)
+    pos = 0
+    r = 0
+    for s in sites:
+        m = wait_n[s]
+        group = np.sort(wait_ids[s, :m])
+        wait_n[s] = 0
+        top = stack[group[0], sp[group[0]] - 1]
+        a = int(top[2])
+        k = int(need[group[0], 1])
+        flat[pos] = s
+        flat[pos + 1] = m
+        flat[pos + 2] = a
+        flat[pos + 3] = k
+        pos += 4
+        for i in group:
+            row = stack[i, sp[i] - 1]
+            if int(row[2]) != a or int(need[i, 1]) != k:
+                raise ValueError("modules of different arity share a site")
+            order[r] = i
+            r += 1
+            flat[pos] = i
+            flat[pos + 1] = row[1]
+            pos += 2
+            for q in range(n_turtle):
+                flat[pos + q] = turtle[i, q]
+            pos += n_turtle
+            for q in range(a):
+                flat[pos + q] = row[3 + q]
+            pos += a
+            for q in range(k):
+                flat[pos + q] = need[i, 2 + q]
+            pos += k
+    return flat, order
+
+
+@jit
+def take_values(
+    order: np.ndarray, values: np.ndarray, vals: np.ndarray, nv: np.ndarray, need: np.ndarray
+) -> np.ndarray:
+    """Particles order[r] drew values[r]: appended to their replay values (vals grows when
+    full: returned), their requests served."""
+    top = 0
+    for i in order:
+        top = max(top, nv[i])
+    if top >= vals.shape[1]:
+        more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
+        more[:, : vals.shape[1]] = vals
+        vals = more
+    for r in range(order.shape[0]):
+        i = order[r]
+        vals[i, nv[i]] = values[r]
+        nv[i] += 1
+        need[i, 0] = -1.0
+    return vals
+
+
+@jit
+def guided_round(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    n_turtle: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A guided round's bookkeeping before kernels.serve_round, in one call: the outcomes
+    of advancing `group` (sort_outcomes), the free waiting sites (free_sites) and their
+    particles packed (pack_waiting). Returns the packed state, the particles in row
+    order, the sites, their particle counts and the site of each row (empty arrays: the
+    step is over)."""
+    sort_outcomes(
+        group,
+        codes,
+        served,
+        need,
+        n_prims,
+        wait_ids,
+        wait_n,
+        drawn,
+        empty,
+        counts,
+        status,
+        limit,
+        reach,
+    )
+    sites = free_sites(reach, wait_n)
+    sizes = np.empty(sites.shape[0], dtype=np.int64)
+    for j in range(sites.shape[0]):
+        sizes[j] = wait_n[sites[j]]
+    flat, rows = pack_waiting(sites, wait_ids, wait_n, stack, sp, turtle, n_turtle, need)
+    row_site = np.empty(rows.shape[0], dtype=np.int64)
+    r = 0
+    for j in range(sites.shape[0]):
+        for _ in range(sizes[j]):
+            row_site[r] = sites[j]
+            r += 1
+    return flat, rows, sites, sizes, row_site
+
+
+@jit
 def start_rounds(
     live: np.ndarray, need: np.ndarray, wait_ids: np.ndarray, wait_n: np.ndarray
 ) -> np.ndarray:
@@ -1536,29 +1743,22 @@ def prior_round(
     to rec as (particle, site, value) rows, counts[2], when rec has columns). Returns the
     served particles (to advance next), the site (-1: the step is over), vals and rec
     (new arrays when they grew)."""
-    asked = np.zeros(wait_n.shape[0], dtype=np.bool_)
-    for j in range(group.shape[0]):
-        i = group[j]
-        code = codes[j]
-        if code == DRAWN:
-            drawn[counts[0]] = i
-            counts[0] += 1
-        elif code == NEED:
-            s = int(need[i, 0])
-            asked[s] = True
-            wait_ids[s, wait_n[s]] = i
-            wait_n[s] += 1
-        else:
-            status[i] = 1 if code == DONE else 2
-            if code != DONE:
-                limit[i] = 1
-            if n_prims[i] == 0:
-                empty[counts[1]] = i
-                counts[1] += 1
-    if served >= 0:
-        for s in range(asked.shape[0]):
-            if asked[s]:
-                _saw(reach, served, s)
+    served_of = np.full(group.shape[0], served, dtype=np.int64)
+    sort_outcomes(
+        group,
+        codes,
+        served_of,
+        need,
+        n_prims,
+        wait_ids,
+        wait_n,
+        drawn,
+        empty,
+        counts,
+        status,
+        limit,
+        reach,
+    )
     a = _pick(reach, wait_n)
     if a < 0:
         return group[:0], -1, vals, rec

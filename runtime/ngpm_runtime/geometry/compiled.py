@@ -176,11 +176,13 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
     codes[k] is DRAWN, NEED, DONE, LIMIT or GROW for ids[k]; a particle that drew has its
     primitive in prim (kind: 0 segment, 1 disk, 2 leaf) and prim_par; one that waits has
     (site, argument count, arguments) in need. resume[p] = (ops, drew) of a particle
-    stopped by GROW, so that it goes on as if it had not stopped."""
+    stopped by GROW, so that it goes on as if it had not stopped. Returns how many
+    stopped by GROW."""
     width = stack.shape[2]
     out = np.zeros((MAX_SUCC, width))
     n_stack = stack.shape[1]
     n_tst = tst.shape[1]
+    n_grow = 0
     for q in range(len(ids)):
         p = ids[q]
         ops = resume[p, 0]
@@ -310,8 +312,11 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
             work[p] += ops
         if stop:
             codes[q] = stop
+            if stop == GROW:
+                n_grow += 1
         else:
             codes[q] = DRAWN if drew else DONE
+    return n_grow
 
 '''
 
@@ -345,10 +350,10 @@ def cache_folder() -> Path:
 
 def compiled_deriver(program: Program, compile: bool = True) -> CompiledDeriver | None:
     """The program's compiled deriver, or None when the grammar needs the Python one (or,
-    with compile=False, when this process has not loaded it yet)."""
+    with compile=False, when it would have to be compiled: not loaded, not on disk)."""
     key = program.code
-    if key in _BY_CODE or not compile:
-        return _BY_CODE.get(key)
+    if key in _BY_CODE:
+        return _BY_CODE[key]
     try:
         source, info = kernel_source(program)
     except Unsupported:
@@ -362,6 +367,8 @@ def compiled_deriver(program: Program, compile: bool = True) -> CompiledDeriver 
         _BY_CODE[key] = hit
         return hit
     name = f"_ngpm_deriver_{digest}"
+    if not compile and not _on_disk(name):
+        return None
     path = _write(name, text)
     spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None
@@ -370,6 +377,14 @@ def compiled_deriver(program: Program, compile: bool = True) -> CompiledDeriver 
     spec.loader.exec_module(module)
     out = _LOADED[digest] = _BY_CODE[key] = CompiledDeriver(module, info)
     return out
+
+
+def _on_disk(name: str) -> bool:
+    """Whether numba's cache holds the compiled `advance` of kernel module `name`."""
+    for folder in (cache_folder(), Path(tempfile.gettempdir()) / "ngpm-kernels"):
+        if any((folder / "__pycache__").glob(f"{name}.advance-*.nbi")):
+            return True
+    return False
 
 
 def _write(name: str, text: str) -> Path:

@@ -26,6 +26,7 @@ from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.inference.smc import (
+    _NO_ROWS,
     FinalParticle,
     Population,
     SMCResult,
@@ -95,6 +96,7 @@ class CompiledRun(_Run):
         self.drawn = np.zeros(n, dtype=np.int64)
         self.empty = np.zeros(n, dtype=np.int64)
         self.counts = np.zeros(3, dtype=np.int64)  # drawn, empty, values recorded
+        self.round_cache: dict[bytes, tuple[Any, ...]] = {}  # _round_sites
         record = self.trace is TraceRecording.VALUES
         self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
@@ -121,6 +123,7 @@ class CompiledRun(_Run):
         self.prim_pool = _Pool(n, 6)  # kind code, 5 parameters
         self.trace_pool = _Pool(n, 2)  # site, value
         self.dlen = int(self.program.derivation_length)
+        self.angle = float(self.program.angle)
         self.max_modules = int(self.deriver.max_modules)
 
     # ---- derivation ----------------------------------------------------------------------
@@ -128,13 +131,28 @@ class CompiledRun(_Run):
     def _advance(self, ids: np.ndarray) -> np.ndarray:
         """The kernel over particles ids (growing a full stack and going on): outcomes."""
         codes = np.zeros(len(ids), dtype=np.int64)
-        todo = ids
-        where = np.arange(len(ids))
+        if not self._kernel_call(ids, codes):
+            return codes
+        todo, where = ids, np.arange(len(ids))
         while True:
+            grow = codes[where] == GROW
+            if not grow.any():
+                return codes
+            todo, where = todo[grow], where[grow]
+            if int(self.sp[todo].max()) - 1 + self.max_succ > self.stack.shape[1]:
+                self.stack = _grown(self.stack, 1)
+            if int(self.tsp[todo].max()) >= self.tstack.shape[1]:
+                self.tstack = _grown(self.tstack, 1)
             part = np.zeros(len(todo), dtype=np.int64)
-            try:
+            self._kernel_call(todo, part)
+            codes[where] = part
+
+    def _kernel_call(self, ids: np.ndarray, codes: np.ndarray) -> int:
+        """One call of the compiled deriver (advance) over ids: how many stopped by GROW."""
+        try:
+            return int(
                 self.kernel(
-                    todo,
+                    ids,
                     self.stack,
                     self.sp,
                     self.turtle,
@@ -148,24 +166,16 @@ class CompiledRun(_Run):
                     self.n_prims,
                     self.work,
                     self.resume,
-                    part,
+                    codes,
                     self.dlen,
-                    float(self.program.angle),
+                    self.angle,
                     self.max_modules,
                     MAX_WORK,
                     MAX_PRIMITIVES,
                 )
-            except Exception as err:  # numba's errors: the Python deriver says what
-                raise KernelFailed(str(err)) from None
-            codes[where] = part
-            grow = part == GROW
-            if not grow.any():
-                return codes
-            todo, where = todo[grow], where[grow]
-            if int(self.sp[todo].max()) - 1 + self.max_succ > self.stack.shape[1]:
-                self.stack = _grown(self.stack, 1)
-            if int(self.tsp[todo].max()) >= self.tstack.shape[1]:
-                self.tstack = _grown(self.tstack, 1)
+            )
+        except Exception as err:  # numba's errors: the Python deriver says what
+            raise KernelFailed(str(err)) from None
 
     def _derive(self) -> tuple[list[int], list[int]]:
         """smc._Run._derive over the arrays: the same rounds in the same order (each round
@@ -173,6 +183,8 @@ class CompiledRun(_Run):
         next site with the prior's draws from the run's generator)."""
         from ngpm_runtime import kernels
 
+        if not self.is_prior:
+            return self._derive_guided()
         rows = self.rows
         counts = self.counts
         counts[:] = 0
@@ -211,6 +223,89 @@ class CompiledRun(_Run):
             self.trace_pool.add(rec[:, 0].astype(np.int64), rec[:, 1:])
         drawn = np.sort(self.drawn[: counts[0]])
         return drawn.tolist(), self.empty[: counts[1]].tolist()
+
+    def _derive_guided(self) -> tuple[list[int], list[int]]:
+        """_derive for a guide whose kernel serves every site (Guide.round_tables): per
+        round the compiled deriver, the round's bookkeeping (kernels.guided_round: the
+        outcomes sorted, every free waiting site's particles packed as smc._Run._pack
+        packs them) and kernels.serve_round, as smc._Run._serve_kernel calls it."""
+        from ngpm_runtime import kernels
+
+        rows, counts = self.rows, self.counts
+        counts[:] = 0
+        guide: Any = self.proposal
+        buf, fmaker = self.buffers, self.fmaker
+        assert buf is not None and fmaker is not None
+        serve: Any = kernels.serve_round
+        group = kernels.start_rounds(
+            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
+        )
+        served = np.full(len(group), -1, dtype=np.int64)
+        while True:
+            codes = self._advance(group)
+            flat, group, sites, sizes, served = kernels.guided_round(
+                group,
+                codes,
+                served,
+                self.need,
+                self.n_prims,
+                self.wait_ids,
+                self.wait_n,
+                self.drawn,
+                self.empty,
+                counts,
+                rows.status,
+                rows.limit,
+                self.reach,
+                self.stack,
+                self.sp,
+                self.turtle,
+                self.t_width,
+            )
+            if not len(sites):
+                break
+            objs, tables, normals = self._round_sites(sites, sizes)
+            m = len(group)
+            u = self.rng.random(m)
+            z = self.rng.standard_normal(m) if normals else _NO_ROWS
+            n, bad = serve(
+                flat,
+                *buf.state(int(self.need[group, 1].max())),
+                buf.rows(fmaker.n_common),
+                *fmaker.window_args(self.canvas),
+                *tables,
+                buf.params(guide.widest),
+                u,
+                z,
+                buf.out,
+                rows.log_w,
+                rows.log_prior,
+            )
+            if bad >= 0:
+                guide.bad_row(objs, sizes.tolist(), buf.args[:n], buf.n_args[:n], bad)
+            values = buf.out[:n, 0]
+            self.vals = kernels.take_values(group, values, self.vals, self.nv, self.need)
+            if self.trace is TraceRecording.VALUES:
+                self.trace_pool.add(group, served.astype(np.float64), values)
+        drawn = np.sort(self.drawn[: counts[0]])
+        return drawn.tolist(), self.empty[: counts[1]].tolist()
+
+    def _round_sites(self, sites: np.ndarray, sizes: np.ndarray) -> tuple[Any, ...]:
+        """A round's Site objects, the guide's tables for them and whether they take
+        normal draws (kept per set of sites); the guide checks a site's feature width the
+        first time it is served."""
+        key = sites.tobytes()
+        hit = self.round_cache.get(key)
+        if hit is None:
+            guide: Any = self.proposal
+            objs = [self.program.sites[s] for s in sites.tolist()]
+            for site, m in zip(objs, sizes.tolist(), strict=True):
+                if site.index not in self.width_ok:
+                    guide.check_width(site, m, self.n_feat[site.index] - self.trim)
+                    self.width_ok.add(site.index)
+            tables = self.round_tables(objs)
+            hit = self.round_cache[key] = (objs, tables, guide.needs_normals(objs))
+        return hit
 
     # ---- the rest of a step ---------------------------------------------------------------
 

@@ -185,8 +185,8 @@ NEGLIGIBLE_LIVE = 1e-100
 LOG_NEGLIGIBLE_LIVE = math.log(NEGLIGIBLE_LIVE)
 _ROULETTE_STREAM = 0x524F55  # the roulette's random stream, beside the run's
 USE_COMPILED = True  # unguided runs on the compiled deriver where it can (compiled_run.py)
-# particles from which a run compiles its grammar's deriver (about 7 s the first time, a
-# disk cache later); smaller runs use it once this process has it
+# particles from which a run compiles its grammar's deriver (about 6 s the first time, a
+# disk cache later); smaller runs use it once compiled (in this process or on disk)
 COMPILE_FROM = 100
 
 
@@ -262,6 +262,18 @@ def _finish(run: _Run, threshold: float | None, max_steps: int | None, t0: float
     return run.result(time.perf_counter() - t0)
 
 
+def _kernel_guide(proposal: Proposal, program: Program) -> bool:
+    """Whether `proposal` is a guide whose kernel serves every site of `program` from 2D
+    features (Guide.round_tables), as the compiled deriver's rounds need."""
+    tables = getattr(proposal, "round_tables", None)
+    return (
+        isinstance(proposal, RoundProposal)
+        and bool(proposal.uses_features)
+        and tables is not None
+        and tables(program.sites) is not None
+    )
+
+
 def _compiled_deriver(
     program: Program,
     likelihood: Likelihood | None,
@@ -271,14 +283,18 @@ def _compiled_deriver(
     observers: tuple[SMCObserver, ...],
 ) -> Any:
     """The program's compiled deriver when the run can use it (compiled_run.py): the
-    prior proposal, no feature traces, no observer of site draws, a 2D grammar the kernel
-    can run, and
-    COMPILE_FROM particles or more unless the process has the deriver already."""
+    prior proposal or a guide whose kernel serves every site, no feature traces, no
+    observer of site draws, a 2D grammar the kernel can run, and
+    COMPILE_FROM particles or more unless the deriver is compiled already."""
     if not USE_COMPILED or options.trace is TraceRecording.FULL:
         return None
     if any(type(o).site_drawn is not SMCObserver.site_drawn for o in observers):
         return None  # it watches every draw: the Python deriver's rounds tell it
-    if program.dim != 2 or not (proposal is None or type(proposal) is PriorProposal):
+    if program.dim != 2:
+        return None
+    if not (
+        proposal is None or type(proposal) is PriorProposal or _kernel_guide(proposal, program)
+    ):
         return None
     from ngpm_runtime.geometry.compiled import compiled_deriver
 

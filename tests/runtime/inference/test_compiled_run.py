@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fixtures.tiny_programs import SumXLikelihood
+from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
 from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.geometry.compiled import compiled_deriver
 from ngpm_runtime.inference import smc as smc_module
@@ -67,14 +68,14 @@ def disk_mask(size: int = 32) -> np.ndarray:
     return (yy - size / 2) ** 2 + (xx - size / 2) ** 2 < (size / 3) ** 2
 
 
-def both(monkeypatch, program, likelihood, n, **options):
+def both(monkeypatch, program, likelihood, n, proposal=None, **options):
     """The same run on the compiled deriver and on the Python one."""
     out = []
     monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
     for use in (True, False):
         monkeypatch.setattr(smc_module, "USE_COMPILED", use)
         opts = SMCOptions(**options)
-        out.append(smc(program, likelihood, n, options=opts))
+        out.append(smc(program, likelihood, n, proposal, options=opts))
     assert out[0].info.get("deriver") == "compiled"
     assert out[1].info.get("deriver") is None
     return out
@@ -109,6 +110,29 @@ def test_vines_runs_equal_python(monkeypatch) -> None:
         )
         assert a.info["resamples"] > 0
         assert_same(a, b)
+
+
+def test_guided_vines_runs_equal_python(monkeypatch) -> None:
+    """Guided rounds (the bundled guide: kernels.serve_round) on the compiled deriver."""
+    program = bundled_program()
+    guide = bundled_guide(program)
+    for k, target in enumerate(demo_targets()[:2]):
+        like = ShapeLikelihood(target.mask, program.viewport)
+        for seed in range(2):
+            a, b = both(
+                monkeypatch,
+                program,
+                like,
+                10,
+                guide,
+                seed=seed + 10 * k,
+                start=target.start_pose(program.viewport),
+                canvas_size=target.size,
+                target_mask=target.mask,
+                trace=TraceRecording.VALUES,
+                ess_from_proposal=True,
+            )
+            assert_same(a, b)
 
 
 @pytest.mark.parametrize("name", ["lily", "grass", "canopy", "stochastic_plant", "chain"])
@@ -208,8 +232,8 @@ def test_what_the_kernel_does_not_run(tmp_path: Path) -> None:
 
 
 def test_small_runs_compile_nothing(tmp_path: Path) -> None:
-    """A run of fewer than COMPILE_FROM particles uses the compiled deriver only once the
-    process has it (a larger run compiled it): a quick sample pays no compile time."""
+    """A run of fewer than COMPILE_FROM particles uses the compiled deriver only once it is
+    compiled (a larger run compiled it): a quick sample pays no compile time."""
     program = grammar(
         tmp_path, "derivation length: 5\nAxiom: A\nproduction:\nA --> F(gauss(1, 0.1)) A\n"
     )
