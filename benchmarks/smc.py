@@ -349,8 +349,9 @@ def round_kernel(program: Any, guide: Any, targets: list, repeats: int) -> None:
 
 def compiled_deriver(program: Any, guide: Any, targets: list, repeats: int) -> None:
     """Guided N = 10, unguided SMC (N = 200, 600, 2000) and the 600-particle trace job on
-    the compiled deriver (inference/compiled_run.py) against the Python deriver (smc.USE_COMPILED off),
-    alternating run by run in this process: median CPU seconds per run of each, the
+    the compiled deriver (inference/compiled_run.py) against the Python deriver
+    (smc.USE_COMPILED off), alternating run by run in this process: median CPU seconds per
+    run of each, the
     median of the paired ratios, and whether every pair gave the same similarity (the
     runs are bit-identical)."""
     from ngpm_runtime.inference import smc as smc_module

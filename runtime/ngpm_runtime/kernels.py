@@ -1441,49 +1441,58 @@ def _prior_draw(
             else:
                 out_v[r] = 0.0
                 out_lp[r] = np.log(1.0 - p)
-    else:  # categorical
-        same = n > 1
-        for r in range(1, n):
+    else:
+        _categorical_draw(args, rng, out_v, out_lp)
+
+
+@jit
+def _categorical_draw(
+    args: np.ndarray, rng: np.random.Generator, out_v: np.ndarray, out_lp: np.ndarray
+) -> None:
+    """_prior_draw of a categorical site (sitekinds.Categorical.prior_draw)."""
+    n, k = args.shape
+    same = n > 1
+    for r in range(1, n):
+        for j in range(k):
+            if args[r, j] != args[0, j]:
+                same = False
+    if same:  # one distribution for every row (a stochastic group)
+        cum = np.empty(k)
+        c = 0.0
+        for j in range(k):
+            c += args[0, j]
+            cum[j] = c
+        total = _fsum(args[0])
+        u = np.asarray(rng.random(n))
+        for r in range(n):
+            x = u[r] * cum[k - 1]
+            j = 0
+            while j < k and cum[j] <= x:
+                j += 1
+            j = min(j, k - 1)
+            out_v[r] = j
+            out_lp[r] = np.log(args[0, j] / total)
+    else:
+        p = np.empty((n, k))
+        for r in range(n):
+            total = _pairwise_sum(args[r])
             for j in range(k):
-                if args[r, j] != args[0, j]:
-                    same = False
-        if same:  # one distribution for every row (a stochastic group)
-            cum = np.empty(k)
+                p[r, j] = args[r, j] / total
+        u = np.asarray(rng.random(n))
+        cum = np.empty(k)
+        for r in range(n):
             c = 0.0
             for j in range(k):
-                c += args[0, j]
+                c += p[r, j]
                 cum[j] = c
-            total = _fsum(args[0])
-            u = np.asarray(rng.random(n))
-            for r in range(n):
-                x = u[r] * cum[k - 1]
-                j = 0
-                while j < k and cum[j] <= x:
+            x = u[r] * cum[k - 1]
+            j = 0
+            for i in range(k):
+                if cum[i] <= x:
                     j += 1
-                j = min(j, k - 1)
-                out_v[r] = j
-                out_lp[r] = np.log(args[0, j] / total)
-        else:
-            p = np.empty((n, k))
-            for r in range(n):
-                total = _pairwise_sum(args[r])
-                for j in range(k):
-                    p[r, j] = args[r, j] / total
-            u = np.asarray(rng.random(n))
-            cum = np.empty(k)
-            for r in range(n):
-                c = 0.0
-                for j in range(k):
-                    c += p[r, j]
-                    cum[j] = c
-                x = u[r] * cum[k - 1]
-                j = 0
-                for i in range(k):
-                    if cum[i] <= x:
-                        j += 1
-                j = min(j, k - 1)
-                out_v[r] = j
-                out_lp[r] = np.log(p[r, j])
+            j = min(j, k - 1)
+            out_v[r] = j
+            out_lp[r] = np.log(p[r, j])
 
 
 @jit
@@ -1502,7 +1511,7 @@ def sort_outcomes(
     limit: np.ndarray,
     reach: np.ndarray,
 ) -> None:
-    """A round's outcomes (smc._Run._derive): particles group[j] (served at site
+    """A round's outcomes (run._Run._derive): particles group[j] (served at site
     served[j], -1 none) that drew into drawn (counts[0]), those that ask for a value into
     the waiting lists (SiteOrder.saw: their site follows the one they were served), those
     that ended into status (1 done, 2 limit: max modules) and, without a primitive, into
@@ -1569,7 +1578,7 @@ def pack_waiting(
     n_turtle: int,
     need: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The waiting particles of `sites` as smc._Run._pack packs them (unpack_round's
+    """The waiting particles of `sites` as run._Run._pack packs them (unpack_round's
     layout, each site's particles ascending; the waiting module is on top of a particle's
     stack), taken out of the waiting lists; and the particles in row order."""
     size = 0
@@ -1697,7 +1706,7 @@ def guided_round(
 def start_rounds(
     live: np.ndarray, need: np.ndarray, wait_ids: np.ndarray, wait_n: np.ndarray
 ) -> np.ndarray:
-    """A step's first round (smc._Run._derive): the live particles not waiting (to
+    """A step's first round (run._Run._derive): the live particles not waiting (to
     advance); the waiting ones into wait_ids[site, :wait_n[site]]."""
     group = np.empty(live.shape[0], dtype=np.int64)
     g = 0
@@ -1735,7 +1744,7 @@ def prior_round(
     nv: np.ndarray,
     rec: np.ndarray,
 ) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
-    """One round of smc._Run._derive for the prior proposal, after the compiled deriver
+    """One round of run._Run._derive for the prior proposal, after the compiled deriver
     advanced `group` (outcomes `codes`; `served` the site its particles were served, -1 in
     a step's first round): the outcomes sorted into drawn, empty (counts[0], counts[1]),
     statuses and the waiting lists; SiteOrder's next site served (the prior's draws,
@@ -1762,6 +1771,28 @@ def prior_round(
     a = _pick(reach, wait_n)
     if a < 0:
         return group[:0], -1, vals, rec
+    nxt, vals, rec = _serve_prior(
+        a, need, wait_ids, wait_n, counts, site_kind, rng, log_prior, vals, nv, rec
+    )
+    return nxt, a, vals, rec
+
+
+@jit
+def _serve_prior(
+    a: int,
+    need: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    counts: np.ndarray,
+    site_kind: np.ndarray,
+    rng: np.random.Generator,
+    log_prior: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    rec: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """prior_round's serving of site a: its waiting particles (ascending, taken out of
+    the list), their draws, log prior, replay values and records."""
     m = wait_n[a]
     nxt = np.sort(wait_ids[a, :m])
     wait_n[a] = 0
@@ -1797,4 +1828,4 @@ def prior_round(
             rec[n_rec + r, 1] = a
             rec[n_rec + r, 2] = v[r]
         counts[2] = n_rec + m
-    return nxt, a, vals, rec
+    return nxt, vals, rec

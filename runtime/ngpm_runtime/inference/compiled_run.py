@@ -1,6 +1,6 @@
 """Unguided SMC on the compiled deriver (issue #22): the population as arrays.
 
-`CompiledRun` is smc._Run with the particles' derivation state in arrays (module stacks,
+`CompiledRun` is run._Run with the particles' derivation state in arrays (module stacks,
 turtles, turtle stacks, replay values, requests) that geometry/compiled.py's `advance`
 kernel steps, all waiting particles of a round in one call. Everything else is _Run's:
 rounds served site by site in SiteOrder's order, the prior's draws from the run's
@@ -24,8 +24,7 @@ import numpy as np
 from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
-from ngpm_runtime.inference.sitekinds import KINDS
-from ngpm_runtime.inference.smc import (
+from ngpm_runtime.inference.run import (
     _NO_ROWS,
     FinalParticle,
     Population,
@@ -36,6 +35,7 @@ from ngpm_runtime.inference.smc import (
     _logsumexp,
     _Run,
 )
+from ngpm_runtime.inference.sitekinds import KINDS
 
 LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
 STATUS = ("live", "done", "limit", "dead")
@@ -178,7 +178,7 @@ class CompiledRun(_Run):
             raise KernelFailed(str(err)) from None
 
     def _derive(self) -> tuple[list[int], list[int]]:
-        """smc._Run._derive over the arrays: the same rounds in the same order (each round
+        """run._Run._derive over the arrays: the same rounds in the same order (each round
         one call of the compiled deriver and one of kernels.prior_round, which serves the
         next site with the prior's draws from the run's generator)."""
         from ngpm_runtime import kernels
@@ -227,8 +227,8 @@ class CompiledRun(_Run):
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
         round the compiled deriver, the round's bookkeeping (kernels.guided_round: the
-        outcomes sorted, every free waiting site's particles packed as smc._Run._pack
-        packs them) and kernels.serve_round, as smc._Run._serve_kernel calls it."""
+        outcomes sorted, every free waiting site's particles packed as run._Run._pack
+        packs them) and kernels.serve_round, as run._Run._serve_kernel calls it."""
         from ngpm_runtime import kernels
 
         rows, counts = self.rows, self.counts
