@@ -211,20 +211,24 @@ def equal_similarity(
 
 # (module, owner, attribute, label): the parts of a guided step, outermost first
 PARTS = (
-    ("inference.smc", "_Run", "step", "step (everything)"),
-    ("inference.smc", "_Run", "_derive", " derive: rounds until every particle drew"),
+    ("inference.run", "_Run", "step", "step (everything)"),
+    ("inference.compiled_run", "CompiledRun", "_derive", " derive (compiled deriver): rounds"),
+    ("inference.compiled_run", "CompiledRun", "_advance", "  advance (the grammar's kernel)"),
+    ("kernels", None, "guided_serve", "  the round: order, features, nets (kernel)"),
+    ("inference.run", "_Run", "_derive", " derive (Python deriver): rounds"),
     ("geometry.derive", "Deriver", "advance_all", "  advance_all (the deriver, per group)"),
-    ("inference.smc", "_Run", "_serve", "  serve (one round's sites)"),
-    ("inference.smc", "_Run", "_round_rows", "   rows: gather particle state + features"),
-    ("inference.smc", "_Buffers", "unpack", "    unpack the state (kernel call)"),
+    ("inference.run", "_Run", "_serve", "  serve (one round's sites)"),
+    ("inference.run", "_Run", "_round_rows", "   rows: gather particle state + features"),
+    ("inference.run", "_Buffers", "unpack", "    unpack the state (kernel call)"),
     ("image.features", "FeatureMaker", "rows_from", "    feature rows (kernel call)"),
     ("inference.guide", "Guide", "propose_rows", "   guide: nets + draws"),
     ("inference.guide", "Guide", "_kernel", "    nets, draws, log q, log p (kernel call)"),
-    ("inference.smc", "_Run", "_weigh", "   apply site weights"),
-    ("inference.smc", "_Run", "_observe", " observe: rasterize + likelihood"),
-    ("image.raster", "Canvas", "draw", "  rasterize (+ pyramid)"),
+    ("inference.run", "_Run", "_weigh", "   apply site weights"),
+    ("inference.compiled_run", "CompiledRun", "_observe", " observe (compiled deriver)"),
+    ("inference.run", "_Run", "_observe", " observe (Python deriver)"),
+    ("image.raster", "Canvas", "draw_packed", "  rasterize (+ pyramid)"),
     ("inference.likelihood", "ShapeLikelihood", "increment", "  likelihood increment"),
-    ("inference.smc", "_Run", "_resample", " resample"),
+    ("inference.run", "_Run", "_resample", " resample"),
 )
 
 

@@ -1703,6 +1703,201 @@ def guided_round(
 
 
 @jit
+def guided_serve(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    n_turtle: int,
+    width_bad: np.ndarray,
+    normals: np.ndarray,
+    rng: np.random.Generator,
+    shape: np.ndarray,
+    idx: np.ndarray,
+    site: np.ndarray,
+    rows_turtle: np.ndarray,
+    depth: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    x: np.ndarray,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+    table: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    kinds: np.ndarray,
+    temps: np.ndarray,
+    n_out: np.ndarray,
+    params: np.ndarray,
+    out: np.ndarray,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int, int, int, np.ndarray]:
+    """A guided round on the compiled deriver in one call, after the grammar's `advance`
+    of `group`: guided_round (outcomes, site order, packing), the run's draws (u, then z
+    when a round's site is a mixture: run._Run._serve_kernel's order), serve_round and
+    take_values. Returns the particles served (in row order), the site of each, the row
+    count, the first bad row (-1: none; serve_round's), a site whose feature width the
+    guide refuses (-1: none; nothing drawn then) and vals (grown when full). No rows: the
+    step is over."""
+    flat, rows, sites, sizes, row_site = guided_round(
+        group,
+        codes,
+        served,
+        need,
+        n_prims,
+        wait_ids,
+        wait_n,
+        drawn,
+        empty,
+        counts,
+        status,
+        limit,
+        reach,
+        stack,
+        sp,
+        turtle,
+        n_turtle,
+    )
+    mixture = False
+    for s in sites:
+        if width_bad[s]:
+            return rows, row_site, 0, -1, s, vals
+        mixture = mixture or normals[s]
+    m = rows.shape[0]
+    if m == 0:
+        return rows, row_site, 0, -1, -1, vals
+    u = np.asarray(rng.random(m))
+    z = np.asarray(rng.standard_normal(m)) if mixture else np.zeros(0)
+    n, bad = serve_round(
+        flat,
+        n_turtle,
+        shape,
+        idx,
+        site,
+        rows_turtle,
+        depth,
+        extra,
+        n_extra,
+        args,
+        n_args,
+        x,
+        view,
+        size,
+        offs,
+        target,
+        canvas,
+        ctx,
+        ctx_geom,
+        cells,
+        cell_t,
+        table,
+        w,
+        cols,
+        kinds,
+        temps,
+        n_out,
+        params,
+        u,
+        z,
+        out,
+        log_w,
+        log_prior,
+    )
+    if bad < 0:
+        vals = take_values(rows, out[:n, 0], vals, nv, need)
+    return rows, row_site, n, bad, -1, vals
+
+
+@jit
+def take_particles(
+    anc: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+) -> tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+]:
+    """Resampling of the compiled deriver's particles (compiled_run.py): new arrays of the
+    same capacity whose row k is old row anc[k] (of the stacks and replay values, the rows
+    in use only)."""
+    n = anc.shape[0]
+    out_stack = np.empty_like(stack)
+    out_tstack = np.empty_like(tstack)
+    out_vals = np.empty_like(vals)
+    out_sp = np.empty_like(sp)
+    out_tsp = np.empty_like(tsp)
+    out_nv = np.empty_like(nv)
+    out_turtle = np.empty_like(turtle)
+    out_need = np.empty_like(need)
+    out_n_prims = np.empty_like(n_prims)
+    out_work = np.empty_like(work)
+    for k in range(n):
+        a = anc[k]
+        out_sp[k] = sp[a]
+        out_tsp[k] = tsp[a]
+        out_nv[k] = nv[a]
+        out_n_prims[k] = n_prims[a]
+        out_work[k] = work[a]
+        out_stack[k, : sp[a]] = stack[a, : sp[a]]
+        out_tstack[k, : tsp[a]] = tstack[a, : tsp[a]]
+        out_vals[k, : nv[a]] = vals[a, : nv[a]]
+        out_turtle[k] = turtle[a]
+        out_need[k] = need[a]
+    return (
+        out_stack,
+        out_sp,
+        out_turtle,
+        out_tstack,
+        out_tsp,
+        out_vals,
+        out_nv,
+        out_need,
+        out_n_prims,
+        out_work,
+    )
+
+
+@jit
 def start_rounds(
     live: np.ndarray, need: np.ndarray, wait_ids: np.ndarray, wait_n: np.ndarray
 ) -> np.ndarray:

@@ -25,7 +25,6 @@ from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.run import (
-    _NO_ROWS,
     FinalParticle,
     Population,
     SMCResult,
@@ -96,7 +95,7 @@ class CompiledRun(_Run):
         self.drawn = np.zeros(n, dtype=np.int64)
         self.empty = np.zeros(n, dtype=np.int64)
         self.counts = np.zeros(3, dtype=np.int64)  # drawn, empty, values recorded
-        self.round_cache: dict[bytes, tuple[Any, ...]] = {}  # _round_sites
+        self.guided_tables = () if self.is_prior else self._guided_tables()
         record = self.trace is TraceRecording.VALUES
         self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
@@ -226,24 +225,38 @@ class CompiledRun(_Run):
 
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
-        round the compiled deriver, the round's bookkeeping (kernels.guided_round: the
-        outcomes sorted, every free waiting site's particles packed as run._Run._pack
-        packs them) and kernels.serve_round, as run._Run._serve_kernel calls it."""
+        round the grammar's `advance` and kernels.guided_serve (the outcomes, site order,
+        the waiting particles packed as run._Run._pack packs them, the draws and
+        kernels.serve_round, as run._Run._serve_kernel calls it)."""
         from ngpm_runtime import kernels
 
         rows, counts = self.rows, self.counts
         counts[:] = 0
-        guide: Any = self.proposal
         buf, fmaker = self.buffers, self.fmaker
         assert buf is not None and fmaker is not None
-        serve: Any = kernels.serve_round
+        serve: Any = kernels.guided_serve
+        width_bad, normals, widest, tables = self.guided_tables
+        guide: Any = self.proposal
+        fixed = (
+            width_bad,
+            normals,
+            self.rng,
+            *buf.state(widest)[1:],
+            buf.rows(fmaker.n_common),
+            *fmaker.window_args(self.canvas),
+            *tables,
+            buf.params(guide.widest),
+            buf.out,
+            rows.log_w,
+            rows.log_prior,
+        )
         group = kernels.start_rounds(
             np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
         )
         served = np.full(len(group), -1, dtype=np.int64)
         while True:
             codes = self._advance(group)
-            flat, group, sites, sizes, served = kernels.guided_round(
+            group, served, n, bad, refused, self.vals = serve(
                 group,
                 codes,
                 served,
@@ -261,51 +274,50 @@ class CompiledRun(_Run):
                 self.sp,
                 self.turtle,
                 self.t_width,
+                *fixed,
+                self.vals,
+                self.nv,
             )
-            if not len(sites):
+            if refused >= 0 or bad >= 0:
+                self._round_error(served, refused, bad, n)
+            if not len(group):
                 break
-            objs, tables, normals = self._round_sites(sites, sizes)
-            m = len(group)
-            u = self.rng.random(m)
-            z = self.rng.standard_normal(m) if normals else _NO_ROWS
-            n, bad = serve(
-                flat,
-                *buf.state(int(self.need[group, 1].max())),
-                buf.rows(fmaker.n_common),
-                *fmaker.window_args(self.canvas),
-                *tables,
-                buf.params(guide.widest),
-                u,
-                z,
-                buf.out,
-                rows.log_w,
-                rows.log_prior,
-            )
-            if bad >= 0:
-                guide.bad_row(objs, sizes.tolist(), buf.args[:n], buf.n_args[:n], bad)
-            values = buf.out[:n, 0]
-            self.vals = kernels.take_values(group, values, self.vals, self.nv, self.need)
             if self.trace is TraceRecording.VALUES:
-                self.trace_pool.add(group, served.astype(np.float64), values)
+                self.trace_pool.add(group, served.astype(np.float64), buf.out[:n, 0])
         drawn = np.sort(self.drawn[: counts[0]])
         return drawn.tolist(), self.empty[: counts[1]].tolist()
 
-    def _round_sites(self, sites: np.ndarray, sizes: np.ndarray) -> tuple[Any, ...]:
-        """A round's Site objects, the guide's tables for them and whether they take
-        normal draws (kept per set of sites); the guide checks a site's feature width the
-        first time it is served."""
-        key = sites.tobytes()
-        hit = self.round_cache.get(key)
-        if hit is None:
-            guide: Any = self.proposal
-            objs = [self.program.sites[s] for s in sites.tolist()]
-            for site, m in zip(objs, sizes.tolist(), strict=True):
-                if site.index not in self.width_ok:
-                    guide.check_width(site, m, self.n_feat[site.index] - self.trim)
-                    self.width_ok.add(site.index)
-            tables = self.round_tables(objs)
-            hit = self.round_cache[key] = (objs, tables, guide.needs_normals(objs))
-        return hit
+    def _guided_tables(self) -> tuple[Any, ...]:
+        """What kernels.guided_serve takes of the guide, once per run: per site whether
+        the guide refuses its feature width and whether it draws a normal, the most prior
+        arguments of a site, and the nets' tables (Guide.round_tables)."""
+        from ngpm_runtime.errors import GuideError
+
+        guide: Any = self.proposal
+        sites = self.program.sites
+        width_bad = np.zeros(max(len(sites), 1), dtype=np.bool_)
+        normals = np.zeros(max(len(sites), 1), dtype=np.bool_)
+        for s in sites:
+            try:
+                guide.check_width(s, 1, self.n_feat[s.index] - self.trim)
+            except GuideError:
+                width_bad[s.index] = True
+            normals[s.index] = guide.needs_normals([s])
+        widest = max([s.n_args() for s in sites] or [1])
+        return width_bad, normals, widest, self.round_tables(sites)
+
+    def _round_error(self, row_site: np.ndarray, refused: int, bad: int, n: int) -> None:
+        """The guide's error for a round kernels.guided_serve stopped: a site whose
+        feature width it refuses (check_width), or a row whose prior arguments are bad."""
+        guide: Any = self.proposal
+        sites, counts = np.unique(row_site, return_counts=True)
+        if refused >= 0:
+            m = dict(zip(sites.tolist(), counts.tolist(), strict=True)).get(refused, 0)
+            guide.check_width(self.program.sites[refused], m, self.n_feat[refused] - self.trim)
+        objs = [self.program.sites[s] for s in sites.tolist()]
+        buf = self.buffers
+        assert buf is not None
+        guide.bad_row(objs, counts.tolist(), buf.args[:n], buf.n_args[:n], bad)
 
     # ---- the rest of a step ---------------------------------------------------------------
 
@@ -337,14 +349,32 @@ class CompiledRun(_Run):
 
     def _take_state(self, anc: np.ndarray) -> None:
         """Resampling of the derivation state: row k becomes old row anc[k]."""
-        for name in ("sp", "turtle", "tsp", "nv", "need", "n_prims", "work"):
-            setattr(self, name, getattr(self, name)[anc])
-        for name, used in (("stack", self.sp), ("tstack", self.tsp), ("vals", self.nv)):
-            old = getattr(self, name)
-            new = np.empty_like(old)  # the same capacity; the rows in use copied
-            m = int(used.max(initial=0))
-            new[:, :m] = old[anc, :m]
-            setattr(self, name, new)
+        from ngpm_runtime import kernels
+
+        (
+            self.stack,
+            self.sp,
+            self.turtle,
+            self.tstack,
+            self.tsp,
+            self.vals,
+            self.nv,
+            self.need,
+            self.n_prims,
+            self.work,
+        ) = kernels.take_particles(
+            np.asarray(anc, dtype=np.int64),
+            self.stack,
+            self.sp,
+            self.turtle,
+            self.tstack,
+            self.tsp,
+            self.vals,
+            self.nv,
+            self.need,
+            self.n_prims,
+            self.work,
+        )
         self.prim_pool.take(anc)
         self.trace_pool.take(anc)
 

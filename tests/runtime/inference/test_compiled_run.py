@@ -231,9 +231,10 @@ def test_what_the_kernel_does_not_run(tmp_path: Path) -> None:
         assert res.info.get("deriver") is None
 
 
-def test_small_runs_compile_nothing(tmp_path: Path) -> None:
+def test_small_runs_compile_nothing(monkeypatch, tmp_path: Path) -> None:
     """A run of fewer than COMPILE_FROM particles uses the compiled deriver only once it is
     compiled (a larger run compiled it): a quick sample pays no compile time."""
+    monkeypatch.setenv("NGPM_KERNEL_CACHE", str(tmp_path / "kernels"))  # nothing on disk
     program = grammar(
         tmp_path, "derivation length: 5\nAxiom: A\nproduction:\nA --> F(gauss(1, 0.1)) A\n"
     )
