@@ -1703,27 +1703,9 @@ def guided_round(
 
 
 @jit
-def guided_serve(
-    group: np.ndarray,
-    codes: np.ndarray,
-    served: np.ndarray,
-    need: np.ndarray,
-    n_prims: np.ndarray,
-    wait_ids: np.ndarray,
-    wait_n: np.ndarray,
-    drawn: np.ndarray,
-    empty: np.ndarray,
-    counts: np.ndarray,
-    status: np.ndarray,
-    limit: np.ndarray,
-    reach: np.ndarray,
-    stack: np.ndarray,
-    sp: np.ndarray,
-    turtle: np.ndarray,
+def serve_take(
+    flat: np.ndarray,
     n_turtle: int,
-    width_bad: np.ndarray,
-    normals: np.ndarray,
-    rng: np.random.Generator,
     shape: np.ndarray,
     idx: np.ndarray,
     site: np.ndarray,
@@ -1750,48 +1732,20 @@ def guided_serve(
     temps: np.ndarray,
     n_out: np.ndarray,
     params: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
     out: np.ndarray,
     log_w: np.ndarray,
     log_prior: np.ndarray,
+    order: np.ndarray,
     vals: np.ndarray,
     nv: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, int, int, int, np.ndarray]:
-    """A guided round on the compiled deriver in one call, after the grammar's `advance`
-    of `group`: guided_round (outcomes, site order, packing), the run's draws (u, then z
-    when a round's site is a mixture: run._Run._serve_kernel's order), serve_round and
-    take_values. Returns the particles served (in row order), the site of each, the row
-    count, the first bad row (-1: none; serve_round's), a site whose feature width the
-    guide refuses (-1: none; nothing drawn then) and vals (grown when full). No rows: the
-    step is over."""
-    flat, rows, sites, sizes, row_site = guided_round(
-        group,
-        codes,
-        served,
-        need,
-        n_prims,
-        wait_ids,
-        wait_n,
-        drawn,
-        empty,
-        counts,
-        status,
-        limit,
-        reach,
-        stack,
-        sp,
-        turtle,
-        n_turtle,
-    )
-    mixture = False
-    for s in sites:
-        if width_bad[s]:
-            return rows, row_site, 0, -1, s, vals
-        mixture = mixture or normals[s]
-    m = rows.shape[0]
-    if m == 0:
-        return rows, row_site, 0, -1, -1, vals
-    u = np.asarray(rng.random(m))
-    z = np.asarray(rng.standard_normal(m)) if mixture else np.zeros(0)
+    need: np.ndarray,
+) -> tuple[int, int, np.ndarray]:
+    """serve_round for the compiled deriver's round (the rows packed by guided_round for
+    particles `order`), then their values into the replay values (take_values) unless a
+    row's prior arguments are bad. Returns (row count, first bad row or -1, vals: grown
+    when full)."""
     n, bad = serve_round(
         flat,
         n_turtle,
@@ -1828,8 +1782,8 @@ def guided_serve(
         log_prior,
     )
     if bad < 0:
-        vals = take_values(rows, out[:n, 0], vals, nv, need)
-    return rows, row_site, n, bad, -1, vals
+        vals = take_values(order, out[:n, 0], vals, nv, need)
+    return n, bad, vals
 
 
 @jit

@@ -25,6 +25,7 @@ from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.run import (
+    _NO_ROWS,
     FinalParticle,
     Population,
     SMCResult,
@@ -225,38 +226,29 @@ class CompiledRun(_Run):
 
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
-        round the grammar's `advance` and kernels.guided_serve (the outcomes, site order,
-        the waiting particles packed as run._Run._pack packs them, the draws and
-        kernels.serve_round, as run._Run._serve_kernel calls it)."""
+        round the grammar's `advance`, kernels.guided_round (the outcomes, site order, the
+        waiting particles packed as run._Run._pack packs them), the run's draws (as
+        run._Run._serve_kernel draws them) and kernels.serve_take (serve_round, the
+        values into the particles)."""
         from ngpm_runtime import kernels
 
         rows, counts = self.rows, self.counts
         counts[:] = 0
         buf, fmaker = self.buffers, self.fmaker
         assert buf is not None and fmaker is not None
-        serve: Any = kernels.guided_serve
+        serve: Any = kernels.serve_take
         width_bad, normals, widest, tables = self.guided_tables
         guide: Any = self.proposal
-        fixed = (
-            width_bad,
-            normals,
-            self.rng,
-            *buf.state(widest)[1:],
-            buf.rows(fmaker.n_common),
-            *fmaker.window_args(self.canvas),
-            *tables,
-            buf.params(guide.widest),
-            buf.out,
-            rows.log_w,
-            rows.log_prior,
-        )
+        state = (self.t_width, *buf.state(widest)[1:], buf.rows(fmaker.n_common))
+        nets = (*fmaker.window_args(self.canvas), *tables, buf.params(guide.widest))
         group = kernels.start_rounds(
             np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
         )
         served = np.full(len(group), -1, dtype=np.int64)
+        rng = self.rng
         while True:
             codes = self._advance(group)
-            group, served, n, bad, refused, self.vals = serve(
+            flat, group, sites, sizes, served = kernels.guided_round(
                 group,
                 codes,
                 served,
@@ -274,14 +266,30 @@ class CompiledRun(_Run):
                 self.sp,
                 self.turtle,
                 self.t_width,
-                *fixed,
+            )
+            m = len(group)
+            if not m:
+                break
+            if width_bad[sites].any():
+                self._round_error(served, int(sites[width_bad[sites]][0]), -1, 0)
+            u = rng.random(m)
+            z = rng.standard_normal(m) if normals[sites].any() else _NO_ROWS
+            n, bad, self.vals = serve(
+                flat,
+                *state,
+                *nets,
+                u,
+                z,
+                buf.out,
+                rows.log_w,
+                rows.log_prior,
+                group,
                 self.vals,
                 self.nv,
+                self.need,
             )
-            if refused >= 0 or bad >= 0:
-                self._round_error(served, refused, bad, n)
-            if not len(group):
-                break
+            if bad >= 0:
+                self._round_error(served, -1, bad, n)
             if self.trace is TraceRecording.VALUES:
                 self.trace_pool.add(group, served.astype(np.float64), buf.out[:n, 0])
         drawn = np.sort(self.drawn[: counts[0]])
