@@ -1400,13 +1400,13 @@ def _fsum(a: np.ndarray) -> float:
 
 @jit
 def _prior_draw(
-    kind: int, args: np.ndarray, rng: np.random.Generator, out_v: np.ndarray, out_lp: np.ndarray
+    kind: int, args: np.ndarray, d: np.ndarray, out_v: np.ndarray, out_lp: np.ndarray
 ) -> None:
     """sitekinds' prior_draw for the rows of `args` (one site): the same generator call,
     the same values and log prior (numpy's arithmetic in numpy's order)."""
     n, k = args.shape
     if kind == 0:  # normal
-        z = np.asarray(rng.standard_normal(n))
+        z = d
         point = False
         for r in range(n):
             sd = abs(args[r, 1])
@@ -1424,7 +1424,7 @@ def _prior_draw(
                 lp = -0.5 * zz * zz - np.log(sd) - 0.5 * LOG_2PI
                 out_lp[r] = lp if lp == lp else -np.inf
     elif kind == 1:  # uniform
-        u = np.asarray(rng.random(n))
+        u = d
         for r in range(n):
             a = min(args[r, 0], args[r, 1])
             b = max(args[r, 0], args[r, 1])
@@ -1432,7 +1432,7 @@ def _prior_draw(
             out_v[r] = a + width * u[r]
             out_lp[r] = -np.log(width if width > 0 else 1.0)
     elif kind == 2:  # bernoulli
-        u = np.asarray(rng.random(n))
+        u = d
         for r in range(n):
             p = min(max(args[r, 0], 0.0), 1.0)
             if u[r] < p:
@@ -1442,12 +1442,12 @@ def _prior_draw(
                 out_v[r] = 0.0
                 out_lp[r] = np.log(1.0 - p)
     else:
-        _categorical_draw(args, rng, out_v, out_lp)
+        _categorical_draw(args, d, out_v, out_lp)
 
 
 @jit
 def _categorical_draw(
-    args: np.ndarray, rng: np.random.Generator, out_v: np.ndarray, out_lp: np.ndarray
+    args: np.ndarray, u: np.ndarray, out_v: np.ndarray, out_lp: np.ndarray
 ) -> None:
     """_prior_draw of a categorical site (sitekinds.Categorical.prior_draw)."""
     n, k = args.shape
@@ -1463,7 +1463,6 @@ def _categorical_draw(
             c += args[0, j]
             cum[j] = c
         total = _fsum(args[0])
-        u = np.asarray(rng.random(n))
         for r in range(n):
             x = u[r] * cum[k - 1]
             j = 0
@@ -1478,7 +1477,6 @@ def _categorical_draw(
             total = _pairwise_sum(args[r])
             for j in range(k):
                 p[r, j] = args[r, j] / total
-        u = np.asarray(rng.random(n))
         cum = np.empty(k)
         for r in range(n):
             c = 0.0
@@ -1745,7 +1743,8 @@ def serve_take(
     """serve_round for the compiled deriver's round (the rows packed by guided_round for
     particles `order`), then their values into the replay values (take_values) unless a
     row's prior arguments are bad. Returns (row count, first bad row or -1, vals: grown
-    when full)."""
+    when full). Long because it takes serve_round's arguments one by one (numba types
+    flat arguments fast, tuples slowly)."""
     n, bad = serve_round(
         flat,
         n_turtle,
@@ -1872,7 +1871,7 @@ def start_rounds(
 
 
 @jit
-def prior_round(
+def prior_pick(
     group: np.ndarray,
     codes: np.ndarray,
     served: int,
@@ -1886,21 +1885,12 @@ def prior_round(
     status: np.ndarray,
     limit: np.ndarray,
     reach: np.ndarray,
-    site_kind: np.ndarray,
-    rng: np.random.Generator,
-    log_prior: np.ndarray,
-    vals: np.ndarray,
-    nv: np.ndarray,
-    rec: np.ndarray,
-) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
-    """One round of run._Run._derive for the prior proposal, after the compiled deriver
+) -> tuple[int, int]:
+    """A round of run._Run._derive for the prior proposal, after the compiled deriver
     advanced `group` (outcomes `codes`; `served` the site its particles were served, -1 in
-    a step's first round): the outcomes sorted into drawn, empty (counts[0], counts[1]),
-    statuses and the waiting lists; SiteOrder's next site served (the prior's draws,
-    sitekinds' prior_draw, from `rng`; log prior added; values appended for replay, and
-    to rec as (particle, site, value) rows, counts[2], when rec has columns). Returns the
-    served particles (to advance next), the site (-1: the step is over), vals and rec
-    (new arrays when they grew)."""
+    a step's first round): the outcomes sorted (sort_outcomes) and SiteOrder's next site.
+    Returns (the site, its waiting particles; -1, 0: the step is over); the caller draws
+    the site's prior values and calls prior_serve."""
     served_of = np.full(group.shape[0], served, dtype=np.int64)
     sort_outcomes(
         group,
@@ -1918,30 +1908,28 @@ def prior_round(
         reach,
     )
     a = _pick(reach, wait_n)
-    if a < 0:
-        return group[:0], -1, vals, rec
-    nxt, vals, rec = _serve_prior(
-        a, need, wait_ids, wait_n, counts, site_kind, rng, log_prior, vals, nv, rec
-    )
-    return nxt, a, vals, rec
+    return (a, wait_n[a]) if a >= 0 else (-1, 0)
 
 
 @jit
-def _serve_prior(
+def prior_serve(
     a: int,
+    d: np.ndarray,
     need: np.ndarray,
     wait_ids: np.ndarray,
     wait_n: np.ndarray,
     counts: np.ndarray,
     site_kind: np.ndarray,
-    rng: np.random.Generator,
     log_prior: np.ndarray,
     vals: np.ndarray,
     nv: np.ndarray,
     rec: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """prior_round's serving of site a: its waiting particles (ascending, taken out of
-    the list), their draws, log prior, replay values and records."""
+    """prior_pick's site a served: its waiting particles (ascending, taken out of the
+    list) get sitekinds' prior_draw values from the draws `d` (the run's standard normals
+    or uniforms, one per particle), their log prior added, the values appended for replay
+    and, when rec has columns, to rec as (particle, site, value) rows (counts[2]). Returns
+    the served particles (to advance next), vals and rec (new arrays when they grew)."""
     m = wait_n[a]
     nxt = np.sort(wait_ids[a, :m])
     wait_n[a] = 0
@@ -1955,7 +1943,7 @@ def _serve_prior(
         top = max(top, nv[i])
     v = np.empty(m)
     lp = np.empty(m)
-    _prior_draw(site_kind[a], args, rng, v, lp)
+    _prior_draw(site_kind[a], args, d, v, lp)
     if top >= vals.shape[1]:
         more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
         more[:, : vals.shape[1]] = vals

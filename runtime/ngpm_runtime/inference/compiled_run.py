@@ -91,6 +91,7 @@ class CompiledRun(_Run):
         m = max(len(sites), 1)
         self.reach = np.zeros((m, m), dtype=np.bool_)  # SiteOrder's closure
         self.site_kind = np.array([KINDS[s.kind].code for s in sites] or [0], dtype=np.int64)
+        self.prior_normals = [KINDS[s.kind].prior_normals for s in sites]
         self.wait_ids = np.zeros((m, n), dtype=np.int64)  # a round's waiting particles
         self.wait_n = np.zeros(m, dtype=np.int64)
         self.drawn = np.zeros(n, dtype=np.int64)
@@ -179,8 +180,8 @@ class CompiledRun(_Run):
 
     def _derive(self) -> tuple[list[int], list[int]]:
         """run._Run._derive over the arrays: the same rounds in the same order (each round
-        one call of the compiled deriver and one of kernels.prior_round, which serves the
-        next site with the prior's draws from the run's generator)."""
+        one call of the compiled deriver, one of kernels.prior_pick (outcomes, the next
+        site), the run's draws for that site and one call of kernels.prior_serve)."""
         from ngpm_runtime import kernels
 
         if not self.is_prior:
@@ -192,9 +193,10 @@ class CompiledRun(_Run):
             np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
         )
         site = -1
+        normals = self.prior_normals
         while True:
             codes = self._advance(group)
-            group, site, self.vals, self.rec = kernels.prior_round(
+            site, m = kernels.prior_pick(
                 group,
                 codes,
                 site,
@@ -208,15 +210,24 @@ class CompiledRun(_Run):
                 rows.status,
                 rows.limit,
                 self.reach,
+            )
+            if site < 0:
+                break
+            # the draws of sitekinds' prior_draw: one generator call per round
+            draws = self.rng.standard_normal(m) if normals[site] else self.rng.random(m)
+            group, self.vals, self.rec = kernels.prior_serve(
+                site,
+                draws,
+                self.need,
+                self.wait_ids,
+                self.wait_n,
+                counts,
                 self.site_kind,
-                self.rng,
                 rows.log_prior,
                 self.vals,
                 self.nv,
                 self.rec,
             )
-            if site < 0:
-                break
         n_rec = int(counts[2])
         if n_rec:
             rec = self.rec[:n_rec]

@@ -56,6 +56,7 @@ class SiteKind:
     head = SOFTMAX  # the guide network's last operation (MIXTURE, SIGMOID or SOFTMAX)
     finite_args = True  # the prior arguments must be finite (categorical checks its own)
     z_sd0 = 1.0  # mixtures: the sd of z whose proposal is close to the prior
+    prior_normals = False  # prior_draw draws standard normals (else uniforms in [0, 1))
 
     @property
     def weighted(self) -> bool:
@@ -173,6 +174,7 @@ class Normal(_Mixture):
 
     name = "normal"
     code = 0
+    prior_normals = True
 
     def args_problem(self, vals: list[float], constant: bool) -> str:
         if vals[1] < 0 or (constant and vals[1] == 0):
