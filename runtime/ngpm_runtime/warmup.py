@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # imported on use: this module is imported without numpy's co
     from ngpm_runtime.volume.target import VolumeTarget
 
 # modules (relative to the package) whose @njit(cache=True) kernels are cached
-KERNEL_MODULES = ("kernels", "volume.kernels")
+KERNEL_MODULES = ("kernels", "round_kernels", "volume.kernels")
 
 
 def cache_is_cold() -> bool:

@@ -180,9 +180,9 @@ class CompiledRun(_Run):
 
     def _derive(self) -> tuple[list[int], list[int]]:
         """run._Run._derive over the arrays: the same rounds in the same order (each round
-        one call of the compiled deriver, one of kernels.prior_pick (outcomes, the next
-        site), the run's draws for that site and one call of kernels.prior_serve)."""
-        from ngpm_runtime import kernels
+        one call of the compiled deriver, one of round_kernels.prior_pick (outcomes, the next
+        site), the run's draws for that site and one call of round_kernels.prior_serve)."""
+        from ngpm_runtime import round_kernels as kernels
 
         if not self.is_prior:
             return self._derive_guided()
@@ -237,11 +237,11 @@ class CompiledRun(_Run):
 
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
-        round the grammar's `advance`, kernels.guided_round (the outcomes, site order, the
+        round the grammar's `advance`, round_kernels.guided_round (the outcomes, site order, the
         waiting particles packed as run._Run._pack packs them), the run's draws (as
-        run._Run._serve_kernel draws them) and kernels.serve_take (serve_round, the
+        run._Run._serve_kernel draws them) and round_kernels.serve_take (serve_round, the
         values into the particles)."""
-        from ngpm_runtime import kernels
+        from ngpm_runtime import round_kernels as kernels
 
         rows, counts = self.rows, self.counts
         counts[:] = 0
@@ -368,7 +368,7 @@ class CompiledRun(_Run):
 
     def _take_state(self, anc: np.ndarray) -> None:
         """Resampling of the derivation state: row k becomes old row anc[k]."""
-        from ngpm_runtime import kernels
+        from ngpm_runtime import round_kernels as kernels
 
         (
             self.stack,
@@ -493,7 +493,7 @@ class _Pool:
         m = len(idx)
         if not m:
             return
-        from ngpm_runtime import kernels
+        from ngpm_runtime import round_kernels as kernels
 
         if self.top + m > len(self.prev):
             size = max(2 * len(self.prev), self.top + m)
@@ -513,7 +513,7 @@ class _Pool:
     def lists(self, made: Callable[[np.ndarray, np.ndarray], list[Any]]) -> list[list[Any]]:
         """Every particle's list, oldest first: its rows as `made(rows, columns)` makes
         them (one item per row; a row shared by several lists is made once)."""
-        from ngpm_runtime import kernels
+        from ngpm_runtime import round_kernels as kernels
 
         ids, starts = kernels.chain_rows(self.head, self.prev)
         rows = np.unique(ids)

@@ -1,0 +1,693 @@
+"""The compiled deriver's generic kernels (inference/compiled_run.py): a round's outcomes,
+SiteOrder's site choice, the prior's values from the run's draws, a guided round's packing
+and serving (kernels.serve_round), resampling of the particles' arrays, and the linked
+rows of their primitives and traces. Grammar-independent, so compiled once and cached (the
+grammar's own kernel, geometry/compiled.py, is the derivation loop only). Each does what
+run._Run does in Python, in the same order, so seeded runs are bit-identical to it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ngpm_runtime.kernels import _pairwise_sum, jit, serve_round
+
+
+@jit
+def chain_rows(head: np.ndarray, prev: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of lists kept as linked rows (compiled_run._Pool: `head[i]` particle i's
+    newest row, `prev[r]` the row before r, -1 none): every list's rows oldest first, one
+    list after the other, and where each starts (n + 1,)."""
+    n = head.shape[0]
+    starts = np.zeros(n + 1, dtype=np.int64)
+    pos = 0
+    for i in range(n):
+        starts[i] = pos
+        r = head[i]
+        while r >= 0:
+            pos += 1
+            r = prev[r]
+    starts[n] = pos
+    out = np.empty(pos, dtype=np.int64)
+    for i in range(n):
+        r = head[i]
+        j = starts[i + 1] - 1
+        while r >= 0:
+            out[j] = r
+            j -= 1
+            r = prev[r]
+    return out, starts
+
+
+@jit
+def link_rows(head: np.ndarray, prev: np.ndarray, top: int, ids: np.ndarray) -> None:
+    """Rows top, top + 1, ... become the newest of lists ids[0], ids[1], ... in turn
+    (compiled_run._Pool; a list may get several)."""
+    for r in range(ids.shape[0]):
+        i = ids[r]
+        prev[top + r] = head[i]
+        head[i] = top + r
+
+
+LOG_2PI = float(np.log(2.0 * np.pi))  # as sitekinds.LOG_2PI
+DRAWN, NEED, DONE = 1, 2, 3  # derive.py's outcomes
+
+
+@jit
+def _saw(reach: np.ndarray, a: int, b: int) -> None:
+    """SiteOrder.saw: site b was asked for right after site a (reach: its closure)."""
+    if reach[a, b]:
+        return
+    new = reach[b].copy()
+    new[b] = True
+    for x in range(reach.shape[0]):
+        if x == a or reach[x, a]:
+            for y in range(reach.shape[1]):
+                if new[y]:
+                    reach[x, y] = True
+
+
+@jit
+def _pick(reach: np.ndarray, wait_n: np.ndarray) -> int:
+    """SiteOrder.pick: a waiting site no other waiting site leads to, most particles
+    first, the lowest index on ties (-1: none waits)."""
+    m = wait_n.shape[0]
+    n_wait = 0
+    only = -1
+    for s in range(m):
+        if wait_n[s] > 0:
+            n_wait += 1
+            only = s
+    if n_wait <= 1:
+        return only
+    blocked = np.zeros(m, dtype=np.bool_)
+    for a in range(m):
+        if wait_n[a] > 0:
+            for b in range(m):
+                if b != a and wait_n[b] > 0 and reach[a, b]:
+                    blocked[b] = True
+    free = False
+    for s in range(m):
+        if wait_n[s] > 0 and not blocked[s]:
+            free = True
+    best = -1
+    for s in range(m):
+        if wait_n[s] > 0 and (not blocked[s] or not free):
+            if best < 0 or wait_n[s] > wait_n[best]:
+                best = s
+    return best
+
+
+@jit
+def _fsum(a: np.ndarray) -> float:
+    """math.fsum (Shewchuk's exact partial sums)."""
+    partials = np.zeros(a.shape[0] + 1)
+    m = 0
+    for x in a:
+        i = 0
+        for j in range(m):
+            y = partials[j]
+            if abs(x) < abs(y):
+                x, y = y, x
+            hi = x + y
+            lo = y - (hi - x)
+            if lo != 0.0:
+                partials[i] = lo
+                i += 1
+            x = hi
+        partials[i] = x
+        m = i + 1
+    total = 0.0
+    for j in range(m):
+        total += partials[j]
+    return total
+
+
+@jit
+def _prior_draw(
+    kind: int, args: np.ndarray, d: np.ndarray, out_v: np.ndarray, out_lp: np.ndarray
+) -> None:
+    """sitekinds' prior_draw for the rows of `args` (one site): the same generator call,
+    the same values and log prior (numpy's arithmetic in numpy's order)."""
+    n, k = args.shape
+    if kind == 0:  # normal
+        z = d
+        point = False
+        for r in range(n):
+            sd = abs(args[r, 1])
+            out_v[r] = args[r, 0] + sd * z[r]
+            if not sd > 0:
+                point = True
+        for r in range(n):
+            sd = abs(args[r, 1])
+            if not point:
+                out_lp[r] = -0.5 * z[r] * z[r] - np.log(sd) - 0.5 * LOG_2PI
+            elif sd == 0:
+                out_lp[r] = 0.0 if out_v[r] == args[r, 0] else -np.inf
+            else:
+                zz = (out_v[r] - args[r, 0]) / sd
+                lp = -0.5 * zz * zz - np.log(sd) - 0.5 * LOG_2PI
+                out_lp[r] = lp if lp == lp else -np.inf
+    elif kind == 1:  # uniform
+        u = d
+        for r in range(n):
+            a = min(args[r, 0], args[r, 1])
+            b = max(args[r, 0], args[r, 1])
+            width = b - a
+            out_v[r] = a + width * u[r]
+            out_lp[r] = -np.log(width if width > 0 else 1.0)
+    elif kind == 2:  # bernoulli
+        u = d
+        for r in range(n):
+            p = min(max(args[r, 0], 0.0), 1.0)
+            if u[r] < p:
+                out_v[r] = 1.0
+                out_lp[r] = np.log(p)
+            else:
+                out_v[r] = 0.0
+                out_lp[r] = np.log(1.0 - p)
+    else:
+        _categorical_draw(args, d, out_v, out_lp)
+
+
+@jit
+def _categorical_draw(
+    args: np.ndarray, u: np.ndarray, out_v: np.ndarray, out_lp: np.ndarray
+) -> None:
+    """_prior_draw of a categorical site (sitekinds.Categorical.prior_draw)."""
+    n, k = args.shape
+    same = n > 1
+    for r in range(1, n):
+        for j in range(k):
+            if args[r, j] != args[0, j]:
+                same = False
+    if same:  # one distribution for every row (a stochastic group)
+        cum = np.empty(k)
+        c = 0.0
+        for j in range(k):
+            c += args[0, j]
+            cum[j] = c
+        total = _fsum(args[0])
+        for r in range(n):
+            x = u[r] * cum[k - 1]
+            j = 0
+            while j < k and cum[j] <= x:
+                j += 1
+            j = min(j, k - 1)
+            out_v[r] = j
+            out_lp[r] = np.log(args[0, j] / total)
+    else:
+        p = np.empty((n, k))
+        for r in range(n):
+            total = _pairwise_sum(args[r])
+            for j in range(k):
+                p[r, j] = args[r, j] / total
+        cum = np.empty(k)
+        for r in range(n):
+            c = 0.0
+            for j in range(k):
+                c += p[r, j]
+                cum[j] = c
+            x = u[r] * cum[k - 1]
+            j = 0
+            for i in range(k):
+                if cum[i] <= x:
+                    j += 1
+            j = min(j, k - 1)
+            out_v[r] = j
+            out_lp[r] = np.log(p[r, j])
+
+
+@jit
+def sort_outcomes(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+) -> None:
+    """A round's outcomes (run._Run._derive): particles group[j] (served at site
+    served[j], -1 none) that drew into drawn (counts[0]), those that ask for a value into
+    the waiting lists (SiteOrder.saw: their site follows the one they were served), those
+    that ended into status (1 done, 2 limit: max modules) and, without a primitive, into
+    empty (counts[1])."""
+    m = wait_n.shape[0]
+    asked = np.zeros((m, m), dtype=np.bool_)
+    for j in range(group.shape[0]):
+        i = group[j]
+        code = codes[j]
+        if code == DRAWN:
+            drawn[counts[0]] = i
+            counts[0] += 1
+        elif code == NEED:
+            s = int(need[i, 0])
+            if served[j] >= 0:
+                asked[served[j], s] = True
+            wait_ids[s, wait_n[s]] = i
+            wait_n[s] += 1
+        else:
+            status[i] = 1 if code == DONE else 2
+            if code != DONE:
+                limit[i] = 1
+            if n_prims[i] == 0:
+                empty[counts[1]] = i
+                counts[1] += 1
+    for a in range(m):
+        for s in range(m):
+            if asked[a, s]:
+                _saw(reach, a, s)
+
+
+@jit
+def free_sites(reach: np.ndarray, wait_n: np.ndarray) -> np.ndarray:
+    """SiteOrder.free: every waiting site no other waiting site leads to, ascending, or
+    [pick] when a cycle leaves none (empty: none waits)."""
+    m = wait_n.shape[0]
+    out = np.empty(m, dtype=np.int64)
+    n = 0
+    for s in range(m):
+        if wait_n[s] > 0:
+            blocked = False
+            for a in range(m):
+                if a != s and wait_n[a] > 0 and reach[a, s]:
+                    blocked = True
+            if not blocked:
+                out[n] = s
+                n += 1
+    if n == 0:
+        a = _pick(reach, wait_n)
+        if a >= 0:
+            out[0] = a
+            n = 1
+    return out[:n]
+
+
+@jit
+def pack_waiting(
+    sites: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    n_turtle: int,
+    need: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The waiting particles of `sites` as run._Run._pack packs them (unpack_round's
+    layout, each site's particles ascending; the waiting module is on top of a particle's
+    stack), taken out of the waiting lists; and the particles in row order."""
+    size = 0
+    rows = 0
+    for s in sites:
+        m = wait_n[s]
+        i = wait_ids[s, 0]
+        a = int(stack[i, sp[i] - 1, 2])
+        k = int(need[i, 1])
+        size += 4 + m * (2 + n_turtle + a + k)
+        rows += m
+    flat = np.empty(size)
+    order = np.empty(rows, dtype=np.int64)
+    pos = 0
+    r = 0
+    for s in sites:
+        m = wait_n[s]
+        group = np.sort(wait_ids[s, :m])
+        wait_n[s] = 0
+        top = stack[group[0], sp[group[0]] - 1]
+        a = int(top[2])
+        k = int(need[group[0], 1])
+        flat[pos] = s
+        flat[pos + 1] = m
+        flat[pos + 2] = a
+        flat[pos + 3] = k
+        pos += 4
+        for i in group:
+            row = stack[i, sp[i] - 1]
+            if int(row[2]) != a or int(need[i, 1]) != k:
+                raise ValueError("modules of different arity share a site")
+            order[r] = i
+            r += 1
+            flat[pos] = i
+            flat[pos + 1] = row[1]
+            pos += 2
+            for q in range(n_turtle):
+                flat[pos + q] = turtle[i, q]
+            pos += n_turtle
+            for q in range(a):
+                flat[pos + q] = row[3 + q]
+            pos += a
+            for q in range(k):
+                flat[pos + q] = need[i, 2 + q]
+            pos += k
+    return flat, order
+
+
+@jit
+def take_values(
+    order: np.ndarray, values: np.ndarray, vals: np.ndarray, nv: np.ndarray, need: np.ndarray
+) -> np.ndarray:
+    """Particles order[r] drew values[r]: appended to their replay values (vals grows when
+    full: returned), their requests served."""
+    top = 0
+    for i in order:
+        top = max(top, nv[i])
+    if top >= vals.shape[1]:
+        more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
+        more[:, : vals.shape[1]] = vals
+        vals = more
+    for r in range(order.shape[0]):
+        i = order[r]
+        vals[i, nv[i]] = values[r]
+        nv[i] += 1
+        need[i, 0] = -1.0
+    return vals
+
+
+@jit
+def guided_round(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    n_turtle: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A guided round's bookkeeping before kernels.serve_round, in one call: the outcomes
+    of advancing `group` (sort_outcomes), the free waiting sites (free_sites) and their
+    particles packed (pack_waiting). Returns the packed state, the particles in row
+    order, the sites, their particle counts and the site of each row (empty arrays: the
+    step is over)."""
+    sort_outcomes(
+        group,
+        codes,
+        served,
+        need,
+        n_prims,
+        wait_ids,
+        wait_n,
+        drawn,
+        empty,
+        counts,
+        status,
+        limit,
+        reach,
+    )
+    sites = free_sites(reach, wait_n)
+    sizes = np.empty(sites.shape[0], dtype=np.int64)
+    for j in range(sites.shape[0]):
+        sizes[j] = wait_n[sites[j]]
+    flat, rows = pack_waiting(sites, wait_ids, wait_n, stack, sp, turtle, n_turtle, need)
+    row_site = np.empty(rows.shape[0], dtype=np.int64)
+    r = 0
+    for j in range(sites.shape[0]):
+        for _ in range(sizes[j]):
+            row_site[r] = sites[j]
+            r += 1
+    return flat, rows, sites, sizes, row_site
+
+
+@jit
+def serve_take(
+    flat: np.ndarray,
+    n_turtle: int,
+    shape: np.ndarray,
+    idx: np.ndarray,
+    site: np.ndarray,
+    rows_turtle: np.ndarray,
+    depth: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    x: np.ndarray,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+    table: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    kinds: np.ndarray,
+    temps: np.ndarray,
+    n_out: np.ndarray,
+    params: np.ndarray,
+    u: np.ndarray,
+    z: np.ndarray,
+    out: np.ndarray,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+    order: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+) -> tuple[int, int, np.ndarray]:
+    """serve_round for the compiled deriver's round (the rows packed by guided_round for
+    particles `order`), then their values into the replay values (take_values) unless a
+    row's prior arguments are bad. Returns (row count, first bad row or -1, vals: grown
+    when full). Long because it takes serve_round's arguments one by one (numba types
+    flat arguments fast, tuples slowly)."""
+    n, bad = serve_round(
+        flat,
+        n_turtle,
+        shape,
+        idx,
+        site,
+        rows_turtle,
+        depth,
+        extra,
+        n_extra,
+        args,
+        n_args,
+        x,
+        view,
+        size,
+        offs,
+        target,
+        canvas,
+        ctx,
+        ctx_geom,
+        cells,
+        cell_t,
+        table,
+        w,
+        cols,
+        kinds,
+        temps,
+        n_out,
+        params,
+        u,
+        z,
+        out,
+        log_w,
+        log_prior,
+    )
+    if bad < 0:
+        vals = take_values(order, out[:n, 0], vals, nv, need)
+    return n, bad, vals
+
+
+@jit
+def take_particles(
+    anc: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+) -> tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+]:
+    """Resampling of the compiled deriver's particles (compiled_run.py): new arrays of the
+    same capacity whose row k is old row anc[k] (of the stacks and replay values, the rows
+    in use only)."""
+    n = anc.shape[0]
+    out_stack = np.empty_like(stack)
+    out_tstack = np.empty_like(tstack)
+    out_vals = np.empty_like(vals)
+    out_sp = np.empty_like(sp)
+    out_tsp = np.empty_like(tsp)
+    out_nv = np.empty_like(nv)
+    out_turtle = np.empty_like(turtle)
+    out_need = np.empty_like(need)
+    out_n_prims = np.empty_like(n_prims)
+    out_work = np.empty_like(work)
+    for k in range(n):
+        a = anc[k]
+        out_sp[k] = sp[a]
+        out_tsp[k] = tsp[a]
+        out_nv[k] = nv[a]
+        out_n_prims[k] = n_prims[a]
+        out_work[k] = work[a]
+        out_stack[k, : sp[a]] = stack[a, : sp[a]]
+        out_tstack[k, : tsp[a]] = tstack[a, : tsp[a]]
+        out_vals[k, : nv[a]] = vals[a, : nv[a]]
+        out_turtle[k] = turtle[a]
+        out_need[k] = need[a]
+    return (
+        out_stack,
+        out_sp,
+        out_turtle,
+        out_tstack,
+        out_tsp,
+        out_vals,
+        out_nv,
+        out_need,
+        out_n_prims,
+        out_work,
+    )
+
+
+@jit
+def start_rounds(
+    live: np.ndarray, need: np.ndarray, wait_ids: np.ndarray, wait_n: np.ndarray
+) -> np.ndarray:
+    """A step's first round (run._Run._derive): the live particles not waiting (to
+    advance); the waiting ones into wait_ids[site, :wait_n[site]]."""
+    group = np.empty(live.shape[0], dtype=np.int64)
+    g = 0
+    wait_n[:] = 0
+    for i in live:
+        s = int(need[i, 0])
+        if s < 0:
+            group[g] = i
+            g += 1
+        else:
+            wait_ids[s, wait_n[s]] = i
+            wait_n[s] += 1
+    return group[:g]
+
+
+@jit
+def prior_pick(
+    group: np.ndarray,
+    codes: np.ndarray,
+    served: int,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+) -> tuple[int, int]:
+    """A round of run._Run._derive for the prior proposal, after the compiled deriver
+    advanced `group` (outcomes `codes`; `served` the site its particles were served, -1 in
+    a step's first round): the outcomes sorted (sort_outcomes) and SiteOrder's next site.
+    Returns (the site, its waiting particles; -1, 0: the step is over); the caller draws
+    the site's prior values and calls prior_serve."""
+    served_of = np.full(group.shape[0], served, dtype=np.int64)
+    sort_outcomes(
+        group,
+        codes,
+        served_of,
+        need,
+        n_prims,
+        wait_ids,
+        wait_n,
+        drawn,
+        empty,
+        counts,
+        status,
+        limit,
+        reach,
+    )
+    a = _pick(reach, wait_n)
+    return (a, wait_n[a]) if a >= 0 else (-1, 0)
+
+
+@jit
+def prior_serve(
+    a: int,
+    d: np.ndarray,
+    need: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    counts: np.ndarray,
+    site_kind: np.ndarray,
+    log_prior: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    rec: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """prior_pick's site a served: its waiting particles (ascending, taken out of the
+    list) get sitekinds' prior_draw values from the draws `d` (the run's standard normals
+    or uniforms, one per particle), their log prior added, the values appended for replay
+    and, when rec has columns, to rec as (particle, site, value) rows (counts[2]). Returns
+    the served particles (to advance next), vals and rec (new arrays when they grew)."""
+    m = wait_n[a]
+    nxt = np.sort(wait_ids[a, :m])
+    wait_n[a] = 0
+    k = int(need[nxt[0], 1])
+    args = np.empty((m, k))
+    top = 0
+    for r in range(m):
+        i = nxt[r]
+        for j in range(k):
+            args[r, j] = need[i, 2 + j]
+        top = max(top, nv[i])
+    v = np.empty(m)
+    lp = np.empty(m)
+    _prior_draw(site_kind[a], args, d, v, lp)
+    if top >= vals.shape[1]:
+        more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
+        more[:, : vals.shape[1]] = vals
+        vals = more
+    for r in range(m):
+        i = nxt[r]
+        log_prior[i] += lp[r]
+        vals[i, nv[i]] = v[r]
+        nv[i] += 1
+        need[i, 0] = -1.0
+    if rec.shape[1] > 0:
+        n_rec = counts[2]
+        if n_rec + m > rec.shape[0]:
+            more = np.zeros((2 * (n_rec + m), 3))
+            more[:n_rec] = rec[:n_rec]
+            rec = more
+        for r in range(m):
+            rec[n_rec + r, 0] = nxt[r]
+            rec[n_rec + r, 1] = a
+            rec[n_rec + r, 2] = v[r]
+        counts[2] = n_rec + m
+    return nxt, vals, rec
