@@ -369,14 +369,24 @@ def compiled_deriver(program: Program, compile: bool = True) -> CompiledDeriver 
     name = f"_ngpm_deriver_{digest}"
     if not compile and not _on_disk(name):
         return None
-    path = _write(name, text)
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
+    try:
+        path = _write(name, text)
+        spec = importlib.util.spec_from_file_location(name, path)
+        assert spec is not None and spec.loader is not None
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    except Exception:  # no writable cache folder, a module that does not load: Python
+        _BY_CODE[key] = None
+        return None
     out = _LOADED[digest] = _BY_CODE[key] = CompiledDeriver(module, info)
     return out
+
+
+def forget(program: Program) -> None:
+    """The program's grammar runs on the Python deriver from now on in this process (its
+    kernel did not compile)."""
+    _BY_CODE[program.code] = None
 
 
 def _on_disk(name: str) -> bool:

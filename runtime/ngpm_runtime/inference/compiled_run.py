@@ -21,7 +21,7 @@ from typing import Any, overload
 
 import numpy as np
 
-from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver
+from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver, forget
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.run import (
@@ -176,6 +176,8 @@ class CompiledRun(_Run):
                 )
             )
         except Exception as err:  # numba's errors: the Python deriver says what
+            if "numba" in type(err).__module__:  # it did not compile: not again
+                forget(self.program)
             raise KernelFailed(str(err)) from None
 
     def _derive(self) -> tuple[list[int], list[int]]:

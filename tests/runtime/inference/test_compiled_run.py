@@ -280,3 +280,19 @@ def test_step_observers_see_the_same(monkeypatch) -> None:
 
     res = smc(program, like, 12, options=opts, observers=[Draws()])
     assert res.info.get("deriver") is None
+
+
+def test_no_cache_folder_means_the_python_deriver(monkeypatch, tmp_path: Path) -> None:
+    """Where no kernel module can be written (or loaded), runs use the Python deriver."""
+    from ngpm_runtime.geometry import compiled
+
+    def no_folder(name: str, text: str) -> Path:
+        raise OSError("read-only")
+
+    monkeypatch.setattr(compiled, "_write", no_folder)
+    program = grammar(
+        tmp_path, "derivation length: 4\nAxiom: A\nproduction:\nA --> F(flip(0.5)) A\n"
+    )
+    assert compiled_deriver(program) is None
+    res = smc(program, None, smc_module.COMPILE_FROM, options=SMCOptions(seed=1))
+    assert res.info.get("deriver") is None and res.particles
