@@ -31,8 +31,6 @@ from ngpm_runtime.inference.run import (
     SMCResult,
     SMCState,
     TraceRecording,
-    _limit_counts,
-    _logsumexp,
     _Run,
 )
 from ngpm_runtime.inference.sitekinds import KINDS
@@ -404,8 +402,6 @@ class CompiledRun(_Run):
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.rows
-        log_w = pop.log_w
-        log_z = self.log_z + _logsumexp(log_w) - np.log(self.n)
         prims = self.prim_pool.lists(_made_prims)
         traces: list[Any] = [None] * self.n
         if self.trace is not TraceRecording.NONE:
@@ -424,31 +420,14 @@ class CompiledRun(_Run):
                 zip(
                     pop.log_prior.tolist(),
                     pop.log_lik.tolist(),
-                    log_w.tolist(),
+                    pop.log_w.tolist(),
                     pop.status.tolist(),
                     pop.limit.tolist(),
                     strict=True,
                 )
             )
         ]
-        score = np.where(np.isfinite(log_w), pop.log_prior + pop.log_lik, -np.inf)
-        status = {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}
-        return SMCResult(
-            particles=finals,
-            log_weights=log_w.copy(),
-            best=finals[int(np.argmax(score))],
-            log_evidence=float(log_z),
-            ess_history=self.ess_history,
-            steps=self.steps,
-            seconds=seconds,
-            info={
-                "particle_steps": self.particle_steps,
-                "resamples": self.n_resample,
-                "status": status,
-                "limits": _limit_counts(finals),
-                "deriver": "compiled",
-            },
-        )
+        return self._result(finals, seconds, {"deriver": "compiled"})
 
 
 class PrimRows(Sequence[Prim]):

@@ -788,7 +788,6 @@ class _Run:
     def result(self, seconds: float) -> SMCResult:
         pop = self.pop
         log_w = pop.log_w
-        log_z = self.log_z + _logsumexp(log_w) - math.log(self.n)
         finals = [
             FinalParticle(
                 primitives=cons_to_list(p.prims),
@@ -801,6 +800,16 @@ class _Run:
             )
             for i, p in enumerate(pop.parts)
         ]
+        return self._result(finals, seconds)
+
+    def _result(
+        self, finals: list[FinalParticle], seconds: float, info: dict[str, Any] | None = None
+    ) -> SMCResult:
+        """The SMCResult of the final particles: the best by log prior + log likelihood,
+        the evidence, counts (and `info`'s entries)."""
+        pop = self.pop
+        log_w = pop.log_w
+        log_z = self.log_z + _logsumexp(log_w) - math.log(self.n)
         score = np.where(np.isfinite(log_w), pop.log_prior + pop.log_lik, -np.inf)
         status = {k: sum(p.status == k for p in finals) for k in ("done", "limit", "dead")}
         return SMCResult(
@@ -816,6 +825,7 @@ class _Run:
                 "resamples": self.n_resample,
                 "status": status,
                 "limits": _limit_counts(finals),
+                **(info or {}),
             },
         )
 
