@@ -24,6 +24,7 @@ import numpy as np
 from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver, forget
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.inference.proposals import RoundRows
 from ngpm_runtime.inference.run import (
     _NO_ROWS,
     FinalParticle,
@@ -95,7 +96,8 @@ class CompiledRun(_Run):
         self.drawn = np.zeros(n, dtype=np.int64)
         self.empty = np.zeros(n, dtype=np.int64)
         self.counts = np.zeros(3, dtype=np.int64)  # drawn, empty, values recorded
-        self.guided_tables = () if self.is_prior else self._guided_tables()
+        guided = not self.is_prior and self.trace is not TraceRecording.FULL
+        self.guided_tables = self._guided_tables() if guided else ()
         record = self.trace is TraceRecording.VALUES
         self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
@@ -120,7 +122,8 @@ class CompiledRun(_Run):
         self.work = np.zeros(n, dtype=np.int64)
         self.resume = np.zeros((n, 2), dtype=np.int64)
         self.prim_pool = _Pool(n, 6)  # kind code, 5 parameters
-        self.trace_pool = _Pool(n, 2)  # site, value
+        self.trace_pool = _Pool(n, 3)  # site, value, feature row (index into `features`)
+        self.features: list[np.ndarray] = []  # feature traces' rows
         self.dlen = int(self.program.derivation_length)
         self.angle = float(self.program.angle)
         self.max_modules = int(self.deriver.max_modules)
@@ -184,6 +187,8 @@ class CompiledRun(_Run):
         site), the run's draws for that site and one call of round_kernels.prior_serve)."""
         from ngpm_runtime import round_kernels as kernels
 
+        if self.trace is TraceRecording.FULL:
+            return self._derive_rows()
         if not self.is_prior:
             return self._derive_guided()
         rows = self.rows
@@ -232,6 +237,68 @@ class CompiledRun(_Run):
         if n_rec:
             rec = self.rec[:n_rec]
             self.trace_pool.add(rec[:, 0].astype(np.int64), rec[:, 1:])
+        drawn = np.sort(self.drawn[: counts[0]])
+        return drawn.tolist(), self.empty[: counts[1]].tolist()
+
+    def _derive_rows(self) -> tuple[list[int], list[int]]:
+        """_derive for a run with feature traces (a proposal that is no RoundProposal: the
+        prior, a replay): per round the grammar's `advance`, round_kernels.prior_pick (the
+        outcomes, SiteOrder's site), the site's particles packed (pack_waiting) and served
+        as run._Run._serve serves one site with features (run._Run._unpack, _propose_one),
+        their feature rows into the traces."""
+        from ngpm_runtime import round_kernels as kernels
+
+        rows, counts = self.rows, self.counts
+        counts[:] = 0
+        group = kernels.start_rounds(
+            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
+        )
+        site = -1
+        while True:
+            codes = self._advance(group)
+            site, m = kernels.prior_pick(
+                group,
+                codes,
+                site,
+                self.need,
+                self.n_prims,
+                self.wait_ids,
+                self.wait_n,
+                self.drawn,
+                self.empty,
+                counts,
+                rows.status,
+                rows.limit,
+                self.reach,
+            )
+            if site < 0:
+                break
+            flat, group = kernels.pack_waiting(
+                np.array([site], dtype=np.int64),
+                self.wait_ids,
+                self.wait_n,
+                self.stack,
+                self.sp,
+                self.turtle,
+                self.t_width,
+                self.need,
+            )
+            obj = self.program.sites[site]
+            served, idx = self._unpack(flat, [obj], [group.tolist()], int(self.need[group[0], 1]))
+            x = served.features
+            assert x is not None  # feature traces: the run has a feature maker
+            if not self.use_features:  # features for the trace only
+                served = RoundRows(
+                    served.sites, served.counts, served.site, served.args, served.n_args, None, []
+                )
+            values = np.asarray(self._propose_one(obj, served, idx), dtype=np.float64)
+            self.vals = kernels.take_values(group, values, self.vals, self.nv, self.need)
+            feats = x[:, : self.n_feat[site]]
+            at = len(self.features)
+            self.features.extend(feats[j].copy() for j in range(len(group)))
+            self.trace_pool.add(
+                group, np.full(len(group), float(site)), values, np.arange(at, at + len(group))
+            )
         drawn = np.sort(self.drawn[: counts[0]])
         return drawn.tolist(), self.empty[: counts[1]].tolist()
 
@@ -404,8 +471,13 @@ class CompiledRun(_Run):
         pop = self.rows
         prims = self.prim_pool.lists(_made_prims)
         traces: list[Any] = [None] * self.n
-        if self.trace is not TraceRecording.NONE:
+        if self.trace is TraceRecording.VALUES:
             traces = self.trace_pool.lists(_made_trace)
+        elif self.trace is TraceRecording.FULL:
+            features = self.features
+            traces = self.trace_pool.lists(
+                lambda rows, cols: [(int(c[0]), features[int(c[2])], c[1]) for c in cols.tolist()]
+            )
         finals = [
             FinalParticle(
                 primitives=prims[i],

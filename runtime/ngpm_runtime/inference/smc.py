@@ -144,18 +144,21 @@ def _compiled_deriver(
     observers: tuple[SMCObserver, ...],
 ) -> Any:
     """The program's compiled deriver when the run can use it (compiled_run.py): the
-    prior proposal or a guide whose kernel serves every site, no feature traces, no
-    observer of site draws, a 2D grammar the kernel can run, and
-    COMPILE_FROM particles or more unless the deriver is compiled already."""
-    if not USE_COMPILED or options.trace is TraceRecording.FULL:
+    prior proposal or a guide whose kernel serves every site, or feature traces of a
+    proposal that is no RoundProposal (a replay); no observer of site draws, a 2D grammar
+    the kernel can run, and COMPILE_FROM particles or more unless the deriver is compiled
+    already."""
+    if not USE_COMPILED:
         return None
     if any(type(o).site_drawn is not SMCObserver.site_drawn for o in observers):
         return None  # it watches every draw: the Python deriver's rounds tell it
     if program.dim != 2:
         return None
-    if not (
-        proposal is None or type(proposal) is PriorProposal or _kernel_guide(proposal, program)
-    ):
+    prior = proposal is None or type(proposal) is PriorProposal
+    if options.trace is TraceRecording.FULL:
+        if isinstance(proposal, RoundProposal):
+            return None  # a guide's rounds with feature traces: run._Run's
+    elif not (prior or (proposal is not None and _kernel_guide(proposal, program))):
         return None
     from ngpm_runtime.geometry.compiled import compiled_deriver
 

@@ -296,3 +296,41 @@ def test_no_cache_folder_means_the_python_deriver(monkeypatch, tmp_path: Path) -
     assert compiled_deriver(program) is None
     res = smc(program, None, smc_module.COMPILE_FROM, options=SMCOptions(seed=1))
     assert res.info.get("deriver") is None and res.particles
+
+
+def same_traces(a, b) -> None:
+    assert len(a) == len(b)
+    for (s, f, v), (t, g, w) in zip(a, b, strict=True):
+        assert (s, v) == (t, w)
+        assert f.dtype == g.dtype and np.array_equal(f, g)
+
+
+def test_feature_traces_equal_python(monkeypatch) -> None:
+    """Feature traces (TraceRecording.FULL: the prior's runs, and `replay`, which trace jobs
+    run on their best particle) on the compiled deriver: the same rows, bit for bit."""
+    from ngpm_runtime.inference.smc import replay
+
+    program = load_grammar(REPO / "grammars" / "vines.lsys")
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    out = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        opts = SMCOptions(
+            seed=4, canvas_size=mask.shape, target_mask=mask, trace=TraceRecording.FULL
+        )
+        out.append(smc(program, like, 20, options=opts))
+    a, b = out
+    assert a.info.get("deriver") == "compiled" and b.info.get("deriver") is None
+    for p, q in zip(a.particles, b.particles, strict=True):
+        assert p.primitives == q.primitives and p.log_weight == q.log_weight
+        same_traces(p.trace, q.trace)
+    values = [(s, v) for s, _, v in a.best.trace]
+    replays = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        replays.append(replay(program, values, canvas_size=mask.shape, target_mask=mask))
+    assert replays[0].primitives == replays[1].primitives == a.best.primitives
+    same_traces(replays[0].trace, replays[1].trace)
+    same_traces(replays[0].trace, a.best.trace)
