@@ -181,6 +181,43 @@ class CompiledRun(_Run):
                 forget(self.program)
             raise KernelFailed(str(err)) from None
 
+    def _start(self) -> np.ndarray:
+        """A step's first round: the live particles not waiting (round_kernels.start_rounds;
+        the waiting ones into the waiting lists); the counts reset."""
+        from ngpm_runtime import round_kernels
+
+        self.counts[:] = 0
+        live = np.asarray(self.rows.live, dtype=np.int64)
+        return round_kernels.start_rounds(live, self.need, self.wait_ids, self.wait_n)
+
+    def _pick(self, group: np.ndarray, site: int) -> tuple[int, int]:
+        """The grammar's `advance` of `group` (served at `site`, -1: none), then
+        round_kernels.prior_pick: SiteOrder's next site and its waiting particles' count."""
+        from ngpm_runtime import round_kernels
+
+        rows = self.rows
+        site, m = round_kernels.prior_pick(
+            group,
+            self._advance(group),
+            site,
+            self.need,
+            self.n_prims,
+            self.wait_ids,
+            self.wait_n,
+            self.drawn,
+            self.empty,
+            self.counts,
+            rows.status,
+            rows.limit,
+            self.reach,
+        )
+        return int(site), int(m)
+
+    def _outcomes(self) -> tuple[list[int], list[int]]:
+        """The step's particles that drew (ascending) and that ended without drawing."""
+        counts = self.counts
+        return np.sort(self.drawn[: counts[0]]).tolist(), self.empty[: counts[1]].tolist()
+
     def _derive(self) -> tuple[list[int], list[int]]:
         """run._Run._derive over the arrays: the same rounds in the same order (each round
         one call of the compiled deriver, one of round_kernels.prior_pick (outcomes, the next
@@ -193,29 +230,11 @@ class CompiledRun(_Run):
             return self._derive_guided()
         rows = self.rows
         counts = self.counts
-        counts[:] = 0
-        group = kernels.start_rounds(
-            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
-        )
+        group = self._start()
         site = -1
         normals = self.prior_normals
         while True:
-            codes = self._advance(group)
-            site, m = kernels.prior_pick(
-                group,
-                codes,
-                site,
-                self.need,
-                self.n_prims,
-                self.wait_ids,
-                self.wait_n,
-                self.drawn,
-                self.empty,
-                counts,
-                rows.status,
-                rows.limit,
-                self.reach,
-            )
+            site, m = self._pick(group, site)
             if site < 0:
                 break
             # the draws of sitekinds' prior_draw: one generator call per round
@@ -237,8 +256,7 @@ class CompiledRun(_Run):
         if n_rec:
             rec = self.rec[:n_rec]
             self.trace_pool.add(rec[:, 0].astype(np.int64), rec[:, 1:])
-        drawn = np.sort(self.drawn[: counts[0]])
-        return drawn.tolist(), self.empty[: counts[1]].tolist()
+        return self._outcomes()
 
     def _derive_rows(self) -> tuple[list[int], list[int]]:
         """_derive for a run with feature traces (a proposal that is no RoundProposal: the
@@ -248,29 +266,10 @@ class CompiledRun(_Run):
         their feature rows into the traces."""
         from ngpm_runtime import round_kernels as kernels
 
-        rows, counts = self.rows, self.counts
-        counts[:] = 0
-        group = kernels.start_rounds(
-            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
-        )
+        group = self._start()
         site = -1
         while True:
-            codes = self._advance(group)
-            site, m = kernels.prior_pick(
-                group,
-                codes,
-                site,
-                self.need,
-                self.n_prims,
-                self.wait_ids,
-                self.wait_n,
-                self.drawn,
-                self.empty,
-                counts,
-                rows.status,
-                rows.limit,
-                self.reach,
-            )
+            site, m = self._pick(group, site)
             if site < 0:
                 break
             flat, group = kernels.pack_waiting(
@@ -299,8 +298,7 @@ class CompiledRun(_Run):
             self.trace_pool.add(
                 group, np.full(len(group), float(site)), values, np.arange(at, at + len(group))
             )
-        drawn = np.sort(self.drawn[: counts[0]])
-        return drawn.tolist(), self.empty[: counts[1]].tolist()
+        return self._outcomes()
 
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
@@ -311,7 +309,6 @@ class CompiledRun(_Run):
         from ngpm_runtime import round_kernels as kernels
 
         rows, counts = self.rows, self.counts
-        counts[:] = 0
         buf, fmaker = self.buffers, self.fmaker
         assert buf is not None and fmaker is not None
         serve: Any = kernels.serve_take
@@ -319,9 +316,7 @@ class CompiledRun(_Run):
         guide: Any = self.proposal
         state = (self.t_width, *buf.state(widest)[1:], buf.rows(fmaker.n_common))
         nets = (*fmaker.window_args(self.canvas), *tables, buf.params(guide.widest))
-        group = kernels.start_rounds(
-            np.asarray(rows.live, dtype=np.int64), self.need, self.wait_ids, self.wait_n
-        )
+        group = self._start()
         served = np.full(len(group), -1, dtype=np.int64)
         rng = self.rng
         while True:
@@ -370,8 +365,7 @@ class CompiledRun(_Run):
                 self._round_error(served, -1, bad, n)
             if self.trace is TraceRecording.VALUES:
                 self.trace_pool.add(group, served.astype(np.float64), buf.out[:n, 0])
-        drawn = np.sort(self.drawn[: counts[0]])
-        return drawn.tolist(), self.empty[: counts[1]].tolist()
+        return self._outcomes()
 
     def _guided_tables(self) -> tuple[Any, ...]:
         """What kernels.guided_serve takes of the guide, once per run: per site whether
