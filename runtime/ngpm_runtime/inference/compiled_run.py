@@ -37,6 +37,8 @@ from ngpm_runtime.inference.run import (
 from ngpm_runtime.inference.sitekinds import KINDS
 
 LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
+# the per-particle derivation arrays round_kernels.take_particles resamples, in its order
+_STATE = ("stack", "sp", "turtle", "tstack", "tsp", "vals", "nv", "need", "n_prims", "work")
 STATUS = ("live", "done", "limit", "dead")
 LIMITS = (None, "max modules", "max primitives", "max steps")
 _PRIM_KINDS = ("seg", "disk", "leaf")
@@ -429,32 +431,14 @@ class CompiledRun(_Run):
 
     def _take_state(self, anc: np.ndarray) -> None:
         """Resampling of the derivation state: row k becomes old row anc[k]."""
-        from ngpm_runtime import round_kernels as kernels
+        from ngpm_runtime import round_kernels
 
-        (
-            self.stack,
-            self.sp,
-            self.turtle,
-            self.tstack,
-            self.tsp,
-            self.vals,
-            self.nv,
-            self.need,
-            self.n_prims,
-            self.work,
-        ) = kernels.take_particles(
-            np.asarray(anc, dtype=np.int64),
-            self.stack,
-            self.sp,
-            self.turtle,
-            self.tstack,
-            self.tsp,
-            self.vals,
-            self.nv,
-            self.need,
-            self.n_prims,
-            self.work,
+        names = _STATE
+        taken = round_kernels.take_particles(
+            np.asarray(anc, dtype=np.int64), *(getattr(self, k) for k in names)
         )
+        for name, array in zip(names, taken, strict=True):
+            setattr(self, name, array)
         self.prim_pool.take(anc)
         self.trace_pool.take(anc)
 
