@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ngpm_runtime.kernels import _pairwise_sum, jit, serve_round
+from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
+from ngpm_runtime.kernels import LOG_2PI, _pairwise_sum, jit, serve_round
 
 
 @jit
@@ -47,10 +48,6 @@ def link_rows(head: np.ndarray, prev: np.ndarray, top: int, ids: np.ndarray) -> 
         i = ids[r]
         prev[top + r] = head[i]
         head[i] = top + r
-
-
-LOG_2PI = float(np.log(2.0 * np.pi))  # as sitekinds.LOG_2PI
-DRAWN, NEED, DONE = 1, 2, 3  # derive.py's outcomes
 
 
 @jit
@@ -660,25 +657,15 @@ def prior_serve(
     wait_n[a] = 0
     k = int(need[nxt[0], 1])
     args = np.empty((m, k))
-    top = 0
     for r in range(m):
-        i = nxt[r]
         for j in range(k):
-            args[r, j] = need[i, 2 + j]
-        top = max(top, nv[i])
+            args[r, j] = need[nxt[r], 2 + j]
     v = np.empty(m)
     lp = np.empty(m)
     _prior_draw(site_kind[a], args, d, v, lp)
-    if top >= vals.shape[1]:
-        more = np.zeros((vals.shape[0], 2 * vals.shape[1]))
-        more[:, : vals.shape[1]] = vals
-        vals = more
     for r in range(m):
-        i = nxt[r]
-        log_prior[i] += lp[r]
-        vals[i, nv[i]] = v[r]
-        nv[i] += 1
-        need[i, 0] = -1.0
+        log_prior[nxt[r]] += lp[r]
+    vals = take_values(nxt, v, vals, nv, need)
     if rec.shape[1] > 0:
         n_rec = counts[2]
         if n_rec + m > rec.shape[0]:

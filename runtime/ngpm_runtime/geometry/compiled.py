@@ -389,9 +389,14 @@ def forget(program: Program) -> None:
     _BY_CODE[program.code] = None
 
 
+def _folders() -> tuple[Path, Path]:
+    """Where kernel modules go: cache_folder(), else a folder in the temporary directory."""
+    return cache_folder(), Path(tempfile.gettempdir()) / "ngpm-kernels"
+
+
 def _on_disk(name: str) -> bool:
     """Whether numba's cache holds the compiled `advance` of kernel module `name`."""
-    for folder in (cache_folder(), Path(tempfile.gettempdir()) / "ngpm-kernels"):
+    for folder in _folders():
         if any((folder / "__pycache__").glob(f"{name}.advance-*.nbi")):
             return True
     return False
@@ -399,7 +404,7 @@ def _on_disk(name: str) -> bool:
 
 def _write(name: str, text: str) -> Path:
     """The module's file in the cache folder (written once, atomically)."""
-    for folder in (cache_folder(), Path(tempfile.gettempdir()) / "ngpm-kernels"):
+    for folder in _folders():
         path = folder / f"{name}.py"
         try:
             if path.is_file() and path.read_text(encoding="utf-8") == text:

@@ -35,7 +35,6 @@ TURTLE_CODES = {
     "~l": 18,
     "@O": 19,
 }
-DRAWING_CODES = (10, 18, 19)
 AXIOM_SYM = 0  # the axiom's pseudo-module
 # produce() results besides a successor's length
 NO_RULE, NEED = -1, -2

@@ -1,16 +1,17 @@
-"""Unguided SMC on the compiled deriver (issue #22): the population as arrays.
+"""SMC on the compiled deriver (issue #22): the population as arrays.
 
 `CompiledRun` is run._Run with the particles' derivation state in arrays (module stacks,
 turtles, turtle stacks, replay values, requests) that geometry/compiled.py's `advance`
-kernel steps, all waiting particles of a round in one call. Everything else is _Run's:
-rounds served site by site in SiteOrder's order, the prior's draws from the run's
-generator, weights, likelihood, resampling. So a seeded run draws the same values and
-gives the same particles, weights and images as the Python deriver's run, bit for bit
-(tests/runtime/inference/test_compiled_run.py).
+kernel steps, all particles of a round in one call, and round_kernels.py's kernels around
+it. Everything else is _Run's: rounds served in SiteOrder's order, the proposal's draws from
+the run's generator, weights, likelihood, resampling. So a seeded run draws the same values
+and gives the same particles, weights, traces and images as the Python deriver's run, bit
+for bit (tests/runtime/inference/test_compiled_run.py).
 
-Used by `smc()` for the prior proposal without feature traces or observers on a grammar
-the compiled deriver can run (`use_compiled`); when the kernel raises (a math domain error,
-a runaway grammar), `smc()` runs the Python deriver instead, which reports the error.
+`smc()` uses it where `smc._compiled_deriver` finds a compiled deriver (the prior, a guide
+whose kernel serves every site, feature traces of a proposal that is no RoundProposal);
+when the kernel raises (a math domain error, a runaway grammar), `smc()` runs the Python
+deriver instead, which reports the error.
 """
 
 from __future__ import annotations
@@ -103,14 +104,13 @@ class CompiledRun(_Run):
         record = self.trace is TraceRecording.VALUES
         self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
-        self.pop_start = self.pop.parts[0].turtle
+        start = self.pop.parts[0].turtle  # the Python deriver's start pose (start_particles)
         self.pop = self.rows = RowPopulation(n)
         self.state = SMCState(n, self.rows.log_lik)
         self.step_prims = PrimRows(np.zeros(0, dtype=np.int64), np.zeros((0, 5)))
         self.stack = np.zeros((n, 64, info.width))
         self.stack[:, 0, 1] = -1.0  # the axiom's pseudo-module at depth -1
         self.sp = np.ones(n, dtype=np.int64)
-        start = self.pop_start  # the Python deriver's start pose (start_particles)
         self.turtle = np.tile(np.asarray(start, dtype=np.float64), (n, 1))
         self.tstack = np.zeros((n, 16, 4))
         self.tsp = np.zeros(n, dtype=np.int64)
@@ -370,7 +370,7 @@ class CompiledRun(_Run):
         return self._outcomes()
 
     def _guided_tables(self) -> tuple[Any, ...]:
-        """What kernels.guided_serve takes of the guide, once per run: per site whether
+        """What a guided round takes of the guide, once per run: per site whether
         the guide refuses its feature width and whether it draws a normal, the most prior
         arguments of a site, and the nets' tables (Guide.round_tables)."""
         from ngpm_runtime.errors import GuideError
@@ -389,7 +389,7 @@ class CompiledRun(_Run):
         return width_bad, normals, widest, self.round_tables(sites)
 
     def _round_error(self, row_site: np.ndarray, refused: int, bad: int, n: int) -> None:
-        """The guide's error for a round kernels.guided_serve stopped: a site whose
+        """The guide's error for a guided round that stopped: a site whose
         feature width it refuses (check_width), or a row whose prior arguments are bad."""
         guide: Any = self.proposal
         sites, counts = np.unique(row_site, return_counts=True)
