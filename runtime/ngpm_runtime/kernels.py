@@ -768,8 +768,9 @@ def unpack_round(
 def add_weights(
     log_w: np.ndarray, log_prior: np.ndarray, idx: np.ndarray, log_q: np.ndarray, log_p: np.ndarray
 ) -> None:
-    """SMC's site weights of particles idx (distinct): log_w += log_p - log_q (NaN: -inf;
-    an empty log_q: no change, the prior proposal), log_prior += log_p."""
+    """SMC's site weights of particles idx: log_w += log_p - log_q (NaN: -inf; an empty
+    log_q: no change, the prior proposal), log_prior += log_p, row by row (a particle that
+    repeats gets its terms in row order)."""
     guided = log_q.shape[0] > 0
     for r in range(idx.shape[0]):
         i = idx[r]

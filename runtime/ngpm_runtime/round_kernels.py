@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
-from ngpm_runtime.kernels import LOG_2PI, _pairwise_sum, jit, serve_round
+from ngpm_runtime.kernels import LOG_2PI, _pairwise_sum, _prior_lp, add_weights, jit, serve_round
 
 
 @jit
@@ -678,3 +678,24 @@ def prior_serve(
             rec[n_rec + r, 2] = v[r]
         counts[2] = n_rec + m
     return nxt, vals, rec
+
+
+@jit
+def replay_weights(
+    site_kind: np.ndarray,
+    site: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    values: np.ndarray,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+) -> None:
+    """Replayed values (one particle, row r: its site, prior arguments args[r, :n_args[r]]
+    and value) weighed as run._Run weighs a ReplayProposal's: log q = log p = the prior's
+    log density (kernels._prior_lp, prior_logpdf's arithmetic), added row by row
+    (add_weights)."""
+    n = site.shape[0]
+    lp = np.empty(n)
+    for r in range(n):
+        lp[r] = _prior_lp(site_kind[site[r]], args[r], n_args[r], values[r])
+    add_weights(log_w, log_prior, np.zeros(n, dtype=np.int64), lp, lp)

@@ -170,14 +170,69 @@ def _check_need(need):
 
 
 @njit(cache=True, nogil=True)
+def _replayed(rsite, rval, rep, log, p, row, turtle, vals, nv, need):
+    """Particle p's request served from a replay's recorded values (rsite, rval; rep[0]
+    the next) as a round serves it: the value appended to its values, the visit logged
+    (_log_visit). False when it cannot be (no value left, another site, its values or the
+    log full): the round serves it (or says what is wrong)."""
+    at = rep[0]
+    if at >= rval.shape[0] or rsite[at] != int(need[p, 0]) or nv[p] >= vals.shape[1]:
+        return False
+    if not _log_visit(log, rep, p, row, turtle, need[p]):
+        return False
+    vals[p, nv[p]] = rval[at]
+    nv[p] += 1
+    need[p, 0] = -1.0
+    rep[0] = at + 1
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _log_visit(log, rep, p, row, turtle, need):
+    """A replayed site visit into `log` as round_kernels.pack_waiting packs one particle
+    waiting at one site (rep[1]: the floats used, rep[2]: the turtle's width, rep[3]: the
+    most prior arguments of a visit): False when the log is full."""
+    a = int(row[2])
+    k = int(need[1])
+    nt = rep[2]
+    at = rep[1]
+    if at + 6 + nt + a + k > log.shape[0]:
+        return False
+    log[at] = need[0]
+    log[at + 1] = 1.0
+    log[at + 2] = a
+    log[at + 3] = k
+    log[at + 4] = p
+    log[at + 5] = row[1]
+    at += 6
+    for q in range(nt):
+        log[at + q] = turtle[q]
+    at += nt
+    for q in range(a):
+        log[at + q] = row[3 + q]
+    at += a
+    for q in range(k):
+        log[at + q] = need[2 + q]
+    rep[1] = at + k
+    if k > rep[3]:
+        rep[3] = k
+    return True
+
+
+@njit(cache=True, nogil=True)
 def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_prims, work,
-            resume, codes, dlen, angle, max_modules, max_work, max_prims):
+            resume, codes, dlen, angle, max_modules, max_work, max_prims, rsite, rval, rep, log):
     """Run particles `ids` to their next resampling point (derive.Deriver.advance_all):
     codes[k] is DRAWN, NEED, DONE, LIMIT or GROW for ids[k]; a particle that drew has its
     primitive in prim (kind: 0 segment, 1 disk, 2 leaf) and prim_par; one that waits has
     (site, argument count, arguments) in need. resume[p] = (ops, drew) of a particle
     stopped by GROW, so that it goes on as if it had not stopped. Returns how many
-    stopped by GROW."""
+    stopped by GROW.
+
+    A replay (one particle) serves its requests here (_replayed): a particle waiting since
+    the last step first, then each request as if the round had served it and the particle
+    had been advanced again (its work counted, its module count restarted); one it cannot
+    serve stops the particle as NEED. Empty rval: no replay (no particle waits)."""
     width = stack.shape[2]
     out = np.zeros((MAX_SUCC, width))
     n_stack = stack.shape[1]
@@ -195,6 +250,10 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
         stop = 0
         h = sp[p]
         st = stack[p]
+        if need[p, 0] >= 0.0:  # waiting since the last step: a replay serves it first
+            if not _replayed(rsite, rval, rep, log, p, st[h - 1], turt[p], vals, nv, need):
+                codes[q] = NEED
+                continue
         while h > 0:
             row = st[h - 1]
             ops += 1
@@ -215,6 +274,14 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
                 r = produce(sym, row[3:], n_par, vals[p], nv[p], out, need[p])
                 if r == -2:
                     _check_need(need[p])
+                    if not drew and _replayed(rsite, rval, rep, log, p, row, turt[p], vals, nv,
+                                              need):
+                        work[p] += ops
+                        ops = 0
+                        max_ops = max_work - work[p]
+                        if max_ops > max_modules:
+                            max_ops = max_modules
+                        continue
                     stop = DRAWN if drew else NEED
                     break
                 nv[p] = 0

@@ -8,6 +8,10 @@ the run's generator, weights, likelihood, resampling. So a seeded run draws the 
 and gives the same particles, weights, traces and images as the Python deriver's run, bit
 for bit (tests/runtime/inference/test_compiled_run.py).
 
+A replay (smc.replay, one particle, feature traces) has its recorded values served by the
+kernel itself, request after request, and the visits' feature rows made once per step
+(_replayed): a round per site visit only where the kernel cannot serve one.
+
 `smc()` uses it where `smc._compiled_deriver` finds a compiled deriver (the prior, a guide
 whose kernel serves every site, feature traces of a proposal that is no RoundProposal);
 when the kernel raises (a math domain error, a runaway grammar), `smc()` runs the Python
@@ -25,7 +29,7 @@ import numpy as np
 from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver, forget
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
-from ngpm_runtime.inference.proposals import RoundRows
+from ngpm_runtime.inference.proposals import ReplayProposal, RoundRows
 from ngpm_runtime.inference.run import (
     _NO_ROWS,
     FinalParticle,
@@ -33,6 +37,7 @@ from ngpm_runtime.inference.run import (
     SMCResult,
     SMCState,
     TraceRecording,
+    _Buffers,
     _Run,
 )
 from ngpm_runtime.inference.sitekinds import KINDS
@@ -129,6 +134,22 @@ class CompiledRun(_Run):
         self.dlen = int(self.program.derivation_length)
         self.angle = float(self.program.angle)
         self.max_modules = int(self.deriver.max_modules)
+        # a replay's recorded values, served in the kernel (see _replayed); empty: none
+        self.rsite = np.zeros(0, dtype=np.int64)
+        self.rval = np.zeros(0)
+        # the next value, the log's floats used, the turtle's width, the most prior arguments
+        self.rep = np.array([0, 0, self.t_width, 0], dtype=np.int64)
+        self.log = np.zeros(0)
+        self.replay_from = self.replay_at = -1
+        self.replay_buf: _Buffers | None = None
+        self.replay: ReplayProposal | None = None
+        if isinstance(self.proposal, ReplayProposal) and n == 1 and self.fmaker is not None:
+            self.replay = self.proposal
+            values = self.replay.values
+            self.rsite = np.array([s for s, _ in values], dtype=np.int64)
+            self.rval = np.array([v for _, v in values], dtype=np.float64)
+            self.rep[0] = self.replay_from = self.replay_at = self.replay.pos
+            self.log = np.zeros(4096)
 
     # ---- derivation ----------------------------------------------------------------------
 
@@ -176,20 +197,30 @@ class CompiledRun(_Run):
                     self.max_modules,
                     MAX_WORK,
                     MAX_PRIMITIVES,
+                    self.rsite,
+                    self.rval,
+                    self.rep,
+                    self.log,
                 )
             )
         except Exception as err:  # numba's errors: the Python deriver says what
             if "numba" in type(err).__module__:  # it did not compile: not again
                 forget(self.program)
+            if self.replay is not None:  # the Python deriver replays from the start
+                self.replay.pos = self.replay_from
             raise KernelFailed(str(err)) from None
 
     def _start(self) -> np.ndarray:
         """A step's first round: the live particles not waiting (round_kernels.start_rounds;
-        the waiting ones into the waiting lists); the counts reset."""
+        the waiting ones into the waiting lists), in a replay all of them (the kernel
+        serves the waiting one); the counts reset."""
         from ngpm_runtime import round_kernels
 
         self.counts[:] = 0
         live = np.asarray(self.rows.live, dtype=np.int64)
+        if self.replay is not None:
+            self.wait_n[:] = 0
+            return live
         return round_kernels.start_rounds(live, self.need, self.wait_ids, self.wait_n)
 
     def _pick(self, group: np.ndarray, site: int) -> tuple[int, int]:
@@ -270,8 +301,11 @@ class CompiledRun(_Run):
 
         group = self._start()
         site = -1
+        replay = self.replay
         while True:
             site, m = self._pick(group, site)
+            if self.rep[1]:
+                self._replayed()
             if site < 0:
                 break
             flat, group = kernels.pack_waiting(
@@ -292,7 +326,11 @@ class CompiledRun(_Run):
                 served = RoundRows(
                     served.sites, served.counts, served.site, served.args, served.n_args, None, []
                 )
+            if replay is not None:  # a request the kernel left (a mismatch: propose says)
+                replay.pos = int(self.rep[0])
             values = np.asarray(self._propose_one(obj, served, idx), dtype=np.float64)
+            if replay is not None:
+                self.rep[0] = self.replay_at = replay.pos
             self.vals = kernels.take_values(group, values, self.vals, self.nv, self.need)
             feats = x[:, : self.n_feat[site]]
             at = len(self.features)
@@ -300,7 +338,42 @@ class CompiledRun(_Run):
             self.trace_pool.add(
                 group, np.full(len(group), float(site)), values, np.arange(at, at + len(group))
             )
+        if replay is not None:
+            replay.pos = int(self.rep[0])
         return self._outcomes()
+
+    def _replayed(self) -> None:
+        """The site visits the kernel served from a replay's values since the last call
+        (logged in pack_waiting's layout, in order; the canvas has not changed since):
+        their feature rows in one call, their weights and log prior
+        (round_kernels.replay_weights), the visits into the trace, as _derive_rows
+        records them."""
+        from ngpm_runtime import round_kernels
+
+        rep = self.rep
+        at, m = self.replay_at, int(rep[0]) - self.replay_at
+        self.replay_at = int(rep[0])
+        if self.replay_buf is None or self.replay_buf.n < m:
+            self.replay_buf = _Buffers(self.program, max(m, 16), self.t_width)
+        buf = self.replay_buf
+        buf.unpack(self.log[: rep[1]], int(rep[3]))
+        rep[1] = 0
+        fmaker = self.fmaker
+        assert fmaker is not None
+        x = fmaker.rows_from(
+            self.canvas, buf.idx[:m], buf.turtle[:m], buf.depth[:m], buf.extra[:m], buf.n_extra[:m]
+        )
+        values = self.rval[at : at + m]
+        site = buf.site[:m]
+        rows = self.rows
+        round_kernels.replay_weights(
+            self.site_kind, site, buf.args[:m], buf.n_args[:m], values, rows.log_w, rows.log_prior
+        )
+        start = len(self.features)
+        n_feat = self.n_feat
+        self.features.extend(x[j, : n_feat[s]].copy() for j, s in enumerate(site.tolist()))
+        at_feat = np.arange(start, start + m)
+        self.trace_pool.add(np.zeros(m, dtype=np.int64), site.astype(np.float64), values, at_feat)
 
     def _derive_guided(self) -> tuple[list[int], list[int]]:
         """_derive for a guide whose kernel serves every site (Guide.round_tables): per
@@ -547,13 +620,19 @@ class _Pool:
         from ngpm_runtime import round_kernels as kernels
 
         ids, starts = kernels.chain_rows(self.head, self.prev)
-        rows = np.unique(ids)
-        table: list[Any] = [None] * self.top
-        for r, item in zip(rows.tolist(), made(rows, self.cols[rows]), strict=True):
-            table[r] = item
-        flat = ids.tolist()
+        used = np.zeros(self.top, dtype=np.bool_)
+        used[ids] = True
+        rows = np.flatnonzero(used)
+        table = np.empty(self.top, dtype=object)
+        table[rows] = _objects(made(rows, self.cols[rows]))
+        flat = table[ids].tolist()
         at = starts.tolist()
-        return [[table[r] for r in flat[at[i] : at[i + 1]]] for i in range(len(at) - 1)]
+        return [flat[at[i] : at[i + 1]] for i in range(len(at) - 1)]
+
+
+def _objects(items: list[Any]) -> np.ndarray:
+    """A 1-d object array of `items` (tuples stay items, not rows)."""
+    return np.fromiter(items, dtype=object, count=len(items))
 
 
 def _made_prims(rows: np.ndarray, cols: np.ndarray) -> list[Prim]:

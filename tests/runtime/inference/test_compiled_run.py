@@ -334,3 +334,97 @@ def test_feature_traces_equal_python(monkeypatch) -> None:
     assert replays[0].primitives == replays[1].primitives == a.best.primitives
     same_traces(replays[0].trace, replays[1].trace)
     same_traces(replays[0].trace, a.best.trace)
+
+
+@pytest.mark.parametrize("text", [FEATURES, DEEP], ids=["features", "deep"])
+def test_replay_served_in_kernel(monkeypatch, tmp_path, text) -> None:
+    """A replay's values are served by the kernel (ReplayProposal.propose runs only where
+    it cannot: a production's values past the first 8 columns): the same primitives,
+    feature rows, log prior and weight as the Python deriver's replay, bit for bit."""
+    from ngpm_runtime.inference.proposals import ReplayProposal
+    from ngpm_runtime.inference.smc import replay
+
+    program = grammar(tmp_path, text)
+    mask = disk_mask()
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    src = smc(program, None, 4, options=SMCOptions(seed=3, trace=TraceRecording.VALUES))
+    values = [(s, v) for s, _, v in max(src.particles, key=lambda p: len(p.trace)).trace]
+    assert len(values) > 10
+    calls = []
+    propose = ReplayProposal.propose
+
+    def counted(self, *args):
+        calls.append(1)
+        return propose(self, *args)
+
+    monkeypatch.setattr(ReplayProposal, "propose", counted)
+    out = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        calls.clear()
+        out.append(replay(program, values, canvas_size=mask.shape, target_mask=mask))
+        if use:
+            assert len(calls) < len(values) // 2
+        else:
+            assert len(calls) == len(values)
+    a, b = out
+    assert a.primitives == b.primitives
+    assert (a.log_prior, a.log_weight) == (b.log_prior, b.log_weight)
+    same_traces(a.trace, b.trace)
+
+
+@pytest.mark.parametrize("cut", ["short", "wrong site", "long"])
+def test_replay_errors_equal_python(monkeypatch, tmp_path, cut) -> None:
+    """A replay whose values run out, name another site or are left over: the same
+    ProgramError on both derivers."""
+    from ngpm_runtime.inference.smc import replay
+
+    program = grammar(tmp_path, FEATURES)
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    src = smc(program, None, 1, options=SMCOptions(seed=2, trace=TraceRecording.VALUES))
+    values = [(s, v) for s, _, v in src.particles[0].trace]
+    if cut == "short":
+        values = values[: len(values) // 2]
+    elif cut == "wrong site":
+        s, v = values[3]
+        values[3] = ((s + 1) % len(program.sites), v)
+    else:
+        values = values + [values[-1]]
+    errors = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        with pytest.raises(ProgramError) as err:
+            replay(program, values, canvas_size=(32, 32), target_mask=disk_mask())
+        errors.append(str(err.value))
+    assert errors[0] == errors[1]
+
+
+def test_replay_kernel_error_reruns_from_start(monkeypatch, tmp_path) -> None:
+    """A replay the kernel cannot finish (a math domain error) runs again on the Python
+    deriver from its first value: the Python deriver's located error, as without it."""
+    from ngpm_runtime.inference.smc import replay
+
+    program = grammar(
+        tmp_path,
+        "viewport: -9 9 -9 9\nderivation length: 6\nAxiom: A\nproduction:\n"
+        "A --> F(sqrt(gauss(0, 1))) A\n",
+    )
+    values = [(0, 1.0), (0, 1.0), (0, -1.0)]
+    monkeypatch.setattr(smc_module, "COMPILE_FROM", 1)
+    assert compiled_deriver(program) is not None
+    starts = []  # where each run's replay starts
+    init = smc_module._Run.__init__
+
+    def recorded(self, *args):
+        starts.append((type(self).__name__, args[3].pos))
+        init(self, *args)
+
+    monkeypatch.setattr(smc_module._Run, "__init__", recorded)
+    errors = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        with pytest.raises(ProgramError) as err:
+            replay(program, values, canvas_size=(32, 32), target_mask=disk_mask())
+        errors.append(str(err.value))
+    assert errors[0] == errors[1] and "math domain error" in errors[0]
+    assert starts == [("CompiledRun", 0), ("_Run", 0), ("_Run", 0)]
