@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ngpm_runtime.geometry.compiled import GROW
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
 from ngpm_runtime.kernels import LOG_2PI, _pairwise_sum, _prior_lp, add_weights, jit, serve_round
+from ngpm_runtime.native_call import call_native
 
 
 @jit
@@ -699,3 +701,268 @@ def replay_weights(
     for r in range(n):
         lp[r] = _prior_lp(site_kind[site[r]], args[r], n_args[r], values[r])
     add_weights(log_w, log_prior, np.zeros(n, dtype=np.int64), lp, lp)
+
+
+@jit
+def _grown(a: np.ndarray) -> np.ndarray:
+    """A 3-d array with its second axis twice as long (zeros past the old end)."""
+    out = np.zeros((a.shape[0], 2 * a.shape[1], a.shape[2]))
+    out[:, : a.shape[1]] = a
+    return out
+
+
+@jit
+def advance_at(
+    addr: int,
+    ids: np.ndarray,
+    codes: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    prim: np.ndarray,
+    prim_par: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+    resume: np.ndarray,
+    dlen: int,
+    angle: float,
+    max_modules: int,
+    max_work: int,
+    max_prims: int,
+    max_succ: int,
+    rsite: np.ndarray,
+    rval: np.ndarray,
+    rep: np.ndarray,
+    log: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The grammar's `advance` (geometry/compiled.py, at machine address addr) over
+    particles ids, outcomes into codes; particles it stopped by GROW advanced again once
+    their stack and turtle stack have room (grown: returned, with the other)."""
+    n_grow: int = call_native(
+        addr,
+        (ids, stack, sp, turtle, tstack, tsp, vals, nv, need, prim, prim_par, n_prims, work,
+         resume, codes, dlen, angle, max_modules, max_work, max_prims, rsite, rval, rep, log),
+    )  # fmt: skip
+    while n_grow > 0:
+        where = np.flatnonzero(codes == GROW)
+        todo = ids[where]
+        top_sp = 0
+        top_tsp = 0
+        for i in todo:
+            top_sp = max(top_sp, sp[i])
+            top_tsp = max(top_tsp, tsp[i])
+        if top_sp - 1 + max_succ > stack.shape[1]:
+            stack = _grown(stack)
+        if top_tsp >= tstack.shape[1]:
+            tstack = _grown(tstack)
+        part = np.zeros(todo.shape[0], dtype=np.int64)
+        n_grow = call_native(
+            addr,
+            (todo, stack, sp, turtle, tstack, tsp, vals, nv, need, prim, prim_par, n_prims,
+             work, resume, part, dlen, angle, max_modules, max_work, max_prims, rsite, rval,
+             rep, log),
+        )  # fmt: skip
+        for j in range(where.shape[0]):
+            codes[where[j]] = part[j]
+    return stack, tstack
+
+
+@jit
+def prior_derive(
+    addr: int,
+    rng: np.random.Generator,
+    live: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    prim: np.ndarray,
+    prim_par: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+    resume: np.ndarray,
+    dlen: int,
+    angle: float,
+    max_modules: int,
+    max_work: int,
+    max_prims: int,
+    max_succ: int,
+    rsite: np.ndarray,
+    rval: np.ndarray,
+    rep: np.ndarray,
+    log: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    site_kind: np.ndarray,
+    normals: np.ndarray,
+    log_prior: np.ndarray,
+    rec: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A step of unguided SMC's rounds (run._Run._derive for the prior proposal) in one
+    call: the live particles not waiting advanced (advance_at), then round by round
+    SiteOrder's next site (prior_pick), its draws from the run's generator (standard
+    normals where normals[site], else uniforms: sitekinds' prior_draw's one call) and its
+    values (prior_serve), and the served particles advanced. Returns stack, tstack, vals
+    and rec (new arrays where they grew)."""
+    counts[:] = 0
+    group = start_rounds(live, need, wait_ids, wait_n)
+    site = -1
+    while True:
+        codes = np.zeros(group.shape[0], dtype=np.int64)
+        stack, tstack = advance_at(
+            addr, group, codes, stack, sp, turtle, tstack, tsp, vals, nv, need, prim,
+            prim_par, n_prims, work, resume, dlen, angle, max_modules, max_work, max_prims,
+            max_succ, rsite, rval, rep, log,
+        )  # fmt: skip
+        site, m = prior_pick(
+            group, codes, site, need, n_prims, wait_ids, wait_n, drawn, empty, counts,
+            status, limit, reach,
+        )  # fmt: skip
+        if site < 0:
+            break
+        d = rng.standard_normal(m) if normals[site] else rng.random(m)
+        group, vals, rec = prior_serve(
+            site, d, need, wait_ids, wait_n, counts, site_kind, log_prior, vals, nv, rec
+        )
+    return stack, tstack, vals, rec
+
+
+@jit
+def guided_derive(
+    addr: int,
+    rng: np.random.Generator,
+    live: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    prim: np.ndarray,
+    prim_par: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+    resume: np.ndarray,
+    dlen: int,
+    angle: float,
+    max_modules: int,
+    max_work: int,
+    max_prims: int,
+    max_succ: int,
+    rsite: np.ndarray,
+    rval: np.ndarray,
+    rep: np.ndarray,
+    log: np.ndarray,
+    wait_ids: np.ndarray,
+    wait_n: np.ndarray,
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    counts: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    reach: np.ndarray,
+    width_bad: np.ndarray,
+    normals: np.ndarray,
+    n_turtle: int,
+    shape: np.ndarray,
+    idx: np.ndarray,
+    site: np.ndarray,
+    rows_turtle: np.ndarray,
+    depth: np.ndarray,
+    extra: np.ndarray,
+    n_extra: np.ndarray,
+    args: np.ndarray,
+    n_args: np.ndarray,
+    x: np.ndarray,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+    table: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    kinds: np.ndarray,
+    temps: np.ndarray,
+    n_out: np.ndarray,
+    params: np.ndarray,
+    out: np.ndarray,
+    log_w: np.ndarray,
+    log_prior: np.ndarray,
+    rec: np.ndarray,
+) -> tuple[int, int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A step of guided SMC's rounds (compiled_run.CompiledRun._derive_guided) in one
+    call: the live particles not waiting advanced (advance_at), then round by round the
+    outcomes, site order and packing (guided_round), the run's draws (uniforms, and
+    standard normals when a site's guide draws them: as run._Run._serve_kernel draws), the
+    guide's serving (serve_take) and, when rec has columns, the (particle, site, value)
+    rows into rec (counts[2]); the served particles advanced. Stops at a round the guide
+    refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a row
+    with bad prior arguments: a = the row, b = the round's row count), with that round's
+    row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites)."""
+    counts[:] = 0
+    group = start_rounds(live, need, wait_ids, wait_n)
+    served = np.full(group.shape[0], -1, dtype=np.int64)
+    no_rows = np.zeros(0)
+    while True:
+        codes = np.zeros(group.shape[0], dtype=np.int64)
+        stack, tstack = advance_at(
+            addr, group, codes, stack, sp, turtle, tstack, tsp, vals, nv, need, prim,
+            prim_par, n_prims, work, resume, dlen, angle, max_modules, max_work, max_prims,
+            max_succ, rsite, rval, rep, log,
+        )  # fmt: skip
+        flat, group, sites, sizes, served = guided_round(
+            group, codes, served, need, n_prims, wait_ids, wait_n, drawn, empty, counts,
+            status, limit, reach, stack, sp, turtle, n_turtle,
+        )  # fmt: skip
+        m: int = group.shape[0]
+        if m == 0:
+            break
+        any_normal = False
+        for s in sites:
+            if width_bad[s]:
+                return 1, s, 0, stack, tstack, vals, rec, served
+            any_normal = any_normal or normals[s]
+        u = rng.random(m)
+        z = rng.standard_normal(m) if any_normal else no_rows
+        n, bad, vals = serve_take(
+            flat, n_turtle, shape, idx, site, rows_turtle, depth, extra, n_extra, args,
+            n_args, x, view, size, offs, target, canvas, ctx, ctx_geom, cells, cell_t, table,
+            w, cols, kinds, temps, n_out, params, u, z, out, log_w, log_prior, group, vals,
+            nv, need,
+        )  # fmt: skip
+        if bad >= 0:
+            return 2, bad, n, stack, tstack, vals, rec, served
+        if rec.shape[1] > 0:
+            top = counts[2]
+            if top + n > rec.shape[0]:
+                more = np.zeros((2 * (top + n), 3))
+                more[:top] = rec[:top]
+                rec = more
+            for r in range(n):
+                rec[top + r, 0] = group[r]
+                rec[top + r, 1] = served[r]
+                rec[top + r, 2] = out[r, 0]
+            counts[2] = top + n
+    return 0, 0, 0, stack, tstack, vals, rec, served

@@ -26,12 +26,11 @@ from typing import Any, overload
 
 import numpy as np
 
-from ngpm_runtime.geometry.compiled import GROW, CompiledDeriver, forget
+from ngpm_runtime.geometry.compiled import CompiledDeriver, forget
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.proposals import ReplayProposal, RoundRows
 from ngpm_runtime.inference.run import (
-    _NO_ROWS,
     FinalParticle,
     Population,
     SMCResult,
@@ -98,7 +97,10 @@ class CompiledRun(_Run):
         m = max(len(sites), 1)
         self.reach = np.zeros((m, m), dtype=np.bool_)  # SiteOrder's closure
         self.site_kind = np.array([KINDS[s.kind].code for s in sites] or [0], dtype=np.int64)
-        self.prior_normals = [KINDS[s.kind].prior_normals for s in sites]
+        self.prior_normals = np.array(
+            [KINDS[s.kind].prior_normals for s in sites] or [False], dtype=np.bool_
+        )
+        self.addr = -1  # the grammar's `advance`'s machine-code address (_address)
         self.wait_ids = np.zeros((m, n), dtype=np.int64)  # a round's waiting particles
         self.wait_n = np.zeros(m, dtype=np.int64)
         self.drawn = np.zeros(n, dtype=np.int64)
@@ -153,62 +155,69 @@ class CompiledRun(_Run):
 
     # ---- derivation ----------------------------------------------------------------------
 
-    def _advance(self, ids: np.ndarray) -> np.ndarray:
-        """The kernel over particles ids (growing a full stack and going on): outcomes."""
-        codes = np.zeros(len(ids), dtype=np.int64)
-        if not self._kernel_call(ids, codes):
-            return codes
-        todo, where = ids, np.arange(len(ids))
-        while True:
-            grow = codes[where] == GROW
-            if not grow.any():
-                return codes
-            todo, where = todo[grow], where[grow]
-            if int(self.sp[todo].max()) - 1 + self.max_succ > self.stack.shape[1]:
-                self.stack = _grown(self.stack, 1)
-            if int(self.tsp[todo].max()) >= self.tstack.shape[1]:
-                self.tstack = _grown(self.tstack, 1)
-            part = np.zeros(len(todo), dtype=np.int64)
-            self._kernel_call(todo, part)
-            codes[where] = part
+    def _deriver_state(self) -> tuple[Any, ...]:
+        """The arrays and numbers round_kernels.advance_at passes on to the grammar's
+        `advance`, in its order, after (ids, codes)."""
+        return (
+            self.stack,
+            self.sp,
+            self.turtle,
+            self.tstack,
+            self.tsp,
+            self.vals,
+            self.nv,
+            self.need,
+            self.prim,
+            self.prim_par,
+            self.n_prims,
+            self.work,
+            self.resume,
+            self.dlen,
+            self.angle,
+            self.max_modules,
+            MAX_WORK,
+            MAX_PRIMITIVES,
+            self.max_succ,
+            self.rsite,
+            self.rval,
+            self.rep,
+            self.log,
+        )
 
-    def _kernel_call(self, ids: np.ndarray, codes: np.ndarray) -> int:
-        """One call of the compiled deriver (advance) over ids: how many stopped by GROW."""
+    def _address(self) -> int:
+        """The machine-code address of the grammar's `advance` for this run's arrays
+        (native_call.native_address; compiled or loaded once per process)."""
+        if self.addr < 0:
+            from ngpm_runtime.native_call import native_address
+
+            st = self._deriver_state()
+            ids = np.zeros(1, dtype=np.int64)
+            args = (ids, *st[:13], ids, *st[13:18], *st[19:])  # advance's own order
+            self.addr = self._kernel(native_address, self.kernel, args)
+        return self.addr
+
+    def _kernel(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """fn(*args), a kernel that runs the grammar's `advance`: KernelFailed when it
+        raises (the Python deriver runs the run again and says what)."""
         try:
-            return int(
-                self.kernel(
-                    ids,
-                    self.stack,
-                    self.sp,
-                    self.turtle,
-                    self.tstack,
-                    self.tsp,
-                    self.vals,
-                    self.nv,
-                    self.need,
-                    self.prim,
-                    self.prim_par,
-                    self.n_prims,
-                    self.work,
-                    self.resume,
-                    codes,
-                    self.dlen,
-                    self.angle,
-                    self.max_modules,
-                    MAX_WORK,
-                    MAX_PRIMITIVES,
-                    self.rsite,
-                    self.rval,
-                    self.rep,
-                    self.log,
-                )
-            )
+            return fn(*args)
         except Exception as err:  # numba's errors: the Python deriver says what
             if "numba" in type(err).__module__:  # it did not compile: not again
                 forget(self.program)
             if self.replay is not None:  # the Python deriver replays from the start
                 self.replay.pos = self.replay_from
             raise KernelFailed(str(err)) from None
+
+    def _advance(self, ids: np.ndarray) -> np.ndarray:
+        """The grammar's `advance` over particles ids (round_kernels.advance_at): their
+        outcomes."""
+        from ngpm_runtime import round_kernels
+
+        codes = np.zeros(len(ids), dtype=np.int64)
+        self.stack, self.tstack = self._kernel(
+            round_kernels.advance_at, self._address(), ids, codes, *self._deriver_state()
+        )
+        return codes
 
     def _start(self) -> np.ndarray:
         """A step's first round: the live particles not waiting (round_kernels.start_rounds;
@@ -263,28 +272,25 @@ class CompiledRun(_Run):
             return self._derive_guided()
         rows = self.rows
         counts = self.counts
-        group = self._start()
-        site = -1
-        normals = self.prior_normals
-        while True:
-            site, m = self._pick(group, site)
-            if site < 0:
-                break
-            # the draws of sitekinds' prior_draw: one generator call per round
-            draws = self.rng.standard_normal(m) if normals[site] else self.rng.random(m)
-            group, self.vals, self.rec = kernels.prior_serve(
-                site,
-                draws,
-                self.need,
-                self.wait_ids,
-                self.wait_n,
-                counts,
-                self.site_kind,
-                rows.log_prior,
-                self.vals,
-                self.nv,
-                self.rec,
-            )
+        self.stack, self.tstack, self.vals, self.rec = self._kernel(
+            kernels.prior_derive,
+            self._address(),
+            self.rng,
+            np.asarray(rows.live, dtype=np.int64),
+            *self._deriver_state(),
+            self.wait_ids,
+            self.wait_n,
+            self.drawn,
+            self.empty,
+            counts,
+            rows.status,
+            rows.limit,
+            self.reach,
+            self.site_kind,
+            self.prior_normals,
+            rows.log_prior,
+            self.rec,
+        )
         n_rec = int(counts[2])
         if n_rec:
             rec = self.rec[:n_rec]
@@ -383,63 +389,44 @@ class CompiledRun(_Run):
         values into the particles)."""
         from ngpm_runtime import round_kernels as kernels
 
-        rows, counts = self.rows, self.counts
+        rows = self.rows
         buf, fmaker = self.buffers, self.fmaker
         assert buf is not None and fmaker is not None
-        serve: Any = kernels.serve_take
         width_bad, normals, widest, tables = self.guided_tables
         guide: Any = self.proposal
-        state = (self.t_width, *buf.state(widest)[1:], buf.rows(fmaker.n_common))
+        state = (*buf.state(widest), buf.rows(fmaker.n_common))
         nets = (*fmaker.window_args(self.canvas), *tables, buf.params(guide.widest))
-        group = self._start()
-        served = np.full(len(group), -1, dtype=np.int64)
-        rng = self.rng
-        while True:
-            codes = self._advance(group)
-            flat, group, sites, sizes, served = kernels.guided_round(
-                group,
-                codes,
-                served,
-                self.need,
-                self.n_prims,
-                self.wait_ids,
-                self.wait_n,
-                self.drawn,
-                self.empty,
-                counts,
-                rows.status,
-                rows.limit,
-                self.reach,
-                self.stack,
-                self.sp,
-                self.turtle,
-                self.t_width,
-            )
-            m = len(group)
-            if not m:
-                break
-            if width_bad[sites].any():
-                self._round_error(served, int(sites[width_bad[sites]][0]), -1, 0)
-            u = rng.random(m)
-            z = rng.standard_normal(m) if normals[sites].any() else _NO_ROWS
-            n, bad, self.vals = serve(
-                flat,
-                *state,
-                *nets,
-                u,
-                z,
-                buf.out,
-                rows.log_w,
-                rows.log_prior,
-                group,
-                self.vals,
-                self.nv,
-                self.need,
-            )
-            if bad >= 0:
-                self._round_error(served, -1, bad, n)
-            if self.trace is TraceRecording.VALUES:
-                self.trace_pool.add(group, served.astype(np.float64), buf.out[:n, 0])
+        status, a, b, self.stack, self.tstack, self.vals, self.rec, row_site = self._kernel(
+            kernels.guided_derive,
+            self._address(),
+            self.rng,
+            np.asarray(rows.live, dtype=np.int64),
+            *self._deriver_state(),
+            self.wait_ids,
+            self.wait_n,
+            self.drawn,
+            self.empty,
+            self.counts,
+            rows.status,
+            rows.limit,
+            self.reach,
+            width_bad,
+            normals,
+            *state,
+            *nets,
+            buf.out,
+            rows.log_w,
+            rows.log_prior,
+            self.rec,
+        )
+        if status == 1:
+            self._round_error(row_site, a, -1, 0)
+        elif status == 2:
+            self._round_error(row_site, -1, a, b)
+        n_rec = int(self.counts[2])
+        if n_rec:
+            rec = self.rec[:n_rec]
+            self.trace_pool.add(rec[:, 0].astype(np.int64), rec[:, 1:])
         return self._outcomes()
 
     def _guided_tables(self) -> tuple[Any, ...]:
@@ -653,12 +640,3 @@ def _made_trace(rows: np.ndarray, cols: np.ndarray) -> list[Any]:
     """(site, None, value) of trace pool rows (site, value)."""
     sites = cols[:, 0].astype(np.int64).tolist()
     return list(zip(sites, repeat(None), cols[:, 1].tolist()))
-
-
-def _grown(a: np.ndarray, axis: int) -> np.ndarray:
-    """`a` with its `axis` twice as long (zeros past the old end)."""
-    shape = list(a.shape)
-    shape[axis] *= 2
-    out = np.zeros(shape, dtype=a.dtype)
-    out[tuple(slice(0, s) for s in a.shape)] = a
-    return out
