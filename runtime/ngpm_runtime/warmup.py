@@ -22,6 +22,7 @@ from importlib import import_module
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # imported on use: this module is imported without numpy's cost
+    from ngpm_runtime.image.targets import Target
     from ngpm_runtime.inference.guide import Guide
     from ngpm_runtime.program import Program
     from ngpm_runtime.volume.target import VolumeTarget
@@ -61,22 +62,41 @@ def warm_up() -> float:
     returns the seconds it took."""
     from ngpm_runtime.bundled import bundled_program, default_guide, demo_targets
     from ngpm_runtime.grow import grow
-    from ngpm_runtime.inference.smc import COMPILE_FROM, TraceRecording
+    from ngpm_runtime.inference import smc
+    from ngpm_runtime.inference.smc import TraceRecording
 
     t0 = time.perf_counter()
     program = bundled_program()
     target = demo_targets()[0]
     guide = default_guide(program)
-    grow(program, target, None, n_particles=2, seed=0, max_modules=40)
-    grow(program, target, guide, n_particles=2, seed=0, max_modules=40)
-    grow(program, target, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
-    grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
-    # unguided runs of COMPILE_FROM particles or more: the vines deriver (compiled.py)
-    grow(program, target, None, n_particles=COMPILE_FROM, seed=0, trace=TraceRecording.VALUES)
+    compiled = smc.USE_COMPILED
+    try:
+        for smc.USE_COMPILED in (False, True):  # the Python deriver's kernels, the compiled's
+            _warm_2d(program, target, guide)
+    finally:
+        smc.USE_COMPILED = compiled
     program3d, block, guide3d = _tiny_3d()
     grow(program3d, block, guide3d, n_particles=2, seed=0, max_modules=40)  # 3D kernels
     grow(program3d, block, None, n_particles=2, seed=0, trace=TraceRecording.FULL, max_modules=40)
     return time.perf_counter() - t0
+
+
+def _warm_2d(program: Program, target: Target, guide: Guide | None) -> None:
+    """Tiny 2D runs down every path: unguided (COMPILE_FROM particles first: the vines
+    deriver is compiled then, where the compiled deriver is on), guided, feature traces
+    and their replay, circuits."""
+    from ngpm_runtime.grow import grow
+    from ngpm_runtime.inference.smc import COMPILE_FROM, TraceRecording, replay
+
+    grow(program, target, None, n_particles=COMPILE_FROM, seed=0, trace=TraceRecording.VALUES)
+    grow(program, target, None, n_particles=2, seed=0, max_modules=40)
+    grow(program, target, guide, n_particles=2, seed=0, max_modules=40)
+    full = grow(program, target, None, 2, 0, trace=TraceRecording.FULL, max_modules=40).smc
+    assert program.viewport is not None  # the bundled vines have one
+    start = target.start_pose(program.viewport)
+    values = [(s, v) for s, _, v in full.best.trace or []]
+    replay(program, values, start, target.size, target.mask, max_modules=40)
+    grow(program, None, None, n_particles=2, seed=0, likelihood="circuit", max_modules=40)
 
 
 def _tiny_3d() -> tuple[Program, VolumeTarget, Guide]:
