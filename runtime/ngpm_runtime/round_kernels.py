@@ -1,9 +1,11 @@
-"""The compiled deriver's generic kernels (inference/compiled_run.py): a round's outcomes,
-SiteOrder's site choice, the prior's values from the run's draws, a guided round's packing
-and serving (kernels.serve_round), resampling of the particles' arrays, and the linked
-rows of their primitives and traces. Grammar-independent, so compiled once and cached (the
-grammar's own kernel, geometry/compiled.py, is the derivation loop only). Each does what
-run._Run does in Python, in the same order, so seeded runs are bit-identical to it.
+"""The compiled deriver's generic kernels (inference/compiled_run.py): a step's rounds in
+one call (prior_derive, guided_derive: the grammar's `advance`, called by address through
+native_call, a round's outcomes, SiteOrder's site choice, the run's draws, the prior's
+values or a guided round's packing and serving (kernels.serve_round)), a replay's weights,
+resampling of the particles' arrays, and the linked rows of their primitives and traces.
+Grammar-independent, so compiled once and cached (the grammar's own kernel,
+geometry/compiled.py, is the derivation loop only). Each does what run._Run does in
+Python, in the same order, so seeded runs are bit-identical to it.
 """
 
 from __future__ import annotations
@@ -920,7 +922,9 @@ def guided_derive(
     rows into rec (counts[2]); the served particles advanced. Stops at a round the guide
     refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a row
     with bad prior arguments: a = the row, b = the round's row count), with that round's
-    row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites)."""
+    row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites). Long because
+    it takes the deriver's and serve_round's arguments one by one (numba types flat
+    arguments fast, tuples slowly)."""
     counts[:] = 0
     group = start_rounds(live, need, wait_ids, wait_n)
     served = np.full(group.shape[0], -1, dtype=np.int64)

@@ -2,9 +2,10 @@
 
 `CompiledRun` is run._Run with the particles' derivation state in arrays (module stacks,
 turtles, turtle stacks, replay values, requests) that geometry/compiled.py's `advance`
-kernel steps, all particles of a round in one call, and round_kernels.py's kernels around
-it. Everything else is _Run's: rounds served in SiteOrder's order, the proposal's draws from
-the run's generator, weights, likelihood, resampling. So a seeded run draws the same values
+kernel steps, all particles of a round in one call, and a step's rounds in one call of
+round_kernels.py's prior_derive or guided_derive. Everything else is _Run's: rounds served
+in SiteOrder's order, the proposal's draws from the run's generator, weights, likelihood,
+resampling. So a seeded run draws the same values
 and gives the same particles, weights, traces and images as the Python deriver's run, bit
 for bit (tests/runtime/inference/test_compiled_run.py).
 
