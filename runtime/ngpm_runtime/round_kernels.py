@@ -524,56 +524,45 @@ def take_particles(
     need: np.ndarray,
     n_prims: np.ndarray,
     work: np.ndarray,
-) -> tuple[
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-    np.ndarray,
-]:
-    """Resampling of the compiled deriver's particles (compiled_run.py): new arrays of the
-    same capacity whose row k is old row anc[k] (of the stacks and replay values, the rows
-    in use only)."""
-    n = anc.shape[0]
-    out_stack = np.empty_like(stack)
-    out_tstack = np.empty_like(tstack)
-    out_vals = np.empty_like(vals)
-    out_sp = np.empty_like(sp)
-    out_tsp = np.empty_like(tsp)
-    out_nv = np.empty_like(nv)
-    out_turtle = np.empty_like(turtle)
-    out_need = np.empty_like(need)
-    out_n_prims = np.empty_like(n_prims)
-    out_work = np.empty_like(work)
-    for k in range(n):
-        a = anc[k]
-        out_sp[k] = sp[a]
-        out_tsp[k] = tsp[a]
-        out_nv[k] = nv[a]
-        out_n_prims[k] = n_prims[a]
-        out_work[k] = work[a]
-        out_stack[k, : sp[a]] = stack[a, : sp[a]]
-        out_tstack[k, : tsp[a]] = tstack[a, : tsp[a]]
-        out_vals[k, : nv[a]] = vals[a, : nv[a]]
-        out_turtle[k] = turtle[a]
-        out_need[k] = need[a]
-    return (
-        out_stack,
-        out_sp,
-        out_turtle,
-        out_tstack,
-        out_tsp,
-        out_vals,
-        out_nv,
-        out_need,
-        out_n_prims,
-        out_work,
+    o_stack: np.ndarray,
+    o_sp: np.ndarray,
+    o_turtle: np.ndarray,
+    o_tstack: np.ndarray,
+    o_tsp: np.ndarray,
+    o_vals: np.ndarray,
+    o_nv: np.ndarray,
+    o_need: np.ndarray,
+    o_n_prims: np.ndarray,
+    o_work: np.ndarray,
+) -> None:
+    """Resampling of the compiled deriver's particles (compiled_run.py): row k of each o_
+    array becomes row anc[k] of its array (compiled_run._STATE's arrays; of the stacks and
+    replay values, the rows in use only)."""
+    w_stack, w_tstack, w_turtle, w_need = (
+        stack.shape[2],
+        tstack.shape[2],
+        turtle.shape[1],
+        need.shape[1],
     )
+    for k in range(anc.shape[0]):  # loops, not slices: rows of a few numbers
+        a = anc[k]
+        o_sp[k] = sp[a]
+        o_tsp[k] = tsp[a]
+        o_nv[k] = nv[a]
+        o_n_prims[k] = n_prims[a]
+        o_work[k] = work[a]
+        for j in range(sp[a]):
+            for c in range(w_stack):
+                o_stack[k, j, c] = stack[a, j, c]
+        for j in range(tsp[a]):
+            for c in range(w_tstack):
+                o_tstack[k, j, c] = tstack[a, j, c]
+        for j in range(nv[a]):
+            o_vals[k, j] = vals[a, j]
+        for c in range(w_turtle):
+            o_turtle[k, c] = turtle[a, c]
+        for c in range(w_need):
+            o_need[k, c] = need[a, c]
 
 
 @jit

@@ -145,6 +145,7 @@ class CompiledRun(_Run):
         self.log = np.zeros(0)
         self.replay_from = self.replay_at = -1
         self.replay_buf: _Buffers | None = None
+        self.spare: tuple[np.ndarray, ...] | None = None  # _take_state's other arrays
         self.replay: ReplayProposal | None = None
         if isinstance(self.proposal, ReplayProposal) and n == 1 and self.fmaker is not None:
             self.replay = self.proposal
@@ -491,15 +492,19 @@ class CompiledRun(_Run):
             obs.step_done(state)
 
     def _take_state(self, anc: np.ndarray) -> None:
-        """Resampling of the derivation state: row k becomes old row anc[k]."""
+        """Resampling of the derivation state: row k becomes old row anc[k]
+        (round_kernels.take_particles into spare arrays of the same shapes, which are then
+        swapped in: fresh ones of this size would cost page faults every step)."""
         from ngpm_runtime import round_kernels
 
-        names = _STATE
-        taken = round_kernels.take_particles(
-            np.asarray(anc, dtype=np.int64), *(getattr(self, k) for k in names)
-        )
-        for name, array in zip(names, taken, strict=True):
+        old = tuple(getattr(self, k) for k in _STATE)
+        new = self.spare
+        if new is None or any(a.shape != b.shape for a, b in zip(old, new, strict=True)):
+            new = tuple(np.empty_like(a) for a in old)
+        round_kernels.take_particles(np.asarray(anc, dtype=np.int64), *old, *new)
+        for name, array in zip(_STATE, new, strict=True):
             setattr(self, name, array)
+        self.spare = old
         self.prim_pool.take(anc)
         self.trace_pool.take(anc)
 
