@@ -20,7 +20,7 @@ import importlib.util
 import os
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -394,10 +394,23 @@ class CompiledDeriver:
 
     module: Any
     info: KernelInfo
+    addresses: dict[tuple[Any, ...], int] = field(default_factory=dict)
 
     @property
     def advance(self) -> Any:
         return self.module.advance
+
+    def address(self, args: tuple[Any, ...]) -> int:
+        """The machine-code address of `advance` compiled for the types of `args`
+        (native_call.native_address, once per process for arrays of these dtypes and
+        dimensions)."""
+        from ngpm_runtime.native_call import native_address
+
+        key = tuple((a.dtype.str, a.ndim) if hasattr(a, "ndim") else type(a) for a in args)
+        addr = self.addresses.get(key)
+        if addr is None:
+            addr = self.addresses[key] = native_address(self.advance, args)
+        return addr
 
 
 _LOADED: dict[str, CompiledDeriver] = {}  # by the text's digest

@@ -93,7 +93,7 @@ class CompiledRun(_Run):
         super().__init__(*args)
         n = self.n
         info = deriver.info
-        self.kernel = deriver.advance
+        self.deriver_c = deriver
         sites = self.program.sites
         m = max(len(sites), 1)
         self.reach = np.zeros((m, m), dtype=np.bool_)  # SiteOrder's closure
@@ -190,12 +190,10 @@ class CompiledRun(_Run):
         """The machine-code address of the grammar's `advance` for this run's arrays
         (native_call.native_address; compiled or loaded once per process)."""
         if self.addr < 0:
-            from ngpm_runtime.native_call import native_address
-
             st = self._deriver_state()
             ids = np.zeros(1, dtype=np.int64)
             args = (ids, *st[:13], ids, *st[13:18], *st[19:])  # advance's own order
-            self.addr = self._kernel(native_address, self.kernel, args)
+            self.addr = self._kernel(self.deriver_c.address, args)
         return self.addr
 
     def _kernel(self, fn: Callable[..., Any], *args: Any) -> Any:
