@@ -14,7 +14,17 @@ import numpy as np
 
 from ngpm_runtime.geometry.compiled import GROW
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
-from ngpm_runtime.kernels import LOG_2PI, _pairwise_sum, _prior_lp, add_weights, jit, serve_round
+from ngpm_runtime.kernels import (
+    LOG_2PI,
+    _pairwise_sum,
+    _prior_lp,
+    add_weights,
+    circuit_increment,
+    draw,
+    jit,
+    serve_round,
+    shape_increment,
+)
 from ngpm_runtime.native_call import call_native
 
 
@@ -959,3 +969,110 @@ def guided_derive(
                 rec[top + r, 2] = out[r, 0]
             counts[2] = top + n
     return 0, 0, 0, stack, tstack, vals, rec, served
+
+
+# observe_step's likelihoods: the shape similarity, the circuit density
+SHAPE, CIRCUIT = 0, 1
+
+
+@jit
+def observe_step(
+    drawn: np.ndarray,
+    empty: np.ndarray,
+    prim: np.ndarray,
+    prim_par: np.ndarray,
+    sp: np.ndarray,
+    n_prims: np.ndarray,
+    cap: int,
+    status: np.ndarray,
+    limit: np.ndarray,
+    head: np.ndarray,
+    prev: np.ndarray,
+    cols: np.ndarray,
+    top: int,
+    image: np.ndarray,
+    padded: np.ndarray,
+    view: np.ndarray,
+    wp: np.ndarray,
+    starts: np.ndarray,
+    like: int,
+    sim: np.ndarray,
+    box: np.ndarray,
+    ll: np.ndarray,
+    edge_sum: np.ndarray,
+    filled: np.ndarray,
+    gain: np.ndarray,
+    vp: np.ndarray,
+    log_w: np.ndarray,
+    log_lik: np.ndarray,
+    blank: float,
+    has_blank: bool,
+    live: np.ndarray,
+) -> tuple[float, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rest of a compiled run's step after its rounds, in one call (run._Run.step and
+    compiled_run.CompiledRun._observe): the primitives of particles `drawn` (ascending)
+    linked into the primitive pool (rows from `top`; prev and cols grown when full: returned),
+    drawn into the canvas (kernels.draw), the likelihood's increments (SHAPE:
+    kernels.shape_increment on sim, box, ll with the target's gain; CIRCUIT:
+    circuit_increment on edge_sum, filled, box, ll; NaN -> -inf) and the blank image's
+    value for `empty` (when has_blank) added to log_w and log_lik; the particles that ended
+    or reached the cap marked; then the largest weight (NaN if any is), the live ones with
+    zero weight dead, the live ones into live. Returns (largest weight, live count, the
+    step's kind codes (int8) and parameters, prev, cols)."""
+    n = drawn.shape[0]
+    codes = np.empty(n, dtype=np.int8)
+    par = np.empty((n, prim_par.shape[1]))
+    if top + n > prev.shape[0]:
+        size = max(2 * prev.shape[0], top + n)
+        more_prev = np.empty(size, dtype=np.int64)
+        more_prev[:top] = prev[:top]
+        more_cols = np.empty((size, cols.shape[1]))
+        more_cols[:top] = cols[:top]
+        prev, cols = more_prev, more_cols
+    for k in range(n):
+        i = drawn[k]
+        codes[k] = prim[i]
+        cols[top + k, 0] = prim[i]
+        for c in range(prim_par.shape[1]):
+            par[k, c] = prim_par[i, c]
+            cols[top + k, 1 + c] = prim_par[i, c]
+    link_rows(head, prev, top, drawn)
+    if n:
+        bbox, y0, x0, new, hit_k, hit_pix = draw(
+            image, padded, drawn, codes, par, np.zeros((0, 2)), np.zeros(n + 1, dtype=np.int64),
+            view, wp, starts,
+        )  # fmt: skip
+        if like == SHAPE:
+            inc = shape_increment(sim, box, ll, drawn, hit_k, hit_pix, gain, bbox, vp)
+        else:
+            inc = circuit_increment(edge_sum, filled, box, ll, image, drawn, y0, x0, new, bbox, vp)
+        for k in range(n):
+            i = drawn[k]
+            d = inc[k] if inc[k] == inc[k] else -np.inf
+            log_w[i] += d
+            log_lik[i] += d
+    if has_blank:
+        for i in empty:
+            log_w[i] += blank
+            log_lik[i] += blank
+    for k in range(n):
+        i = drawn[k]
+        if sp[i] == 0:
+            status[i] = 1  # done
+        elif n_prims[i] >= cap:
+            status[i] = 2  # limit: max primitives
+            limit[i] = 2
+    most = log_w[0]
+    for x in log_w:
+        if x != x or most != most:
+            most = np.nan
+        elif x > most:
+            most = x
+    n_live = 0
+    for i in range(log_w.shape[0]):
+        if status[i] == 0 and log_w[i] == -np.inf:
+            status[i] = 3  # dead
+        if status[i] == 0:
+            live[n_live] = i
+            n_live += 1
+    return most, n_live, codes, par, prev, cols

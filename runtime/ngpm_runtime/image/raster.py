@@ -259,18 +259,13 @@ class Canvas:
         if vstart is None:
             vstart = np.zeros(len(idx) + 1, dtype=np.intp)
         bbox, y0, x0, new, hit_k, hit_pix = self._k.draw(
-            self.image,
-            self.padded,
-            idx,
-            codes,
-            par,
-            verts,
-            vstart,
-            self._view,
-            self._wp,
-            self._starts,
+            self.image, self.padded, idx, codes, par, verts, vstart, *self.layout()
         )
         return DrawBatch(idx=idx, y0=y0, x0=x0, new=new, bbox=bbox, hit_k=hit_k, hit_pix=hit_pix)
+
+    def layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The draw kernel's view of the canvas (kernels.draw's view, wp, starts)."""
+        return self._view, self._wp, self._starts
 
     def take(self, idx: np.ndarray) -> None:
         """Resampling: particle k becomes old particle idx[k] (every per-particle array).

@@ -30,6 +30,7 @@ import numpy as np
 from ngpm_runtime.geometry.compiled import CompiledDeriver, forget
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
+from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood
 from ngpm_runtime.inference.proposals import ReplayProposal, RoundRows
 from ngpm_runtime.inference.run import (
     FinalParticle,
@@ -48,6 +49,7 @@ _STATE = ("stack", "sp", "turtle", "tstack", "tsp", "vals", "nv", "need", "n_pri
 STATUS = ("live", "done", "limit", "dead")
 LIMITS = (None, "max modules", "max primitives", "max steps")
 _PRIM_KINDS = ("seg", "disk", "leaf")
+_NO_GAIN = np.zeros(0)
 
 
 class KernelFailed(Exception):
@@ -146,6 +148,9 @@ class CompiledRun(_Run):
         self.replay_from = self.replay_at = -1
         self.replay_buf: _Buffers | None = None
         self.spare: tuple[np.ndarray, ...] | None = None  # _take_state's other arrays
+        self.fused = self._fused_observe()
+        self.live_ids = np.zeros(n, dtype=np.int64)
+        self.top_w = 0.0
         self.replay: ReplayProposal | None = None
         if isinstance(self.proposal, ReplayProposal) and n == 1 and self.fmaker is not None:
             self.replay = self.proposal
@@ -463,9 +468,34 @@ class CompiledRun(_Run):
 
     # ---- the rest of a step ---------------------------------------------------------------
 
+    def _fused_observe(self) -> tuple[Any, ...] | None:
+        """What round_kernels.observe_step needs of the likelihood, once per run: (its
+        code, the target's gain, the viewport, the blank image's value, whether there is
+        one); None when it is not the shape or circuit likelihood on a canvas of the
+        target's size (_Run._observe then, which reports a wrong size)."""
+        from ngpm_runtime import round_kernels as kernels
+
+        like, canvas = self.likelihood, self.canvas
+        if canvas is None:
+            return None
+        if type(like) is ShapeLikelihood and like.target.shape == canvas.image.shape[1:]:
+            code, gain = kernels.SHAPE, like.gain_flat
+        elif type(like) is CircuitLikelihood:
+            code, gain = kernels.CIRCUIT, _NO_GAIN
+        else:
+            return None
+        blank = self.blank_ll
+        vp = np.array(like.viewport, dtype=np.float64)
+        return code, gain, vp, 0.0 if blank is None else float(blank), blank is not None
+
     def _observe(self, drawn: list[int], empty: list[int]) -> None:
         """_Run._observe on the arrays: the step's primitives, the particles that ended or
-        hit the primitive cap."""
+        hit the primitive cap; for the shape and circuit likelihoods in one kernel call
+        (round_kernels.observe_step), which also finds the largest weight and the live
+        particles (_top, _update_live)."""
+        if self.fused is not None:
+            self._observe_fused(drawn, empty)
+            return
         idx = np.asarray(drawn, dtype=np.int64)
         codes = self.prim[idx]
         par = self.prim_par[idx]
@@ -478,6 +508,58 @@ class CompiledRun(_Run):
         capped = idx[~ended & (self.n_prims[idx] >= self.cap)]
         pop.status[capped] = LIMITED
         pop.limit[capped] = 2
+
+    def _observe_fused(self, drawn: list[int], empty: list[int]) -> None:
+        """_observe in one call of round_kernels.observe_step."""
+        from ngpm_runtime import round_kernels as kernels
+
+        assert self.fused is not None and self.canvas is not None
+        like, gain, vp, blank, has_blank = self.fused
+        state, canvas, pool, rows = self.like_state, self.canvas, self.prim_pool, self.rows
+        idx = np.asarray(drawn, dtype=np.int64)
+        none = _NO_GAIN
+        top, n_live, codes, par, pool.prev, pool.cols = kernels.observe_step(
+            idx,
+            np.asarray(empty, dtype=np.int64),
+            self.prim,
+            self.prim_par,
+            self.sp,
+            self.n_prims,
+            self.cap,
+            rows.status,
+            rows.limit,
+            pool.head,
+            pool.prev,
+            pool.cols,
+            pool.top,
+            canvas.image,
+            canvas.padded,
+            *canvas.layout(),
+            like,
+            state.get("sim", none),
+            state["bbox"],
+            state["ll"],
+            state.get("edge_sum", none),
+            state.get("filled", none),
+            gain,
+            vp,
+            rows.log_w,
+            rows.log_lik,
+            blank,
+            has_blank,
+            self.live_ids,
+        )
+        pool.top += len(idx)
+        self.step_prims = PrimRows(codes, par)
+        self.top_w = top
+        rows.live = self.live_ids[:n_live].tolist()
+
+    def _top(self) -> float:
+        return super()._top() if self.fused is None else float(self.top_w)
+
+    def _update_live(self) -> None:
+        if self.fused is None:  # else observe_step did
+            super()._update_live()
 
     def _step_done(self, drawn: list[int]) -> None:
         """_Run._step_done with the step's primitives from the arrays."""

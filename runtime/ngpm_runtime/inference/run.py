@@ -390,7 +390,7 @@ class _Run:
         self._observe(drawn, empty)
         if self.observers:
             self._step_done(drawn)
-        top: float | None = float(np.max(pop.log_w))  # one pass: +inf, all zero, the ESS
+        top: float | None = self._top()  # one pass: +inf, all zero, the ESS
         if top != top:  # a NaN weight: the checks one by one
             top = None
         if top == np.inf or (top is None and (pop.log_w == np.inf).any()):
@@ -404,7 +404,7 @@ class _Run:
                 f"every particle's weight is zero after step {self.steps} "
                 f"({self.n} particles, program {self.program.name})"
             )
-        pop.update_live()
+        self._update_live()
         if ess_threshold is not None and 0 < len(pop.live) < self.n:
             if pop.roulette(self._roulette_rng):
                 top = None  # weights changed
@@ -412,6 +412,14 @@ class _Run:
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
             self._resample(lse)
+
+    def _top(self) -> float:
+        """The largest weight after the step's observations (NaN if one is NaN)."""
+        return float(np.max(self.pop.log_w))
+
+    def _update_live(self) -> None:
+        """The particles with zero weight dead, `pop.live` the ones still deriving."""
+        self.pop.update_live()
 
     @property
     def _roulette_rng(self) -> np.random.Generator:

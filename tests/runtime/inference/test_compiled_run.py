@@ -112,6 +112,33 @@ def test_vines_runs_equal_python(monkeypatch) -> None:
         assert_same(a, b)
 
 
+def test_circuit_runs_equal_python(monkeypatch) -> None:
+    """The circuit likelihood (observe_step's other increment), unguided and guided by the
+    bundled circuit guide, on the compiled deriver: the Python deriver's runs."""
+    from ngpm_runtime.grow import circuit_target
+    from ngpm_runtime.inference.likelihood import CircuitLikelihood
+
+    program = bundled_program()
+    target = circuit_target()
+    like = CircuitLikelihood(program.viewport)
+    guide = bundled_guide(program, "circuit")
+    for proposal, n in ((None, 30), (guide, 10)):
+        a, b = both(
+            monkeypatch,
+            program,
+            like,
+            n,
+            proposal,
+            seed=3,
+            start=target.start_pose(program.viewport),
+            canvas_size=target.size,
+            trace=TraceRecording.VALUES,
+            ess_from_proposal=proposal is not None,
+        )
+        assert a.steps > 20
+        assert_same(a, b)
+
+
 def test_guided_vines_runs_equal_python(monkeypatch) -> None:
     """Guided rounds (the bundled guide: kernels.serve_round) on the compiled deriver."""
     program = bundled_program()
@@ -191,6 +218,28 @@ def test_caps_equal_python(monkeypatch, tmp_path: Path) -> None:
         a, b = both(monkeypatch, program, None, 8, seed=seed, max_primitives=40, max_steps=60)
         assert_same(a, b)
     assert {p.limit for p in a.particles} - {None}
+
+
+def test_blank_and_capped_particles_equal_python(monkeypatch, tmp_path: Path) -> None:
+    """The shape likelihood's blank image (particles that end having drawn nothing) and the
+    primitive cap, observed in one kernel call (observe_step), as the Python deriver does."""
+    program = grammar(
+        tmp_path,
+        "viewport: -4 4 -1 7\nderivation length: 12\nAxiom: A\nproduction:\n"
+        "A --> F(uniform(0.5, 1)) + A : 0.8 | halt : 0.2\n",
+    )
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    limits, blank = set(), False
+    for seed in range(4):
+        a, b = both(
+            monkeypatch, program, like, 16, seed=seed, canvas_size=mask.shape,
+            target_mask=mask, max_primitives=4, ess_threshold=1e-6,
+        )  # fmt: skip
+        assert_same(a, b)
+        limits |= {p.limit for p in a.particles}
+        blank = blank or any(not p.primitives for p in a.particles)
+    assert limits == {"max primitives", None} and blank
 
 
 @pytest.mark.parametrize(
