@@ -631,6 +631,24 @@ def weights(log_w: np.ndarray) -> np.ndarray:
 
 
 @jit
+def ess(log_w: np.ndarray, m: float) -> tuple[float, float]:
+    """run._ess for weights log_w whose largest is m: (ESS, log sum exp(log_w)), with
+    numpy's arithmetic in numpy's order (exp per element, _pairwise_sum)."""
+    if not math.isfinite(m):
+        return 0.0, m
+    e = np.empty(log_w.shape[0])
+    for i in range(log_w.shape[0]):
+        e[i] = math.exp(log_w[i] - m)
+    lse: float = m + math.log(_pairwise_sum(e))
+    if not math.isfinite(lse):
+        return 0.0, lse
+    m2 = 2.0 * m
+    for i in range(log_w.shape[0]):
+        e[i] = math.exp(2.0 * log_w[i] - m2)
+    return math.exp(2.0 * lse - (m2 + math.log(_pairwise_sum(e)))), lse
+
+
+@jit
 def residual_counts(w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
     """Residual resampling, first part: floor(n * w / sum w) copies of each particle, the
     fractional parts' normalized cumulative sum and how many draws are left (resample.py's

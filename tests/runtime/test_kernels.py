@@ -328,6 +328,22 @@ def test_resampling_matches_numpy() -> None:
             np.testing.assert_array_equal(got, want)
 
 
+def test_ess_matches_numpy() -> None:
+    """kernels.ess (what a run with kernels computes each step) is run._ess's numpy
+    arithmetic: the same ESS and log sum exp, bit for bit, zero weights included."""
+    from ngpm_runtime.inference.run import _ess
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 8, 9, 10, 130, 600, 2000):
+        for scale in (0.1, 10.0, 1e3):
+            a = rng.standard_normal(n) * scale
+            a[rng.random(n) < 0.2] = -np.inf
+            m = float(np.max(a))
+            assert kernels.ess(a, m) == _ess(a, m)
+    dead = np.full(4, -np.inf)
+    assert kernels.ess(dead, -np.inf) == _ess(dead, -np.inf) == (0.0, -np.inf)
+
+
 def test_numpy_order_sum() -> None:
     rng = np.random.default_rng(2)
     for m in [1, 7, 8, 9, 127, 128, 129, 255, 256, 1000, 4099]:

@@ -408,7 +408,11 @@ class _Run:
         if ess_threshold is not None and 0 < len(pop.live) < self.n:
             if pop.roulette(self._roulette_rng):
                 top = None  # weights changed
-        ess, lse = _ess(pop.log_w, top)
+        if self.kernels is None:  # a run that loads no kernels (a forward sample)
+            ess, lse = _ess(pop.log_w, top)
+        else:  # the same arithmetic, one call
+            m = float(np.max(pop.log_w)) if top is None else top
+            ess, lse = self.kernels.ess(pop.log_w, m)
         self.ess_history.append(ess)
         if pop.live and self.n > 1 and (ess_threshold is None or ess < ess_threshold * self.n):
             self._resample(lse)
