@@ -1020,23 +1020,7 @@ def observe_step(
     zero weight dead, the live ones into live. Returns (largest weight, live count, the
     step's kind codes (int8) and parameters, prev, cols)."""
     n = drawn.shape[0]
-    codes = np.empty(n, dtype=np.int8)
-    par = np.empty((n, prim_par.shape[1]))
-    if top + n > prev.shape[0]:
-        size = max(2 * prev.shape[0], top + n)
-        more_prev = np.empty(size, dtype=np.int64)
-        more_prev[:top] = prev[:top]
-        more_cols = np.empty((size, cols.shape[1]))
-        more_cols[:top] = cols[:top]
-        prev, cols = more_prev, more_cols
-    for k in range(n):
-        i = drawn[k]
-        codes[k] = prim[i]
-        cols[top + k, 0] = prim[i]
-        for c in range(prim_par.shape[1]):
-            par[k, c] = prim_par[i, c]
-            cols[top + k, 1 + c] = prim_par[i, c]
-    link_rows(head, prev, top, drawn)
+    codes, par, prev, cols = _pool_prims(drawn, prim, prim_par, head, prev, cols, top)
     if n:
         bbox, y0, x0, new, hit_k, hit_pix = draw(
             image, padded, drawn, codes, par, np.zeros((0, 2)), np.zeros(n + 1, dtype=np.int64),
@@ -1062,6 +1046,48 @@ def observe_step(
         elif n_prims[i] >= cap:
             status[i] = 2  # limit: max primitives
             limit[i] = 2
+    most, n_live = _live_after(log_w, status, live)
+    return most, n_live, codes, par, prev, cols
+
+
+@jit
+def _pool_prims(
+    drawn: np.ndarray,
+    prim: np.ndarray,
+    prim_par: np.ndarray,
+    head: np.ndarray,
+    prev: np.ndarray,
+    cols: np.ndarray,
+    top: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """observe_step's primitives: the kind codes (int8) and parameters of particles drawn,
+    linked as rows top, top + 1, ... of the pool (prev, cols: grown when full). Returns
+    (codes, parameters, prev, cols)."""
+    n = drawn.shape[0]
+    codes = np.empty(n, dtype=np.int8)
+    par = np.empty((n, prim_par.shape[1]))
+    if top + n > prev.shape[0]:
+        size = max(2 * prev.shape[0], top + n)
+        more_prev = np.empty(size, dtype=np.int64)
+        more_prev[:top] = prev[:top]
+        more_cols = np.empty((size, cols.shape[1]))
+        more_cols[:top] = cols[:top]
+        prev, cols = more_prev, more_cols
+    for k in range(n):
+        i = drawn[k]
+        codes[k] = prim[i]
+        cols[top + k, 0] = prim[i]
+        for c in range(prim_par.shape[1]):
+            par[k, c] = prim_par[i, c]
+            cols[top + k, 1 + c] = prim_par[i, c]
+    link_rows(head, prev, top, drawn)
+    return codes, par, prev, cols
+
+
+@jit
+def _live_after(log_w: np.ndarray, status: np.ndarray, live: np.ndarray) -> tuple[float, int]:
+    """observe_step's end: the largest weight (NaN if one is) and, the live particles with
+    zero weight marked dead, the live ones into live; (largest, live count)."""
     most = log_w[0]
     for x in log_w:
         if x != x or most != most:
@@ -1075,4 +1101,4 @@ def observe_step(
         if status[i] == 0:
             live[n_live] = i
             n_live += 1
-    return most, n_live, codes, par, prev, cols
+    return most, n_live
