@@ -191,6 +191,27 @@ class CompiledRun(_Run):
             self.log,
         )
 
+    def _step_state(self) -> tuple[Any, ...]:
+        """The step kernels' (prior_derive, guided_derive) first arguments: the address of
+        `advance`, the run's generator, the live particles, the deriver's state
+        (_deriver_state) and the rounds' bookkeeping (waiting lists, outcomes, statuses,
+        SiteOrder's closure)."""
+        rows = self.rows
+        return (
+            self._address(),
+            self.rng,
+            np.asarray(rows.live, dtype=np.int64),
+            *self._deriver_state(),
+            self.wait_ids,
+            self.wait_n,
+            self.drawn,
+            self.empty,
+            self.counts,
+            rows.status,
+            rows.limit,
+            self.reach,
+        )
+
     def _address(self) -> int:
         """The machine-code address of the grammar's `advance` for this run's arrays
         (native_call.native_address; compiled or loaded once per process)."""
@@ -279,18 +300,7 @@ class CompiledRun(_Run):
         counts = self.counts
         self.stack, self.tstack, self.vals, self.rec = self._kernel(
             kernels.prior_derive,
-            self._address(),
-            self.rng,
-            np.asarray(rows.live, dtype=np.int64),
-            *self._deriver_state(),
-            self.wait_ids,
-            self.wait_n,
-            self.drawn,
-            self.empty,
-            counts,
-            rows.status,
-            rows.limit,
-            self.reach,
+            *self._step_state(),
             self.site_kind,
             self.prior_normals,
             rows.log_prior,
@@ -403,18 +413,7 @@ class CompiledRun(_Run):
         nets = (*fmaker.window_args(self.canvas), *tables, buf.params(guide.widest))
         status, a, b, self.stack, self.tstack, self.vals, self.rec, row_site = self._kernel(
             kernels.guided_derive,
-            self._address(),
-            self.rng,
-            np.asarray(rows.live, dtype=np.int64),
-            *self._deriver_state(),
-            self.wait_ids,
-            self.wait_n,
-            self.drawn,
-            self.empty,
-            self.counts,
-            rows.status,
-            rows.limit,
-            self.reach,
+            *self._step_state(),
             width_bad,
             normals,
             *state,
