@@ -36,10 +36,10 @@ from ngpm_runtime.inference.run import (
     FinalParticle,
     Population,
     SMCResult,
-    SMCState,
     TraceRecording,
     _Buffers,
     _Run,
+    start_particles,
 )
 from ngpm_runtime.inference.sitekinds import KINDS
 
@@ -114,14 +114,13 @@ class CompiledRun(_Run):
         record = self.trace is TraceRecording.VALUES
         self.rec = np.zeros((256, 3) if record else (0, 0))  # (particle, site, value)
         self.max_succ = info.max_succ
-        start = self.pop.parts[0].turtle  # the Python deriver's start pose (start_particles)
-        self.pop = self.rows = RowPopulation(n)
-        self.state = SMCState(n, self.rows.log_lik)
+        assert isinstance(self.pop, RowPopulation)  # _population's
+        self.rows = self.pop
         self.step_prims = PrimRows(np.zeros(0, dtype=np.int64), np.zeros((0, 5)))
         self.stack = np.zeros((n, 64, info.width))
         self.stack[:, 0, 1] = -1.0  # the axiom's pseudo-module at depth -1
         self.sp = np.ones(n, dtype=np.int64)
-        self.turtle = np.tile(np.asarray(start, dtype=np.float64), (n, 1))
+        self.turtle = np.tile(np.asarray(self.start_pose, dtype=np.float64), (n, 1))
         self.tstack = np.zeros((n, 16, 4))
         self.tsp = np.zeros(n, dtype=np.int64)
         self.vals = np.zeros((n, 8))
@@ -159,6 +158,12 @@ class CompiledRun(_Run):
             self.rval = np.array([v for _, v in values], dtype=np.float64)
             self.rep[0] = self.replay_from = self.replay_at = self.replay.pos
             self.log = np.zeros(4096)
+
+    def _population(self, start: Sequence[float] | None, n: int) -> Population:
+        """A RowPopulation of n particles; the start pose is the Python deriver's first
+        particle's (start_particles of one)."""
+        self.start_pose = start_particles(self.deriver, self.program, start, 1)[0].turtle
+        return RowPopulation(n)
 
     # ---- derivation ----------------------------------------------------------------------
 

@@ -297,7 +297,7 @@ class _Run:
             else None
         )
         self.deriver = Deriver(program, max_modules=module_cap(program, options.max_modules))
-        self.pop = Population(start_particles(self.deriver, program, options.start, n))
+        self.pop = self._population(options.start, n)
         self.state = SMCState(n, self.pop.log_lik)
         self.order = SiteOrder()
         # log prior of weighted (categorical) sites per (site, weights)
@@ -324,6 +324,10 @@ class _Run:
         self.steps = 0
         self.particle_steps = 0
         self.n_resample = 0
+
+    def _population(self, start: Sequence[float] | None, n: int) -> Population:
+        """The run's n particles at the start pose (start_particles)."""
+        return Population(start_particles(self.deriver, self.program, start, n))
 
     def _make_canvas(self, options: SMCOptions) -> None:
         """The canvas (for a likelihood that needs one, or for features) and the feature
