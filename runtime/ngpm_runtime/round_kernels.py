@@ -546,8 +546,8 @@ def take_particles(
     o_work: np.ndarray,
 ) -> None:
     """Resampling of the compiled deriver's particles (compiled_run.py): row k of each o_
-    array becomes row anc[k] of its array (compiled_run._STATE's arrays; of the stacks and
-    replay values, the rows in use only)."""
+    array becomes row anc[k] of its array (of the stacks and replay values, the rows in use
+    only)."""
     w_stack, w_tstack, w_turtle, w_need = (
         stack.shape[2],
         tstack.shape[2],

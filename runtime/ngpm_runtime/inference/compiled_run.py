@@ -45,7 +45,8 @@ from ngpm_runtime.inference.sitekinds import KINDS
 
 LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
 # the per-particle derivation arrays round_kernels.take_particles resamples, in its order
-_STATE = ("stack", "sp", "turtle", "tstack", "tsp", "vals", "nv", "need", "n_prims", "work")
+# the arrays of _take_state's that grow: stack, turtle stack, replay values
+_GROWING = (0, 3, 5)
 STATUS = ("live", "done", "limit", "dead")
 LIMITS = (None, "max modules", "max primitives", "max steps")
 _PRIM_KINDS = ("seg", "disk", "leaf")
@@ -581,13 +582,18 @@ class CompiledRun(_Run):
         swapped in: fresh ones of this size would cost page faults every step)."""
         from ngpm_runtime import round_kernels
 
-        old = tuple(getattr(self, k) for k in _STATE)
+        old = (
+            self.stack, self.sp, self.turtle, self.tstack, self.tsp, self.vals, self.nv,
+            self.need, self.n_prims, self.work,
+        )  # fmt: skip  # round_kernels.take_particles' order
         new = self.spare
-        if new is None or any(a.shape != b.shape for a, b in zip(old, new, strict=True)):
+        if new is None or any(new[k].shape != old[k].shape for k in _GROWING):
             new = tuple(np.empty_like(a) for a in old)
         round_kernels.take_particles(np.asarray(anc, dtype=np.int64), *old, *new)
-        for name, array in zip(_STATE, new, strict=True):
-            setattr(self, name, array)
+        (
+            self.stack, self.sp, self.turtle, self.tstack, self.tsp, self.vals, self.nv,
+            self.need, self.n_prims, self.work,
+        ) = new  # fmt: skip
         self.spare = old
         self.prim_pool.take(anc)
         self.trace_pool.take(anc)
