@@ -669,18 +669,30 @@ def prior_serve(
     for r in range(m):
         log_prior[nxt[r]] += lp[r]
     vals = take_values(nxt, v, vals, nv, need)
-    if rec.shape[1] > 0:
-        n_rec = counts[2]
-        if n_rec + m > rec.shape[0]:
-            more = np.zeros((2 * (n_rec + m), 3))
-            more[:n_rec] = rec[:n_rec]
-            rec = more
-        for r in range(m):
-            rec[n_rec + r, 0] = nxt[r]
-            rec[n_rec + r, 1] = a
-            rec[n_rec + r, 2] = v[r]
-        counts[2] = n_rec + m
+    rec = _record(rec, counts, nxt, np.full(m, a, dtype=np.int64), v)
     return nxt, vals, rec
+
+
+@jit
+def _record(
+    rec: np.ndarray, counts: np.ndarray, ids: np.ndarray, sites: np.ndarray, values: np.ndarray
+) -> np.ndarray:
+    """Rows (ids[r], sites[r], values[r]) appended to the recorded values rec (counts[2]
+    rows used) when rec has columns (a run recording its values); rec, grown when full."""
+    if rec.shape[1] == 0:
+        return rec
+    top = counts[2]
+    m = ids.shape[0]
+    if top + m > rec.shape[0]:
+        more = np.zeros((2 * (top + m), 3))
+        more[:top] = rec[:top]
+        rec = more
+    for r in range(m):
+        rec[top + r, 0] = ids[r]
+        rec[top + r, 1] = sites[r]
+        rec[top + r, 2] = values[r]
+    counts[2] = top + m
+    return rec
 
 
 @jit
@@ -957,17 +969,7 @@ def guided_derive(
         )  # fmt: skip
         if bad >= 0:
             return 2, bad, n, stack, tstack, vals, rec, served
-        if rec.shape[1] > 0:
-            top = counts[2]
-            if top + n > rec.shape[0]:
-                more = np.zeros((2 * (top + n), 3))
-                more[:top] = rec[:top]
-                rec = more
-            for r in range(n):
-                rec[top + r, 0] = group[r]
-                rec[top + r, 1] = served[r]
-                rec[top + r, 2] = out[r, 0]
-            counts[2] = top + n
+        rec = _record(rec, counts, group[:n], served[:n], out[:n, 0])
     return 0, 0, 0, stack, tstack, vals, rec, served
 
 
@@ -1011,16 +1013,17 @@ def observe_step(
 ) -> tuple[float, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The rest of a compiled run's step after its rounds, in one call (run._Run.step and
     compiled_run.CompiledRun._observe): the primitives of particles `drawn` (ascending)
-    linked into the primitive pool (rows from `top`; prev and cols grown when full: returned),
-    drawn into the canvas (kernels.draw), the likelihood's increments (SHAPE:
-    kernels.shape_increment on sim, box, ll with the target's gain; CIRCUIT:
-    circuit_increment on edge_sum, filled, box, ll; NaN -> -inf) and the blank image's
-    value for `empty` (when has_blank) added to log_w and log_lik; the particles that ended
-    or reached the cap marked; then the largest weight (NaN if any is), the live ones with
-    zero weight dead, the live ones into live. Returns (largest weight, live count, the
-    step's kind codes (int8) and parameters, prev, cols)."""
+    into the pool and the ended or capped particles marked (step_prims), drawn into the
+    canvas (kernels.draw), the likelihood's increments (SHAPE: kernels.shape_increment on
+    sim, box, ll with the target's gain; CIRCUIT: circuit_increment on edge_sum, filled,
+    box, ll; NaN -> -inf) and the blank image's value for `empty` (when has_blank) added to
+    log_w and log_lik; then the largest weight (NaN if any is), the live ones with zero
+    weight dead, the live ones into live. Returns (largest weight, live count, the step's
+    kind codes (int8) and parameters, prev, cols)."""
     n = drawn.shape[0]
-    codes, par, prev, cols = _pool_prims(drawn, prim, prim_par, head, prev, cols, top)
+    codes, par, prev, cols = step_prims(
+        drawn, prim, prim_par, sp, n_prims, cap, status, limit, head, prev, cols, top
+    )
     if n:
         bbox, y0, x0, new, hit_k, hit_pix = draw(
             image, padded, drawn, codes, par, np.zeros((0, 2)), np.zeros(n + 1, dtype=np.int64),
@@ -1039,30 +1042,29 @@ def observe_step(
         for i in empty:
             log_w[i] += blank
             log_lik[i] += blank
-    for k in range(n):
-        i = drawn[k]
-        if sp[i] == 0:
-            status[i] = 1  # done
-        elif n_prims[i] >= cap:
-            status[i] = 2  # limit: max primitives
-            limit[i] = 2
     most, n_live = _live_after(log_w, status, live)
     return most, n_live, codes, par, prev, cols
 
 
 @jit
-def _pool_prims(
+def step_prims(
     drawn: np.ndarray,
     prim: np.ndarray,
     prim_par: np.ndarray,
+    sp: np.ndarray,
+    n_prims: np.ndarray,
+    cap: int,
+    status: np.ndarray,
+    limit: np.ndarray,
     head: np.ndarray,
     prev: np.ndarray,
     cols: np.ndarray,
     top: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """observe_step's primitives: the kind codes (int8) and parameters of particles drawn,
-    linked as rows top, top + 1, ... of the pool (prev, cols: grown when full). Returns
-    (codes, parameters, prev, cols)."""
+    """A compiled run's step primitives: the kind codes (int8) and parameters of particles
+    drawn, linked as rows top, top + 1, ... of the primitive pool (prev, cols: grown when
+    full); the particles that ended marked done, those at the primitive cap limited.
+    Returns (codes, parameters, prev, cols)."""
     n = drawn.shape[0]
     codes = np.empty(n, dtype=np.int8)
     par = np.empty((n, prim_par.shape[1]))
@@ -1080,6 +1082,11 @@ def _pool_prims(
         for c in range(prim_par.shape[1]):
             par[k, c] = prim_par[i, c]
             cols[top + k, 1 + c] = prim_par[i, c]
+        if sp[i] == 0:
+            status[i] = 1  # done
+        elif n_prims[i] >= cap:
+            status[i] = 2  # limit: max primitives
+            limit[i] = 2
     link_rows(head, prev, top, drawn)
     return codes, par, prev, cols
 

@@ -244,9 +244,7 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
         drew = resume[p, 1] != 0
         resume[p, 0] = 0
         resume[p, 1] = 0
-        max_ops = max_work - work[p]
-        if max_ops > max_modules:
-            max_ops = max_modules
+        max_ops = min(max_work - work[p], max_modules)  # this call's module budget
         stop = 0
         h = sp[p]
         st = stack[p]
@@ -278,9 +276,7 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
                                               need):
                         work[p] += ops
                         ops = 0
-                        max_ops = max_work - work[p]
-                        if max_ops > max_modules:
-                            max_ops = max_modules
+                        max_ops = min(max_work - work[p], max_modules)  # as a new call's
                         continue
                     stop = DRAWN if drew else NEED
                     break

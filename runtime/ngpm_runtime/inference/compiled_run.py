@@ -293,9 +293,9 @@ class CompiledRun(_Run):
         return np.sort(self.drawn[: counts[0]]).tolist(), self.empty[: counts[1]].tolist()
 
     def _derive(self) -> tuple[list[int], list[int]]:
-        """run._Run._derive over the arrays: the same rounds in the same order (each round
-        one call of the compiled deriver, one of round_kernels.prior_pick (outcomes, the next
-        site), the run's draws for that site and one call of round_kernels.prior_serve)."""
+        """run._Run._derive over the arrays: the same rounds in the same order, the step's
+        rounds in one call (round_kernels.prior_derive, guided_derive), or round by round
+        for feature traces (_derive_rows)."""
         from ngpm_runtime import round_kernels as kernels
 
         if self.trace is TraceRecording.FULL:
@@ -498,21 +498,30 @@ class CompiledRun(_Run):
         hit the primitive cap; for the shape and circuit likelihoods in one kernel call
         (round_kernels.observe_step), which also finds the largest weight and the live
         particles (_top, _update_live)."""
+        from ngpm_runtime import round_kernels as kernels
+
         if self.fused is not None:
             self._observe_fused(drawn, empty)
             return
+        pool, rows = self.prim_pool, self.rows
         idx = np.asarray(drawn, dtype=np.int64)
-        codes = self.prim[idx]
-        par = self.prim_par[idx]
-        self.prim_pool.add(idx, codes, par)
+        codes, par, pool.prev, pool.cols = kernels.step_prims(
+            idx,
+            self.prim,
+            self.prim_par,
+            self.sp,
+            self.n_prims,
+            self.cap,
+            rows.status,
+            rows.limit,
+            pool.head,
+            pool.prev,
+            pool.cols,
+            pool.top,
+        )
+        pool.top += len(idx)
         self.step_prims = PrimRows(codes, par)
-        self._observe_prims(drawn, empty, self.step_prims, (codes.astype(np.int8), par))
-        pop = self.rows
-        ended = self.sp[idx] == 0
-        pop.status[idx[ended]] = FINISHED
-        capped = idx[~ended & (self.n_prims[idx] >= self.cap)]
-        pop.status[capped] = LIMITED
-        pop.limit[capped] = 2
+        self._observe_prims(drawn, empty, self.step_prims, (codes, par))
 
     def _observe_fused(self, drawn: list[int], empty: list[int]) -> None:
         """_observe in one call of round_kernels.observe_step."""
