@@ -57,6 +57,9 @@ jit = njit(cache=True, nogil=True, error_model="numpy")
 # Sobel magnitude / 4 of a 0/1 image by its integer gradients (gx + 4) * 9 + (gy + 4)
 _GRAD = np.arange(-4, 5)
 MAG_LUT = (np.sqrt(_GRAD[:, None] ** 2 + _GRAD[None, :] ** 2) / 4.0).reshape(-1)
+# feature_windows' memo arguments for no memo
+NO_MEMO = np.zeros((0, 0), dtype=np.float32)
+NO_MEMO_KEY = np.zeros((0, 3))
 
 
 @jit
@@ -461,6 +464,8 @@ def feature_windows(
     cell_t: np.ndarray,
     extra: np.ndarray,
     n_extra: np.ndarray,
+    memo: np.ndarray,
+    memo_key: np.ndarray,
 ) -> None:
     """FeatureMaker's rows of n particles into out (n, >= 7 + e + 72 [+ 17]) float32: turtle
     columns, the row's e = n_extra[k] extra columns extra[k, :e] (module parameters and
@@ -473,9 +478,16 @@ def feature_windows(
     fill); size (3, L) level heights, widths and padded widths (L == 0: no image, every
     window cell is its fill); offs (L, 9) window offsets; ctx_geom = (total, base, padded
     width, height, width of the look-ahead level, aspect); cells, cell_t: the fill level's
-    cells and the target there."""
+    cells and the target there.
+
+    memo (P, 2 * 72 [+ 17]) float32, memo_key (P, 3) float64, P > 0: the windows and
+    context of particle i's last row (those columns depend only on the turtle's x, y and
+    heading, its canvas row and the target) and that turtle, reused for a row of the same
+    particle and turtle: one step's rounds, whose canvas does not change, give the same
+    numbers without the work (a new canvas needs memo_key reset to NaN). P == 0: none."""
     n = idx.shape[0]
     nw = 9 * N_LEVELS
+    n_ctx = ctx.shape[0] + 2 if ctx.shape[0] else 0
     for k in range(n):
         u = (turtle[k, 0] - view[0]) / view[2]
         v = (turtle[k, 1] - view[1]) / view[3]
@@ -494,6 +506,16 @@ def feature_windows(
         nl = 7 + e
         if canvas.shape[1] and not 0 <= idx[k] < canvas.shape[0]:
             raise IndexError("features: particle index out of range")
+        i = idx[k]
+        if memo_key.shape[0] and (
+            memo_key[i, 0] == turtle[k, 0]
+            and memo_key[i, 1] == turtle[k, 1]
+            and memo_key[i, 2] == hd
+        ):
+            out[k, nl : nl + 2 * nw + n_ctx] = memo[i, : 2 * nw + n_ctx]
+            if out.shape[1] > nl + 2 * nw and not n_ctx:
+                out[k, nl + 2 * nw :] = 0.0
+            continue
         if not (math.isfinite(u) and math.isfinite(v)):
             u, v = _unit(u), _unit(v)
         if size.shape[1] == 0:
@@ -506,13 +528,13 @@ def feature_windows(
             for q in range(9):
                 at = at0 + offs[lv, q]
                 out[k, nl + 9 * lv + q] = target[at] if target.shape[0] else view[5]
-                out[k, nl + nw + 9 * lv + q] = canvas[idx[k], at] if canvas.shape[1] else view[6]
+                out[k, nl + nw + 9 * lv + q] = canvas[i, at] if canvas.shape[1] else view[6]
         if out.shape[1] > nl + 2 * nw and not ctx.shape[0]:
             out[k, nl + 2 * nw :] = 0.0
         elif ctx.shape[0]:
             _context(
                 out[k, nl + 2 * nw :],
-                canvas[idx[k]],
+                canvas[i],
                 target,
                 u,
                 v,
@@ -522,6 +544,9 @@ def feature_windows(
                 cells,
                 cell_t,
             )
+        if memo_key.shape[0]:
+            memo[i, : 2 * nw + n_ctx] = out[k, nl : nl + 2 * nw + n_ctx]
+            memo_key[i, 0], memo_key[i, 1], memo_key[i, 2] = turtle[k, 0], turtle[k, 1], hd
 
 
 @jit
@@ -932,6 +957,45 @@ def _net2(
 
 
 @jit
+def _net4(
+    x: np.ndarray,
+    r: int,
+    t: np.ndarray,
+    w: np.ndarray,
+    cols: np.ndarray,
+    params: np.ndarray,
+    xg: np.ndarray,
+    hb: np.ndarray,
+    o: np.ndarray,
+) -> None:
+    """_net on rows r to r + 3 of one site into params[r : r + 4], its first layer's
+    weights read once for the four (each row's sums in the same order as alone; xg, hb:
+    float32 (4, width) buffers)."""
+    n_in, hid = t[NET_IN], t[NET_HIDDEN]
+    at_c, at_w = t[NET_COLS_AT], t[NET_W1]
+    for i in range(n_in):
+        col = cols[at_c + i]
+        for q in range(4):
+            xg[q, i] = x[r + q, col]
+    h0, h1, h2, h3 = hb[0], hb[1], hb[2], hb[3]
+    h0[:hid] = 0.0
+    h1[:hid] = 0.0
+    h2[:hid] = 0.0
+    h3[:hid] = 0.0
+    for i in range(n_in):
+        a, b, c, d = xg[0, i], xg[1, i], xg[2, i], xg[3, i]
+        wr = w[at_w + i * hid : at_w + (i + 1) * hid]
+        for j in range(hid):
+            wj = wr[j]
+            h0[j] += a * wj
+            h1[j] += b * wj
+            h2[j] += c * wj
+            h3[j] += d * wj
+    for q in range(4):
+        _finish(hb[q], t, w, params[r + q], o)
+
+
+@jit
 def _finish(h: np.ndarray, t: np.ndarray, w: np.ndarray, out: np.ndarray, o: np.ndarray) -> None:
     """A site network after its first layer's sums h: + b1, tanh, bounds * tanh(h @ w2' +
     b2), then its head; into out[:n_out] (o: a float32 buffer of the output width)."""
@@ -1174,13 +1238,18 @@ def guide_round(
     h = np.empty(width, dtype=np.float32)
     h2 = np.empty(width, dtype=np.float32)
     o = np.empty(width, dtype=np.float32)
-    done = -1  # the row whose network ran with the row before it
+    xg4 = np.empty((4, width), dtype=np.float32)
+    h4 = np.empty((4, width), dtype=np.float32)
+    done = -1  # the last row whose network ran with a row before it
     for r in range(n):
         s = site[r]
         t = nets[s]
         p = params[r]
-        if t[NET_ON] and r != done:
-            if r + 1 < n and site[r + 1] == s:
+        if t[NET_ON] and r > done:
+            if r + 3 < n and site[r + 1] == s and site[r + 2] == s and site[r + 3] == s:
+                _net4(x, r, t, w, cols, params, xg4, h4, o)
+                done = r + 3
+            elif r + 1 < n and site[r + 1] == s:
                 _net2(x, r, t, w, cols, p, params[r + 1], xg, xg2, h, h2, o)
                 done = r + 1
             else:
@@ -1251,15 +1320,18 @@ def serve_round(
     out: np.ndarray,
     log_w: np.ndarray,
     log_prior: np.ndarray,
+    memo: np.ndarray,
+    memo_key: np.ndarray,
 ) -> tuple[int, int]:
     """A guided SMC round whose every site has a network here, in one call: the packed
     state into the rows (unpack_round's arguments, flat to n_args), their features into x
     (feature_windows', view to cell_t), proposal parameters, draws, log q and log prior
     into out (guide_round's, table to n_out: the outputs per site) and the site weights
-    into log_w and log_prior (add_weights; not when a row's prior arguments are bad).
-    The same kernels in the same order as the round's separate calls, so every number is
-    theirs. Flat arguments: numba's dispatch types arrays fast, tuples slowly. Returns
-    (row count, first bad row or -1)."""
+    into log_w and log_prior (add_weights; not when a row's prior arguments are bad);
+    memo, memo_key: feature_windows' (NO_MEMO, NO_MEMO_KEY: none). The same kernels in the
+    same order as the round's separate calls, so every number is theirs. Flat arguments:
+    numba's dispatch types arrays fast, tuples slowly. Returns (row count, first bad row
+    or -1)."""
     n = unpack_round(flat, n_turtle, shape, idx, site, turtle, depth, extra, n_extra, args, n_args)
     xr = x[:n]
     feature_windows(
@@ -1278,6 +1350,8 @@ def serve_round(
         cell_t,
         extra[:n],
         n_extra[:n],
+        memo,
+        memo_key,
     )
     n_par = np.empty(n, dtype=np.int64)
     for r in range(n):

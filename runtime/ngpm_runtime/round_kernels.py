@@ -16,6 +16,7 @@ from ngpm_runtime.geometry.compiled import GROW
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
 from ngpm_runtime.kernels import (
     LOG_2PI,
+    N_LEVELS,
     _pairwise_sum,
     _prior_lp,
     add_weights,
@@ -475,6 +476,8 @@ def serve_take(
     vals: np.ndarray,
     nv: np.ndarray,
     need: np.ndarray,
+    memo: np.ndarray,
+    memo_key: np.ndarray,
 ) -> tuple[int, int, np.ndarray]:
     """serve_round for the compiled deriver's round (the rows packed by guided_round for
     particles `order`), then their values into the replay values (take_values) unless a
@@ -515,6 +518,8 @@ def serve_take(
         out,
         log_w,
         log_prior,
+        memo,
+        memo_key,
     )
     if bad < 0:
         vals = take_values(order, out[:n, 0], vals, nv, need)
@@ -930,7 +935,9 @@ def guided_derive(
     outcomes, site order and packing (guided_round), the run's draws (uniforms, and
     standard normals when a site's guide draws them: as run._Run._serve_kernel draws), the
     guide's serving (serve_take) and, when rec has columns, the (particle, site, value)
-    rows into rec (counts[2]); the served particles advanced. Stops at a round the guide
+    rows into rec (counts[2]); the served particles advanced; a particle's windows and
+    context kept for its next row at the same turtle (feature_windows' memo: the canvas
+    is the step's throughout). Stops at a round the guide
     refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a row
     with bad prior arguments: a = the row, b = the round's row count), with that round's
     row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites). Long because
@@ -940,6 +947,9 @@ def guided_derive(
     group = start_rounds(live, need, wait_ids, wait_n)
     served = np.full(group.shape[0], -1, dtype=np.int64)
     no_rows = np.zeros(0)
+    n_memo = 9 * N_LEVELS * 2 + (ctx.shape[0] + 2 if ctx.shape[0] else 0)
+    memo = np.empty((log_w.shape[0], n_memo), dtype=np.float32)
+    memo_key = np.full((log_w.shape[0], 3), np.nan)  # the step's canvas: nothing kept yet
     while True:
         codes = np.zeros(group.shape[0], dtype=np.int64)
         stack, tstack = advance_at(
@@ -965,7 +975,7 @@ def guided_derive(
             flat, n_turtle, shape, idx, site, rows_turtle, depth, extra, n_extra, args,
             n_args, x, view, size, offs, target, canvas, ctx, ctx_geom, cells, cell_t, table,
             w, cols, kinds, temps, n_out, params, u, z, out, log_w, log_prior, group, vals,
-            nv, need,
+            nv, need, memo, memo_key,
         )  # fmt: skip
         if bad >= 0:
             return 2, bad, n, stack, tstack, vals, rec, served

@@ -311,6 +311,8 @@ class FeatureMaker:
             t,
             extra,
             n_extra,
+            self._k.NO_MEMO,
+            self._k.NO_MEMO_KEY,
         )
         return out
 

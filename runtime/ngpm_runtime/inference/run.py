@@ -568,6 +568,8 @@ class _Run:
             buf.out,
             pop.log_w,
             pop.log_prior,
+            self.kernels.NO_MEMO,
+            self.kernels.NO_MEMO_KEY,
         )
         if bad >= 0:
             counts = [len(g) for g in groups]

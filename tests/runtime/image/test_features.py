@@ -212,3 +212,49 @@ def test_heading_not_finite_looks_ahead_outside() -> None:
     )
     ahead = rows[:, fm.layout(prog.sites[1])["context"]][:, 2:]
     assert (ahead[:2] == -1).all() and (ahead[2] >= 0).all()
+
+
+@pytest.mark.parametrize("context", [False, True])
+def test_memo_gives_the_rows_without_it(context: bool) -> None:
+    """kernels.feature_windows with a memo (one step's rounds): rows of a particle at a
+    turtle seen before (other depth, width and extra columns) are bit for bit the rows
+    made without it; a new turtle (x, y or heading), another particle or a NaN position
+    is worked out again."""
+    from ngpm_runtime import kernels
+
+    rng = np.random.default_rng(5)
+    prog = _program()
+    target = np.zeros((50, 50), dtype=bool)
+    target[8:40, 12:35] = True
+    canvas = Canvas(4, 50, 50, VP)
+    for _ in range(6):
+        canvas.draw(
+            np.arange(4),
+            [("disk", rng.uniform(-12, 12), rng.uniform(-22, 2), 2.0) for _ in range(4)],
+        )
+    fm = FeatureMaker(prog, VP, target, context=context)
+    base = np.array([[1.0, -8.0, 30.0, 0.5], [-5.0, -3.0, 200.0, 0.4], [np.nan, -3.0, 10.0, 1.0]])
+    turtle = np.concatenate([base, base, base], axis=0)
+    turtle[4, 2] += 90.0  # the same place, another heading
+    turtle[7, 0] += 3.0  # another x
+    idx = np.array([0, 1, 2, 0, 1, 2, 3, 0, 1])
+    depth = rng.integers(0, 40, 9).astype(float)
+    turtle[:, 3] = rng.uniform(0.1, 1, 9)
+    n_extra = np.array([1, 2, 0, 2, 1, 0, 1, 2, 2])
+    extra = rng.normal(size=(9, 2))
+    width = fm.n_common + 2 + 5  # wider than any row: the columns past it as without a memo
+    args = fm.window_args(canvas)
+
+    def rows(memo: np.ndarray, key: np.ndarray) -> np.ndarray:
+        out = np.full((9, width), 7.0, dtype=np.float32)
+        kernels.feature_windows(out, turtle, depth, idx, *args, extra, n_extra, memo, key)
+        return out
+
+    want = rows(kernels.NO_MEMO, kernels.NO_MEMO_KEY)
+    memo = np.empty((4, width), dtype=np.float32)
+    key = np.full((4, 3), np.nan)
+    np.testing.assert_array_equal(rows(memo, key), want)
+    # what it kept: each particle's last turtle
+    np.testing.assert_array_equal(key[[0, 3], :3], turtle[[7, 6], :3])
+    assert np.isnan(key[1, 0]) and np.isnan(key[2, 0])
+    np.testing.assert_array_equal(rows(memo, key), want)  # again, with what it kept

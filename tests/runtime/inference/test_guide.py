@@ -117,6 +117,22 @@ def test_bundled_guide_engines_agree():
             np.testing.assert_allclose(got, numpy_forward(g.numpy_nets[s], x), rtol=1e-5, atol=1e-6)
 
 
+def test_numpy_nets_batch_equals_rows_alone():
+    """The kernel's networks run four rows of a site at a time, then two, then one; every
+    row's parameters are bit for bit those of the row alone (the bundled guide, every
+    site, batches of 1 to 11 rows)."""
+    from ngpm_runtime import bundled
+
+    g = bundled.bundled_guide()
+    rng = np.random.default_rng(11)
+    for s, net in g.nets.items():
+        for n in (1, 2, 3, 4, 5, 7, 11):
+            x = rng.uniform(-1, 1, size=(n, net["n_f"])).astype(np.float32)
+            got = g.numpy_nets[s](x)
+            want = np.concatenate([g.numpy_nets[s](x[k : k + 1]) for k in range(n)])
+            np.testing.assert_array_equal(got, want)
+
+
 def test_engine_names_the_path(tmp_path):
     """Guide.engine: numpy for a net that reads features, onnxruntime for a feature-free
     one, the prior for a site without a net; emptying numpy_nets switches to onnxruntime."""
