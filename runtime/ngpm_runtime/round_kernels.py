@@ -20,11 +20,15 @@ from ngpm_runtime.kernels import (
     _pairwise_sum,
     _prior_lp,
     add_weights,
+    ancestors,
     circuit_increment,
     draw,
     jit,
+    residual_counts,
     serve_round,
     shape_increment,
+    take_rows,
+    weights,
 )
 from ngpm_runtime.native_call import call_native
 
@@ -578,6 +582,79 @@ def take_particles(
             o_turtle[k, c] = turtle[a, c]
         for c in range(w_need):
             o_need[k, c] = need[a, c]
+
+
+@jit
+def residual_start(log_w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """Residual resampling's first part from log weights (kernels.weights, then
+    kernels.residual_counts; resample.residual's numbers): copies per particle, the
+    fractional parts' cumulative sum and the draws left."""
+    return residual_counts(weights(log_w), n)
+
+
+@jit
+def resample_rows(
+    counts: np.ndarray,
+    cum: np.ndarray,
+    u: np.ndarray,
+    live: np.ndarray,
+    status: np.ndarray,
+    limit: np.ndarray,
+    log_prior: np.ndarray,
+    log_lik: np.ndarray,
+    o_status: np.ndarray,
+    o_limit: np.ndarray,
+    o_log_prior: np.ndarray,
+    o_log_lik: np.ndarray,
+    image: np.ndarray,
+    padded: np.ndarray,
+    o_image: np.ndarray,
+    o_padded: np.ndarray,
+    stack: np.ndarray,
+    sp: np.ndarray,
+    turtle: np.ndarray,
+    tstack: np.ndarray,
+    tsp: np.ndarray,
+    vals: np.ndarray,
+    nv: np.ndarray,
+    need: np.ndarray,
+    n_prims: np.ndarray,
+    work: np.ndarray,
+    o_stack: np.ndarray,
+    o_sp: np.ndarray,
+    o_turtle: np.ndarray,
+    o_tstack: np.ndarray,
+    o_tsp: np.ndarray,
+    o_vals: np.ndarray,
+    o_nv: np.ndarray,
+    o_need: np.ndarray,
+    o_n_prims: np.ndarray,
+    o_work: np.ndarray,
+) -> tuple[np.ndarray, int]:
+    """A compiled run's resampling in one call: the ancestors (kernels.ancestors of
+    residual_start's counts and the draws u), then row k of every o_ array becomes row
+    anc[k] of its array: the population's status, limit, log prior and log likelihood,
+    the canvases and pyramids (kernels.take_rows; no rows: no canvas) and the deriver's
+    state (take_particles). The particles still live (status 0) into live. Returns (the
+    ancestors, how many are live)."""
+    anc = ancestors(counts, cum, u)
+    n_live = 0
+    for k in range(anc.shape[0]):
+        a = anc[k]
+        o_status[k] = status[a]
+        o_limit[k] = limit[a]
+        o_log_prior[k] = log_prior[a]
+        o_log_lik[k] = log_lik[a]
+        if o_status[k] == 0:
+            live[n_live] = k
+            n_live += 1
+    if image.shape[0]:
+        take_rows(image, padded, anc, o_image, o_padded)
+    take_particles(
+        anc, stack, sp, turtle, tstack, tsp, vals, nv, need, n_prims, work, o_stack, o_sp,
+        o_turtle, o_tstack, o_tsp, o_vals, o_nv, o_need, o_n_prims, o_work,
+    )  # fmt: skip
+    return anc, n_live
 
 
 @jit

@@ -280,11 +280,23 @@ class Canvas:
             self.n = len(idx)
             self._spare = None
             return
+        image, padded, image_out, padded_out = self.take_args()
+        self._k.take_rows(image, padded, idx, image_out, padded_out)
+        self.swap()
+
+    def take_args(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """kernels.take_rows' rows and outputs (canvases flattened to (N, cells), pyramids,
+        then the spare arrays they go into); `swap` makes the spares the canvas after."""
         if self._spare is None:
             self._spare = [np.empty_like(self.image), np.empty_like(self.padded)]
         img, pad = self._spare
         n = self.n
-        self._k.take_rows(self.image.reshape(n, -1), self.padded, idx, img.reshape(n, -1), pad)
+        return self.image.reshape(n, -1), self.padded, img.reshape(n, -1), pad
+
+    def swap(self) -> None:
+        """The spare arrays (filled by a take) become the canvas, the canvas the spares."""
+        assert self._spare is not None
+        img, pad = self._spare
         self._spare = [self.image, self.padded]
         self.image, self.padded = img, pad
 

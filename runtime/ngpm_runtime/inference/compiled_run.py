@@ -32,6 +32,7 @@ from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood
 from ngpm_runtime.inference.proposals import ReplayProposal, RoundRows
+from ngpm_runtime.inference.resample import resample as draw_ancestors
 from ngpm_runtime.inference.run import (
     FinalParticle,
     Population,
@@ -40,6 +41,7 @@ from ngpm_runtime.inference.run import (
     _Buffers,
     _Run,
     start_particles,
+    take_arrays,
 )
 from ngpm_runtime.inference.sitekinds import KINDS
 
@@ -51,6 +53,14 @@ STATUS = ("live", "done", "limit", "dead")
 LIMITS = (None, "max modules", "max primitives", "max steps")
 _PRIM_KINDS = ("seg", "disk", "leaf")
 _NO_GAIN = np.zeros(0)
+_NO_DRAWS = np.zeros(0)
+# resample_rows' canvas arguments for a run without one (Canvas's dtypes)
+_NO_IMAGE: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] = (
+    np.zeros((0, 0), dtype=np.uint8),
+    np.zeros((0, 0), dtype=np.float32),
+    np.zeros((0, 0), dtype=np.uint8),
+    np.zeros((0, 0), dtype=np.float32),
+)
 
 
 class KernelFailed(Exception):
@@ -75,12 +85,11 @@ class RowPopulation(Population):
         status[(self.log_w == -np.inf) & (status == LIVE)] = DEAD
         self.live = np.flatnonzero(status == LIVE).tolist()
 
-    def take(self, anc: np.ndarray) -> None:
-        self.status = self.status[anc]
-        self.limit = self.limit[anc]
-        self.live = np.flatnonzero(self.status == LIVE).tolist()
-        self.log_prior = self.log_prior[anc]
-        self.log_lik = self.log_lik[anc]
+    def took(self, arrays: tuple[np.ndarray, ...], live: list[int]) -> None:
+        """After resampling (CompiledRun._take): the new status, limit, log prior and log
+        likelihood rows and live particles; weights reset to 0."""
+        self.status, self.limit, self.log_prior, self.log_lik = arrays
+        self.live = live
         self.log_w = np.zeros(self.n)
 
     def stop_live(self, reason: int) -> None:
@@ -585,27 +594,53 @@ class CompiledRun(_Run):
         for obs in self.observers:
             obs.step_done(state)
 
-    def _take_state(self, anc: np.ndarray) -> None:
-        """Resampling of the derivation state: row k becomes old row anc[k]
-        (round_kernels.take_particles into spare arrays of the same shapes, which are then
-        swapped in: fresh ones of this size would cost page faults every step)."""
+    def _take(self) -> np.ndarray:
+        """_Run._take in one kernel call (round_kernels.resample_rows: the ancestors, the
+        population's rows, the canvases and the deriver's state) beside the residual
+        scheme's first part and its draws (resample.residual's numbers; another scheme's
+        ancestors as counts). The rows go into spare arrays of the same shapes, which are
+        then swapped in: fresh ones of this size would cost page faults every step."""
         from ngpm_runtime import round_kernels
 
+        rows, n = self.rows, self.n
+        if self.resample == "residual":
+            counts, cum, rest = round_kernels.residual_start(rows.log_w, n)
+            u = self.rng.random(rest) if rest > 0 else _NO_DRAWS
+        else:
+            anc = draw_ancestors(self.resample, rows.log_w, self.rng)
+            counts, cum, u = np.bincount(anc, minlength=n), _NO_DRAWS, _NO_DRAWS
         old = (
             self.stack, self.sp, self.turtle, self.tstack, self.tsp, self.vals, self.nv,
             self.need, self.n_prims, self.work,
         )  # fmt: skip  # round_kernels.take_particles' order
         new = self.spare
-        if new is None or any(new[k].shape != old[k].shape for k in _GROWING):
+        if new is None or any([new[k].shape != old[k].shape for k in _GROWING]):
             new = tuple(np.empty_like(a) for a in old)
-        round_kernels.take_particles(np.asarray(anc, dtype=np.int64), *old, *new)
+        pop_old = (rows.status, rows.limit, rows.log_prior, rows.log_lik)
+        pop_new = (
+            np.empty_like(rows.status),
+            np.empty_like(rows.limit),
+            np.empty_like(rows.log_prior),
+            np.empty_like(rows.log_lik),
+        )
+        canvas = self.canvas
+        image = _NO_IMAGE if canvas is None else canvas.take_args()
+        live = np.empty(n, dtype=np.int64)
+        anc, n_live = round_kernels.resample_rows(
+            counts, cum, u, live, *pop_old, *pop_new, *image, *old, *new
+        )
+        rows.took(pop_new, live[:n_live].tolist())
         (
             self.stack, self.sp, self.turtle, self.tstack, self.tsp, self.vals, self.nv,
             self.need, self.n_prims, self.work,
         ) = new  # fmt: skip
         self.spare = old
+        if canvas is not None:
+            canvas.swap()
         self.prim_pool.take(anc)
         self.trace_pool.take(anc)
+        take_arrays(self.like_state, anc)
+        return anc
 
     def stop_live(self, reason: str) -> None:
         self.rows.stop_live(LIMITS.index(reason))

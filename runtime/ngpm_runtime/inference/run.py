@@ -780,22 +780,23 @@ class _Run:
 
     def _resample(self, lse: float) -> None:
         """Resample (lse: log sum exp of the weights, from the ESS)."""
-        pop = self.pop
         self.log_z += lse - math.log(self.n)
-        anc = draw_ancestors(self.resample, pop.log_w, self.rng)
-        pop.take(anc)
-        self._take_state(anc)
-        take_arrays(self.like_state, anc)
-        if self.canvas is not None:
-            self.canvas.take(anc)
+        anc = self._take()
         self.n_resample += 1
         if self.observers:
             take_arrays(self.state.arrays, anc)
             for obs in self.observers:
                 obs.resampled(anc)
 
-    def _take_state(self, anc: np.ndarray) -> None:
-        """Resampling of state kept outside the population (CompiledRun's arrays)."""
+    def _take(self) -> np.ndarray:
+        """The ancestors drawn from the weights; particle k becomes old particle anc[k] in
+        the population, the likelihood's state and the canvas. Returns anc."""
+        anc = draw_ancestors(self.resample, self.pop.log_w, self.rng)
+        self.pop.take(anc)
+        take_arrays(self.like_state, anc)
+        if self.canvas is not None:
+            self.canvas.take(anc)
+        return anc
 
     def stop_live(self, reason: str) -> None:
         """The live particles stop with status "limit" and this reason ("max steps")."""

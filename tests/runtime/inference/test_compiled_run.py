@@ -112,6 +112,20 @@ def test_vines_runs_equal_python(monkeypatch) -> None:
         assert_same(a, b)
 
 
+@pytest.mark.parametrize("scheme", ["systematic", "multinomial"])
+def test_other_schemes_equal_python(monkeypatch, scheme: str) -> None:
+    """Resampling in one kernel call takes another scheme's ancestors as they are."""
+    program = load_grammar(REPO / "grammars" / "vines.lsys")
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    a, b = both(
+        monkeypatch, program, like, 30, seed=4, canvas_size=mask.shape, target_mask=mask,
+        resample=scheme,
+    )  # fmt: skip
+    assert a.info["resamples"] > 0
+    assert_same(a, b)
+
+
 def test_circuit_runs_equal_python(monkeypatch) -> None:
     """The circuit likelihood (observe_step's other increment), unguided and guided by the
     bundled circuit guide, on the compiled deriver: the Python deriver's runs."""
