@@ -30,7 +30,7 @@ from ngpm_runtime.kernels import (
     take_rows,
     weights,
 )
-from ngpm_runtime.native_call import call_native
+from ngpm_runtime.native_call import call_native, generator_at
 
 
 @jit
@@ -870,7 +870,7 @@ def advance_at(
 @jit
 def prior_derive(
     addr: int,
-    rng: np.random.Generator,
+    rng_at: np.ndarray,
     live: np.ndarray,
     stack: np.ndarray,
     sp: np.ndarray,
@@ -913,7 +913,9 @@ def prior_derive(
     SiteOrder's next site (prior_pick), its draws from the run's generator (standard
     normals where normals[site], else uniforms: sitekinds' prior_draw's one call) and its
     values (prior_serve), and the served particles advanced. Returns stack, tstack, vals
-    and rec (new arrays where they grew)."""
+    and rec (new arrays where they grew). rng_at: the generator's addresses
+    (native_call.generator_addresses)."""
+    rng = generator_at(rng_at)
     counts[:] = 0
     group = start_rounds(live, need, wait_ids, wait_n)
     site = -1
@@ -940,7 +942,7 @@ def prior_derive(
 @jit
 def guided_derive(
     addr: int,
-    rng: np.random.Generator,
+    rng_at: np.ndarray,
     live: np.ndarray,
     stack: np.ndarray,
     sp: np.ndarray,
@@ -1010,16 +1012,17 @@ def guided_derive(
     """A step of guided SMC's rounds (compiled_run.CompiledRun._derive_guided) in one
     call: the live particles not waiting advanced (advance_at), then round by round the
     outcomes, site order and packing (guided_round), the run's draws (uniforms, and
-    standard normals when a site's guide draws them: as run._Run._serve_kernel draws), the
-    guide's serving (serve_take) and, when rec has columns, the (particle, site, value)
-    rows into rec (counts[2]); the served particles advanced; a particle's windows and
-    context kept for its next row at the same turtle (feature_windows' memo: the canvas
-    is the step's throughout). Stops at a round the guide
-    refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a row
-    with bad prior arguments: a = the row, b = the round's row count), with that round's
-    row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites). Long because
-    it takes the deriver's and serve_round's arguments one by one (numba types flat
+    standard normals when a site's guide draws them: as run._Run._serve_kernel draws; rng_at
+    as prior_derive's), the guide's serving (serve_take) and, when rec has columns, the
+    (particle, site, value) rows into rec (counts[2]); the served particles advanced; a
+    particle's windows and context kept for its next row at the same turtle
+    (feature_windows' memo: the canvas is the step's throughout). Stops at a round the
+    guide refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a
+    row with bad prior arguments: a = the row, b = the round's row count), with that
+    round's row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites). Long
+    because it takes the deriver's and serve_round's arguments one by one (numba types flat
     arguments fast, tuples slowly)."""
+    rng = generator_at(rng_at)
     counts[:] = 0
     group = start_rounds(live, need, wait_ids, wait_n)
     served = np.full(group.shape[0], -1, dtype=np.int64)

@@ -44,6 +44,7 @@ from ngpm_runtime.inference.run import (
     take_arrays,
 )
 from ngpm_runtime.inference.sitekinds import KINDS
+from ngpm_runtime.native_call import generator_addresses
 
 LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
 # the per-particle derivation arrays round_kernels.take_particles resamples, in its order
@@ -114,6 +115,7 @@ class CompiledRun(_Run):
             [KINDS[s.kind].prior_normals for s in sites] or [False], dtype=np.bool_
         )
         self.addr = -1  # the grammar's `advance`'s machine-code address (_address)
+        self.rng_at = generator_addresses(self.rng)  # the step kernels' generator
         self.wait_ids = np.zeros((m, n), dtype=np.int64)  # a round's waiting particles
         self.wait_n = np.zeros(m, dtype=np.int64)
         self.drawn = np.zeros(n, dtype=np.int64)
@@ -214,7 +216,7 @@ class CompiledRun(_Run):
         rows = self.rows
         return (
             self._address(),
-            self.rng,
+            self.rng_at,
             np.asarray(rows.live, dtype=np.int64),
             *self._deriver_state(),
             self.wait_ids,
