@@ -1006,7 +1006,21 @@ def _finish(h: np.ndarray, t: np.ndarray, w: np.ndarray, out: np.ndarray, o: np.
     _tanh(h, hid)
     o[:n_out] = 0.0
     at_w = t[NET_W2]
-    for j in range(hid):
+    top = hid - hid % 4
+    for j in range(0, top, 4):  # four hidden units a pass: each o[q] in a register, same order
+        h0, h1, h2, h3 = h[j], h[j + 1], h[j + 2], h[j + 3]
+        w0 = w[at_w + j * n_out : at_w + (j + 1) * n_out]
+        w1 = w[at_w + (j + 1) * n_out : at_w + (j + 2) * n_out]
+        w2 = w[at_w + (j + 2) * n_out : at_w + (j + 3) * n_out]
+        w3 = w[at_w + (j + 3) * n_out : at_w + (j + 4) * n_out]
+        for q in range(n_out):
+            v = o[q]
+            v += h0 * w0[q]
+            v += h1 * w1[q]
+            v += h2 * w2[q]
+            v += h3 * w3[q]
+            o[q] = v
+    for j in range(top, hid):
         hj = h[j]
         wr = w[at_w + j * n_out : at_w + (j + 1) * n_out]
         for q in range(n_out):
