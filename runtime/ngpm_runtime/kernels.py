@@ -448,6 +448,46 @@ def _unit(a: float) -> float:
 
 
 @jit
+def _windows_row(
+    out: np.ndarray,
+    u: float,
+    v: float,
+    hd: float,
+    i: int,
+    view: np.ndarray,
+    size: np.ndarray,
+    offs: np.ndarray,
+    target: np.ndarray,
+    canvas: np.ndarray,
+    ctx: np.ndarray,
+    ctx_geom: np.ndarray,
+    cells: np.ndarray,
+    cell_t: np.ndarray,
+) -> None:
+    """feature_windows' columns after a row's extra ones (out: the row from there) for a
+    turtle at normalized (u, v) heading hd, of particle i: target and partial windows at
+    the 4 levels, then the context group (or zeros to the end of the row)."""
+    nw = 9 * N_LEVELS
+    if not (math.isfinite(u) and math.isfinite(v)):
+        u, v = _unit(u), _unit(v)
+    if size.shape[1] == 0:
+        out[:nw] = view[5]
+        out[nw : 2 * nw] = view[6]
+    for lv in range(size.shape[1]):
+        row = _min(_max(math.floor(v * size[0, lv]), -2.0), size[0, lv] + 1)
+        col = _min(_max(math.floor(u * size[1, lv]), -2.0), size[1, lv] + 1)
+        at0 = int(row * size[2, lv] + col)
+        for q in range(9):
+            at = at0 + offs[lv, q]
+            out[9 * lv + q] = target[at] if target.shape[0] else view[5]
+            out[nw + 9 * lv + q] = canvas[i, at] if canvas.shape[1] else view[6]
+    if out.shape[0] > 2 * nw and not ctx.shape[0]:
+        out[2 * nw :] = 0.0
+    elif ctx.shape[0]:
+        _context(out[2 * nw :], canvas[i], target, u, v, hd, ctx, ctx_geom, cells, cell_t)
+
+
+@jit
 def feature_windows(
     out: np.ndarray,
     turtle: np.ndarray,
@@ -516,34 +556,9 @@ def feature_windows(
             if out.shape[1] > nl + 2 * nw and not n_ctx:
                 out[k, nl + 2 * nw :] = 0.0
             continue
-        if not (math.isfinite(u) and math.isfinite(v)):
-            u, v = _unit(u), _unit(v)
-        if size.shape[1] == 0:
-            out[k, nl : nl + nw] = view[5]
-            out[k, nl + nw : nl + 2 * nw] = view[6]
-        for lv in range(size.shape[1]):
-            row = _min(_max(math.floor(v * size[0, lv]), -2.0), size[0, lv] + 1)
-            col = _min(_max(math.floor(u * size[1, lv]), -2.0), size[1, lv] + 1)
-            at0 = int(row * size[2, lv] + col)
-            for q in range(9):
-                at = at0 + offs[lv, q]
-                out[k, nl + 9 * lv + q] = target[at] if target.shape[0] else view[5]
-                out[k, nl + nw + 9 * lv + q] = canvas[i, at] if canvas.shape[1] else view[6]
-        if out.shape[1] > nl + 2 * nw and not ctx.shape[0]:
-            out[k, nl + 2 * nw :] = 0.0
-        elif ctx.shape[0]:
-            _context(
-                out[k, nl + 2 * nw :],
-                canvas[i],
-                target,
-                u,
-                v,
-                hd,
-                ctx,
-                ctx_geom,
-                cells,
-                cell_t,
-            )
+        _windows_row(
+            out[k, nl:], u, v, hd, i, view, size, offs, target, canvas, ctx, ctx_geom, cells, cell_t
+        )
         if memo_key.shape[0]:
             memo[i, : 2 * nw + n_ctx] = out[k, nl : nl + 2 * nw + n_ctx]
             memo_key[i, 0], memo_key[i, 1], memo_key[i, 2] = turtle[k, 0], turtle[k, 1], hd

@@ -1019,9 +1019,9 @@ def guided_derive(
     (feature_windows' memo: the canvas is the step's throughout). Stops at a round the
     guide refuses: status 1 (a site whose feature width it refuses: a = the site) or 2 (a
     row with bad prior arguments: a = the row, b = the round's row count), with that
-    round's row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites). Long
-    because it takes the deriver's and serve_round's arguments one by one (numba types flat
-    arguments fast, tuples slowly)."""
+    round's row sites. Returns (status, a, b, stack, tstack, vals, rec, row sites).
+    Long because it takes the deriver's and serve_round's arguments one by one (numba types
+    flat arguments fast, tuples slowly)."""
     rng = generator_at(rng_at)
     counts[:] = 0
     group = start_rounds(live, need, wait_ids, wait_n)

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 from ngpm_runtime.native_call import generator_addresses, generator_at
+from numba import njit
 
 
 @njit(cache=False)
