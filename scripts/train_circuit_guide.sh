@@ -10,7 +10,7 @@
 # of the machine, so a busier machine records fewer traces per round.
 # Usage: bash scripts/train_circuit_guide.sh [WORKDIR]   (resumes a stopped run in WORKDIR)
 # Then: cp WORKDIR/guide.onnx runtime/ngpm_runtime/data/vines_circuit_guide.onnx and
-# re-measure (python benchmarks/circuit.py --guided-n 10,5,3 --md docs/results/circuit_guide.md;
+# re-measure (python benchmarks/circuit.py --guided-n 10,20 --repeats 80 --md docs/results/circuit_guide.md;
 # docs/results/README.md, "Circuits").
 # (The guide shipped before, 3.3-4.0x: 434 unguided + 249 guided traces, one expert-iteration
 # round by hand; experiments/notes/circuit_guide_retrain.md.)
