@@ -52,6 +52,7 @@ def main() -> int:
 
     from ngpm_compiler.evaluation.runs import (
         curve,
+        match_text,
         n_to_match,
         run_seed,
         summarize,
@@ -119,12 +120,11 @@ def main() -> int:
     for g in (r for r in summary if r["model"] != "unguided"):
         cross = n_to_match(summary, g["mean_similarity"])
         t_u = time_to_reach(scores, secs, g["mean_similarity"])
-        ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
-        more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
+        where, ratio = match_text(cross, t_u, g["mean_seconds"], ns, secs)
         lines.append(
             f"{g['model'].capitalize()} N = {g['n']} scores {g['mean_similarity']:.3f} in "
-            f"{g['mean_seconds']:.3f} s; unguided SMC matches it at N ~ {cross:.0f} in "
-            f"{t_u:.3f} s: **{ratio:.1f}x** faster at equal score{more}."
+            f"{g['mean_seconds']:.3f} s; unguided SMC matches it at {where}: **{ratio}** "
+            "faster at equal score."
         )
     lines.append(f"(Load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores at the end.)")
     print("\n".join(lines))

@@ -159,6 +159,7 @@ def equal_similarity(
     """Guided N=10 vs the unguided ladder: crossing N and time ratio (evaluation/runs.py)."""
     from ngpm_compiler.evaluation.runs import (
         curve,
+        match_text,
         n_to_match,
         run_seed,
         summarize,
@@ -197,15 +198,14 @@ def equal_similarity(
         )
         cross = n_to_match(summary, g["mean_similarity"])
         t_u = time_to_reach(sims, secs, g["mean_similarity"])
-        ratio = t_u / g["mean_seconds"] if t_u == t_u else float("nan")
-        more = "" if cross == cross else f" (unguided never reaches it up to N={ns.max()})"
+        where, ratio = match_text(cross, t_u, g["mean_seconds"], ns, secs)
         print(
             f"[{ds}] guided N=10: similarity {g['mean_similarity']:.3f} in "
             f"{g['mean_seconds']:.3f} s; unguided by N: {table}"
         )
         print(
-            f"[{ds}] unguided matches it at N ~ {cross:.0f} in {t_u:.3f} s: guided N=10 is "
-            f"{ratio:.1f}x faster at equal similarity{more}"
+            f"[{ds}] unguided matches it at {where}: guided N=10 is {ratio} faster at "
+            "equal similarity"
         )
 
 

@@ -352,6 +352,21 @@ def speedups(
     return out
 
 
+def match_text(
+    cross: float, t_reach: float, seconds: float, ns: np.ndarray, secs: np.ndarray
+) -> tuple[str, str]:
+    """How a benchmark states the baseline at equal similarity to a guided run of `seconds`
+    (cross: n_to_match; t_reach: time_to_reach over the baseline's curve ns, secs): ("N ~
+    329 in 0.373 s", "4.8x"), or where the baseline never reaches it a lower bound from its
+    largest N: ("N > 1000 (1.110 s there)", "> 14.4x")."""
+    if cross == cross and t_reach == t_reach:
+        return f"N ~ {cross:.0f} in {t_reach:.3f} s", f"{t_reach / seconds:.1f}x"
+    if not len(ns):
+        return "no baseline runs", "?"
+    top = int(np.argmax(ns))
+    return f"N > {ns[top]} ({secs[top]:.3f} s there)", f"> {secs[top] / seconds:.1f}x"
+
+
 def _r(x: float) -> float | str:
     return "" if math.isnan(x) else round(float(x), 6)
 

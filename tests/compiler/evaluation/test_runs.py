@@ -14,6 +14,7 @@ from ngpm_compiler.evaluation.runs import (
     RUN_FIELDS,
     UNGUIDED,
     grow_once,
+    match_text,
     read_csv,
     run_seed,
     run_tasks,
@@ -187,3 +188,14 @@ def test_chain_arc_starts_at_the_program_start() -> None:
     x, y, h = t.start_pose(chain.viewport)
     assert (x, y) == pytest.approx(chain.start[:2])
     assert h == pytest.approx(chain.start[2])
+
+
+def test_match_text_states_a_crossing_or_a_lower_bound() -> None:
+    """A baseline that reaches the guided score: its N and the ratio; one that never does:
+    a lower bound from its largest N, not 'nan'."""
+    ns, secs = np.array([10, 100, 1000]), np.array([0.01, 0.1, 1.2])
+    assert match_text(329.4, 0.373, 0.077, ns, secs) == ("N ~ 329 in 0.373 s", "4.8x")
+    assert match_text(float("nan"), float("nan"), 0.1, ns, secs) == (
+        "N > 1000 (1.200 s there)",
+        "> 12.0x",
+    )
