@@ -24,11 +24,9 @@ from ngpm_runtime.kernels import (
     circuit_increment,
     draw,
     jit,
-    residual_counts,
     serve_round,
     shape_increment,
     take_rows,
-    weights,
 )
 from ngpm_runtime.native_call import call_native, generator_at
 
@@ -585,14 +583,6 @@ def take_particles(
 
 
 @jit
-def residual_start(log_w: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Residual resampling's first part from log weights (kernels.weights, then
-    kernels.residual_counts; resample.residual's numbers): copies per particle, the
-    fractional parts' cumulative sum and the draws left."""
-    return residual_counts(weights(log_w), n)
-
-
-@jit
 def resample_rows(
     counts: np.ndarray,
     cum: np.ndarray,
@@ -632,11 +622,11 @@ def resample_rows(
     o_work: np.ndarray,
 ) -> tuple[np.ndarray, int]:
     """A compiled run's resampling in one call: the ancestors (kernels.ancestors of
-    residual_start's counts and the draws u), then row k of every o_ array becomes row
-    anc[k] of its array: the population's status, limit, log prior and log likelihood,
-    the canvases and pyramids (kernels.take_rows; no rows: no canvas) and the deriver's
-    state (take_particles). The particles still live (status 0) into live. Returns (the
-    ancestors, how many are live)."""
+    resample.ancestor_counts' copies, cumulative sum and draws u), then row k of every o_
+    array becomes row anc[k] of its array: the population's status, limit, log prior and
+    log likelihood, the canvases and pyramids (kernels.take_rows; no rows: no canvas) and
+    the deriver's state (take_particles). The particles still live (status 0) into live.
+    Returns (the ancestors, how many are live)."""
     anc = ancestors(counts, cum, u)
     n_live = 0
     for k in range(anc.shape[0]):

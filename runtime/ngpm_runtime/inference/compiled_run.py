@@ -32,7 +32,7 @@ from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
 from ngpm_runtime.geometry.turtle import Prim
 from ngpm_runtime.inference.likelihood import CircuitLikelihood, ShapeLikelihood
 from ngpm_runtime.inference.proposals import ReplayProposal, RoundRows
-from ngpm_runtime.inference.resample import resample as draw_ancestors
+from ngpm_runtime.inference.resample import ancestor_counts
 from ngpm_runtime.inference.run import (
     FinalParticle,
     Population,
@@ -47,14 +47,17 @@ from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.native_call import generator_addresses
 
 LIVE, FINISHED, LIMITED, DEAD = 0, 1, 2, 3
-# the per-particle derivation arrays round_kernels.take_particles resamples, in its order
-# the arrays of _take_state's that grow: stack, turtle stack, replay values
+# of the deriver's arrays _take resamples (take_particles' order), the ones that grow:
+# stack, turtle stack, replay values
 _GROWING = (0, 3, 5)
 STATUS = ("live", "done", "limit", "dead")
 LIMITS = (None, "max modules", "max primitives", "max steps")
 _PRIM_KINDS = ("seg", "disk", "leaf")
 _NO_GAIN = np.zeros(0)
-_NO_DRAWS = np.zeros(0)
+# CompiledRun._pool_args: primitives, their parameters, stack pointers, primitive counts,
+# the cap, status, limit; the pool's heads, links, rows and top
+_A = np.ndarray
+_PoolArgs = tuple[_A, _A, _A, _A, int, _A, _A, _A, _A, _A, int]
 # resample_rows' canvas arguments for a run without one (Canvas's dtypes)
 _NO_IMAGE: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] = (
     np.zeros((0, 0), dtype=np.uint8),
@@ -158,7 +161,7 @@ class CompiledRun(_Run):
         self.log = np.zeros(0)
         self.replay_from = self.replay_at = -1
         self.replay_buf: _Buffers | None = None
-        self.spare: tuple[np.ndarray, ...] | None = None  # _take_state's other arrays
+        self.spare: tuple[np.ndarray, ...] | None = None  # _take's other arrays
         self.fused = self._fused_observe()
         self.live_ids = np.zeros(n, dtype=np.int64)
         self.top_w = 0.0
@@ -514,25 +517,21 @@ class CompiledRun(_Run):
         if self.fused is not None:
             self._observe_fused(drawn, empty)
             return
-        pool, rows = self.prim_pool, self.rows
+        pool = self.prim_pool
         idx = np.asarray(drawn, dtype=np.int64)
-        codes, par, pool.prev, pool.cols = kernels.step_prims(
-            idx,
-            self.prim,
-            self.prim_par,
-            self.sp,
-            self.n_prims,
-            self.cap,
-            rows.status,
-            rows.limit,
-            pool.head,
-            pool.prev,
-            pool.cols,
-            pool.top,
-        )
+        codes, par, pool.prev, pool.cols = kernels.step_prims(idx, *self._pool_args())
         pool.top += len(idx)
         self.step_prims = PrimRows(codes, par)
         self._observe_prims(drawn, empty, self.step_prims, (codes, par))
+
+    def _pool_args(self) -> _PoolArgs:
+        """What round_kernels.step_prims and observe_step take after the step's particles:
+        their primitives, stacks, counts and caps, statuses, and the primitive pool's rows."""
+        rows, pool = self.rows, self.prim_pool
+        return (
+            self.prim, self.prim_par, self.sp, self.n_prims, self.cap, rows.status, rows.limit,
+            pool.head, pool.prev, pool.cols, pool.top,
+        )  # fmt: skip
 
     def _observe_fused(self, drawn: list[int], empty: list[int]) -> None:
         """_observe in one call of round_kernels.observe_step."""
@@ -546,17 +545,7 @@ class CompiledRun(_Run):
         top, n_live, codes, par, pool.prev, pool.cols = kernels.observe_step(
             idx,
             np.asarray(empty, dtype=np.int64),
-            self.prim,
-            self.prim_par,
-            self.sp,
-            self.n_prims,
-            self.cap,
-            rows.status,
-            rows.limit,
-            pool.head,
-            pool.prev,
-            pool.cols,
-            pool.top,
+            *self._pool_args(),
             canvas.image,
             canvas.padded,
             *canvas.layout(),
@@ -598,19 +587,14 @@ class CompiledRun(_Run):
 
     def _take(self) -> np.ndarray:
         """_Run._take in one kernel call (round_kernels.resample_rows: the ancestors, the
-        population's rows, the canvases and the deriver's state) beside the residual
-        scheme's first part and its draws (resample.residual's numbers; another scheme's
-        ancestors as counts). The rows go into spare arrays of the same shapes, which are
-        then swapped in: fresh ones of this size would cost page faults every step."""
+        population's rows, the canvases and the deriver's state) of the scheme's draws
+        (resample.ancestor_counts: `resample`'s numbers). The rows go into spare arrays of
+        the same shapes, which are then swapped in: fresh ones of this size would cost page
+        faults every step."""
         from ngpm_runtime import round_kernels
 
         rows, n = self.rows, self.n
-        if self.resample == "residual":
-            counts, cum, rest = round_kernels.residual_start(rows.log_w, n)
-            u = self.rng.random(rest) if rest > 0 else _NO_DRAWS
-        else:
-            anc = draw_ancestors(self.resample, rows.log_w, self.rng)
-            counts, cum, u = np.bincount(anc, minlength=n), _NO_DRAWS, _NO_DRAWS
+        counts, cum, u = ancestor_counts(self.resample, rows.log_w, self.rng)
         old = (
             self.stack, self.sp, self.turtle, self.tstack, self.tsp, self.vals, self.nv,
             self.need, self.n_prims, self.work,

@@ -34,12 +34,21 @@ def systematic(w: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
     return _search(_cumulative(w), (np.arange(n) + rng.random()) / n)
 
 
-def residual(w: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+def _residual_draws(
+    w: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residual resampling's copies per particle, the fractional parts' cumulative sum and
+    the draws for the rest: kernels.ancestors(*these) are the ancestors."""
     from ngpm_runtime import kernels
 
     counts, cum, rest = kernels.residual_counts(np.ascontiguousarray(w, dtype=np.float64), n)
-    u = rng.random(rest) if rest > 0 else _NO_DRAWS
-    anc: np.ndarray = kernels.ancestors(counts, cum, u)
+    return counts, cum, rng.random(rest) if rest > 0 else _NO_DRAWS
+
+
+def residual(w: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    from ngpm_runtime import kernels
+
+    anc: np.ndarray = kernels.ancestors(*_residual_draws(w, n, rng))
     return anc
 
 
@@ -59,3 +68,18 @@ def resample(
 
     w = kernels.weights(np.ascontiguousarray(log_w, dtype=np.float64))
     return SCHEMES[scheme](w, len(log_w) if n is None else n, rng)
+
+
+def ancestor_counts(
+    scheme: str, log_w: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`resample`'s ancestors (n = len(log_w)) as kernels.ancestors' arguments, the same
+    draws from rng: the residual scheme's parts, another scheme's ancestors as copies per
+    particle (no fractional parts, no draws)."""
+    from ngpm_runtime import kernels
+
+    n = len(log_w)
+    if scheme == "residual":
+        w = kernels.weights(np.ascontiguousarray(log_w, dtype=np.float64))
+        return _residual_draws(w, n, rng)
+    return np.bincount(resample(scheme, log_w, rng), minlength=n), _NO_DRAWS, _NO_DRAWS
