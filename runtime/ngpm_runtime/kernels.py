@@ -448,6 +448,13 @@ def _unit(a: float) -> float:
 
 
 @jit
+def _memo_width(ctx: np.ndarray) -> int:
+    """feature_windows' memo columns: both groups of windows, and the context group when
+    there is a look-ahead (ctx)."""
+    return 2 * 9 * N_LEVELS + (ctx.shape[0] + 2 if ctx.shape[0] else 0)
+
+
+@jit
 def _windows_row(
     out: np.ndarray,
     u: float,
@@ -527,7 +534,7 @@ def feature_windows(
     numbers without the work (a new canvas needs memo_key reset to NaN). P == 0: none."""
     n = idx.shape[0]
     nw = 9 * N_LEVELS
-    n_ctx = ctx.shape[0] + 2 if ctx.shape[0] else 0
+    n_ctx = _memo_width(ctx) - 2 * nw
     for k in range(n):
         u = (turtle[k, 0] - view[0]) / view[2]
         v = (turtle[k, 1] - view[1]) / view[3]

@@ -16,7 +16,7 @@ from ngpm_runtime.geometry.compiled import GROW
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
 from ngpm_runtime.kernels import (
     LOG_2PI,
-    N_LEVELS,
+    _memo_width,
     _pairwise_sum,
     _prior_lp,
     add_weights,
@@ -1017,8 +1017,7 @@ def guided_derive(
     group = start_rounds(live, need, wait_ids, wait_n)
     served = np.full(group.shape[0], -1, dtype=np.int64)
     no_rows = np.zeros(0)
-    n_memo = 9 * N_LEVELS * 2 + (ctx.shape[0] + 2 if ctx.shape[0] else 0)
-    memo = np.empty((log_w.shape[0], n_memo), dtype=np.float32)
+    memo = np.empty((log_w.shape[0], _memo_width(ctx)), dtype=np.float32)
     memo_key = np.full((log_w.shape[0], 3), np.nan)  # the step's canvas: nothing kept yet
     while True:
         codes = np.zeros(group.shape[0], dtype=np.int64)
