@@ -76,15 +76,28 @@ def _outputs(args: argparse.Namespace, image: str) -> tuple[Path, Path | None]:
     return out, png
 
 
-def _program(program: Program | None, image: str) -> Program:
+def _program(program: Program | None, image: str, args: argparse.Namespace) -> Program:
     """The grammar to grow: the given 3D one, else the bundled vines3d."""
     from ngpm_runtime import bundled
 
     if program is None:
         return bundled.bundled_program3d()
     if program.dim != 3:
+        if Path(image).suffix.lower() in MESH_TARGETS:
+            why = f"{image} is a 3D target"
+        else:  # a picture made 3D by an option only 3D grows have
+            opt = (
+                "--extrude"
+                if args.extrude is not None
+                else "--revolve"
+                if args.revolve
+                else "--png"
+            )
+            why = f"{opt} makes a 3D grow"
+            if opt == "--png":
+                why += " (a 2D grow writes its picture with -o)"
         raise NgpmError(
-            f"{image} is a 3D target and {program.name} a 2D grammar: give a 3D grammar "
+            f"{why}, and {program.name} is a 2D grammar: give a 3D grammar "
             "(or none: the bundled vines3d)"
         )
     return program
@@ -115,7 +128,7 @@ def cmd_grow3d(args: argparse.Namespace, image: str | None, program: Program | N
     if args.likelihood != "shape":
         raise NgpmError("a 3D grammar grows with the shape likelihood only")
     out, png = _outputs(args, image)
-    program = _program(program, image)
+    program = _program(program, image, args)
     target = _target(args, image, program)
     guide = _grow_guide(args.guide, program, "shape")
     from ngpm_runtime.grow import grow

@@ -89,6 +89,25 @@ def test_bad_3d_grow_is_a_one_line_error(tmp_path: Path, capsys, args, message) 
     assert [line for line in err.splitlines() if message in line] == errors(err)
 
 
+@pytest.mark.parametrize(
+    ("flag", "message"),
+    [
+        (["--png", "out.png"], "--png makes a 3D grow (a 2D grow writes its picture with -o)"),
+        (["--revolve"], "--revolve makes a 3D grow"),
+    ],
+)
+def test_a_2d_grammar_with_a_3d_option_names_the_option(
+    tmp_path: Path, capsys, flag: list[str], message: str
+) -> None:
+    """A picture grown by a 2D grammar with --png was called "a 3D target"."""
+    pic = tmp_path / "shape.png"
+    Image.fromarray(np.full((20, 20), 255, np.uint8)).save(pic)
+    code, _, err = grow(capsys, str(pic), "--grammar", VINES, "--guide", "none", *flag)
+    assert code != 0 and "Traceback" not in err
+    (line,) = errors(err)
+    assert message in line and "is a 2D grammar" in line and "3D target" not in line
+
+
 def errors(err: str) -> list[str]:
     """The error lines (the first run may also note that it compiles the kernels)."""
     lines = [line for line in err.splitlines() if line.startswith("ngpmc: error: ")]
