@@ -393,6 +393,7 @@ def circuit_increment(
     filled: np.ndarray,
     box: np.ndarray,
     ll: np.ndarray,
+    pot: np.ndarray,
     image: np.ndarray,
     idx: np.ndarray,
     y0: np.ndarray,
@@ -403,7 +404,10 @@ def circuit_increment(
 ) -> np.ndarray:
     """CircuitLikelihood's update (image already drawn): the change of each canvas's Sobel
     sum over its window and a 1-pixel ring, its new pixel count, the grown box; state arrays
-    updated in place; returns new ll - old ll per batch row."""
+    updated in place: ll the log-likelihood (equation 2), pot the potential (equation 2
+    with a fill below TAU not counted against it: an unfinished vine can still fill);
+    returns new pot - old pot per batch row (CircuitLikelihood.settle adds ll - pot when a
+    particle finishes)."""
     n = idx.shape[0]
     h, w = image.shape[1], image.shape[2]
     ky, kx = new.shape[1], new.shape[2]
@@ -431,11 +435,15 @@ def circuit_increment(
         filled[p] += count
         _union(box[p], bbox[k])
         edge, fill = edge_sum[p] / npx, filled[p] / npx
+        bounds = _bounds(box[p], vp)
         x = edge * (1.0 - abs(fill - CIRCUIT_TAU) / CIRCUIT_TAU)
         z = (x - 1.0) / CIRCUIT_SIGMA
-        value = -0.5 * z * z - CIRCUIT_LOG_NORM + _bounds(box[p], vp)
-        delta[k] = value - ll[p]
-        ll[p] = value
+        ll[p] = -0.5 * z * z - CIRCUIT_LOG_NORM + bounds
+        x = edge * (1.0 - max(fill - CIRCUIT_TAU, 0.0) / CIRCUIT_TAU)
+        z = (x - 1.0) / CIRCUIT_SIGMA
+        value = -0.5 * z * z - CIRCUIT_LOG_NORM + bounds
+        delta[k] = value - pot[p]
+        pot[p] = value
     return delta
 
 

@@ -1080,6 +1080,7 @@ def observe_step(
     sim: np.ndarray,
     box: np.ndarray,
     ll: np.ndarray,
+    pot: np.ndarray,
     edge_sum: np.ndarray,
     filled: np.ndarray,
     gain: np.ndarray,
@@ -1095,10 +1096,10 @@ def observe_step(
     into the pool and the ended or capped particles marked (step_prims), drawn into the
     canvas (kernels.draw), the likelihood's increments (SHAPE: kernels.shape_increment on
     sim, box, ll with the target's gain; CIRCUIT: circuit_increment on edge_sum, filled,
-    box, ll; NaN -> -inf) and the blank image's value for `empty` (when has_blank) added to
-    log_w and log_lik; then the largest weight (NaN if any is), the live ones with zero
-    weight dead, the live ones into live. Returns (largest weight, live count, the step's
-    kind codes (int8) and parameters, prev, cols)."""
+    box, ll, pot, the potential's increments; NaN -> -inf) and the blank image's value for
+    `empty` (when has_blank) added to log_w and log_lik; then the largest weight (NaN if any
+    is), the live ones with zero weight dead, the live ones into live. Returns (largest
+    weight, live count, the step's kind codes (int8) and parameters, prev, cols)."""
     n = drawn.shape[0]
     codes, par, prev, cols = step_prims(
         drawn, prim, prim_par, sp, n_prims, cap, status, limit, head, prev, cols, top
@@ -1111,7 +1112,9 @@ def observe_step(
         if like == SHAPE:
             inc = shape_increment(sim, box, ll, drawn, hit_k, hit_pix, gain, bbox, vp)
         else:
-            inc = circuit_increment(edge_sum, filled, box, ll, image, drawn, y0, x0, new, bbox, vp)
+            inc = circuit_increment(
+                edge_sum, filled, box, ll, pot, image, drawn, y0, x0, new, bbox, vp
+            )
         for k in range(n):
             i = drawn[k]
             d = inc[k] if inc[k] == inc[k] else -np.inf

@@ -8,6 +8,7 @@ import numpy as np
 from ngpm_runtime.errors import TargetError
 from ngpm_runtime.image.raster import Canvas, DrawBatch, Viewport, as_viewport
 from ngpm_runtime.inference.likelihood import (
+    CIRCUIT_TAU,
     SHAPE_SIGMA,
     Likelihood,
     _blank_sim,
@@ -121,6 +122,7 @@ class CircuitLikelihood(Likelihood):
             "filled": np.zeros(n),
             "bbox": empty_bbox(n),
             "ll": np.zeros(n),
+            "pot": np.zeros(n),
         }
 
     def increment(
@@ -138,10 +140,15 @@ class CircuitLikelihood(Likelihood):
         filled = state["filled"][idx] + draw.new.sum(axis=(1, 2))
         bbox = union_bbox(state["bbox"][idx], draw.bbox)
         npx = float(h * w)
-        ll = _circuit_value(edge_sum / npx, filled / npx) + bounds_penalty(bbox, self.viewport)
-        delta: np.ndarray = ll - state["ll"][idx]
+        edge, fill = edge_sum / npx, filled / npx
+        bounds = bounds_penalty(bbox, self.viewport)
+        ll = _circuit_value(edge, fill) + bounds
+        # the potential: a fill below tau not counted against an unfinished vine
+        pot = _circuit_value(edge, np.maximum(fill, CIRCUIT_TAU)) + bounds
+        delta: np.ndarray = pot - state["pot"][idx]
         state["edge_sum"][idx] = edge_sum
         state["filled"][idx] = filled
         state["bbox"][idx] = bbox
         state["ll"][idx] = ll
+        state["pot"][idx] = pot
         return delta

@@ -553,6 +553,7 @@ class CompiledRun(_Run):
             state.get("sim", none),
             state["bbox"],
             state["ll"],
+            state.get("pot", none),
             state.get("edge_sum", none),
             state.get("filled", none),
             gain,
@@ -629,7 +630,10 @@ class CompiledRun(_Run):
         return anc
 
     def stop_live(self, reason: str) -> None:
+        live = list(self.rows.live)
         self.rows.stop_live(LIMITS.index(reason))
+        if self.settles:
+            self._settle(live)
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.rows

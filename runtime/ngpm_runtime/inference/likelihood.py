@@ -156,9 +156,15 @@ class Likelihood(Protocol):
     - `blank_loglik(height, width)`: log-likelihood of an empty drawing, charged to particles
       that end without drawing anything (increments only come with primitives); None
       (default) when it cannot say.
+    - `settles`: True when `increment` follows a potential (any positive function of an
+      unfinished drawing: SMC's intermediate targets) rather than the log-likelihood; then
+      `settle(state, idx)` gives, for particles that just finished, log-likelihood minus
+      potential so far (and makes them equal), which SMC adds to their weights: finished
+      particles carry the likelihood itself, so the weights stay exact.
     """
 
     needs_canvas: bool = True
+    settles: bool = False
 
     def start(self, n: int) -> dict[str, np.ndarray]: ...
 
@@ -167,6 +173,9 @@ class Likelihood(Protocol):
 
     def blank_loglik(self, height: int, width: int) -> float | None:
         return None
+
+    def settle(self, state: dict[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
+        return np.zeros(len(idx))
 
 
 def _kernels() -> Any:
@@ -235,9 +244,14 @@ class ShapeLikelihood(Likelihood):
 
 
 class CircuitLikelihood(Likelihood):
-    """The paper's equation 2: dense edges at about half fill (no target)."""
+    """The paper's equation 2: dense edges at about half fill (no target). An unfinished
+    vine is weighed by equation 2 with its fill below half not counted against it (it can
+    still grow to half): weighed by its fill, a vine that stopped early outweighed its
+    growing siblings (the guide's small halt probability) and resampling copied it into
+    every particle (experiments/notes/circuit_guide_retrain.md)."""
 
     needs_canvas = True
+    settles = True
 
     def __init__(self, viewport: Viewport) -> None:
         self.viewport = as_viewport(viewport)
@@ -250,6 +264,7 @@ class CircuitLikelihood(Likelihood):
             "filled": np.zeros(n),
             "bbox": empty_bbox(n),
             "ll": np.zeros(n),
+            "pot": np.zeros(n),
         }
 
     def increment(
@@ -260,6 +275,7 @@ class CircuitLikelihood(Likelihood):
             state["filled"],
             state["bbox"],
             state["ll"],
+            state["pot"],
             canvas.image,
             draw.idx,
             draw.y0,
@@ -272,6 +288,12 @@ class CircuitLikelihood(Likelihood):
 
     def full(self, image: np.ndarray, bbox: np.ndarray) -> float:
         return circuit_loglik(image, bbox, self.viewport)
+
+    def settle(self, state: dict[str, np.ndarray], idx: np.ndarray) -> np.ndarray:
+        ll, pot = state["ll"], state["pot"]
+        out: np.ndarray = ll[idx] - pot[idx]
+        pot[idx] = ll[idx]
+        return out
 
     def blank_loglik(self, height: int, width: int) -> float | None:
         return _blank_value(self.full, height, width)

@@ -288,6 +288,7 @@ class _Run:
         if isinstance(likelihood, NullLikelihood):
             likelihood = None  # nothing to compute, no canvas needed
         self.likelihood = likelihood
+        self.settles = bool(likelihood is not None and likelihood.settles)
         self.use_features = bool(self.proposal.uses_features)
         self._make_canvas(options)
         self.like_state = likelihood.start(n) if likelihood is not None else {}
@@ -390,6 +391,7 @@ class _Run:
         pop = self.pop
         self.steps += 1
         self.particle_steps += len(pop.live)
+        before = pop.live
         drawn, empty = self._derive()
         self._observe(drawn, empty)
         if self.observers:
@@ -409,6 +411,10 @@ class _Run:
                 f"({self.n} particles, program {self.program.name})"
             )
         self._update_live()
+        if self.settles and len(pop.live) < len(before):
+            now = set(pop.live)
+            if self._settle([i for i in before if i not in now]):
+                top = None  # weights changed
         if ess_threshold is not None and 0 < len(pop.live) < self.n:
             if pop.roulette(self._roulette_rng):
                 top = None  # weights changed
@@ -798,11 +804,29 @@ class _Run:
             self.canvas.take(anc)
         return anc
 
+    def _settle(self, finished: list[int]) -> bool:
+        """Particles that finished (were live, are not) weighed by the likelihood itself
+        rather than its potential (Likelihood.settle); whether a weight changed."""
+        if not finished:
+            return False
+        pop = self.pop
+        assert self.likelihood is not None
+        idx = np.asarray(finished, dtype=np.intp)
+        c = np.asarray(self.likelihood.settle(self.like_state, idx), dtype=np.float64)
+        c = np.where(np.isnan(c), -np.inf, c)
+        c = np.where(np.isfinite(pop.log_w[idx]), c, 0.0)  # zero weights stay zero
+        pop.log_w[idx] += c
+        pop.log_lik[idx] += c
+        return bool(c.any())
+
     def stop_live(self, reason: str) -> None:
         """The live particles stop with status "limit" and this reason ("max steps")."""
-        for i in self.pop.live:
+        live = list(self.pop.live)
+        for i in live:
             self.pop.parts[i].status = "limit"
             self.pop.parts[i].limit = reason
+        if self.settles:
+            self._settle(live)
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.pop

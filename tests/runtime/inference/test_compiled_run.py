@@ -11,8 +11,10 @@ from fixtures.tiny_programs import SumXLikelihood
 from ngpm_runtime.bundled import bundled_guide, bundled_program, demo_targets
 from ngpm_runtime.errors import ProgramError
 from ngpm_runtime.geometry.compiled import compiled_deriver
+from ngpm_runtime.geometry.turtle import prim_bbox
+from ngpm_runtime.image.raster import rasterize
 from ngpm_runtime.inference import smc as smc_module
-from ngpm_runtime.inference.likelihood import ShapeLikelihood
+from ngpm_runtime.inference.likelihood import ShapeLikelihood, circuit_loglik
 from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 from repo_paths import REPO
 
@@ -151,6 +153,15 @@ def test_circuit_runs_equal_python(monkeypatch) -> None:
         )
         assert a.steps > 20
         assert_same(a, b)
+        # every particle finished and carries equation 2 itself, not the potential
+        vp, size = program.viewport, target.size
+        for p in a.particles:
+            assert p.status == "done"
+            image = rasterize(list(p.primitives), vp, *size)
+            boxes = np.array([prim_bbox(q) for q in p.primitives])
+            bbox = np.concatenate([boxes[:, :2].min(axis=0), boxes[:, 2:].max(axis=0)])
+            want = circuit_loglik(image, bbox, vp)
+            assert p.log_likelihood == pytest.approx(want, rel=1e-9, abs=1e-6)
 
 
 def test_guided_vines_runs_equal_python(monkeypatch) -> None:

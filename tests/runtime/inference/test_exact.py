@@ -9,6 +9,7 @@ import pytest
 from fixtures.exact import check, enumerate_program, exact, gauss_exact, pooled, tv
 from fixtures.tiny_programs import (
     EndPointLikelihood,
+    PotentialSumXLikelihood,
     SumXLikelihood,
     branch_program,
     discrete_program,
@@ -71,6 +72,34 @@ def test_exact_check_detects_ignored_proposal_weights() -> None:
     ):
         want_post, want_log_z = exact(prog, like)
         post, log_z = pooled(prog, like, Unweighted(q.params), "residual", None)
+        assert not check(post, log_z, want_post, want_log_z, 0.08)
+
+
+@pytest.mark.parametrize(("scheme", "ess", "prop"), CASES[3:])
+def test_a_potential_that_settles_keeps_posterior_and_evidence_exact(scheme, ess, prop) -> None:
+    """Weights that follow a potential while particles derive (an intermediate target far
+    from the likelihood) and the likelihood itself once they finish (Likelihood.settle) are
+    exact: on a grammar whose particles finish at different steps (branch_program's halt)
+    and one where all finish together."""
+    for prog, goal, q, tol in (
+        (branch_program(), 2.5, BRANCH_Q, 0.08),
+        (discrete_program(), 2.0, DISCRETE_Q, 0.06),
+    ):
+        like = PotentialSumXLikelihood(goal=goal, scale=1.0)
+        want_post, want_log_z = exact(prog, like)
+        post, log_z = pooled(prog, like, q if prop else None, scheme, ess, seed=30)
+        assert check(post, log_z, want_post, want_log_z, tol), (
+            tv(post, want_post),
+            log_z,
+            want_log_z,
+        )
+
+
+def test_exact_check_detects_a_potential_never_settled() -> None:
+    for prog, goal in ((branch_program(), 2.5), (discrete_program(), 2.0)):
+        like = PotentialSumXLikelihood(goal=goal, scale=1.0, settles=False)
+        want_post, want_log_z = exact(prog, like)
+        post, log_z = pooled(prog, like, None, "residual", None, seed=30)
         assert not check(post, log_z, want_post, want_log_z, 0.08)
 
 

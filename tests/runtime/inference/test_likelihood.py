@@ -156,6 +156,10 @@ def test_increments_telescope_to_full_value(kind: str) -> None:
             canvas.take(perm)
             state = {k: v[perm] for k, v in state.items()}
             total, boxes = total[perm], boxes[perm]
+    # the circuit's increments follow its potential; settling adds the rest, once
+    total += lik.settle(state, np.arange(n))
+    assert not lik.settle(state, np.arange(n)).any()
+    assert lik.settles == (kind == "circuit")
     for i in range(n):
         if not np.isfinite(boxes[i]).all():
             continue
