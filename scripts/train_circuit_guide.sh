@@ -3,9 +3,10 @@
 # the vines grammar under the paper's circuit likelihood (equation 2; no target: every run
 # grows into a blank 50 x 50 canvas from the bottom middle, heading up), in one command:
 # `ngpmc learn --likelihood circuit` with a 75-minute budget. The shipped guide is what this
-# made on the idle 2-core machine (70.3 min): round 0 from 1554 unguided traces (600
-# particles), four guided rounds of 1401 traces (200 particles); round 1 validated best
-# (0.641 at N = 10, equal settings) and was tuned to T = 1, Tc = 0.7, ESS 0.5 (0.656).
+# made on the 2-core machine (2026-11-29, under the circuit potential; 67.3 min): round 0
+# from 1305 unguided traces (600 particles), four guided rounds of 661 traces (200
+# particles); round 2 validated best (0.724 at N = 10, equal settings) and was tuned to
+# T = 1, Tc = 0.7, ESS 0.5 (0.728).
 # Its report: docs/results/learn_circuit.md. The plan fits the budget to the measured speed
 # of the machine, so a busier machine records fewer traces per round.
 # Usage: bash scripts/train_circuit_guide.sh [WORKDIR]   (resumes a stopped run in WORKDIR)

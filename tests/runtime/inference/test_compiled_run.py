@@ -153,10 +153,12 @@ def test_circuit_runs_equal_python(monkeypatch) -> None:
         )
         assert a.steps > 20
         assert_same(a, b)
-        # every particle finished and carries equation 2 itself, not the potential
+        # every finished particle carries equation 2 itself, not the potential (a dead
+        # one, weight zero, is left as it was)
         vp, size = program.viewport, target.size
-        for p in a.particles:
-            assert p.status == "done"
+        done = [p for p in a.particles if p.status == "done"]
+        assert len(done) > n // 2 and all(p.status in ("done", "dead") for p in a.particles)
+        for p in done:
             image = rasterize(list(p.primitives), vp, *size)
             boxes = np.array([prim_bbox(q) for q in p.primitives])
             bbox = np.concatenate([boxes[:, :2].min(axis=0), boxes[:, 2:].max(axis=0)])
