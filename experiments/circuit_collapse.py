@@ -44,11 +44,6 @@ _resample = runmod._Run._resample
 _result = runmod._Run.result
 
 
-def _lse(a: np.ndarray) -> float:
-    m = float(a.max())
-    return m + math.log(float(np.exp(a - m).sum()))
-
-
 def aside(self: Any, lse: float) -> None:
     pop, n = self.pop, self.n
     live = np.asarray(pop.live, dtype=np.intp)
@@ -58,7 +53,7 @@ def aside(self: Any, lse: float) -> None:
     anc = np.arange(n)
     anc[live] = live[draw_ancestors(self.resample, lw, self.rng)]
     new_w = pop.log_w.copy()
-    new_w[live] = _lse(lw) - math.log(len(live))
+    new_w[live] = runmod._logsumexp(lw) - math.log(len(live))
     self.log_z += lse - math.log(n)
     pop.take(anc)
     pop.log_w = new_w - (lse - math.log(n))

@@ -85,17 +85,12 @@ def _program(program: Program | None, image: str, args: argparse.Namespace) -> P
     if program.dim != 3:
         if Path(image).suffix.lower() in MESH_TARGETS:
             why = f"{image} is a 3D target"
-        else:  # a picture made 3D by an option only 3D grows have
-            opt = (
-                "--extrude"
-                if args.extrude is not None
-                else "--revolve"
-                if args.revolve
-                else "--png"
-            )
-            why = f"{opt} makes a 3D grow"
-            if opt == "--png":
-                why += " (a 2D grow writes its picture with -o)"
+        elif args.extrude is not None:  # a picture made 3D by an option only 3D grows have
+            why = "--extrude makes a 3D grow"
+        elif args.revolve:
+            why = "--revolve makes a 3D grow"
+        else:
+            why = "--png makes a 3D grow (a 2D grow writes its picture with -o)"
         raise NgpmError(
             f"{why}, and {program.name} is a 2D grammar: give a 3D grammar "
             "(or none: the bundled vines3d)"

@@ -629,11 +629,8 @@ class CompiledRun(_Run):
         take_arrays(self.like_state, anc)
         return anc
 
-    def stop_live(self, reason: str) -> None:
-        live = list(self.rows.live)
+    def _limit_live(self, reason: str) -> None:
         self.rows.stop_live(LIMITS.index(reason))
-        if self.settles:
-            self._settle(live)
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.rows

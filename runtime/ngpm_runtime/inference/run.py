@@ -820,13 +820,18 @@ class _Run:
         return bool(c.any())
 
     def stop_live(self, reason: str) -> None:
-        """The live particles stop with status "limit" and this reason ("max steps")."""
+        """The live particles stop with status "limit" and this reason ("max steps"),
+        weighed by the likelihood itself (_settle)."""
         live = list(self.pop.live)
-        for i in live:
-            self.pop.parts[i].status = "limit"
-            self.pop.parts[i].limit = reason
+        self._limit_live(reason)
         if self.settles:
             self._settle(live)
+
+    def _limit_live(self, reason: str) -> None:
+        """The live particles' status "limit", with this reason."""
+        for i in self.pop.live:
+            self.pop.parts[i].status = "limit"
+            self.pop.parts[i].limit = reason
 
     def result(self, seconds: float) -> SMCResult:
         pop = self.pop
