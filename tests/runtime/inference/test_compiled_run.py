@@ -166,6 +166,34 @@ def test_circuit_runs_equal_python(monkeypatch) -> None:
             assert p.log_likelihood == pytest.approx(want, rel=1e-9, abs=1e-6)
 
 
+def test_circuit_particles_stopped_at_max_steps_carry_equation_2(monkeypatch) -> None:
+    """Particles stopped by max_steps settle too: equation 2 from scratch, not the
+    potential, on both derivers."""
+    from ngpm_runtime.grow import circuit_target
+    from ngpm_runtime.inference.likelihood import CircuitLikelihood
+
+    program, target = bundled_program(), circuit_target()
+    vp = program.viewport
+    a, b = both(
+        monkeypatch,
+        program,
+        CircuitLikelihood(vp),
+        30,
+        None,
+        seed=1,
+        max_steps=20,
+        start=target.start_pose(vp),
+        canvas_size=target.size,
+    )
+    assert_same(a, b)
+    for p in a.particles:
+        assert p.status == "limit"
+        image = rasterize(list(p.primitives), vp, *target.size)
+        boxes = np.array([prim_bbox(q) for q in p.primitives])
+        bbox = np.concatenate([boxes[:, :2].min(axis=0), boxes[:, 2:].max(axis=0)])
+        assert p.log_likelihood == pytest.approx(circuit_loglik(image, bbox, vp), rel=1e-9)
+
+
 def test_guided_vines_runs_equal_python(monkeypatch) -> None:
     """Guided rounds (the bundled guide: kernels.serve_round) on the compiled deriver."""
     program = bundled_program()
