@@ -23,6 +23,7 @@ from ngpm_compiler.language.nodes import (
     Node,
     Num,
     Rule,
+    Successor,
     Unary,
     Var,
     walk,
@@ -358,7 +359,11 @@ class Checker:
     def headers(self) -> None:
         h = self.g.headers
         values: dict[str, list[float]] = {}
+        self.lazy = False
         for kind, header in h.items():
+            if kind == "turtle arguments":
+                self.lazy = self.laziness(header.values[0])
+                continue
             for v in header.values:
                 self.check_expr(v, {}, f"'{kind}:'", random_ok=False)
             values[kind] = [self.evaluate(v, f"'{kind}:'") for v in header.values]
@@ -396,6 +401,14 @@ class Checker:
         self.max_modules = (
             self.integer(values, "max modules", 1, 0) if "max modules" in values else None
         )
+
+    def laziness(self, value: Expr) -> bool:
+        """'turtle arguments: lazy' (True) or 'eager' (False, the default)."""
+        word = value.name.lower() if isinstance(value, Var) else ""
+        if word not in ("lazy", "eager"):
+            shown = value.name if isinstance(value, Var) else "a number"
+            raise self.err(f"'turtle arguments:' is lazy or eager, got {shown}", value)
+        return word == "lazy"
 
     def integer(self, values: dict[str, list[float]], kind: str, least: int, default: int) -> int:
         """A whole-number header's value, at least `least` and at most its ceiling."""
@@ -618,6 +631,77 @@ class Checker:
                             )
                         )
 
+    # ---- lazy turtle arguments -------------------------------------------------------------
+
+    def defer(
+        self, axiom: list[Resolved], sets: list[dict[str, RuleSet]], known: set[str]
+    ) -> list[Resolved]:
+        """'turtle arguments: lazy': a turtle symbol with a random argument after anything but
+        `[` in its successor becomes a module of its own (`_lateK`, the enclosing rule's parameters
+        passed on) whose interpretation rule is the symbol, so its sites are sampled when the
+        turtle reaches it, where a guide sees the turtle and what was drawn before. The
+        distribution of samples is the same; each site keeps its id and number. Symbols a
+        production rewrites (F, f) stay. Returns the axiom; adds the rules to the
+        interpretation set (sets[1])."""
+        productions, interpretation = sets
+        taken = set(known) | set(self.arity) | set(productions) | set(interpretation)
+        made: list[RuleSet] = []
+
+        def new_name() -> str:
+            name = f"_late{len(made) + 1}"
+            while name in taken:
+                name += "_"
+            taken.add(name)
+            return name
+
+        def late(mods: list[Resolved], rule: Rule | None, py: list[str]) -> list[Resolved]:
+            out: list[Resolved] = []
+            for m in mods:
+                if all(o.name == "[" for o in out):  # the turtle is where the rule fired
+                    out.append(m)
+                    continue
+                random = any(
+                    isinstance(n, Call) and n.name in RANDOM_CALLS for a in m.args for n in walk(a)
+                )
+                if m.name not in TURTLE or m.name in productions or not random:
+                    out.append(m)
+                    continue
+                params = list(rule.params) if rule is not None else []
+                name = new_name()
+                where = f"{m.use.line}:{m.use.col}"
+                text = f"{m.use.name} at line {where}, sampled where the turtle reaches it"
+                syn = Rule(
+                    m.use.line,
+                    m.use.col,
+                    name,
+                    params,
+                    [(m.use.line, m.use.col)] * len(params),
+                    None,
+                    "",
+                    Successor(m.use.line, m.use.col, [m.use], text),
+                    None,
+                    "interpretation",
+                    text,
+                    m.use.line,
+                )
+                rs = RuleSet(name, "interpretation", len(params), py[: len(params)])
+                rs.groups.append(Group(f"interp:{name}", None, syn, [Alt(syn, [m], None)]))
+                made.append(rs)
+                self.arity[name] = len(params)
+                args: list[Expr] = [Var(m.use.line, m.use.col, p) for p in params]
+                out.append(Resolved(name, args, ModuleUse(m.use.line, m.use.col, name, args)))
+            return out
+
+        for section in sets:
+            for rs in list(section.values()):
+                for group in rs.groups:
+                    for alt in group.alts:
+                        alt.modules = late(alt.modules, alt.rule, rs.params)
+        axiom = late(axiom, None, [])
+        for rs in made:
+            interpretation[rs.pred] = rs
+        return axiom
+
     # ---- dimension -------------------------------------------------------------------------
 
     def dimension(self, axiom: list[Resolved], sets: list[dict[str, RuleSet]]) -> int:
@@ -678,6 +762,8 @@ class Checker:
         self.check_groups(interpretation)
         self.check_recursion(productions)
         self.collect_sites(axiom, [productions, interpretation])
+        if self.lazy:
+            axiom = self.defer(axiom, [productions, interpretation], known)
         dim = self.dimension(axiom, [productions, interpretation])
         box = self.viewport if dim == 3 else None
         vp = self.viewport

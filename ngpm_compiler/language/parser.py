@@ -73,6 +73,7 @@ TERMINAL_NAMES = {
     "MAX_MODULES": "'max modules:'",
     "TROPISM": "'tropism:'",
     "DIMENSIONS": "'dimensions:'",
+    "TURTLE_ARGUMENTS": "'turtle arguments:'",
     "AMPERSAND": "'&'",
     "CIRCUMFLEX": "'^'",
     "BACKSLASH": "'\\'",
@@ -83,6 +84,7 @@ TERMINAL_NAMES = {
 # Terminals of the 3D language and its headers, left out of a syntax error's list of what
 # was expected, so the messages read as they did before 3D (lists are cut at six anyway).
 UNLISTED = {
+    "TURTLE_ARGUMENTS",
     "TROPISM",
     "DIMENSIONS",
     "AMPERSAND",
@@ -111,6 +113,7 @@ HEADER_KINDS = {
     "max_modules": "max modules",
     "tropism": "tropism",
     "dimensions": "dimensions",
+    "turtle_arguments": "turtle arguments",
 }
 
 
@@ -243,7 +246,7 @@ class Builder:
 
     stmt_derivation_length = stmt_viewport = stmt_angle = _header
     stmt_start_pose = stmt_max_primitives = stmt_max_modules = _header
-    stmt_tropism = stmt_dimensions = _header
+    stmt_tropism = stmt_dimensions = stmt_turtle_arguments = _header
 
     def stmt_rule(self, g: Grammar, t: Tree[Token]) -> None:
         kids = t.children
@@ -316,7 +319,9 @@ class Builder:
                 col,
             )
         if isinstance(t, Token):  # a lone token (only NUMBER / NAME reach here)
-            return self.expr(Tree("number" if t.type == "NUMBER" else "var", [t]), depth)
+            if t.type == "NAME":
+                return Var(line, col, str(t))
+            return self.expr(Tree("number", [t]), depth)
         kind, kids = t.data, t.children
 
         def sub(node: Tree[Token] | Token) -> Expr:

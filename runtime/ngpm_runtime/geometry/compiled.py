@@ -263,7 +263,8 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
             depth = int(row[1])
             n_par = int(row[2])
             code = TCODE[sym]
-            if PRODUCES[sym] != 0 and depth < dlen:
+            kind = PRODUCES[sym]
+            if kind == 1 and depth < dlen or kind == 2:
                 if h - 1 + MAX_SUCC > n_stack:
                     resume[p, 0] = ops - 1
                     resume[p, 1] = 1 if drew else 0
@@ -287,7 +288,7 @@ def advance(ids, stack, sp, turt, tst, tsp, vals, nv, need, prim, prim_par, n_pr
                         dst = st[h]
                         src = out[j]
                         dst[0] = src[0]
-                        dst[1] = depth + 1
+                        dst[1] = depth + 1 if kind == 1 else dlen  # 2: interpreted only
                         m = int(src[2])
                         dst[2] = m
                         for c in range(m):

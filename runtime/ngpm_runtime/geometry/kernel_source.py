@@ -8,7 +8,10 @@ argument count, prior arguments) and returns NEED: the replay protocol of derive
 the same order (a random call's arguments are evaluated before it, left to right).
 `compiled.py` adds the generic derivation loop (the template there) and compiles the text.
 
-What it cannot write (a 2D grammar with interpretation rules or polygons, a 3D grammar, a
+An interpretation rule whose successors are one turtle symbol each (the `_lateK` rules of
+`turtle arguments: lazy`) is written as a production that applies at any depth and whose
+successor is never expanded (pushed at the derivation length): what derive.py does with it.
+What it cannot write (a 2D grammar with other interpretation rules or polygons, a 3D grammar, a
 random call that a short-circuit might skip, code of another shape) raises Unsupported:
 the Python deriver then runs the grammar, as it runs every grammar in the tests' reference.
 """
@@ -16,6 +19,7 @@ the Python deriver then runs the grammar, as it runs every grammar in the tests'
 from __future__ import annotations
 
 import ast
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 from ngpm_runtime.inference.sitekinds import KINDS
@@ -74,6 +78,7 @@ class KernelInfo:
     width: int = 3  # a stack row: symbol, depth, parameter count, parameters
     max_succ: int = 1  # the longest successor
     max_args: int = 1  # the most prior arguments of a random call
+    late: set[str] = field(default_factory=set)  # interpretation rules run as productions
 
 
 def kernel_source(program: Program) -> tuple[str, KernelInfo]:
@@ -81,8 +86,6 @@ def kernel_source(program: Program) -> tuple[str, KernelInfo]:
     `PRODUCES`, `TCODE`) and what the loop needs of it; Unsupported when it cannot."""
     if program.dim != 2:
         raise Unsupported("a 3D grammar")
-    if program.interpretation:
-        raise Unsupported("interpretation rules")
     code = program.code
     if not code:
         raise Unsupported("no generated source")
@@ -101,6 +104,12 @@ def kernel_source(program: Program) -> tuple[str, KernelInfo]:
     prods = {"<axiom>": "axiom"}
     for name, fn in program.productions.items():
         prods[name] = fn.__name__
+    for name, fn in program.interpretation.items():
+        fdef = funcs.get(fn.__name__)
+        if name in prods or fdef is None or not _one_symbol(fdef, program.interpretation):
+            raise Unsupported("interpretation rules")
+        prods[name] = fn.__name__
+        info.late.add(name)
     writer = _Writer(info, consts)
     lines = ["# constants of the grammar"]
     lines += [f"c_{k} = {v}" for k, v in consts.items()]
@@ -143,12 +152,36 @@ def _is_number(node: ast.expr) -> bool:
     return False
 
 
+def _one_symbol(fdef: ast.FunctionDef, interpretation: Collection[str]) -> bool:
+    """Every successor the rule returns is one turtle symbol the kernel draws, itself without
+    an interpretation rule (then interpreting the rule's module is expanding it once)."""
+    for node in ast.walk(fdef):
+        if isinstance(node, ast.Return) and node.value is not None:
+            v = node.value
+            if isinstance(v, ast.Constant) and v.value is None:
+                continue
+            if not (isinstance(v, ast.List) and len(v.elts) == 1):
+                return False
+            head = v.elts[0]
+            if not (
+                isinstance(head, ast.Tuple)
+                and head.elts
+                and isinstance(head.elts[0], ast.Constant)
+                and head.elts[0].value in TURTLE_CODES
+                and head.elts[0].value not in interpretation
+            ):
+                return False
+    return True
+
+
 def _tables(prods: dict[str, str], info: KernelInfo) -> str:
+    """PRODUCES per symbol: 0 none, 1 a production, 2 an interpretation rule run as one
+    (at any depth, its successor pushed at the derivation length); TCODE its turtle code."""
     n = len(info.symbols)
     produces = [0] * n
     tcode = [IGNORE] * n
     for name, sym in info.symbols.items():
-        produces[sym] = 1 if name in prods else 0
+        produces[sym] = (2 if name in info.late else 1) if name in prods else 0
         if name in TURTLE_CODES:
             tcode[sym] = TURTLE_CODES[name]
         elif name == "%":

@@ -226,6 +226,41 @@ def test_shipped_grammars_equal_python(monkeypatch, name: str) -> None:
     assert_same(a, b)
 
 
+def test_lazy_turtle_arguments_equal_python(monkeypatch, tmp_path: Path) -> None:
+    """`turtle arguments: lazy` (sites sampled in generated one-symbol interpretation rules,
+    which the kernel runs as productions at any depth): the same runs, features and all."""
+    from ngpm_runtime.inference.smc import replay
+
+    text = (REPO / "grammars" / "canopy.lsys").read_text(encoding="utf-8")
+    program = grammar(tmp_path, text.replace("Axiom:", "turtle arguments: lazy\nAxiom:", 1))
+    assert sum(k.startswith("_late") for k in program.interpretation) == 6
+    mask = disk_mask()
+    like = ShapeLikelihood(mask, program.viewport)
+    for seed in range(3):
+        a, b = both(
+            monkeypatch,
+            program,
+            like,
+            24,
+            seed=seed,
+            canvas_size=mask.shape,
+            target_mask=mask,
+            trace=TraceRecording.VALUES,
+            ess_threshold=0.5,
+        )
+        assert_same(a, b)
+    opts = dict(seed=5, canvas_size=mask.shape, target_mask=mask, trace=TraceRecording.FULL)
+    a, b = both(monkeypatch, program, like, 12, **opts)
+    same_traces(a.best.trace, b.best.trace)
+    values = [(s, v) for s, _, v in a.best.trace]
+    out = []
+    for use in (True, False):
+        monkeypatch.setattr(smc_module, "USE_COMPILED", use)
+        out.append(replay(program, values, canvas_size=mask.shape, target_mask=mask))
+    same_traces(out[0].trace, out[1].trace)
+    assert out[0].primitives == a.best.primitives
+
+
 def test_features_equal_python(monkeypatch, tmp_path: Path) -> None:
     program = grammar(tmp_path, FEATURES)
     mask = disk_mask()
@@ -321,10 +356,11 @@ def test_errors_are_the_python_derivers(monkeypatch, tmp_path: Path, rule: str, 
 
 
 def test_what_the_kernel_does_not_run(tmp_path: Path) -> None:
-    """Interpretation rules, polygons and 3D grammars stay with the Python deriver."""
+    """Interpretation rules (but those of one turtle symbol), polygons and 3D grammars stay
+    with the Python deriver."""
     interp = grammar(
         tmp_path,
-        "Axiom: A\nproduction:\nA --> L F\ninterpretation:\nL --> ~l(1, 1)\n",
+        "Axiom: A\nproduction:\nA --> L F\ninterpretation:\nL --> [ ~l(1, 1) ]\n",
         "i.lsys",
     )
     poly = grammar(tmp_path, "Axiom: A\nproduction:\nA --> { . f + . f + . }\n", "p.lsys")
