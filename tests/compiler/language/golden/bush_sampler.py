@@ -14,27 +14,30 @@ FORK = 30.0
 
 SITES = [
     Site(index=0, id="A(l>=MINLEN)/choice", kind="categorical", name="choice of A", module="A",
-         arity=2, k=2, probs=(0.6, 0.4), line=23, col=1,
+         arity=2, k=2, probs=(0.6, 0.4), line=25, col=1,
          source="A(l, w) : l >= MINLEN --> !(w) F(l) [ +(gauss(FORK, 8)) A(l * SHRINK ..."),
     Site(index=1, id="A(l>=MINLEN)/0/normal0", kind="normal", name="gauss(FORK, 8) in A",
-         module="A", arity=2, line=23, col=41, source="gauss(FORK, 8)"),
+         module="A", arity=2, line=25, col=41, source="gauss(FORK, 8)"),
     Site(index=2, id="A(l>=MINLEN)/0/normal1", kind="normal", name="gauss(FORK, 8) in A",
-         module="A", arity=2, line=23, col=89, source="gauss(FORK, 8)"),
+         module="A", arity=2, line=25, col=89, source="gauss(FORK, 8)"),
     Site(index=3, id="A(l>=MINLEN)/1/normal0", kind="normal", name="gauss(0, 10) in A", module="A",
-         arity=2, line=24, col=39, source="gauss(0, 10)"),
+         arity=2, line=26, col=39, source="gauss(0, 10)"),
     Site(index=4, id="interp:L/0/uniform0", kind="uniform", name="uniform(-40, 40) in L",
-         module="L", arity=0, line=29, col=11, source="uniform(-40, 40)"),
+         module="L", arity=0, line=31, col=11, source="uniform(-40, 40)"),
 ]
 
 LOCATIONS = {
-    "axiom": (19, 8),
-    "production A": (23, 1),
-    "interpretation L": (29, 1),
+    "axiom": (21, 8),
+    "production A": (25, 1),
+    "interpretation L": (31, 1),
+    "interpretation _late1": (25, 39),
+    "interpretation _late2": (25, 87),
+    "interpretation _late3": (26, 37),
 }
 
 
 def axiom(ctx):
-    """Axiom: A(LEN, W0)   (bush.lsys:19)"""
+    """Axiom: A(LEN, W0)   (bush.lsys:21)"""
     return [("A", LEN, W0)]
 
 
@@ -43,7 +46,7 @@ def produce_A(ctx, p_l, w):
         -(gauss(FORK, 8)) A(l * SHRINK, w * WDECAY) ] : 0.6
         | !(w) F(l) +(gauss(0, 10)) A(l * SHRINK, w * WDECAY) : 0.4
     A(l, w) --> L
-    (bush.lsys:23-25)
+    (bush.lsys:25-27)
     """
     if p_l >= MINLEN:
         alt = ctx.choose(0, (0.6, 0.4))
@@ -52,32 +55,42 @@ def produce_A(ctx, p_l, w):
                 ("!", w),
                 ("F", p_l),
                 ("[",),
-                ("+", ctx.normal(1, FORK, 8.0)),
+                ("_late1", p_l, w),
                 ("A", p_l * SHRINK, w * WDECAY),
                 ("]",),
                 ("[",),
-                ("-", ctx.normal(2, FORK, 8.0)),
+                ("_late2", p_l, w),
                 ("A", p_l * SHRINK, w * WDECAY),
                 ("]",),
             ]
-        return [
-            ("!", w),
-            ("F", p_l),
-            ("+", ctx.normal(3, 0.0, 10.0)),
-            ("A", p_l * SHRINK, w * WDECAY),
-        ]
+        return [("!", w), ("F", p_l), ("_late3", p_l, w), ("A", p_l * SHRINK, w * WDECAY)]
     return [("L",)]
 
 
 def interpret_L(ctx):
-    """L --> [ +(uniform(-40, 40)) ~l(1.2, 0.5) ]   (bush.lsys:29)"""
+    """L --> [ +(uniform(-40, 40)) ~l(1.2, 0.5) ]   (bush.lsys:31)"""
     return [("[",), ("+", ctx.uniform(4, -40.0, 40.0)), ("~l", 1.2, 0.5), ("]",)]
+
+
+def interpret__late1(ctx, p_l, w):
+    """+ at line 25:39, sampled where the turtle reaches it   (bush.lsys:25)"""
+    return [("+", ctx.normal(1, FORK, 8.0))]
+
+
+def interpret__late2(ctx, p_l, w):
+    """- at line 25:87, sampled where the turtle reaches it   (bush.lsys:25)"""
+    return [("-", ctx.normal(2, FORK, 8.0))]
+
+
+def interpret__late3(ctx, p_l, w):
+    """+ at line 26:37, sampled where the turtle reaches it   (bush.lsys:26)"""
+    return [("+", ctx.normal(3, 0.0, 10.0))]
 
 
 PROGRAM = Program(
     name="bush",
     source="grammars/bush.lsys",
-    grammar_hash="sha256:86843dcf3f258194b3c1f9799458c51167a263cc469b26483c855ee6f5f920c9",
+    grammar_hash="sha256:b10735c19eccc302b6717410498947cd6f32d71dd1a7a0f62c56c4eabcc80c01",
     sites=SITES,
     axiom=axiom,
     productions={
@@ -85,10 +98,16 @@ PROGRAM = Program(
     },
     interpretation={
         "L": interpret_L,
+        "_late1": interpret__late1,
+        "_late2": interpret__late2,
+        "_late3": interpret__late3,
     },
     arity={
         "A": 2,
         "L": 0,
+        "_late1": 2,
+        "_late2": 2,
+        "_late3": 2,
     },
     derivation_length=12,
     angle=90.0,

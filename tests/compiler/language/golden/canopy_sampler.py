@@ -10,30 +10,36 @@ W0 = 0.45
 
 SITES = [
     Site(index=0, id="X(d>0)/choice", kind="categorical", name="choice of X", module="X", arity=2,
-         k=2, probs=(0.6, 0.4), line=16, col=1,
+         k=2, probs=(0.6, 0.4), line=18, col=1,
          source="X(d, w) : d > 0 --> !(w) F(uniform(0.7, 1.3) * d / 3) [ +(gauss(50, ..."),
     Site(index=1, id="X(d>0)/0/uniform0", kind="uniform", name="uniform(0.7, 1.3) in X", module="X",
-         arity=2, line=16, col=28, source="uniform(0.7, 1.3)"),
+         arity=2, line=18, col=28, source="uniform(0.7, 1.3)"),
     Site(index=2, id="X(d>0)/0/normal0", kind="normal", name="gauss(50, 10) in X", module="X",
-         arity=2, line=16, col=59, source="gauss(50, 10)"),
+         arity=2, line=18, col=59, source="gauss(50, 10)"),
     Site(index=3, id="X(d>0)/0/normal1", kind="normal", name="gauss(50, 10) in X", module="X",
-         arity=2, line=16, col=99, source="gauss(50, 10)"),
+         arity=2, line=18, col=99, source="gauss(50, 10)"),
     Site(index=4, id="X(d>0)/0/normal2", kind="normal", name="gauss(0, 8) in X", module="X",
-         arity=2, line=16, col=137, source="gauss(0, 8)"),
+         arity=2, line=18, col=137, source="gauss(0, 8)"),
     Site(index=5, id="X(d>0)/1/uniform0", kind="uniform", name="uniform(0.7, 1.3) in X", module="X",
-         arity=2, line=17, col=28, source="uniform(0.7, 1.3)"),
+         arity=2, line=19, col=28, source="uniform(0.7, 1.3)"),
     Site(index=6, id="X(d>0)/1/normal0", kind="normal", name="gauss(0, 8) in X", module="X",
-         arity=2, line=17, col=57, source="gauss(0, 8)"),
+         arity=2, line=19, col=57, source="gauss(0, 8)"),
 ]
 
 LOCATIONS = {
-    "axiom": (12, 8),
-    "production X": (16, 1),
+    "axiom": (14, 8),
+    "production X": (18, 1),
+    "interpretation _late1": (18, 26),
+    "interpretation _late2": (18, 57),
+    "interpretation _late3": (18, 97),
+    "interpretation _late4": (18, 135),
+    "interpretation _late5": (19, 26),
+    "interpretation _late6": (19, 55),
 }
 
 
 def axiom(ctx):
-    """Axiom: X(DEPTH, W0)   (canopy.lsys:12)"""
+    """Axiom: X(DEPTH, W0)   (canopy.lsys:14)"""
     return [("X", DEPTH, W0)]
 
 
@@ -42,46 +48,84 @@ def produce_X(ctx, d, w):
         [ -(gauss(50, 10)) X(d - 1, w * 0.65) ] +(gauss(0, 8)) X(d - 1, w * 0.85) : 0.6
         | !(w) F(uniform(0.7, 1.3) * d / 3) +(gauss(0, 8)) X(d - 1, w * 0.85) : 0.4
     X(d, w) --> ~l(0.8, 0.35)
-    (canopy.lsys:16-18)
+    (canopy.lsys:18-20)
     """
     if d > 0.0:
         alt = ctx.choose(0, (0.6, 0.4))
         if alt == 0:
             return [
                 ("!", w),
-                ("F", ctx.uniform(1, 0.7, 1.3) * d / 3.0),
+                ("_late1", d, w),
                 ("[",),
-                ("+", ctx.normal(2, 50.0, 10.0)),
+                ("_late2", d, w),
                 ("X", d - 1.0, w * 0.65),
                 ("]",),
                 ("[",),
-                ("-", ctx.normal(3, 50.0, 10.0)),
+                ("_late3", d, w),
                 ("X", d - 1.0, w * 0.65),
                 ("]",),
-                ("+", ctx.normal(4, 0.0, 8.0)),
+                ("_late4", d, w),
                 ("X", d - 1.0, w * 0.85),
             ]
-        return [
-            ("!", w),
-            ("F", ctx.uniform(5, 0.7, 1.3) * d / 3.0),
-            ("+", ctx.normal(6, 0.0, 8.0)),
-            ("X", d - 1.0, w * 0.85),
-        ]
+        return [("!", w), ("_late5", d, w), ("_late6", d, w), ("X", d - 1.0, w * 0.85)]
     return [("~l", 0.8, 0.35)]
+
+
+def interpret__late1(ctx, d, w):
+    """F at line 18:26, sampled where the turtle reaches it   (canopy.lsys:18)"""
+    return [("F", ctx.uniform(1, 0.7, 1.3) * d / 3.0)]
+
+
+def interpret__late2(ctx, d, w):
+    """+ at line 18:57, sampled where the turtle reaches it   (canopy.lsys:18)"""
+    return [("+", ctx.normal(2, 50.0, 10.0))]
+
+
+def interpret__late3(ctx, d, w):
+    """- at line 18:97, sampled where the turtle reaches it   (canopy.lsys:18)"""
+    return [("-", ctx.normal(3, 50.0, 10.0))]
+
+
+def interpret__late4(ctx, d, w):
+    """+ at line 18:135, sampled where the turtle reaches it   (canopy.lsys:18)"""
+    return [("+", ctx.normal(4, 0.0, 8.0))]
+
+
+def interpret__late5(ctx, d, w):
+    """F at line 19:26, sampled where the turtle reaches it   (canopy.lsys:19)"""
+    return [("F", ctx.uniform(5, 0.7, 1.3) * d / 3.0)]
+
+
+def interpret__late6(ctx, d, w):
+    """+ at line 19:55, sampled where the turtle reaches it   (canopy.lsys:19)"""
+    return [("+", ctx.normal(6, 0.0, 8.0))]
 
 
 PROGRAM = Program(
     name="canopy",
     source="grammars/canopy.lsys",
-    grammar_hash="sha256:f7f15bcfe59f915a8a27ced660f322ca76383ba1fc23560092858d2cc5c4c035",
+    grammar_hash="sha256:43f757b376e363d64a988d4a589202cd5aa057d6dc2f853d2e35aace5b8c833c",
     sites=SITES,
     axiom=axiom,
     productions={
         "X": produce_X,
     },
-    interpretation={},
+    interpretation={
+        "_late1": interpret__late1,
+        "_late2": interpret__late2,
+        "_late3": interpret__late3,
+        "_late4": interpret__late4,
+        "_late5": interpret__late5,
+        "_late6": interpret__late6,
+    },
     arity={
         "X": 2,
+        "_late1": 2,
+        "_late2": 2,
+        "_late3": 2,
+        "_late4": 2,
+        "_late5": 2,
+        "_late6": 2,
     },
     derivation_length=8,
     angle=90.0,
