@@ -162,14 +162,20 @@ def site_table(compiled: CompiledGrammar) -> list[str]:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from ngpm_compiler.evaluation.diagnose import diagnose, sample_lines, warning_lines
+    from ngpm_compiler.evaluation.diagnose import (
+        diagnose,
+        hint_lines,
+        sample_lines,
+        warning_lines,
+    )
 
     compiled = load(args.grammar)
     print(f"{args.grammar}: ok, {len(compiled.sites)} sites")
     if compiled.sites:
         print("\n".join(site_table(compiled)))
     diag = diagnose(compiled, samples=0 if args.no_samples else args.samples, seed=args.seed)
-    for line in [*sample_lines(diag), *warning_lines(diag)]:
+    hints = hint_lines(diag, compiled.checked)
+    for line in [*sample_lines(diag), *warning_lines(diag), *hints]:
         print(line, flush=True)
     if args.targets:
         print("\n".join(reach_check(args.grammar, diag, args.targets)), flush=True)

@@ -404,6 +404,22 @@ def warning_lines(diag: Diagnosis) -> list[str]:
     return out
 
 
+def hint_lines(diag: Diagnosis, checked: Checked) -> list[str]:
+    """A hint when the grammar has no 'turtle arguments:' line and some random turtle
+    arguments are drawn before the turtle reaches them (docs/language.md, section 6)."""
+    if checked.lazy is not None or not checked.late_sites:
+        return []
+    sites = [diag.program.sites[i] for i in checked.late_sites]
+    shown = ", ".join(f"{s.source} at line {s.line}:{s.col}" for s in sites[:3])
+    more = f" and {len(sites) - 3} more" if len(sites) > 3 else ""
+    return [
+        f"hint: {printable(diag.filename)}: {len(sites)} random turtle argument"
+        f"{'s are' if len(sites) > 1 else ' is'} drawn when the rule fires, before the turtle "
+        f"gets there ({shown}{more}); 'turtle arguments: lazy' draws them where the turtle "
+        "turns, and SMC and a guide see what was drawn before (docs/language.md, section 6)"
+    ]
+
+
 # --------------------------------------------------------------------------- reachability
 
 REACH_N = 600  # particles of the reachability runs (round 0's teacher)

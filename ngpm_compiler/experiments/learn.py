@@ -230,7 +230,12 @@ def open_run(cfg: LearnConfig, log: Log) -> Run:
 def diagnose_stage(run: Run) -> dict[str, Any]:
     """Check the grammar (one-line errors) and copy it into OUT, with the proposed viewport
     when it has none; the estimates' lines for the report."""
-    from ngpm_compiler.evaluation.diagnose import diagnose, sample_lines, viewport_line
+    from ngpm_compiler.evaluation.diagnose import (
+        diagnose,
+        hint_lines,
+        sample_lines,
+        viewport_line,
+    )
     from ngpm_compiler.language.compile import compile_grammar
 
     cfg = run.cfg
@@ -258,7 +263,7 @@ def diagnose_stage(run: Run) -> dict[str, Any]:
         "grammar": str(grammar),
         "viewport_proposed": proposed,
         "smc_seconds": diag.timing.seconds if diag.timing else None,
-        "lines": sample_lines(diag),
+        "lines": sample_lines(diag) + hint_lines(diag, compiled.checked),
         "dim": program.dim,
     }
 

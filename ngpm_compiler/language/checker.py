@@ -9,6 +9,7 @@ import re
 from dataclasses import dataclass, field, replace
 
 from ngpm_runtime.geometry.derive import MAX_PRIMITIVES, MAX_WORK
+from ngpm_runtime.geometry.turtle import DRAWING
 from ngpm_runtime.inference.sitekinds import KINDS
 from ngpm_runtime.program import Site, prior_problem
 
@@ -128,6 +129,10 @@ class Checked:
     dim: int = 2  # 3: the grammar is 3D (`dimension`)
     box: tuple[float, ...] | None = None  # a 3D grammar's viewport: x, y and z ranges
     tropism: tuple[float, float, float, float] | None = None  # unit direction, elasticity
+    # 'turtle arguments:' (None: no such line, eager) and the sites drawn (or, eager, that
+    # would be drawn) where the turtle reaches them, after something their successor draws
+    lazy: bool | None = None
+    late_sites: list[int] = field(default_factory=list)
 
 
 def safe_name(name: str, taken: set[str], prefix: str) -> str:
@@ -635,17 +640,20 @@ class Checker:
 
     def defer(
         self, axiom: list[Resolved], sets: list[dict[str, RuleSet]], known: set[str]
-    ) -> list[Resolved]:
+    ) -> tuple[list[Resolved], list[int]]:
         """'turtle arguments: lazy': a turtle symbol with a random argument after anything but
         `[` in its successor becomes a module of its own (`_lateK`, the enclosing rule's parameters
         passed on) whose interpretation rule is the symbol, so its sites are sampled when the
         turtle reaches it, where a guide sees the turtle and what was drawn before. The
         distribution of samples is the same; each site keeps its id and number. Symbols a
-        production rewrites (F, f) stay. Returns the axiom; adds the rules to the
-        interpretation set (sets[1])."""
+        production rewrites (F, f) stay. Returns the axiom and the numbers of the sites that
+        are (or, eager, would be) drawn late after something their successor draws (or a
+        module that may draw); adds the rules to the interpretation set (sets[1]) when the
+        grammar says lazy."""
         productions, interpretation = sets
         taken = set(known) | set(self.arity) | set(productions) | set(interpretation)
         made: list[RuleSet] = []
+        late_sites: list[int] = []
 
         def new_name() -> str:
             name = f"_late{len(made) + 1}"
@@ -664,6 +672,16 @@ class Checker:
                     isinstance(n, Call) and n.name in RANDOM_CALLS for a in m.args for n in walk(a)
                 )
                 if m.name not in TURTLE or m.name in productions or not random:
+                    out.append(m)
+                    continue
+                if any(o.name in DRAWING or o.name not in TURTLE for o in out):
+                    late_sites.extend(  # after something that draws (or may): worth a hint
+                        self.call_sites[id(n)]
+                        for a in m.args
+                        for n in walk(a)
+                        if isinstance(n, Call) and n.name in RANDOM_CALLS
+                    )
+                if not self.lazy:
                     out.append(m)
                     continue
                 params = list(rule.params) if rule is not None else []
@@ -700,7 +718,7 @@ class Checker:
         axiom = late(axiom, None, [])
         for rs in made:
             interpretation[rs.pred] = rs
-        return axiom
+        return axiom, sorted(late_sites)
 
     # ---- dimension -------------------------------------------------------------------------
 
@@ -762,8 +780,7 @@ class Checker:
         self.check_groups(interpretation)
         self.check_recursion(productions)
         self.collect_sites(axiom, [productions, interpretation])
-        if self.lazy:
-            axiom = self.defer(axiom, [productions, interpretation], known)
+        axiom, late_sites = self.defer(axiom, [productions, interpretation], known)
         dim = self.dimension(axiom, [productions, interpretation])
         box = self.viewport if dim == 3 else None
         vp = self.viewport
@@ -788,6 +805,8 @@ class Checker:
             dim=dim,
             box=box,
             tropism=self.tropism,
+            lazy=self.lazy if "turtle arguments" in self.g.headers else None,
+            late_sites=late_sites,
         )
 
 

@@ -18,6 +18,7 @@ from ngpm_compiler.evaluation.diagnose import (
     Reach,
     diagnose,
     forward_samples,
+    hint_lines,
     mean_matrix,
     propose_viewport,
     reach_line,
@@ -210,3 +211,27 @@ def test_a_3d_grammar_reaches_voxels_and_its_warning_speaks_of_the_box():
 def test_a_grammar_that_reaches_the_targets_is_not_low(tmp_path):
     r = reachability(load_grammar("thick.lsys", REACHES_BARS), bars(tmp_path), n=10)
     assert not r.low and r.similarity > 2 * REACH_LOW and r.covered > 0.5
+
+
+FORK = """viewport: -5 5 -1 9
+derivation length: 8
+{line}
+Axiom: A(1)
+production:
+A(l) : l > 0.3 --> F(l) [ +(gauss(30, 8)) A(l * 0.7) ] [ -(gauss(30, 8)) A(l * 0.7) ]
+endlsystem
+"""
+
+
+def test_a_hint_names_turtle_arguments_drawn_before_the_turtle_gets_there(tmp_path) -> None:
+    c = compiled(tmp_path, FORK.format(line=""))
+    (hint,) = hint_lines(diagnose(c, samples=0), c.checked)
+    assert hint.startswith(f"hint: {tmp_path / 'g.lsys'}: 2 random turtle arguments are drawn")
+    assert "gauss(30, 8) at line 6:29" in hint and "'turtle arguments: lazy'" in hint
+    # a grammar that says either way, or whose random turns come first, gets none
+    for line in ("turtle arguments: lazy", "turtle arguments: eager"):
+        c = compiled(tmp_path, FORK.format(line=line))
+        assert hint_lines(diagnose(c, samples=0), c.checked) == []
+    chain = REPO / "grammars" / "chain.lsys"
+    c = compile_grammar(chain, filename=str(chain))
+    assert hint_lines(diagnose(c, samples=0), c.checked) == []
