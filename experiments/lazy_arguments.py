@@ -3,6 +3,11 @@ distribution of samples), unguided SMC at several N on the same targets, interle
 
     python experiments/lazy_arguments.py GRAMMAR TARGET_DIR[,DIR...] [--ns 10,100,1000]
         [--runs 2] [--seed 0]
+    python experiments/lazy_arguments.py GRAMMAR envelopes [--work work/lazy_arguments]
+
+`envelopes` builds the targets first: 12 envelopes of the grammar's eager samples for each
+of the seeds 2001 and 2002 (benchmarks/learn_grammars.py's held-out envelopes of it, as
+they were before the grammar said lazy), in --work.
 
 Prints, per N and per setting, the mean over targets of the median similarity of `--runs`
 runs (seeds seed + run, the same for both settings) and the mean CPU seconds of a run.
@@ -34,6 +39,7 @@ def main() -> int:
     ap.add_argument("--ns", default="10,100,1000")
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--work", default="work/lazy_arguments")
     args = ap.parse_args()
     text = Path(args.grammar).read_text(encoding="utf-8")
     text = re.sub(r"(?im)^turtle\s+arguments\s*:.*$", "", text)
@@ -41,7 +47,20 @@ def main() -> int:
         how: compile_grammar(f"turtle arguments: {how}\n{text}", filename=args.grammar).program()
         for how in ("eager", "lazy")
     }
-    files = sorted(f for d in args.targets.split(",") for f in Path(d).glob("*.png"))
+    dirs = args.targets.split(",")
+    if args.targets == "envelopes":
+        from ngpm_compiler.datasets.build import build_dataset
+
+        work = Path(args.work) / Path(args.grammar).stem
+        work.mkdir(parents=True, exist_ok=True)
+        eager = work / Path(args.grammar).name
+        eager.write_text(text, encoding="utf-8")
+        dirs = []
+        for seed in (2001, 2002):
+            d = work / f"envelopes_{seed}_12"
+            build_dataset("envelopes", d, count=12, seed=seed, grammar=eager)
+            dirs.append(str(d))
+    files = sorted(f for d in dirs for f in Path(d).glob("*.png"))
     targets = [load_target(f) for f in files]
     print(f"{Path(args.grammar).name}: {len(targets)} targets, {args.runs} runs each")
     for n in (int(x) for x in args.ns.split(",")):
