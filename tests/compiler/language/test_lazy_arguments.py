@@ -50,8 +50,23 @@ def test_sites_keep_their_ids_and_numbers() -> None:
     assert set(eager.interpretation) == {"L"}
 
 
-def test_the_distribution_of_samples_is_the_same() -> None:
-    eager, lazy = program(TINY, ""), program(TINY)
+# random turns in the axiom and in an interpretation rule, after drawings
+INTERP = """
+derivation length: 3
+start: 0 0 0
+{lazy}
+Axiom: F(0.5) +(90 * flip(0.5)) A
+production:
+A --> F(1) L [ -(45 * categorical(1, 1, 2)) F(1 + flip(0.5)) ] A : 0.5 | L : 0.5
+interpretation:
+L --> F(0.5) +(30 * flip(0.3)) F(0.25)
+"""
+
+
+@pytest.mark.parametrize(("text", "late"), [(TINY, 2), (INTERP, 4)])
+def test_the_distribution_of_samples_is_the_same(text: str, late: int) -> None:
+    eager, lazy = program(text, ""), program(text)
+    assert sum(k.startswith("_late") for k in lazy.interpretation) == late
     like = SumXLikelihood(goal=3.0, scale=1.5)
     want_post, want_log_z = exact(eager, like)
     got_post, got_log_z = exact(lazy, like)
