@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 from fixtures.exact import check, exact, pooled, tv
-from fixtures.tiny_programs import SumXLikelihood
+from fixtures.tiny_programs import TINY_LSYS, SumXLikelihood
 from ngpm_runtime.geometry.cons import cons_to_list
 from ngpm_runtime.geometry.derive import DRAWN, NEED, Deriver
 from ngpm_runtime.inference.proposals import FixedProposal
@@ -18,21 +18,7 @@ from ngpm_runtime.inference.proposals import FixedProposal
 from ngpm_compiler.language.compile import compile_grammar
 from ngpm_compiler.language.errors import GrammarError
 
-# test_exact.py's tiny grammar: groups, a categorical, flips, cut, halt, an interpretation rule
-TINY = """
-viewport: -10 10 -10 10
-derivation length: 4
-start: 0 0 0
-{lazy}
-Axiom: X(0)
-production:
-X(n) : n < 2 --> F(1) [ +(90 * categorical(1, 2, 1) - 90) F(0.5 + flip(0.3)) % F(9) ] Y(n) : 0.6
-    | @O(0.5) L : 0.4
-Y(n) --> X(n + 1) : 0.7 | halt F(5) : 0.3
-interpretation:
-L --> @O(0.25 + 0.5 * flip(0.4))
-endlsystem
-"""
+TINY = TINY_LSYS.replace("Axiom:", "{lazy}\nAxiom:")  # test_exact.py's tiny grammar
 
 
 def program(text: str, lazy: str = "turtle arguments: lazy"):

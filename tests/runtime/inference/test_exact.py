@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from fixtures.exact import check, enumerate_program, exact, gauss_exact, pooled, tv
 from fixtures.tiny_programs import (
+    TINY_LSYS,
     EndPointLikelihood,
     PotentialSumXLikelihood,
     SumXLikelihood,
@@ -131,21 +132,6 @@ def test_gaussian_lengths_posterior_and_evidence(prop) -> None:
     first = np.array([p.primitives[0][3] for p in r.particles])
     assert abs(float(w @ first) - want_mean) < 0.03
     assert abs(r.log_evidence - want_log_z) < 0.05
-
-
-TINY_LSYS = """
-viewport: -10 10 -10 10
-derivation length: 4
-start: 0 0 0
-Axiom: X(0)
-production:
-X(n) : n < 2 --> F(1) [ +(90 * categorical(1, 2, 1) - 90) F(0.5 + flip(0.3)) % F(9) ] Y(n) : 0.6
-    | @O(0.5) L : 0.4
-Y(n) --> X(n + 1) : 0.7 | halt F(5) : 0.3
-interpretation:
-L --> @O(0.25 + 0.5 * flip(0.4))
-endlsystem
-"""
 
 
 @pytest.mark.parametrize(
