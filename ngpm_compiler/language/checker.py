@@ -685,28 +685,9 @@ class Checker:
                     out.append(m)
                     continue
                 params = list(rule.params) if rule is not None else []
-                name = new_name()
-                where = f"{m.use.line}:{m.use.col}"
-                text = f"{m.use.name} at line {where}, sampled where the turtle reaches it"
-                syn = Rule(
-                    m.use.line,
-                    m.use.col,
-                    name,
-                    params,
-                    [(m.use.line, m.use.col)] * len(params),
-                    None,
-                    "",
-                    Successor(m.use.line, m.use.col, [m.use], text),
-                    None,
-                    "interpretation",
-                    text,
-                    m.use.line,
-                )
-                rs = RuleSet(name, "interpretation", len(params), py[: len(params)])
-                rs.groups.append(Group(f"interp:{name}", None, syn, [Alt(syn, [m], None)]))
-                made.append(rs)
-                self.arity[name] = len(params)
+                made.append(self.late_rule(m, new_name(), params, py[: len(params)]))
                 args: list[Expr] = [Var(m.use.line, m.use.col, p) for p in params]
+                name = made[-1].pred
                 out.append(Resolved(name, args, ModuleUse(m.use.line, m.use.col, name, args)))
             return out
 
@@ -719,6 +700,19 @@ class Checker:
         for rs in made:
             interpretation[rs.pred] = rs
         return axiom, sorted(late_sites)
+
+    def late_rule(self, m: Resolved, name: str, params: list[str], py: list[str]) -> RuleSet:
+        """The interpretation rule `name(params) --> m` of a symbol drawn late."""
+        line, col = m.use.line, m.use.col
+        text = f"{m.use.name} at line {line}:{col}, sampled where the turtle reaches it"
+        syn = Rule(
+            line, col, name, params, [(line, col)] * len(params), None, "",
+            Successor(line, col, [m.use], text), None, "interpretation", text, line,
+        )  # fmt: skip
+        rs = RuleSet(name, "interpretation", len(params), py)
+        rs.groups.append(Group(f"interp:{name}", None, syn, [Alt(syn, [m], None)]))
+        self.arity[name] = len(params)
+        return rs
 
     # ---- dimension -------------------------------------------------------------------------
 

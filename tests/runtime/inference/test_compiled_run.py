@@ -231,8 +231,7 @@ def test_lazy_turtle_arguments_equal_python(monkeypatch, tmp_path: Path) -> None
     which the kernel runs as productions at any depth): the same runs, features and all."""
     from ngpm_runtime.inference.smc import replay
 
-    text = (REPO / "grammars" / "canopy.lsys").read_text(encoding="utf-8")
-    program = grammar(tmp_path, text.replace("Axiom:", "turtle arguments: lazy\nAxiom:", 1))
+    program = load_grammar(REPO / "grammars" / "canopy.lsys")  # it says lazy
     assert sum(k.startswith("_late") for k in program.interpretation) == 6
     mask = disk_mask()
     like = ShapeLikelihood(mask, program.viewport)
