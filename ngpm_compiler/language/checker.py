@@ -668,19 +668,18 @@ class Checker:
                 if all(o.name == "[" for o in out):  # the turtle is where the rule fired
                     out.append(m)
                     continue
-                random = any(
-                    isinstance(n, Call) and n.name in RANDOM_CALLS for a in m.args for n in walk(a)
-                )
-                if m.name not in TURTLE or m.name in productions or not random:
+                calls = [
+                    n
+                    for a in m.args
+                    for n in walk(a)
+                    if isinstance(n, Call) and n.name in RANDOM_CALLS
+                ]
+                if m.name not in TURTLE or m.name in productions or not calls:
                     out.append(m)
                     continue
                 if any(o.name in DRAWING or o.name not in TURTLE for o in out):
-                    late_sites.extend(  # after something that draws (or may): worth a hint
-                        self.call_sites[id(n)]
-                        for a in m.args
-                        for n in walk(a)
-                        if isinstance(n, Call) and n.name in RANDOM_CALLS
-                    )
+                    # after something that draws (or may): worth a hint
+                    late_sites.extend(self.call_sites[id(n)] for n in calls)
                 if not self.lazy:
                     out.append(m)
                     continue

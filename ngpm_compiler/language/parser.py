@@ -318,11 +318,11 @@ class Builder:
                 line,
                 col,
             )
-        if isinstance(t, Token):  # a lone token (only NUMBER / NAME reach here)
-            if t.type == "NAME":
-                return Var(line, col, str(t))
-            return self.expr(Tree("number", [t]), depth)
-        kind, kids = t.data, t.children
+        if isinstance(t, Token):  # a lone token (only NUMBER / NAME reach here), at its place
+            kind = "number" if t.type == "NUMBER" else "var"
+            kids: list[Token | Tree[Token]] = [t]
+        else:
+            kind, kids = t.data, t.children
 
         def sub(node: Tree[Token] | Token) -> Expr:
             return self.expr(node, depth + 1)
