@@ -11,34 +11,39 @@ WMIN = 0.06
 
 SITES = [
     Site(index=0, id="R(k<12)/choice", kind="categorical", name="choice of R", module="R", arity=1,
-         k=2, probs=(0.8, 0.2), line=18, col=1,
+         k=2, probs=(0.8, 0.2), line=20, col=1,
          source="R(k) : k < 12 --> [ -(90) f(gauss(0, 3)) +(90) +(gauss(0, 20)) G(W0, ..."),
     Site(index=1, id="R(k<12)/0/normal0", kind="normal", name="gauss(0, 3) in R", module="R",
-         arity=1, line=18, col=29, source="gauss(0, 3)"),
+         arity=1, line=20, col=29, source="gauss(0, 3)"),
     Site(index=2, id="R(k<12)/0/normal1", kind="normal", name="gauss(0, 20) in R", module="R",
-         arity=1, line=18, col=50, source="gauss(0, 20)"),
+         arity=1, line=20, col=50, source="gauss(0, 20)"),
     Site(index=3, id="R(k<12)/0/normal2", kind="normal", name="gauss(0, 3) in R", module="R",
-         arity=1, line=18, col=70, source="gauss(0, 3)"),
+         arity=1, line=20, col=70, source="gauss(0, 3)"),
     Site(index=4, id="G(w>WMIN)/choice", kind="categorical", name="choice of G", module="G",
-         arity=2, k=2, probs=(0.92, 0.08), line=20, col=1,
+         arity=2, k=2, probs=(0.92, 0.08), line=22, col=1,
          source="G(w, c) : w > WMIN --> !(w) F(uniform(0.6, 1.4)) +(c + gauss(0, 4)) ..."),
     Site(index=5, id="G(w>WMIN)/0/uniform0", kind="uniform", name="uniform(0.6, 1.4) in G",
-         module="G", arity=2, line=20, col=31, source="uniform(0.6, 1.4)"),
+         module="G", arity=2, line=22, col=31, source="uniform(0.6, 1.4)"),
     Site(index=6, id="G(w>WMIN)/0/normal0", kind="normal", name="gauss(0, 4) in G", module="G",
-         arity=2, line=20, col=56, source="gauss(0, 4)"),
+         arity=2, line=22, col=56, source="gauss(0, 4)"),
     Site(index=7, id="G(w>WMIN)/1/uniform0", kind="uniform", name="uniform(0.6, 1.4) in G",
-         module="G", arity=2, line=21, col=31, source="uniform(0.6, 1.4)"),
+         module="G", arity=2, line=23, col=31, source="uniform(0.6, 1.4)"),
 ]
 
 LOCATIONS = {
-    "axiom": (14, 8),
-    "production R": (18, 1),
-    "production G": (20, 1),
+    "axiom": (16, 8),
+    "production R": (20, 1),
+    "production G": (22, 1),
+    "interpretation _late1": (20, 27),
+    "interpretation _late2": (20, 48),
+    "interpretation _late3": (22, 29),
+    "interpretation _late4": (22, 50),
+    "interpretation _late5": (23, 29),
 }
 
 
 def axiom(ctx):
-    """Axiom: R(0)   (grass.lsys:14)"""
+    """Axiom: R(0)   (grass.lsys:16)"""
     return [("R", 0.0)]
 
 
@@ -46,7 +51,7 @@ def produce_R(ctx, k):
     """R(k) : k < 12 --> [ -(90) f(gauss(0, 3)) +(90) +(gauss(0, 20)) G(W0, gauss(0, 3)) ] R(k + 1)
         : 0.8
         | * : 0.2
-    (grass.lsys:18-19)
+    (grass.lsys:20-21)
     """
     if k < 12.0:
         alt = ctx.choose(0, (0.8, 0.2))
@@ -54,9 +59,9 @@ def produce_R(ctx, k):
             return [
                 ("[",),
                 ("-", 90.0),
-                ("f", ctx.normal(1, 0.0, 3.0)),
+                ("_late1", k),
                 ("+", 90.0),
-                ("+", ctx.normal(2, 0.0, 20.0)),
+                ("_late2", k),
                 ("G", W0, ctx.normal(3, 0.0, 3.0)),
                 ("]",),
                 ("R", k + 1.0),
@@ -68,35 +73,66 @@ def produce_R(ctx, k):
 def produce_G(ctx, w, c):
     """G(w, c) : w > WMIN --> !(w) F(uniform(0.6, 1.4)) +(c + gauss(0, 4)) G(w * THIN, c) : 0.92
         | !(w) F(uniform(0.6, 1.4)) : 0.08
-    (grass.lsys:20-21)
+    (grass.lsys:22-23)
     """
     if w > WMIN:
         alt = ctx.choose(4, (0.92, 0.08))
         if alt == 0:
-            return [
-                ("!", w),
-                ("F", ctx.uniform(5, 0.6, 1.4)),
-                ("+", c + ctx.normal(6, 0.0, 4.0)),
-                ("G", w * THIN, c),
-            ]
-        return [("!", w), ("F", ctx.uniform(7, 0.6, 1.4))]
+            return [("!", w), ("_late3", w, c), ("_late4", w, c), ("G", w * THIN, c)]
+        return [("!", w), ("_late5", w, c)]
     return None  # no rule applies: the module stays as it is
+
+
+def interpret__late1(ctx, k):
+    """f at line 20:27, sampled where the turtle reaches it   (grass.lsys:20)"""
+    return [("f", ctx.normal(1, 0.0, 3.0))]
+
+
+def interpret__late2(ctx, k):
+    """+ at line 20:48, sampled where the turtle reaches it   (grass.lsys:20)"""
+    return [("+", ctx.normal(2, 0.0, 20.0))]
+
+
+def interpret__late3(ctx, w, c):
+    """F at line 22:29, sampled where the turtle reaches it   (grass.lsys:22)"""
+    return [("F", ctx.uniform(5, 0.6, 1.4))]
+
+
+def interpret__late4(ctx, w, c):
+    """+ at line 22:50, sampled where the turtle reaches it   (grass.lsys:22)"""
+    return [("+", c + ctx.normal(6, 0.0, 4.0))]
+
+
+def interpret__late5(ctx, w, c):
+    """F at line 23:29, sampled where the turtle reaches it   (grass.lsys:23)"""
+    return [("F", ctx.uniform(7, 0.6, 1.4))]
 
 
 PROGRAM = Program(
     name="grass",
     source="grammars/grass.lsys",
-    grammar_hash="sha256:aab2d75c68309ab172c943751f8033358a10fb6d499e6c06365fc0e7ed734e24",
+    grammar_hash="sha256:14bcffe88e4ecd728b5a4946555b578e25182aa9993c79d52f33eefa2b8b0d66",
     sites=SITES,
     axiom=axiom,
     productions={
         "R": produce_R,
         "G": produce_G,
     },
-    interpretation={},
+    interpretation={
+        "_late1": interpret__late1,
+        "_late2": interpret__late2,
+        "_late3": interpret__late3,
+        "_late4": interpret__late4,
+        "_late5": interpret__late5,
+    },
     arity={
         "R": 1,
         "G": 2,
+        "_late1": 1,
+        "_late2": 1,
+        "_late3": 2,
+        "_late4": 2,
+        "_late5": 2,
     },
     derivation_length=600,
     angle=90.0,
