@@ -691,9 +691,12 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
     return dirs, sum(per) / max(1, len(per))
 
 
-def train(run: Run, rc: Any, r: int, trace_dirs: list[str]) -> tuple[str, dict[str, Any]]:
+def train(
+    run: Run, rc: Any, r: int, trace_dirs: list[str], keep: float = 0.0
+) -> tuple[str, dict[str, Any]]:
     """Train round r's guide on every round's traces (checkpointed, stopped by the budget
-    between epochs) and export it; (onnx path, training summary)."""
+    between epochs, and early once fewer than `keep` seconds of it are left: the round's
+    validation, tuning and the curve) and export it; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.rounds import merge_traces
     from ngpm_compiler.learning.trace_data import load_traces
@@ -714,13 +717,15 @@ def train(run: Run, rc: Any, r: int, trace_dirs: list[str]) -> tuple[str, dict[s
         checkpoint=folder / "model.pt.ckpt",
         progress=run.cfg.progress,
         on_epoch=lambda _row: run.clock.check(where),
+        stop=lambda: run.clock.left() < keep,
     )
     save_model(model, folder / "model.pt")
     (folder / "model.pt.ckpt").unlink(missing_ok=True)
     s = model.summary
+    cut = f", stopped after {s['epochs_run']} epochs to keep {keep:.0f} s" if s["stopped"] else ""
     run.log(
         f"round {r}: trained on {s['traces']} traces, validation NLL {s['val_nll']:.2f}, "
-        f"{s['seconds']:.0f} s"
+        f"{s['seconds']:.0f} s{cut}"
     )
     return str(write_onnx(model, folder / "guide.onnx")), s
 
@@ -741,7 +746,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     dirs, per_particle = record(run, rc, r, teacher, _allowance(run, p, rc, rows, teacher))
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
     t1 = time.perf_counter()
-    path, summary = train(run, rc, r, trace_dirs)
+    path, summary = train(run, rc, r, trace_dirs, _after_training(run, p, rc, rows))
     t2 = time.perf_counter()
     run.clock.check(f"round {r}'s validation")
     score = validate(rc, f"round_{r}", path, run.log)
@@ -757,6 +762,8 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         "traces_dirs": dirs,
         "seconds_per_particle": per_particle,
         "train_seconds_per_trace": (t2 - t1) / max(1, summary["traces"]),
+        "train_epochs": summary["epochs_run"],
+        "train_stopped": bool(summary["stopped"]),
         "seconds": {"traces": t1 - t0, "train": t2 - t1, "validation": time.perf_counter() - t2},
     }
 
@@ -773,6 +780,14 @@ def _allowance(
     val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
     after = TRAIN_FIXED + costs.train * trained + val
     return trace_allowance(planned, run.clock.left(), after + _reserve(run, p))
+
+
+def _after_training(run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]]) -> float:
+    """Seconds a round's training leaves: its validation, then tuning and the curve (a
+    training longer than its estimate stops early rather than squeeze out tuning)."""
+    costs, val = _round_costs(run, p) if rows else (_costs(run), 0.0)
+    val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
+    return val + _reserve(run, p)
 
 
 def _rounds(run: Run) -> list[dict[str, Any]]:

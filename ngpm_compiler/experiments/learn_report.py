@@ -119,10 +119,12 @@ def rounds_table(rounds: list[dict[str, Any]], best: int | None) -> list[str]:
     for r in rounds:
         s = r["seconds"]
         sim = f"{r['validation']:.3f}"
+        # a training stopped early to leave time for tuning and the curve (learn.train)
+        cut = f" ({r['train_epochs']} epochs, stopped for time)" if r.get("train_stopped") else ""
         lines.append(
             f"| {r['round']}{' (best)' if r['round'] == best else ''} | {r['teacher']} | "
             f"{r['traces']} | {r['val_nll']} | {f'**{sim}**' if r['round'] == best else sim} | "
-            f"{_min(s['traces'])} | {_min(s['train'])} | {_min(s['validation'])} |"
+            f"{_min(s['traces'])} | {_min(s['train'])}{cut} | {_min(s['validation'])} |"
         )
     return lines
 

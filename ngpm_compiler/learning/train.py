@@ -172,8 +172,11 @@ def train_guide(
     checkpoint: str | Path | None = None,
     progress: bool = False,
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> GuideModel:
     """Fit one network per visited site; returns the best epoch's model with a summary.
+    `stop` is asked after each epoch (once checkpointed): True ends the training there, as
+    early stopping does (a time limit: the summary's `stopped` says "stop").
 
     Long because the epoch loop, early stopping and checkpoint resumption share the
     optimizer and best-epoch state."""
@@ -197,7 +200,7 @@ def train_guide(
         "config": {k: v for k, v in asdict(config).items() if k != "epochs"},
         "data": fingerprint(data),
     }
-    first_epoch, bad = 0, 0
+    first_epoch, bad, stopped = 0, 0, ""
     if checkpoint and Path(checkpoint).is_file():
         ck = torch.load(checkpoint, map_location="cpu", weights_only=True)
         if ck.get("format") == CHECKPOINT_FORMAT and ck.get("key") == key:
@@ -259,6 +262,9 @@ def train_guide(
                 },
                 checkpoint,
             )
+        if stop is not None and epoch + 1 < config.epochs and bad < config.patience and stop():
+            stopped = "stop"
+            break
     bar.close()
     if best is not None:
         model = GuideModel.from_state(best["model"])
@@ -270,6 +276,7 @@ def train_guide(
         "rows": {str(i): int(len(d.values)) for i, d in sorted(data.items())},
         "sites_trained": sorted(model.nets),
         "epochs_run": len(history),
+        "stopped": stopped,
         "best_epoch": best["epoch"] if best else 0,
         "val_nll": best["val_nll"] if best else None,
         "history": history,

@@ -237,6 +237,22 @@ def test_a_round_whose_traces_overrun_trains_on_what_it_has(tmp_path, monkeypatc
     onnx.checker.check_model(onnx.load(res["guide"]))
 
 
+def test_a_training_longer_than_its_share_stops_early_and_the_run_still_tunes(
+    tmp_path, monkeypatch, tiny_plan
+):
+    """A training slower than estimated stops after an epoch once the time it must leave
+    (validation, tuning, the curve) is reached: the rounds keep a guide, the run tunes."""
+    monkeypatch.setattr(learn_mod, "_after_training", lambda *a: 1e9)
+    cfg = small(tmp_path)
+    res = learn(cfg, log=lambda _m: None)
+    done = stages(Path(cfg.out))
+    for r in ("round_00", "round_01"):
+        assert done[r]["result"]["train_stopped"] and done[r]["result"]["train_epochs"] == 1
+    assert done["tune"]["result"] is not None
+    assert "stopped for time" in (Path(cfg.out) / "report.md").read_text()
+    onnx.checker.check_model(onnx.load(res["guide"]))
+
+
 def one_more_round(p, total, left, costs, done, trained, val, **_kw):
     """learn_plan.extend as a tiny fixed extension: one guided round of 5 traces."""
     return replace(

@@ -198,3 +198,24 @@ def test_a_run_killed_after_any_epoch_resumes_to_the_uninterrupted_result(tmp_pa
         assert resumed.summary["best_epoch"] == full.summary["best_epoch"], kill_at
         assert resumed.summary["val_nll"] == full.summary["val_nll"], kill_at
         assert_same_weights(full, resumed)
+
+
+def test_stop_ends_training_with_the_best_epoch_so_far():
+    data, _ = synthetic(n_jobs=12, per_job=15, seed=5)
+    config = TrainConfig(**EARLY)
+    full = train_guide(SITES, LAYOUTS, data, config)
+    asked = []
+
+    def stop() -> bool:
+        asked.append(1)
+        return len(asked) >= 2
+
+    cut = train_guide(SITES, LAYOUTS, data, config, stop=stop)
+    s = cut.summary
+    assert (s["epochs_run"], s["stopped"]) == (2, "stop")
+    assert full.summary["epochs_run"] > 2 and full.summary["stopped"] == ""
+    assert s["history"] == [
+        {**h, "seconds": s["history"][k]["seconds"]}
+        for k, h in enumerate(full.summary["history"][:2])
+    ]
+    assert s["val_nll"] == min(h["val_nll"] for h in s["history"])
