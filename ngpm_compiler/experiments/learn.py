@@ -510,7 +510,7 @@ def measure_guided(run: Run, p: Plan) -> None:
     c = _costs(run)
     runs = c.sets * p.val_targets * p.val_repeats  # guided runs (and as many unguided)
     costs["val_run"] = r0["seconds"]["validation"] * max(1, c.workers) / max(1, runs)
-    costs["train"] = train_per_trace(r0["seconds"]["train"], r0["traces"])
+    costs["train"] = train_cost([r0])
 
 
 def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
@@ -782,6 +782,17 @@ def _allowance(
     return trace_allowance(planned, run.clock.left(), after + _reserve(run, p))
 
 
+def train_cost(rows: list[dict[str, Any]]) -> float:
+    """Training seconds per trace as the last round measured them; when its training was
+    stopped early for time, at least what the rounds before it measured (a cut training
+    does not say what a whole one costs)."""
+    last = rows[-1]
+    cost = train_per_trace(last["seconds"]["train"], last["traces"])
+    if last.get("train_stopped") and len(rows) > 1:
+        cost = max(cost, train_cost(rows[:-1]))
+    return cost
+
+
 def _after_training(run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]]) -> float:
     """Seconds a round's training leaves: its validation, then tuning and the curve (a
     training longer than its estimate stops early rather than squeeze out tuning)."""
@@ -885,7 +896,7 @@ def _round_costs(run: Run, p: Plan) -> tuple[Costs, float]:
     costs = replace(
         costs,
         guided=guided[-1] if guided else costs.guided,
-        train=train_per_trace(last["seconds"]["train"], last["traces"]),
+        train=train_cost(rows),
     )
     val = last["seconds"]["validation"] or validation_seconds(costs, p.val_targets, p.val_repeats)
     if last["round"] > 0 and last["seconds"]["validation"]:

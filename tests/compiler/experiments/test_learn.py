@@ -15,7 +15,13 @@ from fixtures.grammars import EXPLODING, EXPLODING_LINE, SPECK
 
 from ngpm_compiler.cli import main
 from ngpm_compiler.experiments import learn as learn_mod
-from ngpm_compiler.experiments.learn import BudgetSpent, LearnConfig, LearnError, learn
+from ngpm_compiler.experiments.learn import (
+    BudgetSpent,
+    LearnConfig,
+    LearnError,
+    learn,
+    train_cost,
+)
 from ngpm_compiler.experiments.learn_plan import MIN_TRACES, Plan
 
 # a few seconds of work whatever the budget (the planner has its own tests): so that these
@@ -251,6 +257,17 @@ def test_a_training_longer_than_its_share_stops_early_and_the_run_still_tunes(
     assert done["tune"]["result"] is not None
     assert "stopped for time" in (Path(cfg.out) / "report.md").read_text()
     onnx.checker.check_model(onnx.load(res["guide"]))
+
+
+def test_a_training_stopped_for_time_does_not_lower_the_training_cost():
+    def row(seconds, traces, stopped=False):
+        return {"seconds": {"train": seconds}, "traces": traces, "train_stopped": stopped}
+
+    whole = row(210.0, 1000)  # (210 - 10) / 1000 = 0.2 s a trace
+    assert train_cost([whole]) == pytest.approx(0.2)
+    assert train_cost([whole, row(60.0, 2000, stopped=True)]) == pytest.approx(0.2)
+    assert train_cost([whole, row(1010.0, 2000, stopped=True)]) == pytest.approx(0.5)
+    assert train_cost([whole, row(60.0, 2000)]) == pytest.approx(0.025)
 
 
 def one_more_round(p, total, left, costs, done, trained, val, **_kw):
