@@ -743,10 +743,12 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     setting = ""
     if best is not None and run.cfg.tune_teachers:
         teacher, setting = tuned_teacher(run, p, best)
-    dirs, per_particle = record(run, rc, r, teacher, _allowance(run, p, rc, rows, teacher))
+    costs, keep = _round_needs(run, p, rc, rows)
+    allow = _allowance(run, rc, rows, teacher, costs, keep)
+    dirs, per_particle = record(run, rc, r, teacher, allow)
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
     t1 = time.perf_counter()
-    path, summary = train(run, rc, r, trace_dirs, _after_training(run, p, rc, rows))
+    path, summary = train(run, rc, r, trace_dirs, keep)
     t2 = time.perf_counter()
     run.clock.check(f"round {r}'s validation")
     score = validate(rc, f"round_{r}", path, run.log)
@@ -768,18 +770,26 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     }
 
 
-def _allowance(
-    run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]], teacher: str | None
-) -> float:
-    """Seconds this round's traces may take (learn_plan.trace_allowance), at the costs the
-    rounds so far measured (as the round's own estimate and the fill plan were made)."""
+def _round_needs(run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]]) -> tuple[Costs, float]:
+    """The costs the rounds so far measured (as the round's own estimate and the fill plan
+    were made), and the seconds a round must leave after its training: its validation, then
+    tuning and the curve (a training longer than its estimate stops early rather than
+    squeeze out tuning)."""
     costs, val = _round_costs(run, p) if rows else (_costs(run), 0.0)
+    val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
+    return costs, val + _reserve(run, p)
+
+
+def _allowance(
+    run: Run, rc: Any, rows: list[dict[str, Any]], teacher: str | None, costs: Costs, keep: float
+) -> float:
+    """Seconds this round's traces may take (learn_plan.trace_allowance) at `costs`, before
+    its training and the `keep` seconds after it."""
     particles = rc.particles if teacher else rc.unguided_particles
     planned = rc.n * costs.trace(particles, teacher is not None) / max(1, costs.workers)
     trained = (rows[-1]["traces"] if rows else 0) + rc.n
-    val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
-    after = TRAIN_FIXED + costs.train * trained + val
-    return trace_allowance(planned, run.clock.left(), after + _reserve(run, p))
+    after = TRAIN_FIXED + costs.train * trained
+    return trace_allowance(planned, run.clock.left(), after + keep)
 
 
 def train_cost(rows: list[dict[str, Any]]) -> float:
@@ -791,14 +801,6 @@ def train_cost(rows: list[dict[str, Any]]) -> float:
     if last.get("train_stopped") and len(rows) > 1:
         cost = max(cost, train_cost(rows[:-1]))
     return cost
-
-
-def _after_training(run: Run, p: Plan, rc: Any, rows: list[dict[str, Any]]) -> float:
-    """Seconds a round's training leaves: its validation, then tuning and the curve (a
-    training longer than its estimate stops early rather than squeeze out tuning)."""
-    costs, val = _round_costs(run, p) if rows else (_costs(run), 0.0)
-    val = val or validation_seconds(costs, rc.val_targets, rc.val_repeats)
-    return val + _reserve(run, p)
 
 
 def _rounds(run: Run) -> list[dict[str, Any]]:

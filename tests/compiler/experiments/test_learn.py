@@ -248,7 +248,10 @@ def test_a_training_longer_than_its_share_stops_early_and_the_run_still_tunes(
 ):
     """A training slower than estimated stops after an epoch once the time it must leave
     (validation, tuning, the curve) is reached: the rounds keep a guide, the run tunes."""
-    monkeypatch.setattr(learn_mod, "_after_training", lambda *a: 1e9)
+    whole = learn_mod.train  # each training told to leave more time than there is
+    monkeypatch.setattr(
+        learn_mod, "train", lambda run, rc, r, dirs, keep: whole(run, rc, r, dirs, 1e9)
+    )
     cfg = small(tmp_path)
     res = learn(cfg, log=lambda _m: None)
     done = stages(Path(cfg.out))
