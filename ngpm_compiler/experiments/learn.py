@@ -90,6 +90,11 @@ VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
 # when unguided SMC reaches the generic targets too poorly; validated on another seed's
 ENVELOPES = "envelopes"
 ENVELOPE_VALIDATION = {"envelopes": ("envelopes", 9201)}
+# on envelope targets round 0 records ground-truth traces, not unguided SMC's: each a forward
+# sample recorded into its own envelope (TraceConfig.own_samples; experiments/notes/
+# own_samples.md: lazy bush held out 0.47 -> 0.63 at N = 10)
+OWN_TRACES = 8000
+OWN_TEACHER = "own samples (each into its envelope)"
 # particles of the measured jobs when the budget is under 2 minutes (else round 0's: a job's
 # fixed cost at 100 particles made lily's 6-minute run plan for 6x its per-particle cost)
 MEASURE_SMALL = 100
@@ -691,6 +696,42 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
     return dirs, sum(per) / max(1, len(per))
 
 
+def record_own(run: Run, rc: Any, allow: float) -> tuple[list[str], float]:
+    """Round 0's traces on envelope targets: OWN_TRACES ground-truth traces (forward
+    samples, each recorded into its own envelope: TraceConfig.own_samples), stopped at
+    `allow` seconds; ([dir], seconds per job)."""
+    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
+
+    out = Path(rc.out) / "round_0" / "own_samples"
+    until = time.perf_counter() + allow
+
+    def on_job(_job: int) -> None:
+        run.clock.check("round 0's traces")
+        if time.perf_counter() > until:
+            raise TracesTimeUp
+
+    tc = TraceConfig(
+        grammar=rc.grammar,
+        targets="",
+        n=OWN_TRACES,
+        particles=1,
+        seed=rc.seed,
+        workers=rc.workers,
+        own_samples=True,
+    )
+    try:
+        m = generate_traces(tc, out, progress=run.cfg.progress, on_job=on_job)
+    except TracesTimeUp:
+        m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+        run.state.setdefault("notes", []).append(
+            f"round 0: {out.name} stopped at its share of the budget: "
+            f"{m['kept']} of {OWN_TRACES} traces"
+        )
+    secs = m["job_seconds"]
+    run.log(f"round 0: {out}: {m['kept']} traces, {m['seconds']:.0f} s, {OWN_TEACHER}")
+    return [str(out)], sum(secs) / max(1, len(secs))
+
+
 def train(
     run: Run, rc: Any, r: int, trace_dirs: list[str], keep: float = 0.0
 ) -> tuple[str, dict[str, Any]]:
@@ -745,7 +786,11 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         teacher, setting = tuned_teacher(run, p, best)
     costs, keep = _round_needs(run, p, rc, rows)
     allow = _allowance(run, rc, rows, teacher, costs, keep)
-    dirs, per_particle = record(run, rc, r, teacher, allow)
+    own = r == 0 and targets_of(run).get("kind") == ENVELOPES
+    if own:
+        dirs, per_particle = record_own(run, rc, allow)
+    else:
+        dirs, per_particle = record(run, rc, r, teacher, allow)
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
     t1 = time.perf_counter()
     path, summary = train(run, rc, r, trace_dirs, keep)
@@ -756,6 +801,8 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         "round": r,
         "teacher": f"guided N={rc.particles} by round {best['round']}{setting}"
         if best
+        else OWN_TEACHER
+        if own
         else f"unguided N={rc.unguided_particles}",
         "traces": summary["traces"],
         "val_nll": round(float(summary["val_nll"]), 3),

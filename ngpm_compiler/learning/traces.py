@@ -82,6 +82,9 @@ class TraceConfig:
     guide: str | None = None  # guide .onnx proposing in SMC (None: the prior)
     likelihood: str = "shape"  # or "circuit": every job grows into grow.circuit_target
     sigma: float | None = None  # a 3D grammar's voxel likelihood sigma (None: 0.02)
+    # ground-truth traces: each job's target is the envelope of a forward sample and its
+    # trace that sample's own values (trace_jobs.run_own_job); no SMC, no targets
+    own_samples: bool = False
 
 
 def _config_key(
@@ -105,6 +108,7 @@ def _config_key(
         **({"sigma": cfg.sigma} if cfg.sigma is not None else {}),
         # a 3D grammar's window, once windows turned with the turtle (volume/features.py)
         **({"window": window} if window == "frame" else {}),
+        **({"own_samples": True} if cfg.own_samples else {}),
     }
 
 
@@ -166,7 +170,17 @@ def _check_module_cap(cfg: TraceConfig, program: Program, target: Target) -> Non
 
 def trace_targets(cfg: TraceConfig, program: Program) -> list[Any]:
     """The targets jobs grow into: the dataset's, or under the circuit likelihood the one
-    blank canvas `grow.circuit_target` (its start and size; TraceError given targets)."""
+    blank canvas `grow.circuit_target` (its start and size; TraceError given targets); none
+    for ground-truth traces (`own_samples`: each job makes its own)."""
+    if cfg.own_samples:
+        if cfg.targets or cfg.mirror or cfg.guide or cfg.likelihood != "shape":
+            raise TraceError(
+                "ground-truth traces make their own targets (envelopes of the grammar's "
+                "samples) and run no SMC: drop --targets, --mirror, --guide and --likelihood"
+            )
+        if program.dim == 3:
+            raise TraceError(f"{cfg.grammar}: ground-truth traces are for 2D grammars")
+        return []
     if cfg.likelihood == "shape":
         return load_targets(cfg.targets, cfg.size, cfg.mirror, program)
     from ngpm_runtime.grow import LIKELIHOODS, circuit_target
@@ -212,7 +226,7 @@ def generate_traces(
         from ngpm_runtime.volume.features import DEFAULT_WINDOW
 
         window = DEFAULT_WINDOW
-    layouts = site_layouts(program, targets[0], window)
+    layouts = site_layouts(program, targets[0] if targets else None, window)
     store = TraceStore(out_dir, layout_widths(layouts))
     store.dir.mkdir(parents=True, exist_ok=True)
     key = _config_key(cfg, program, targets, window)
@@ -285,8 +299,14 @@ def generate_traces(
             in_a_row += 1
             failed += int(arrays["n_prims"][0] < 0)
             bar.set_postfix(dropped=dropped)
-            if in_a_row == 5:
+            if in_a_row == 5 and targets:
                 _check_module_cap(cfg, program, targets[0])
+            if in_a_row >= MAX_DROPPED_IN_A_ROW and cfg.own_samples:
+                raise TraceError(
+                    f"{cfg.grammar}: stopped after {in_a_row} jobs in a row found no forward "
+                    "sample whose envelope covers 3% of the canvas; fit the viewport to "
+                    "what the grammar draws (`ngpmc check` proposes one)"
+                )
             if in_a_row >= MAX_DROPPED_IN_A_ROW:
                 raise TraceError(
                     f"{cfg.grammar}: stopped after {in_a_row} jobs in a row were dropped: "
@@ -315,7 +335,7 @@ def generate_traces(
         cfg.backend,
         cfg.workers,
         worker_setup,
-        (cfg.grammar, text, targets, guide, cfg.likelihood, cfg.sigma),
+        (cfg.grammar, text, targets, guide, cfg.likelihood, cfg.sigma, cfg.size * cfg.own_samples),
         cfg.ray_address,
     )
     complete = False
