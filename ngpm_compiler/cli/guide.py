@@ -88,6 +88,13 @@ def _register_traces(subparsers: argparse._SubParsersAction[argparse.ArgumentPar
         help="a 3D grammar's voxel likelihood sigma (default 0.02, the paper's; a softer "
         "one, e.g. 0.05, keeps more particles alive: a stronger teacher at equal particles)",
     )
+    p.add_argument(
+        "--own-samples",
+        action="store_true",
+        help="ground-truth traces, no SMC: each job draws a forward sample and records its "
+        "own choices into the envelope of its drawing (for targets that are envelopes of "
+        "the grammar's samples, `ngpmc targets build envelopes`; no --targets)",
+    )
     p.set_defaults(handler=cmd_traces)
 
 
@@ -401,7 +408,8 @@ def check_targets_option(likelihood: str, given: bool, flag: str) -> None:
 def cmd_traces(args: argparse.Namespace) -> int:
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
-    check_targets_option(args.likelihood, args.targets is not None, "--targets")
+    if not args.own_samples:
+        check_targets_option(args.likelihood, args.targets is not None, "--targets")
     if args.likelihood == "circuit" and args.mirror:
         raise NgpmError("--mirror mirrors targets: the circuit likelihood has none")
     cfg = TraceConfig(
@@ -409,7 +417,7 @@ def cmd_traces(args: argparse.Namespace) -> int:
         targets=args.targets or "",
         likelihood=args.likelihood,
         n=args.n,
-        particles=args.particles,
+        particles=1 if args.own_samples else args.particles,
         seed=args.seed,
         workers=args.workers,
         mirror=args.mirror,
@@ -421,6 +429,7 @@ def cmd_traces(args: argparse.Namespace) -> int:
         guide=args.guide,
         min_primitives=args.min_primitives,
         sigma=args.sigma,
+        own_samples=args.own_samples,
     )
     if args.guide is not None and not Path(args.guide).is_file():
         raise NgpmError(f"--guide {args.guide}: no such file")

@@ -48,6 +48,7 @@ def use_tiny_plan(monkeypatch):
     monkeypatch.setattr(learn_mod, "plan", lambda budget, costs: TINY)
     monkeypatch.setattr(learn_mod, "replan", lambda p, left, costs, trained: TINY)
     monkeypatch.setattr(learn_mod, "fill", lambda *args: None)  # no rounds added
+    monkeypatch.setattr(learn_mod, "OWN_TRACES", 5)  # ground-truth traces on envelopes
 
 
 @pytest.fixture()
@@ -504,8 +505,14 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     assert switch["switched"] and done["reach"]["result"]["low"]
     assert switch["reach"]["similarity"] > max(0.15, done["reach"]["result"]["similarity"])
     assert list(switch["targets"]["validation"]) == ["envelopes"]
-    manifest = json.loads((tmp_path / "out/rounds/round_0/traces_0/manifest.json").read_text())
+    # round 0: ground-truth traces (forward samples into their own envelopes), then SMC
+    rounds = [done[k]["result"] for k in ("round_00", "round_01")]
+    assert rounds[0]["teacher"] == learn_mod.OWN_TEACHER and rounds[0]["traces"] == 5
+    own = json.loads((tmp_path / "out/rounds/round_0/own_samples/manifest.json").read_text())
+    assert own["key"]["own_samples"] and own["key"]["targets"] == [] and own["kept"] == 5
+    manifest = json.loads((tmp_path / "out/rounds/round_1/traces_0/manifest.json").read_text())
     assert manifest["key"]["targets"][0] == "envelopes_0000"
+    assert rounds[1]["teacher"].startswith("guided N=") and rounds[1]["traces"] > 5
     for runs in ("rounds/validation/heldout.csv", "work/curve/heldout.csv"):
         rows = (tmp_path / "out" / runs).read_text().splitlines()[1:]
         assert rows and {r.split(",")[0] for r in rows} == {"envelopes"}

@@ -398,3 +398,56 @@ def test_circuit_traces_grow_into_a_blank_canvas_from_the_bottom_middle(
     shape = TraceConfig(grammar=CHAIN, targets=str(data), n=2, particles=6, workers=1)
     with pytest.raises(TraceError, match="differs in .*likelihood"):
         generate_traces(shape, out, progress=False)
+
+
+def test_own_samples_record_each_forward_sample_into_its_own_envelope(tmp_path, capsys):
+    """--own-samples: no SMC and no targets; job i draws a forward sample, and its rows are
+    the features that sample's own values get in the envelope of what they draw (replayed
+    here: the values draw it again, and its envelope is the target the rows saw). A rerun
+    with a larger -n resumes; targets, a guide or mirroring are refused in one line."""
+    from ngpm_runtime.image.targets import Target
+    from ngpm_runtime.inference.smc import replay
+
+    from ngpm_compiler.cli import main
+    from ngpm_compiler.datasets.envelopes import MIN_INK, envelope, start_of
+    from ngpm_compiler.language.compile import load_grammar
+
+    plant = str(REPO / "grammars" / "stochastic_plant.lsys")
+    cfg = TraceConfig(grammar=plant, targets="", n=3, particles=1, workers=1, own_samples=True)
+    m = generate_traces(cfg, tmp_path / "own", progress=False)
+    assert m["kept"] == 3 and m["key"]["own_samples"] and m["key"]["targets"] == []
+    program = load_grammar(plant)
+    ts = load_traces(tmp_path / "own")
+    (site,) = ts.data  # the plant's one site: its rows in visit order
+    data = ts.data[site]
+    masks = []
+    for job in range(3):
+        rows, values = data.features[data.jobs == job], data.values[data.jobs == job]
+        drawn = replay(program, [(site, v) for v in values])
+        mask = envelope(list(drawn.primitives), program, 50)
+        assert mask.mean() >= MIN_INK
+        target = Target(mask, start_of(program), "own")
+        again = replay(
+            program,
+            [(site, v) for v in values],
+            start=target.start_pose(program.viewport),
+            canvas_size=target.size,
+            target_mask=mask,
+        )
+        assert np.array_equal(np.stack([f for _, f, _ in again.trace]), rows)
+        masks.append(mask)
+    assert not np.array_equal(masks[0], masks[1])  # each job its own sample
+    cfg.n = 5
+    assert generate_traces(cfg, tmp_path / "own", progress=False)["kept"] == 5
+    again_ts = load_traces(tmp_path / "own")
+    first = again_ts.data[site].jobs < 3
+    assert np.array_equal(again_ts.data[site].features[first], data.features)
+    # the command line: the flag, and one-line refusals
+    argv = ["traces", plant, "--own-samples", "-n", "2", "--workers", "1"]
+    assert main([*argv, "-o", str(tmp_path / "cli")]) == 0
+    assert "2 traces kept" in capsys.readouterr().out
+    for extra in (["--targets", str(tmp_path)], ["--mirror"]):
+        assert main([*argv, "-o", str(tmp_path / "x"), *extra]) == 1
+        err = capsys.readouterr().err
+        assert "ground-truth traces make their own targets" in err, err
+        assert len(err.strip().splitlines()) == 1
