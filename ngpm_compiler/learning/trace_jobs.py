@@ -170,47 +170,55 @@ def run_job(
     return trace, len(best.primitives)
 
 
-def run_own_job(
+def own_sample(
     program: Program, seed: int, size: int, max_modules: int | None = None
-) -> tuple[Trace, int]:
-    """One ground-truth trace (`TraceConfig.own_samples`): a forward sample of the grammar,
-    the envelope of its drawing as the target (datasets/envelopes.py, size x size), and the
-    sample's own values replayed into that target for their features. A sample whose
-    envelope covers less than MIN_INK of the canvas is drawn again (at most MAX_TRIES);
-    (trace, primitives), ([], 0) when none did.
-
-    For targets that are envelopes of the grammar's samples this is the posterior's own
-    data: the sample that made the target is an exact draw of what SMC searches for."""
+) -> tuple[Any, Any] | None:
+    """A forward sample of the grammar whose envelope (datasets/envelopes.py, size x size)
+    covers at least MIN_INK of the canvas, and that envelope as a Target: (sample, target),
+    the sample's trace holding its values; None when MAX_TRIES samples drew too little."""
     from ngpm_runtime.image.targets import Target
-    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, replay, smc
+    from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
 
     from ngpm_compiler.datasets.envelopes import MAX_TRIES, MIN_INK, envelope
     from ngpm_compiler.datasets.envelopes import start_of as envelope_start
 
-    start = envelope_start(program)
     seeds = np.random.SeedSequence(int(seed)).generate_state(MAX_TRIES, np.uint64) >> 1
     for s in seeds:
         options = SMCOptions(seed=int(s), trace=TraceRecording.VALUES, max_modules=max_modules)
         sample = smc(program, None, 1, options=options).particles[0]
         mask = envelope(list(sample.primitives), program, size)
-        if mask.mean() < MIN_INK:
-            continue
-        target = Target(mask, start, "own")
-        values = [(site, v) for site, _, v in sample.trace or []]
-        again = replay(
-            program,
-            values,
-            start=start_of(program, target),
-            canvas_size=target.size,
-            target_mask=target.mask,
-            max_modules=max_modules,
-        )
-        trace: Trace = []
-        for site, feats, value in again.trace or []:
-            assert feats is not None  # a replay records every visit's features
-            trace.append((site, feats, value))
-        return trace, len(sample.primitives)
-    return [], 0
+        if mask.mean() >= MIN_INK:
+            return sample, Target(mask, envelope_start(program), "own")
+    return None
+
+
+def run_own_job(
+    program: Program, seed: int, size: int, max_modules: int | None = None
+) -> tuple[Trace, int]:
+    """One ground-truth trace (`TraceConfig.own_samples`): an `own_sample` and its values
+    replayed into its envelope for their features; (trace, primitives), ([], 0) when no
+    sample drew enough. For targets that are envelopes of the grammar's samples this is the
+    posterior's own data: the sample that made the target is an exact draw of what SMC
+    searches for there."""
+    from ngpm_runtime.inference.smc import replay
+
+    found = own_sample(program, seed, size, max_modules)
+    if found is None:
+        return [], 0
+    sample, target = found
+    again = replay(
+        program,
+        [(site, v) for site, _, v in sample.trace or []],
+        start=start_of(program, target),
+        canvas_size=target.size,
+        target_mask=target.mask,
+        max_modules=max_modules,
+    )
+    trace: Trace = []
+    for site, feats, value in again.trace or []:
+        assert feats is not None  # a replay records every visit's features
+        trace.append((site, feats, value))
+    return trace, len(sample.primitives)
 
 
 def site_layouts(
