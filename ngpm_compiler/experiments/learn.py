@@ -90,9 +90,10 @@ VAL_COUNT = 12  # targets built per validation set (plans pick up to this many)
 # when unguided SMC reaches the generic targets too poorly; validated on another seed's
 ENVELOPES = "envelopes"
 ENVELOPE_VALIDATION = {"envelopes": ("envelopes", 9201)}
-# on envelope targets round 0 records ground-truth traces, not unguided SMC's: each a forward
-# sample recorded into its own envelope (TraceConfig.own_samples; experiments/notes/
-# own_samples.md: lazy bush held out 0.47 -> 0.63 at N = 10)
+# on envelope targets every round records ground-truth traces, not SMC's: each a forward
+# sample recorded into its own envelope (TraceConfig.own_samples), OWN_TRACES more a round
+# (experiments/notes/own_samples.md: lazy bush held out 0.47 -> 0.63 at N = 10 from 8000;
+# SMC teachers' traces added to them lowered validation round by round)
 OWN_TRACES = 8000
 OWN_TEACHER = "own samples (each into its envelope)"
 # particles of the measured jobs when the budget is under 2 minutes (else round 0's: a job's
@@ -696,17 +697,19 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
     return dirs, sum(per) / max(1, len(per))
 
 
-def record_own(run: Run, rc: Any, allow: float) -> tuple[list[str], float]:
-    """Round 0's traces on envelope targets: OWN_TRACES ground-truth traces (forward
-    samples, each recorded into its own envelope: TraceConfig.own_samples), stopped at
-    `allow` seconds; ([dir], seconds per job)."""
+def record_own(run: Run, rc: Any, r: int, allow: float) -> tuple[list[str], float]:
+    """Round r's traces on envelope targets: OWN_TRACES ground-truth traces (forward
+    samples, each recorded into its own envelope: TraceConfig.own_samples; each round its
+    own seed), stopped at `allow` seconds; ([dir], seconds per particle of the round's
+    planned SMC traces that cost as much: rc.n traces of the round's particles, so the
+    plan's estimates of later rounds hold)."""
     from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
-    out = Path(rc.out) / "round_0" / "own_samples"
+    out = Path(rc.out) / f"round_{r}" / "own_samples"
     until = time.perf_counter() + allow
 
     def on_job(_job: int) -> None:
-        run.clock.check("round 0's traces")
+        run.clock.check(f"round {r}'s traces")
         if time.perf_counter() > until:
             raise TracesTimeUp
 
@@ -715,7 +718,7 @@ def record_own(run: Run, rc: Any, allow: float) -> tuple[list[str], float]:
         targets="",
         n=OWN_TRACES,
         particles=1,
-        seed=rc.seed,
+        seed=rc.seed + 1000 * r,
         workers=rc.workers,
         own_samples=True,
     )
@@ -724,12 +727,12 @@ def record_own(run: Run, rc: Any, allow: float) -> tuple[list[str], float]:
     except TracesTimeUp:
         m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
         run.state.setdefault("notes", []).append(
-            f"round 0: {out.name} stopped at its share of the budget: "
+            f"round {r}: {out.name} stopped at its share of the budget: "
             f"{m['kept']} of {OWN_TRACES} traces"
         )
-    secs = m["job_seconds"]
-    run.log(f"round 0: {out}: {m['kept']} traces, {m['seconds']:.0f} s, {OWN_TEACHER}")
-    return [str(out)], sum(secs) / max(1, len(secs))
+    run.log(f"round {r}: {out}: {m['kept']} traces, {m['seconds']:.0f} s, {OWN_TEACHER}")
+    particles = rc.particles if r > 0 else rc.unguided_particles
+    return [str(out)], sum(m["job_seconds"]) / max(1, rc.n * particles)
 
 
 def train(
@@ -772,8 +775,9 @@ def train(
 
 
 def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
-    """Round r: traces (round 0 unguided, then guided by the best round so far), training
-    on every round's traces, validation at N = 10 under default proposal settings."""
+    """Round r: traces (round 0 unguided, then guided by the best round so far; on envelope
+    targets ground-truth traces every round, `record_own`), training on every round's
+    traces, validation at N = 10 under default proposal settings."""
     from ngpm_compiler.learning.rounds import validate
 
     rc = _rounds_config(run, p, r)
@@ -782,13 +786,13 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     teacher = best["guide"] if best else None
     t0 = time.perf_counter()
     setting = ""
-    if best is not None and run.cfg.tune_teachers:
+    own = targets_of(run).get("kind") == ENVELOPES
+    if best is not None and run.cfg.tune_teachers and not own:
         teacher, setting = tuned_teacher(run, p, best)
     costs, keep = _round_needs(run, p, rc, rows)
     allow = _allowance(run, rc, rows, teacher, costs, keep)
-    own = r == 0 and targets_of(run).get("kind") == ENVELOPES
     if own:
-        dirs, per_particle = record_own(run, rc, allow)
+        dirs, per_particle = record_own(run, rc, r, allow)
     else:
         dirs, per_particle = record(run, rc, r, teacher, allow)
     trace_dirs = [d for x in rows for d in x["traces_dirs"]] + dirs
@@ -799,10 +803,10 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
     score = validate(rc, f"round_{r}", path, run.log)
     return {
         "round": r,
-        "teacher": f"guided N={rc.particles} by round {best['round']}{setting}"
-        if best
-        else OWN_TEACHER
+        "teacher": OWN_TEACHER
         if own
+        else f"guided N={rc.particles} by round {best['round']}{setting}"
+        if best
         else f"unguided N={rc.unguided_particles}",
         "traces": summary["traces"],
         "val_nll": round(float(summary["val_nll"]), 3),
