@@ -527,6 +527,11 @@ def replan_stage(run: Run, p: Plan) -> dict[str, Any]:
     q = replan(p, max(0.0, run.clock.left()), _costs(run), r0["traces"])
     q = replace(q, total=run.cfg.budget)
     run.log(f"plan: {q.reasons[-1]}")
+    if targets_of(run).get("kind") == ENVELOPES:
+        run.log(
+            f"plan: on envelopes each round records {OWN_TRACES} ground-truth traces "
+            "(its own samples) in place of the guided traces planned"
+        )
     return asdict(q)
 
 
