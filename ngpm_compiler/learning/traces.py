@@ -302,10 +302,12 @@ def generate_traces(
             if in_a_row == 5 and targets:
                 _check_module_cap(cfg, program, targets[0])
             if in_a_row >= MAX_DROPPED_IN_A_ROW and cfg.own_samples:
+                from ngpm_compiler.datasets.envelopes import MIN_INK
+
                 raise TraceError(
                     f"{cfg.grammar}: stopped after {in_a_row} jobs in a row found no forward "
-                    "sample whose envelope covers 3% of the canvas; fit the viewport to "
-                    "what the grammar draws (`ngpmc check` proposes one)"
+                    f"sample whose envelope covers {MIN_INK:.0%} of the canvas; fit the "
+                    "viewport to what the grammar draws (`ngpmc check` proposes one)"
                 )
             if in_a_row >= MAX_DROPPED_IN_A_ROW:
                 raise TraceError(
@@ -335,7 +337,15 @@ def generate_traces(
         cfg.backend,
         cfg.workers,
         worker_setup,
-        (cfg.grammar, text, targets, guide, cfg.likelihood, cfg.sigma, cfg.size * cfg.own_samples),
+        (
+            cfg.grammar,
+            text,
+            targets,
+            guide,
+            cfg.likelihood,
+            cfg.sigma,
+            cfg.size if cfg.own_samples else 0,
+        ),
         cfg.ray_address,
     )
     complete = False
