@@ -451,3 +451,13 @@ def test_own_samples_record_each_forward_sample_into_its_own_envelope(tmp_path, 
         err = capsys.readouterr().err
         assert "ground-truth traces make their own targets" in err, err
         assert len(err.strip().splitlines()) == 1
+
+
+def test_own_samples_of_a_grammar_that_draws_too_little_stop_with_the_cause(tmp_path):
+    """Three unit strokes in a 200-unit viewport never cover 3% of the canvas: after 50
+    jobs in a row found no such sample, one error says what to change."""
+    grammar = tmp_path / "tiny.lsys"
+    grammar.write_text(F3.replace("-10 10 -10 10", "-100 100 -100 100"))
+    cfg = TraceConfig(grammar=str(grammar), targets="", n=1, workers=1, own_samples=True)
+    with pytest.raises(TraceError, match="covers 3% of the canvas; fit the viewport"):
+        generate_traces(cfg, tmp_path / "own", progress=False)
