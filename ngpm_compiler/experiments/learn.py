@@ -58,6 +58,7 @@ from ngpm_compiler.experiments.learn_plan import (
     FEATURES,
     GUIDED_PARTICLES,
     MIN_TRACES,
+    OWN_TEACHER,
     TRAIN_FIXED,
     TRAIN_SECONDS,
     UNGUIDED_PARTICLES,
@@ -95,7 +96,6 @@ ENVELOPE_VALIDATION = {"envelopes": ("envelopes", 9201)}
 # (experiments/notes/own_samples.md: lazy bush held out 0.47 -> 0.63 at N = 10 from 8000;
 # SMC teachers' traces added to them lowered validation round by round)
 OWN_TRACES = 8000
-OWN_TEACHER = "own samples (each into its envelope)"
 # particles of the measured jobs when the budget is under 2 minutes (else round 0's: a job's
 # fixed cost at 100 particles made lily's 6-minute run plan for 6x its per-particle cost)
 MEASURE_SMALL = 100

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field, replace
 FEATURES = {2: "all+context", 3: "all"}  # the guides' feature set (3D rows have no context)
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)
+# the teacher column of a round that recorded ground-truth traces (learn on envelopes)
+OWN_TEACHER = "own samples (each into its envelope)"
 MIN_PARTICLES = 20
 MAX_ROUNDS = 4  # guided rounds after round 0
 STRONG_PARTICLES = 600  # the stronger teacher of the recipe's rounds 5 and 6

@@ -13,7 +13,7 @@ from ngpm_runtime.files import atomic_write
 
 from ngpm_compiler.evaluation.diagnose import reach_seen
 from ngpm_compiler.evaluation.runs import UNGUIDED, n_to_match
-from ngpm_compiler.experiments.learn_plan import FEATURES
+from ngpm_compiler.experiments.learn_plan import FEATURES, OWN_TEACHER
 
 NOT_TUNED = "Not tuned (no grid in the plan, or no budget left)."
 
@@ -141,6 +141,15 @@ def measured(c: dict[str, Any]) -> str:
     return out + " (one worker)."
 
 
+def _own_rounds(stages: dict[str, Any]) -> bool:
+    """Whether the rounds recorded ground-truth traces (learn on envelope targets)."""
+    return any(
+        (v.get("result") or {}).get("teacher") == OWN_TEACHER
+        for k, v in stages.items()
+        if k.startswith("round_")
+    )
+
+
 def plan_lines(state: dict[str, Any]) -> list[str]:
     stages = state["stages"]
     p = latest_plan(stages)
@@ -162,6 +171,12 @@ def plan_lines(state: dict[str, Any]) -> list[str]:
         + "".join(
             f"; round {p['rounds'] + i + 1}: {n} traces with {pg} particles"
             for i, (n, pg) in enumerate(p.get("more", ()))
+        )
+        + (
+            " (on envelopes each round recorded its own samples' ground-truth traces in "
+            "place of these: the rounds table)"
+            if _own_rounds(stages)
+            else ""
         ),
         f"- validation: {p['val_targets']} targets per set, {p['val_repeats']} run(s) each",
         "- tune grid: "

@@ -522,6 +522,7 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
         assert rows and {r.split(",")[0] for r in rows} == {"envelopes"}
     report = Path(res["report"]).read_text()
     assert lines[0] in report and "validation envelopes (`val_envelopes`)" in report
+    assert "recorded its own samples' ground-truth traces in place of these" in report
     logs.clear()
     learn(cfg, log=logs.append)  # resumed: every stage done, the same targets
     assert stages(tmp_path / "out") == done
