@@ -11,7 +11,8 @@ of the grammar's own samples, datasets/envelopes.py), `reach` (what unguided SMC
 `envelopes` (without --targets, after a low reach: training and validation switch to the
 grammar's envelopes when unguided SMC reaches them better; 2D only), `measure` (two unguided trace
 jobs per worker, run as the rounds run them: seconds per particle), `plan`
-(learn_plan.py), `round_00` (unguided traces, training, validation), `replan` (guided
+(learn_plan.py), `round_00` (unguided traces, training, validation; on envelope targets
+every round records ground-truth traces instead, `record_own`), `replan` (guided
 trace jobs timed, the guided rounds planned anew), `round_01`... (traces from SMC guided
 by the best round so far, training on every round's traces, validation: expert iteration
 as learning/rounds.py, rounds scored under equal, default proposal settings), `fill_<e>_<k>`
