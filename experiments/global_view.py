@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from ngpm_runtime.image.raster import N_LEVELS, pyramid
+from top_choice import DEPTH_COL  # experiments/, beside this
 
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.trace_jobs import job_spec, own_sample
@@ -62,9 +63,6 @@ def main() -> None:
     for name, x in (("without the view", rows[:, :-width]), ("with the view", rows)):
         ce, acc = probe(x, values)
         print(f"site 0 at depth 0, {name}: cross-entropy {ce:.3f}, accuracy {acc:.3f}")
-
-
-DEPTH_COL = 6  # the local group's depth / derivation length (image/features.py)
 
 
 def probe(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:

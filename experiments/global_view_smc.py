@@ -59,22 +59,17 @@ def main() -> None:
     smc.USE_COMPILED = False
     if a.view:
         add_view()
-    from guide_settings import parse_setting  # experiments/ (this script's folder)
-    from ngpm_runtime.grow import grow
+    from guide_settings import load_sets, parse_setting, score  # experiments/, beside this
     from ngpm_runtime.inference.guide import Guide
 
     from ngpm_compiler.language.compile import load_grammar
-    from ngpm_compiler.learning.trace_jobs import load_targets
 
     program = load_grammar(a.grammar)
-    targets = [t for d in a.targets.split(",") for t in load_targets(d, 50, False, program)]
+    targets = load_sets(a.targets, program)
     for text in a.settings.split(","):
         guide = Guide.load(a.guide, program, settings=parse_setting(text))
-        medians = [
-            np.median([grow(program, t, guide, 10, 1000 * i + r).similarity for r in range(a.runs)])
-            for i, t in enumerate(targets)
-        ]
-        print(f"N=10 {text} view={a.view}: {np.mean(medians):.3f} ({len(targets)} targets)")
+        sim = score(program, targets, guide, 10, a.runs)
+        print(f"N=10 {text} view={a.view}: {sim:.3f} ({len(targets)} targets)")
 
 
 if __name__ == "__main__":

@@ -46,7 +46,6 @@ import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -655,25 +654,16 @@ def _trace_options(likelihood: str, dim: int) -> dict[str, Any]:
 def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tuple[list[str], float]:
     """Round r's traces (one directory per training directory), each directory stopped
     at its share of `allow` seconds; (dirs, seconds per particle of their jobs)."""
-    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
+    from ngpm_compiler.learning.traces import TraceConfig
 
     dirs, per = [], []
-    share = math.ceil(rc.n / len(rc.targets))
-    where = f"round {r}'s traces"
     t0 = time.perf_counter()
-
-    def on_job(_job: int, *, until: float) -> None:
-        run.clock.check(where)
-        if time.perf_counter() > until:
-            raise TracesTimeUp
-
     for i, targets in enumerate(rc.targets):
-        until = t0 + allow * (i + 1) / len(rc.targets)
         out = Path(rc.out) / f"round_{r}" / f"traces_{i}"
         tc = TraceConfig(
             grammar=rc.grammar,
             targets=targets,
-            n=share,
+            n=math.ceil(rc.n / len(rc.targets)),
             particles=rc.particles if teacher else rc.unguided_particles,
             seed=rc.seed + 1000 * r + i,
             workers=rc.workers,
@@ -681,17 +671,7 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
             guide=teacher,
             **_trace_options(rc.likelihood, dim_of(run)),
         )
-        try:
-            m = generate_traces(
-                tc, out, progress=run.cfg.progress, on_job=partial(on_job, until=until)
-            )
-        except TracesTimeUp:
-            m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
-            run.log(f"round {r}: {out}: traces stopped at their share of the budget")
-            run.state.setdefault("notes", []).append(
-                f"round {r}: {out.name} stopped at its share of the budget: "
-                f"{m['kept']} of {share} traces"
-            )
+        m = _traces_until(run, r, tc, out, t0 + allow * (i + 1) / len(rc.targets))
         secs = m["job_seconds"]
         if secs:
             per.append(sum(secs) / len(secs) / tc.particles)
@@ -703,22 +683,37 @@ def record(run: Run, rc: Any, r: int, teacher: str | None, allow: float) -> tupl
     return dirs, sum(per) / max(1, len(per))
 
 
-def record_own(run: Run, rc: Any, r: int, allow: float) -> tuple[list[str], float]:
-    """Round r's traces on envelope targets: OWN_TRACES ground-truth traces (forward
-    samples, each recorded into its own envelope: TraceConfig.own_samples; each round its
-    own seed), stopped at `allow` seconds; ([dir], seconds per particle of the round's
-    planned SMC traces that cost as much: rc.n traces of the round's particles, so the
-    plan's estimates of later rounds hold)."""
-    from ngpm_compiler.learning.traces import TraceConfig, generate_traces
-
-    out = Path(rc.out) / f"round_{r}" / "own_samples"
-    until = time.perf_counter() + allow
+def _traces_until(run: Run, r: int, tc: Any, out: Path, until: float) -> dict[str, Any]:
+    """Round r's traces of `tc` into `out`, stopped (and noted) at `until` (perf_counter
+    seconds) or by the budget; their manifest."""
+    from ngpm_compiler.learning.traces import generate_traces
 
     def on_job(_job: int) -> None:
         run.clock.check(f"round {r}'s traces")
         if time.perf_counter() > until:
             raise TracesTimeUp
 
+    try:
+        return generate_traces(tc, out, progress=run.cfg.progress, on_job=on_job)
+    except TracesTimeUp:
+        m: dict[str, Any] = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
+        run.log(f"round {r}: {out}: traces stopped at their share of the budget")
+        run.state.setdefault("notes", []).append(
+            f"round {r}: {out.name} stopped at its share of the budget: "
+            f"{m['kept']} of {tc.n} traces"
+        )
+        return m
+
+
+def record_own(run: Run, rc: Any, r: int, allow: float) -> tuple[list[str], float]:
+    """Round r's traces on envelope targets: OWN_TRACES ground-truth traces (forward
+    samples, each recorded into its own envelope: TraceConfig.own_samples; each round its
+    own seed), stopped at `allow` seconds; ([dir], seconds per particle of the round's
+    planned SMC traces that cost as much: rc.n traces of the round's particles, so the
+    plan's estimates of later rounds hold)."""
+    from ngpm_compiler.learning.traces import TraceConfig
+
+    out = Path(rc.out) / f"round_{r}" / "own_samples"
     tc = TraceConfig(
         grammar=rc.grammar,
         targets="",
@@ -728,14 +723,7 @@ def record_own(run: Run, rc: Any, r: int, allow: float) -> tuple[list[str], floa
         workers=rc.workers,
         own_samples=True,
     )
-    try:
-        m = generate_traces(tc, out, progress=run.cfg.progress, on_job=on_job)
-    except TracesTimeUp:
-        m = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
-        run.state.setdefault("notes", []).append(
-            f"round {r}: {out.name} stopped at its share of the budget: "
-            f"{m['kept']} of {OWN_TRACES} traces"
-        )
+    m = _traces_until(run, r, tc, out, time.perf_counter() + allow)
     run.log(f"round {r}: {out}: {m['kept']} traces, {m['seconds']:.0f} s, {OWN_TEACHER}")
     particles = rc.particles if r > 0 else rc.unguided_particles
     return [str(out)], sum(m["job_seconds"]) / max(1, rc.n * particles)

@@ -130,11 +130,9 @@ def run_job(
 
     The run records values only; the best particle alone is then replayed with its values
     to compute its features (the same rows a run with features for every particle gives)."""
-    from ngpm_runtime.errors import ProgramError
     from ngpm_runtime.grow import grow
-    from ngpm_runtime.inference.smc import TraceRecording, replay
+    from ngpm_runtime.inference.smc import TraceRecording
 
-    start = start_of(program, target)
     best = grow(
         program,
         target,
@@ -146,7 +144,24 @@ def run_job(
         max_modules=max_modules,
         sigma=sigma,
     ).smc.best
-    values = [(s, v) for s, _, v in best.trace or []]
+    return replay_features(program, best, target, max_modules, likelihood), len(best.primitives)
+
+
+def replay_features(
+    program: Program,
+    particle: Any,
+    target: Any,
+    max_modules: int | None = None,
+    likelihood: str = "shape",
+) -> Trace:
+    """A particle's values replayed into `target` for their features (a 2D target's mask
+    only under the shape likelihood; a 3D target as the volume): its trace with every
+    visit's feature row. ProgramError when the replay draws other primitives."""
+    from ngpm_runtime.errors import ProgramError
+    from ngpm_runtime.inference.smc import replay
+
+    values = [(s, v) for s, _, v in particle.trace or []]
+    start = start_of(program, target)
     if program.dim == 3:
         again = replay(program, values, start=start, max_modules=max_modules, volume=target)
     else:
@@ -158,16 +173,16 @@ def run_job(
             target_mask=target.mask if likelihood == "shape" else None,
             max_modules=max_modules,
         )
-    if again.primitives != best.primitives:
+    if again.primitives != particle.primitives:
         raise ProgramError(
-            f"program {program.name}: replaying the best particle's values "
+            f"program {program.name}: replaying a particle's values "
             "drew other primitives (generated code is not pure)"
         )
     trace: Trace = []
     for site, feats, value in again.trace or []:
         assert feats is not None  # a replay records every visit's features
         trace.append((site, feats, value))
-    return trace, len(best.primitives)
+    return trace
 
 
 def own_sample(
@@ -200,25 +215,11 @@ def run_own_job(
     sample drew enough. For targets that are envelopes of the grammar's samples this is the
     posterior's own data: the sample that made the target is an exact draw of what SMC
     searches for there."""
-    from ngpm_runtime.inference.smc import replay
-
     found = own_sample(program, seed, size, max_modules)
     if found is None:
         return [], 0
     sample, target = found
-    again = replay(
-        program,
-        [(site, v) for site, _, v in sample.trace or []],
-        start=start_of(program, target),
-        canvas_size=target.size,
-        target_mask=target.mask,
-        max_modules=max_modules,
-    )
-    trace: Trace = []
-    for site, feats, value in again.trace or []:
-        assert feats is not None  # a replay records every visit's features
-        trace.append((site, feats, value))
-    return trace, len(sample.primitives)
+    return replay_features(program, sample, target, max_modules), len(sample.primitives)
 
 
 def site_layouts(
