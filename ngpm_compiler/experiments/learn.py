@@ -55,6 +55,7 @@ from ngpm_runtime.files import atomic_write
 from ngpm_compiler.evaluation.diagnose import REACH_LOW, reach_line
 from ngpm_compiler.experiments.learn_plan import (
     CURVE_REPEATS,
+    ENVELOPE_TRAINING,
     FEATURES,
     GUIDED_PARTICLES,
     MIN_TRACES,
@@ -627,6 +628,10 @@ def _rounds_config(run: Run, p: Plan, r: int) -> Any:
 
     t = targets_of(run)
     n, particles = p.round_settings(r) if r > 0 else (p.traces, p.guided_particles)
+    own = t.get("kind") == ENVELOPES
+    training: dict[str, Any] = (
+        dict(ENVELOPE_TRAINING) if own else {"feature_set": FEATURES[dim_of(run)]}
+    )
     return RoundsConfig(
         grammar=run.state["stages"]["diagnose"]["result"]["grammar"],
         targets=t["train"],
@@ -638,7 +643,7 @@ def _rounds_config(run: Run, p: Plan, r: int) -> Any:
         unguided_particles=p.unguided_particles,
         val_targets=p.val_targets,
         val_repeats=p.val_repeats,
-        feature_set=FEATURES[dim_of(run)],
+        **training,
         workers=run.cfg.workers,
         seed=run.cfg.seed,
         likelihood=run.cfg.likelihood,
@@ -749,7 +754,13 @@ def train(
         ts.sites,
         ts.layouts,
         ts.data,
-        TrainConfig(feature_set=rc.feature_set, K=rc.K, epochs=rc.epochs, seed=rc.seed),
+        TrainConfig(
+            feature_set=rc.feature_set,
+            K=rc.K,
+            epochs=rc.epochs,
+            patience=rc.patience,
+            seed=rc.seed,
+        ),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
         checkpoint=folder / "model.pt.ckpt",
@@ -803,6 +814,8 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         if best
         else f"unguided N={rc.unguided_particles}",
         "traces": summary["traces"],
+        "features": rc.feature_set,
+        "patience": rc.patience,
         "val_nll": round(float(summary["val_nll"]), 3),
         "validation": round(score, 4),
         "guide": path,

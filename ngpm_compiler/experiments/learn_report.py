@@ -326,15 +326,33 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Notes",
         "",
         *(f"- {n}" for n in state.get("notes", [])),
-        f"- features {_features(stages)}, 4 mixture components, early stopping (patience 4 "
-        "epochs); traces whose best particle drew fewer than 10 primitives are kept as data",
+        f"- features {_features(stages)}, 4 mixture components, early stopping (patience "
+        f"{_patience(stages)} epochs); traces whose best particle drew fewer than 10 "
+        "primitives are kept as data",
     ]
     return atomic_write(out / "report.md", "\n".join(lines) + "\n")
 
 
+def _of_rounds(stages: dict[str, Any], key: str) -> str:
+    """What the rounds' results record under `key`, each value once ("" if none does)."""
+    seen = [
+        str(v["result"][key])
+        for k, v in sorted(stages.items())
+        if k.startswith("round_") and (v.get("result") or {}).get(key) is not None
+    ]
+    return ", ".join(dict.fromkeys(seen))
+
+
 def _features(stages: dict[str, Any]) -> str:
-    """The feature set the rounds trained with (a 3D grammar's rows have no context)."""
-    return FEATURES[((stages.get("diagnose") or {}).get("result") or {}).get("dim", 2)]
+    """The feature set the rounds trained with (a round from before they recorded it: the
+    dimension's default, a 3D grammar's rows have no context)."""
+    dim = ((stages.get("diagnose") or {}).get("result") or {}).get("dim", 2)
+    return _of_rounds(stages, "features") or FEATURES[dim]
+
+
+def _patience(stages: dict[str, Any]) -> str:
+    """The rounds' early-stopping patience (4 before they recorded it)."""
+    return _of_rounds(stages, "patience") or "4"
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:

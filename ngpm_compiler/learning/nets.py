@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.image.features import FEATURE_GROUPS, FEATURE_SETS
 from ngpm_runtime.inference.sitekinds import KINDS, MIXTURE, SIGMOID, SiteKind
 from torch import nn
@@ -37,6 +38,11 @@ def select_columns(layout: dict[str, slice], feature_set: str) -> list[int]:
         raise ValueError(f"unknown feature set {feature_set!r} (one of {', '.join(FEATURE_SETS)})")
     cols: list[int] = []
     for group in FEATURE_GROUPS[feature_set]:
+        if group not in layout:
+            raise NgpmError(
+                f"feature set {feature_set!r} reads the {group!r} group, which these traces "
+                f"do not have (recorded by an older ngpm: record them again)"
+            )
         sl = layout[group]
         cols.extend(range(sl.start, sl.stop))
     return cols

@@ -56,6 +56,7 @@ class RoundsConfig:
     val_n: int = 10
     feature_set: str = "all"
     epochs: int = 40
+    patience: int = 4  # early stopping's, in epochs
     K: int = 4
     workers: int = 2
     seed: int = 0
@@ -140,7 +141,13 @@ def train_round(
         ts.sites,
         ts.layouts,
         ts.data,
-        TrainConfig(feature_set=cfg.feature_set, K=cfg.K, epochs=cfg.epochs, seed=cfg.seed),
+        TrainConfig(
+            feature_set=cfg.feature_set,
+            K=cfg.K,
+            epochs=cfg.epochs,
+            patience=cfg.patience,
+            seed=cfg.seed,
+        ),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
     )

@@ -45,7 +45,9 @@ MANIFEST_OPTIONAL = {
     "job_seconds": list,
     "shards": list,
 }
-LAYOUT_GROUPS = FEATURE_GROUPS["all+context"]  # the column groups traces record, every set's
+# the column groups every traces manifest has (those recorded since the far group existed
+# also have "far")
+LAYOUT_GROUPS = FEATURE_GROUPS["all+context"]
 
 
 class TraceError(NgpmError):

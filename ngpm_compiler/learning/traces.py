@@ -245,6 +245,14 @@ def generate_traces(
             f"{store.dir}: holds traces of another configuration "
             f"(differs in {', '.join(diff)}); use a new directory{hint}"
         )
+    new_layouts = {
+        str(i): {g: [sl.start, sl.stop] for g, sl in lay.items()} for i, lay in layouts.items()
+    }
+    if old is not None and old.get("layouts", new_layouts) != new_layouts:
+        raise TraceError(
+            f"{store.dir}: its traces' feature rows have another layout (recorded by an "
+            f"older ngpm); use a new directory"
+        )
     done = store.finished()
     done_ids = set(int(j) for j in done["jobs"])
     store.consolidate(done_ids, cfg.shard_size)
@@ -256,9 +264,7 @@ def generate_traces(
         "config": asdict(cfg),
         "grammar_hash": program.grammar_hash,
         "sites": [s.to_json() for s in program.sites],
-        "layouts": {
-            str(i): {g: [sl.start, sl.stop] for g, sl in lay.items()} for i, lay in layouts.items()
-        },
+        "layouts": new_layouts,
         "requested": cfg.n,
     }
     seconds_before = float(old.get("seconds", 0.0)) if old else 0.0

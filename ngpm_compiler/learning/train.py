@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from ngpm_runtime.errors import NgpmError
 from ngpm_runtime.files import atomic_write
+from ngpm_runtime.image.features import last_group
 from ngpm_runtime.program import Site
 
 from ngpm_compiler.learning.nets import (
-    FEATURE_GROUPS,
     FEATURE_SETS,
     GuideModel,
     NetSpec,
@@ -114,9 +114,8 @@ def build_model(
         if len(rows) == 0:
             rows = d.features
         sel = rows[:, cols].astype(np.float64)
-        # rows end at the context group only for guides that read it: the runtime computes
-        # context columns for those alone
-        last = "context" if "context" in FEATURE_GROUPS[config.feature_set] else "partial"
+        # rows end at the last group the guide reads (features.last_group)
+        last = last_group(config.feature_set)
         n_f = layouts[site.index][last].stop
         spec = NetSpec(
             site_index=site.index,

@@ -522,20 +522,21 @@ def feature_windows(
     memo: np.ndarray,
     memo_key: np.ndarray,
 ) -> None:
-    """FeatureMaker's rows of n particles into out (n, >= 7 + e + 72 [+ 17]) float32: turtle
-    columns, the row's e = n_extra[k] extra columns extra[k, :e] (module parameters and
-    prior arguments), target and partial 3x3 windows at the 4 levels (target (T,) and
+    """FeatureMaker's rows of n particles into out (n, >= 7 + e + 72 [+ 2 + R]) float32:
+    turtle columns, the row's e = n_extra[k] extra columns extra[k, :e] (module parameters
+    and prior arguments), target and partial 3x3 windows at the 4 levels (target (T,) and
     canvas (N, T) padded pyramids; an empty one: that group is view[5] or view[6]) and,
-    when `ctx` (the look-ahead's 15 (angle, distance) pairs) is not empty, the context group
-    (else zeros to the end of the row).
+    when `ctx` (R look-ahead rows: angle, distance, then their level's first cell (start +
+    padding), padded width, height and width) is not empty, the context group and the far
+    look-ahead after it (else zeros to the end of the row).
 
     view = (xmin, ymax, xmax - xmin, -(ymax - ymin), derivation length, target fill, canvas
     fill); size (3, L) level heights, widths and padded widths (L == 0: no image, every
-    window cell is its fill); offs (L, 9) window offsets; ctx_geom = (total, base, padded
-    width, height, width of the look-ahead level, aspect); cells, cell_t: the fill level's
-    cells and the target there.
+    window cell is its fill); offs (L, 9) window offsets; ctx_geom = (total, aspect): the
+    target's sum on the fill level and the viewport's width / height; cells, cell_t: the
+    fill level's cells and the target there.
 
-    memo (P, 2 * 72 [+ 17]) float32, memo_key (P, 3) float64, P > 0: the windows and
+    memo (P, 2 * 72 [+ 2 + R]) float32, memo_key (P, 3) float64, P > 0: the windows and
     context of particle i's last row (those columns depend only on the turtle's x, y and
     heading, its canvas row and the target) and that turtle, reused for a row of the same
     particle and turtle: one step's rounds, whose canvas does not change, give the same
@@ -603,8 +604,9 @@ def _context(
             unfilled += d
     out[0] = unfilled / total
     out[1] = (unfilled - dsum) / total
-    base, wp, hl, wl, aspect = int(geom[1]), geom[2], geom[3], geom[4], geom[5]
+    aspect = geom[1]
     for q in range(ctx.shape[0]):
+        base, wp, hl, wl = int(ctx[q, 2]), ctx[q, 3], ctx[q, 4], ctx[q, 5]
         ang = np.radians(heading + ctx[q, 0])
         r = math.floor((v - math.sin(ang) * ctx[q, 1] * aspect) * hl)
         c = math.floor((u + math.cos(ang) * ctx[q, 1]) * wl)

@@ -29,6 +29,7 @@ from ngpm_runtime.kernels import (
     take_rows,
 )
 from ngpm_runtime.native_call import call_native, generator_at
+from ngpm_runtime.warmup import drop_stale_cache
 
 
 @jit
@@ -1191,3 +1192,11 @@ def _live_after(log_w: np.ndarray, status: np.ndarray, live: np.ndarray) -> tupl
             live[n_live] = i
             n_live += 1
     return most, n_live
+
+
+# these kernels inline kernels.py's functions and other modules' constants, which numba's
+# disk cache does not check: drop it when those files change (warmup.drop_stale_cache)
+drop_stale_cache(
+    __name__,
+    ("kernels.py", "native_call.py", "geometry/compiled.py", "geometry/derive.py"),
+)

@@ -9,7 +9,9 @@ from ngpm_runtime.errors import TargetError
 from ngpm_runtime.geometry.turtle import Turtle
 from ngpm_runtime.image.features import (
     FEATURE_GROUPS,
+    FAR_DIST,
     N_CONTEXT,
+    N_FAR,
     N_LOCAL_BASE,
     N_WINDOW,
     RAY_ANGLES,
@@ -29,10 +31,10 @@ from ngpm_runtime.program import Program, Site
 
 # _context_geometry's answer (its docstring names the parts)
 ContextGeometry = tuple[
-    np.ndarray, np.ndarray, float, int, int, int, int, np.ndarray, np.ndarray, float
+    np.ndarray, np.ndarray, float, list[tuple[np.ndarray, np.ndarray, int, int, int, int]], float
 ]
 
-_RAY_LEVEL, _FILL_LEVEL = 1, 2
+_RAY_LEVEL, _FAR_LEVEL, _FILL_LEVEL = 1, 3, 2
 __all__ = ["FEATURE_GROUPS", "FeatureMaker"]
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
 _DC = np.tile(np.arange(-1, 2), 3)
@@ -72,10 +74,14 @@ class FeatureMaker:
         viewport: Viewport,
         target_mask: np.ndarray | None,
         context: bool = False,
+        far: bool = False,
     ) -> None:
         self.program = program
-        self.context = bool(context)
-        self.n_common = N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if context else 0)
+        self.far = bool(far)
+        self.context = bool(context) or self.far
+        self.n_common = (
+            N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if self.context else 0) + N_FAR * self.far
+        )
         self.viewport = as_viewport(viewport)
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (
@@ -120,6 +126,9 @@ class FeatureMaker:
         }
         if self.context:
             out["context"] = slice(nl + 2 * N_WINDOW, nl + 2 * N_WINDOW + N_CONTEXT)
+        if self.far:
+            end = nl + 2 * N_WINDOW + N_CONTEXT
+            out["far"] = slice(end, end + N_FAR)
         return out
 
     def n_features(self, site: Site) -> int:
@@ -330,8 +339,9 @@ class FeatureMaker:
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
         """Per canvas size: the fill level's cells in the padded row, the target there and
-        its sum; the look-ahead level's first cell (start + padding), padded width, height
-        and width; the 15 look-ahead (angle, distance) pairs and the viewport's aspect."""
+        its sum; per look-ahead group (the context's, then the far one's) its (angle,
+        distance) pairs and its level's first cell (start + padding), padded width, height
+        and width; the viewport's aspect."""
         key = (h, w)
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
@@ -343,23 +353,20 @@ class FeatureMaker:
                 + PAD
             ).reshape(-1)
             t = self._padded_target()[cells]
-            lv = _RAY_LEVEL
-            base = int(starts[lv] + PAD * wp[lv] + PAD)
-            angles = np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST))
-            dist = np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES))
+            groups = [(RAY_DIST, _RAY_LEVEL)] + [(FAR_DIST, _FAR_LEVEL)] * self.far
+            rays = [
+                (
+                    np.repeat(np.asarray(RAY_ANGLES), len(d)),
+                    np.tile(np.asarray(d), len(RAY_ANGLES)),
+                    int(starts[lv] + PAD * wp[lv] + PAD),
+                    int(wp[lv]),
+                    h >> lv,
+                    w >> lv,
+                )
+                for d, lv in groups
+            ]
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            self._context_geom[key] = (
-                cells,
-                t,
-                max(float(t.sum()), 1e-6),
-                base,
-                int(wp[lv]),
-                h >> lv,
-                w >> lv,
-                angles,
-                dist,
-                aspect,
-            )
+            self._context_geom[key] = (cells, t, max(float(t.sum()), 1e-6), rays, aspect)
         return self._context_geom[key]
 
     def _context(
@@ -372,22 +379,26 @@ class FeatureMaker:
         h: int,
         w: int,
     ) -> None:
-        """The context group (module docstring) of n particles into `out` (n, N_CONTEXT)."""
-        cells, t, total, base, wp, hl, wl, angles, dist, aspect = self._context_geometry(h, w)
+        """The context group (module docstring), and the far group after it, of n particles
+        into `out` (n, N_CONTEXT [+ N_FAR])."""
+        cells, t, total, rays, aspect = self._context_geometry(h, w)
         d = t - canvas.padded[idx[:, None], cells]
         unfilled = np.maximum(d, 0.0).sum(axis=1)
         out[:, 0] = unfilled / total
         out[:, 1] = (unfilled - d.sum(axis=1)) / total  # sum of max(-d, 0)
-        # (n, 15) look-ahead cells; one outside the image lands in the padding (-1 in the
-        # target's row), and so does one of a heading that is not finite (fmax: NaN -> -1)
-        ang = np.radians(heading[:, None] + angles)
-        row = np.floor((uv[:, 1:] - np.sin(ang) * dist * aspect) * hl)
-        col = np.floor((uv[:, :1] + np.cos(ang) * dist) * wl)
-        np.fmax(row, -1.0, out=row)
-        np.fmin(row, hl, out=row)
-        np.fmax(col, -1.0, out=col)
-        np.fmin(col, wl, out=col)
-        at = (row * wp + col).astype(np.intp) + base
-        tv = self._padded_target()[at]
-        ahead = np.maximum(tv - canvas.padded[idx[:, None], at], 0.0)
-        out[:, 2:] = np.where(tv < 0, -1.0, ahead)
+        col0 = 2
+        for angles, dist, base, wp, hl, wl in rays:
+            # (n, R) look-ahead cells; one outside the image lands in the padding (-1 in the
+            # target's row), and so does one of a heading that is not finite (fmax: NaN -> -1)
+            ang = np.radians(heading[:, None] + angles)
+            row = np.floor((uv[:, 1:] - np.sin(ang) * dist * aspect) * hl)
+            col = np.floor((uv[:, :1] + np.cos(ang) * dist) * wl)
+            np.fmax(row, -1.0, out=row)
+            np.fmin(row, hl, out=row)
+            np.fmax(col, -1.0, out=col)
+            np.fmin(col, wl, out=col)
+            at = (row * wp + col).astype(np.intp) + base
+            tv = self._padded_target()[at]
+            ahead = np.maximum(tv - canvas.padded[idx[:, None], at], 0.0)
+            out[:, col0 : col0 + len(angles)] = np.where(tv < 0, -1.0, ahead)
+            col0 += len(angles)

@@ -160,9 +160,9 @@ def _turtles(rng: np.random.Generator, m: int) -> np.ndarray:
     return t
 
 
-@pytest.mark.parametrize("context", [False, True])
+@pytest.mark.parametrize("context", [False, True, "far"])
 @pytest.mark.parametrize("seed", range(8))
-def test_feature_rows_match_numpy(seed: int, context: bool) -> None:
+def test_feature_rows_match_numpy(seed: int, context: bool | str) -> None:
     rng = np.random.default_rng(100 + seed)
     h, w = [(50, 50), (37, 23), (6, 11)][seed % 3]
     n = 9
@@ -173,8 +173,9 @@ def test_feature_rows_match_numpy(seed: int, context: bool) -> None:
     program = SimpleNamespace(derivation_length=400)
     target = _target(rng, h, w) if seed % 4 else None
     for cv in (canvas, None):
-        a = FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
-        b = ref_features.FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        far = context == "far"
+        a = FeatureMaker(program, VP, target, bool(context), far)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, bool(context), far)  # type: ignore[arg-type]
         m = 40
         idx = rng.integers(0, n, m)
         turtle, depth = _turtles(rng, m), rng.integers(-1, 400, m).astype(np.float64)
@@ -190,16 +191,16 @@ def test_feature_rows_without_an_image() -> None:
     rng = np.random.default_rng(3)
     turtle = _turtles(rng, 6)
     for target in (None, np.ones((0, 0), dtype=bool)):
-        a = FeatureMaker(program, VP, target, True)  # type: ignore[arg-type]
-        b = ref_features.FeatureMaker(program, VP, target, True)  # type: ignore[arg-type]
+        a = FeatureMaker(program, VP, target, True, True)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, True, True)  # type: ignore[arg-type]
         got = a._common(None, np.arange(6), turtle, np.arange(6.0))
         want = b._common(None, np.arange(6), turtle, np.arange(6.0))
         np.testing.assert_array_equal(got, want)
 
 
-@pytest.mark.parametrize("context", [False, True])
+@pytest.mark.parametrize("context", [False, True, "far"])
 @pytest.mark.parametrize("seed", range(4))
-def test_site_rows_of_a_round_match_numpy(seed: int, context: bool) -> None:
+def test_site_rows_of_a_round_match_numpy(seed: int, context: bool | str) -> None:
     """features_round (one kernel call for several sites: the module parameters and prior
     arguments written between the turtle and window columns) gives the numpy reference's
     rows, arguments of other widths (truncated or zero-padded) and empty images included."""
@@ -220,8 +221,9 @@ def test_site_rows_of_a_round_match_numpy(seed: int, context: bool) -> None:
     params = [rng.normal(size=(3, 1)), np.zeros((4, 0)), rng.normal(size=(2, 3))]  # 3: cut
     args = [rng.normal(size=(3, 2)), rng.random((4, 3)), rng.normal(size=(2, 0))]  # 0: pad
     for cv in (canvas, None):
-        a = FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
-        b = ref_features.FeatureMaker(program, VP, target, context)  # type: ignore[arg-type]
+        far = context == "far"
+        a = FeatureMaker(program, VP, target, bool(context), far)  # type: ignore[arg-type]
+        b = ref_features.FeatureMaker(program, VP, target, bool(context), far)  # type: ignore[arg-type]
         idx = rng.integers(0, n, sum(ms))
         turtle, depth = _turtles(rng, sum(ms)), rng.integers(-1, 40, sum(ms)).astype(np.float64)
         got = a.features_round(sites, cv, idx, turtle, depth, params, args)  # type: ignore[arg-type]

@@ -13,6 +13,11 @@ sum t, pyramid level 2), then "look-ahead" samples of the unfilled target max(t 
 level 1 (H/2), -1 outside the image, at the points `RAY_DIST` x viewport width away from the
 turtle in the directions heading + `RAY_ANGLES` degrees (angle-major). Unlike the windows,
 which lie on image axes, these turn with the turtle.
+
+With `far=True` (which implies the context) a `far` group (10) follows it: the same
+look-ahead at `FAR_DIST` x viewport width, on level 3 (H/8, whose cells average 8 x 8
+pixels), so a choice made where nothing is drawn yet (the first fork of a plant that
+derives top-down) sees how far and which way the target reaches.
 """
 
 from __future__ import annotations
@@ -41,8 +46,10 @@ N_LOCAL_BASE = 7
 N_WINDOW = 9 * N_LEVELS  # 36 per image
 RAY_ANGLES = (-45.0, -22.5, 0.0, 22.5, 45.0)  # look-ahead directions, degrees from heading
 RAY_DIST = (1 / 12, 1 / 6, 1 / 3)  # look-ahead distances, fractions of the viewport width
+FAR_DIST = (2 / 3, 1.0)  # the far look-ahead's distances
 N_CONTEXT = 2 + len(RAY_ANGLES) * len(RAY_DIST)
-_RAY_LEVEL, _FILL_LEVEL = 1, 2
+N_FAR = len(RAY_ANGLES) * len(FAR_DIST)
+_RAY_LEVEL, _FAR_LEVEL, _FILL_LEVEL = 1, 3, 2
 # the feature sets a guide network may read: the column groups of `FeatureMaker.layout` it
 # selects (ngpm_compiler/learning/nets.py trains them; inference/guide.py checks a file's)
 FEATURE_GROUPS = {
@@ -51,6 +58,7 @@ FEATURE_GROUPS = {
     "local+target": ("local", "target"),
     "all": ("local", "target", "partial"),
     "all+context": ("local", "target", "partial", "context"),  # issue #11's experiment
+    "all+context+far": ("local", "target", "partial", "context", "far"),
 }
 FEATURE_SETS = tuple(FEATURE_GROUPS)
 _DR = np.repeat(np.arange(-1, 2), 3)  # 3x3 window offsets, row-major
@@ -60,9 +68,16 @@ _NO_TARGET = np.zeros(0, dtype=np.float32)
 _NO_CANVAS = np.zeros((0, 0), dtype=np.float32)
 _NO_SIZE = np.zeros((3, 0))
 _NO_OFFS = np.zeros((0, 9), dtype=np.intp)
-_NO_CTX = np.zeros((0, 2))
-_NO_GEOM = np.zeros(6)
+_NO_CTX = np.zeros((0, 6))
+_NO_GEOM = np.zeros(2)
 _NO_CELLS = np.zeros(0, dtype=np.intp)
+
+
+def last_group(feature_set: str) -> str:
+    """The group a network of `feature_set` reads its rows up to: the runtime computes the
+    context and far columns only for networks that read them, so their rows end there."""
+    groups = FEATURE_GROUPS[feature_set]
+    return next((g for g in ("far", "context") if g in groups), "partial")
 
 
 def _fit_columns(a: np.ndarray, n: int, k: int) -> np.ndarray:
@@ -124,10 +139,14 @@ class FeatureMaker:
         viewport: Viewport,
         target_mask: np.ndarray | None,
         context: bool = False,
+        far: bool = False,
     ) -> None:
         self.program = program
-        self.context = bool(context)
-        self.n_common = N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if context else 0)
+        self.far = bool(far)
+        self.context = bool(context) or self.far
+        self.n_common = (
+            N_LOCAL_BASE + 2 * N_WINDOW + (N_CONTEXT if self.context else 0) + N_FAR * self.far
+        )
         self.viewport = as_viewport(viewport)
         self.derivation_length = float(getattr(program, "derivation_length", 1) or 1)
         self.target_levels = (
@@ -182,6 +201,9 @@ class FeatureMaker:
         }
         if self.context:
             out["context"] = slice(nl + 2 * N_WINDOW, nl + 2 * N_WINDOW + N_CONTEXT)
+        if self.far:
+            end = nl + 2 * N_WINDOW + N_CONTEXT
+            out["far"] = slice(end, end + N_FAR)
         return out
 
     def n_features(self, site: Site) -> int:
@@ -274,8 +296,8 @@ class FeatureMaker:
     def _common(
         self, canvas: Canvas | None, idx: np.ndarray, turtle: np.ndarray, depth: np.ndarray
     ) -> np.ndarray:
-        """(n, 7 + 72 [+ 17]) float32: the site-independent columns (turtle state, depth,
-        target and partial windows, context) of every particle."""
+        """(n, 7 + 72 [+ 17 [+ 10]]) float32: the site-independent columns (turtle state,
+        depth, target and partial windows, context, far) of every particle."""
         n = len(idx)
         return self.rows_from(canvas, idx, turtle, depth, np.zeros((n, 0)), np.zeros(n, np.int64))
 
@@ -345,9 +367,9 @@ class FeatureMaker:
 
     def _context_geometry(self, h: int, w: int) -> ContextGeometry:
         """Per canvas size: the fill level's cells in the padded row, the target there, the
-        15 look-ahead (angle, distance) pairs (15, 2) and the kernel's `ctx_geom`: the
-        target's sum there; the look-ahead level's first cell (start + padding), padded
-        width, height and width; the viewport's aspect."""
+        look-ahead rows (15, or 25 with the far group; 6): angle, distance, their level's
+        first cell (start + padding), padded width, height and width; and the kernel's
+        `ctx_geom`: the target's sum there and the viewport's aspect."""
         key = (h, w)
         if key not in self._context_geom:
             _, wp, starts = padded_layout(h, w)
@@ -359,16 +381,22 @@ class FeatureMaker:
                 + PAD
             ).reshape(-1)
             t = self._padded_target()[cells]
-            lv = _RAY_LEVEL
-            base = int(starts[lv] + PAD * wp[lv] + PAD)
-            rays = np.column_stack(
+            groups = [(RAY_DIST, _RAY_LEVEL)] + [(FAR_DIST, _FAR_LEVEL)] * self.far
+            rays = np.vstack(
                 [
-                    np.repeat(np.asarray(RAY_ANGLES), len(RAY_DIST)),
-                    np.tile(np.asarray(RAY_DIST), len(RAY_ANGLES)),
+                    np.column_stack(
+                        [
+                            np.repeat(np.asarray(RAY_ANGLES), len(dist)),
+                            np.tile(np.asarray(dist), len(RAY_ANGLES)),
+                            np.full((len(RAY_ANGLES) * len(dist), 4), 0.0)
+                            + [int(starts[lv] + PAD * wp[lv] + PAD), wp[lv], h >> lv, w >> lv],
+                        ]
+                    )
+                    for dist, lv in groups
                 ]
             )
             aspect = -self._span[0] / self._span[1]  # viewport width / height
-            geom = [max(float(t.sum()), 1e-6), base, int(wp[lv]), h >> lv, w >> lv, aspect]
+            geom = [max(float(t.sum()), 1e-6), aspect]
             cells = np.ascontiguousarray(cells, dtype=np.intp)
             self._context_geom[key] = (cells, t, rays, np.array(geom, dtype=np.float64))
         return self._context_geom[key]

@@ -45,7 +45,7 @@ import numpy as np
 import onnxruntime as ort
 
 from ngpm_runtime.errors import GuideError, ProgramError
-from ngpm_runtime.image.features import N_CONTEXT
+from ngpm_runtime.image.features import N_CONTEXT, N_FAR
 from ngpm_runtime.inference import distributions as dist
 from ngpm_runtime.inference import guide_checks as checks
 from ngpm_runtime.inference.guide_format import (
@@ -141,6 +141,15 @@ class Guide:
         self.feature_set: str = meta["features"]["feature_set"]
         self.uses_features = self.feature_set != "const"
         self.feature_context = "context" in self.feature_set.split("+")
+        self.feature_far = "far" in self.feature_set.split("+")
+        # the columns past a network's own that a recorded trace's rows may have
+        self._unread = (
+            ()
+            if self.feature_far
+            else (N_FAR,)
+            if self.feature_context
+            else (N_CONTEXT, N_CONTEXT + N_FAR)
+        )
         # a 3D guide's window (volume/features.py: its layouts say which); None in 2D
         self.feature_window: str | None = None
         if program.dim == 3:
@@ -340,8 +349,8 @@ class Guide:
                 raise GuideError(f"{self.path}: site {site} needs features")
             return np.zeros((n, net["n_f"]), dtype=np.float32)
         x = np.ascontiguousarray(features, dtype=np.float32)
-        if x.ndim == 2 and not self.feature_context and x.shape[1] == net["n_f"] + N_CONTEXT:
-            x = x[:, : net["n_f"]]  # a recorded trace's row: its context columns are not read
+        if x.ndim == 2 and x.shape[1] > net["n_f"] and x.shape[1] - net["n_f"] in self._unread:
+            x = x[:, : net["n_f"]]  # a recorded trace's row: its last columns are not read
         if x.ndim != 2 or x.shape[1] != net["n_f"]:
             raise GuideError(
                 f"{self.path}: site {site} expects {net['n_f']} features per row, "

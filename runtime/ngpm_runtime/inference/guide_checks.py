@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ngpm_runtime.errors import GuideError
-from ngpm_runtime.image.features import FEATURE_GROUPS
+from ngpm_runtime.image.features import FEATURE_GROUPS, last_group
 from ngpm_runtime.inference.distributions import kind_of
 from ngpm_runtime.inference.guide_format import input_name
 from ngpm_runtime.program import Program, Site
@@ -33,7 +33,7 @@ MAX_WEIGHT = 1e12  # |float parameter|; export's are far smaller (inputs scale b
 MAX_INT = 1_000_000  # |integer constant|: column indices and widths
 JSON_KEYS = ("sites", "features", "nets", "training")
 # "frame": an empty group, the mark of 3D windows that turn with the turtle (volume/features)
-GROUPS = ("local", "target", "partial", "frame", "context")
+GROUPS = ("local", "target", "partial", "frame", "context", "far")
 # the operators `ngpmc export` writes; all cost linear time
 GUIDE_OPS = frozenset(
     {
@@ -173,8 +173,8 @@ def _check_features(path: str, features: Any, nets: dict[str, Any]) -> None:
     columns = _site_table(path, features, "columns")
     for key, net in nets.items():
         layout = _check_layout(path, key, layouts.get(key))
-        # rows end at the context group only for networks that read it (learning/train.py)
-        last = "context" if "context" in FEATURE_GROUPS[fs] else "partial"
+        # rows end at the last group the network reads (features.last_group)
+        last = last_group(fs)
         missing = [g for g in (*FEATURE_GROUPS[fs], last) if g not in layout]
         if missing:
             raise _bad(

@@ -358,16 +358,18 @@ class _Run:
         if need_features:
             from ngpm_runtime.image.features import FeatureMaker
 
-            # recorded traces carry the context columns; a guide reads them if trained on them
-            # (an optional attribute: proposals written before it existed read no context)
+            # recorded traces carry the context and far columns; a guide reads them if
+            # trained on them (optional attributes: proposals written before them read none)
             reads = bool(getattr(self.proposal, "feature_context", False))
-            context = self.trace is TraceRecording.FULL or reads
+            reads_far = bool(getattr(self.proposal, "feature_far", False))
+            full = self.trace is TraceRecording.FULL
             assert program.viewport is not None  # checked for the canvas above
-            self.fmaker = FeatureMaker(program, program.viewport, options.target_mask, context)
-            if context and not reads:
-                from ngpm_runtime.image.features import N_CONTEXT
+            self.fmaker = FeatureMaker(
+                program, program.viewport, options.target_mask, full or reads, full or reads_far
+            )
+            from ngpm_runtime.image.features import N_CONTEXT, N_FAR
 
-                self.trim = N_CONTEXT
+            self.trim = N_FAR * (full and not reads_far) + N_CONTEXT * (full and not reads)
 
     def _make_volume(self, options: SMCOptions, need_features: bool) -> None:
         """A 3D grammar's voxel canvas and FeatureMaker3D (volume/run.py) with the guide's

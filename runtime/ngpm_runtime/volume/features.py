@@ -291,7 +291,7 @@ def window_of(layouts: Any) -> str:
 
 def check_guide_layouts(path: str, meta: dict[str, Any], program: Program) -> None:
     """GuideError unless a guide's stored feature layouts are the ones a 3D run computes
-    (with the window they name; 3D rows have no context group)."""
+    (with the window they name; 3D rows have no context or far group)."""
     features = meta["features"]
     if "context" in str(features["feature_set"]).split("+"):
         raise GuideError(
@@ -305,7 +305,7 @@ def check_guide_layouts(path: str, meta: dict[str, Any], program: Program) -> No
         if lay is None:
             continue
         ours = {g: [sl.start, sl.stop] for g, sl in layout3d(site, window).items()}
-        theirs = {g: [int(v) for v in lay[g]] for g in lay if g != "context"}
+        theirs = {g: [int(v) for v in lay[g]] for g in lay if g not in ("context", "far")}
         if theirs != ours:
             raise GuideError(
                 f"{path}: site {site.index}'s feature layout {theirs} is not the 3D "
