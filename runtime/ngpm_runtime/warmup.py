@@ -51,7 +51,7 @@ def cache_is_cold() -> bool:
     return False
 
 
-def drop_stale_cache(module: str, depends: tuple[str, ...]) -> bool:
+def drop_stale_cache(module: str, depends: tuple[str, ...], root: str | None = None) -> bool:
     """Forget the disk cache of `module`'s kernels when a file they call into changed.
 
     numba checks a cached kernel only against its own source file, so a kernel that inlines
@@ -59,14 +59,15 @@ def drop_stale_cache(module: str, depends: tuple[str, ...]) -> bool:
     code of their old version after an upgrade that changed only those. A stamp beside the
     cache holds a digest of `depends` (paths relative to the package); when it differs, the
     module's index files are removed (numba compiles them again) and the stamp rewritten.
-    True when it dropped anything."""
+    `root`: the folder `depends` are in (default: this package's). True when it dropped
+    anything."""
     import hashlib
 
     from numba.core.dispatcher import Dispatcher
 
     from ngpm_runtime.files import atomic_write
 
-    package = os.path.dirname(os.path.abspath(__file__))
+    package = root or os.path.dirname(os.path.abspath(__file__))
     digest = hashlib.sha256()
     for rel in depends:
         with open(os.path.join(package, rel), "rb") as f:

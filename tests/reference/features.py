@@ -8,8 +8,8 @@ import numpy as np
 from ngpm_runtime.errors import TargetError
 from ngpm_runtime.geometry.turtle import Turtle
 from ngpm_runtime.image.features import (
-    FEATURE_GROUPS,
     FAR_DIST,
+    FEATURE_GROUPS,
     N_CONTEXT,
     N_FAR,
     N_LOCAL_BASE,

@@ -34,3 +34,34 @@ def test_warm_up_fills_an_empty_cache_and_says_so_once(tmp_path: Path) -> None:
     again = _run(["-m", "ngpm_runtime.warmup"], cache)
     assert again.returncode == 0 and "compiling" not in again.stderr
     assert "loading the cached SMC kernels" in again.stderr
+
+
+KERNEL = """from numba import njit
+
+
+@njit(cache=True)
+def f(x):
+    return x + 1.0
+"""
+
+
+def test_a_kernel_cache_is_dropped_when_a_file_it_inlines_changes(tmp_path: Path) -> None:
+    """numba checks a cached kernel against its own file only: drop_stale_cache forgets
+    it when a file it depends on changes, and keeps it otherwise."""
+    (tmp_path / "stalemod.py").write_text(KERNEL)
+    (tmp_path / "dep.py").write_text("A = 1\n")
+    script = (
+        f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import stalemod; "
+        "from ngpm_runtime.warmup import drop_stale_cache; "
+        f"print(drop_stale_cache('stalemod', ('dep.py',), root={str(tmp_path)!r})); "
+        "print(stalemod.f(1.0))"
+    )
+    cache = tmp_path / "numba"
+    said = []
+    for dep in ("A = 1\n", "A = 1\n", "A = 2\n", "A = 2\n"):
+        (tmp_path / "dep.py").write_text(dep)
+        run = _run(["-c", script], cache)
+        assert run.returncode == 0, run.stderr
+        said.append(run.stdout.split())
+        assert any(cache.rglob("stalemod.f-*.nbi"))  # compiled and cached again
+    assert said == [["False", "2.0"], ["False", "2.0"], ["True", "2.0"], ["False", "2.0"]]

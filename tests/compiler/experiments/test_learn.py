@@ -510,6 +510,10 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     rounds = [done[k]["result"] for k in ("round_00", "round_01")]
     assert [x["teacher"] for x in rounds] == [learn_mod.OWN_TEACHER] * 2
     assert [x["traces"] for x in rounds] == [5, 10]
+    # trained with the far look-ahead and patience 10 (learn_plan.ENVELOPE_TRAINING)
+    assert [(x["features"], x["patience"]) for x in rounds] == [("all+context+far", 10)] * 2
+    meta = {p.key: p.value for p in onnx.load(res["guide"]).metadata_props}
+    assert json.loads(meta["features"])["feature_set"] == "all+context+far"
     keys = []
     for r in (0, 1):
         m = json.loads((tmp_path / f"out/rounds/round_{r}/own_samples/manifest.json").read_text())
@@ -523,6 +527,7 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     report = Path(res["report"]).read_text()
     assert lines[0] in report and "validation envelopes (`val_envelopes`)" in report
     assert "recorded its own samples' ground-truth traces in place of these" in report
+    assert "features all+context+far, 4 mixture components, early stopping (patience 10" in report
     logs.clear()
     learn(cfg, log=logs.append)  # resumed: every stage done, the same targets
     assert stages(tmp_path / "out") == done

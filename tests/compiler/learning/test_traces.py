@@ -22,7 +22,7 @@ from ngpm_compiler.learning.nets import FEATURE_SETS as NET_FEATURE_SETS
 from ngpm_compiler.learning.shards import TraceError
 from ngpm_compiler.learning.trace_data import load_traces
 from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES, job_arrays, job_spec
-from ngpm_compiler.learning.trace_store import TraceStore
+from ngpm_compiler.learning.trace_store import TraceStore, save_npz
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 
 
@@ -156,6 +156,37 @@ def test_resume_refuses_other_configuration(tmp_path):
         generate_traces(cfg, tmp_path / "t", progress=False)
     with pytest.raises(TraceError, match="not a traces directory"):
         load_traces(tmp_path / "data")
+
+
+def test_traces_of_an_older_layout_are_not_resumed_nor_trained_on_by_new_groups(tmp_path):
+    """A traces directory recorded before the far group (rows end at the context group)
+    is not resumed with wider rows, and a feature set reading far refuses it in one line;
+    the sets it has train as before."""
+    from ngpm_runtime.errors import NgpmError
+
+    from ngpm_compiler.learning.train import TrainConfig, train_guide
+
+    data = make_dataset(tmp_path / "data", 2)
+    cfg = TraceConfig(grammar=CHAIN, targets=str(data), n=2, particles=4, workers=1)
+    generate_traces(cfg, tmp_path / "t", progress=False)
+    manifest = tmp_path / "t" / "manifest.json"
+    m = json.loads(manifest.read_text())
+    for lay in m["layouts"].values():
+        del lay["far"]
+    manifest.write_text(json.dumps(m))
+    for shard in (tmp_path / "t").glob("shard_*.npz"):  # rows as they were recorded then
+        z = dict(np.load(shard))
+        for k in [k for k in z if k.startswith("f_")]:
+            z[k] = z[k][:, : m["layouts"][k[2:]]["context"][1]]
+        save_npz(shard, z)
+    cfg.n = 3
+    with pytest.raises(TraceError, match="another layout .*use a new directory"):
+        generate_traces(cfg, tmp_path / "t", progress=False)
+    ts = load_traces(tmp_path / "t")
+    with pytest.raises(NgpmError, match="reads the 'far' group, which these traces do not"):
+        train_guide(ts.sites, ts.layouts, ts.data, TrainConfig("all+context+far", epochs=1))
+    model = train_guide(ts.sites, ts.layouts, ts.data, TrainConfig("all+context", epochs=1))
+    assert model.nets
 
 
 def test_mirror_adds_missing_copies(tmp_path):
