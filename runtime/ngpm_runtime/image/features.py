@@ -382,18 +382,14 @@ class FeatureMaker:
             ).reshape(-1)
             t = self._padded_target()[cells]
             groups = [(RAY_DIST, _RAY_LEVEL)] + [(FAR_DIST, _FAR_LEVEL)] * self.far
-            rays = np.vstack(
+            rays = np.array(
                 [
-                    np.column_stack(
-                        [
-                            np.repeat(np.asarray(RAY_ANGLES), len(dist)),
-                            np.tile(np.asarray(dist), len(RAY_ANGLES)),
-                            np.full((len(RAY_ANGLES) * len(dist), 4), 0.0)
-                            + [int(starts[lv] + PAD * wp[lv] + PAD), wp[lv], h >> lv, w >> lv],
-                        ]
-                    )
+                    (a, d, int(starts[lv] + PAD * wp[lv] + PAD), wp[lv], h >> lv, w >> lv)
                     for dist, lv in groups
-                ]
+                    for a in RAY_ANGLES  # angle-major
+                    for d in dist
+                ],
+                dtype=np.float64,
             )
             aspect = -self._span[0] / self._span[1]  # viewport width / height
             geom = [max(float(t.sum()), 1e-6), aspect]

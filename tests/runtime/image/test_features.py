@@ -6,7 +6,14 @@ import math
 
 import numpy as np
 import pytest
-from ngpm_runtime.image.features import N_CONTEXT, RAY_ANGLES, RAY_DIST, FeatureMaker
+from ngpm_runtime.image.features import (
+    FAR_DIST,
+    N_CONTEXT,
+    N_FAR,
+    RAY_ANGLES,
+    RAY_DIST,
+    FeatureMaker,
+)
 from ngpm_runtime.image.raster import Canvas
 from ngpm_runtime.program import Program, Site
 
@@ -49,22 +56,24 @@ def _slow_windows(img: np.ndarray, x: float, y: float) -> list[float]:
 
 
 def _slow_context(
-    img: np.ndarray, target: np.ndarray, x: float, y: float, heading: float
+    img: np.ndarray, target: np.ndarray, x: float, y: float, heading: float, far: bool = False
 ) -> list[float]:
-    """The context group by its definition, one number at a time."""
+    """The context group (and the far group after it) by its definition, one number at a
+    time: look-ahead on level 1, the far one's on level 3."""
     t2, c2 = _slow_level(target.astype(float), 2), _slow_level(img.astype(float), 2)
     total = t2.sum()
     vals = [np.maximum(t2 - c2, 0).sum() / total, np.maximum(c2 - t2, 0).sum() / total]
-    t1, c1 = _slow_level(target.astype(float), 1), _slow_level(img.astype(float), 1)
-    h, w = t1.shape
-    for a in RAY_ANGLES:
-        for d in RAY_DIST:
-            px = x + d * 24 * math.cos(math.radians(heading + a))
-            py = y + d * 24 * math.sin(math.radians(heading + a))
-            r = math.floor((VP[3] - py) / 24 * h)
-            c = math.floor((px - VP[0]) / 24 * w)
-            inside = 0 <= r < h and 0 <= c < w
-            vals.append(max(t1[r, c] - c1[r, c], 0.0) if inside else -1.0)
+    for dists, lv in [(RAY_DIST, 1)] + [(FAR_DIST, 3)] * far:
+        tl, cl = _slow_level(target.astype(float), lv), _slow_level(img.astype(float), lv)
+        h, w = tl.shape
+        for a in RAY_ANGLES:
+            for d in dists:
+                px = x + d * 24 * math.cos(math.radians(heading + a))
+                py = y + d * 24 * math.sin(math.radians(heading + a))
+                r = math.floor((VP[3] - py) / 24 * h)
+                c = math.floor((px - VP[0]) / 24 * w)
+                inside = 0 <= r < h and 0 <= c < w
+                vals.append(max(tl[r, c] - cl[r, c], 0.0) if inside else -1.0)
     return vals
 
 
@@ -103,8 +112,16 @@ def test_features_match_slow_computation() -> None:
     turtle = np.stack([xs, ys, rng.uniform(-400, 400, n), rng.uniform(0.1, 1, n)], axis=1)
     depth = rng.integers(0, 40, n).astype(float)
     idx = np.array([6, 0, 3, 2, 2, 5, 1])
-    for tmask, context in ((target, False), (None, False), (target, True), (None, True)):
-        fm = FeatureMaker(prog, VP, tmask, context=context)
+    for tmask, context in (
+        (target, False),
+        (None, False),
+        (target, True),
+        (None, True),
+        (target, "far"),
+        (None, "far"),
+    ):
+        far = context == "far"
+        fm = FeatureMaker(prog, VP, tmask, context=bool(context), far=far)
         for site, params, args in (
             (prog.sites[0], rng.normal(size=(n, 1)), rng.normal(size=(n, 2))),
             (prog.sites[1], np.zeros((n, 0)), np.tile([0.2, 0.3, 0.5], (n, 1))),
@@ -118,9 +135,9 @@ def test_features_match_slow_computation() -> None:
                 )
                 if context:
                     want += (
-                        [0.0] * N_CONTEXT
+                        [0.0] * (N_CONTEXT + N_FAR * far)
                         if tmask is None
-                        else _slow_context(canvas.image[idx[k]], tmask, *turtle[k, :3])
+                        else _slow_context(canvas.image[idx[k]], tmask, *turtle[k, :3], far)
                     )
                 np.testing.assert_allclose(got[k], want, rtol=1e-5, atol=1e-6)
 
@@ -168,6 +185,9 @@ def test_layout_slices() -> None:
     wide = FeatureMaker(prog, VP, None, context=True)
     assert wide.layout(prog.sites[0])["context"] == slice(82, 82 + N_CONTEXT)
     assert wide.n_features(prog.sites[1]) == 82 + N_CONTEXT == 99
+    far = FeatureMaker(prog, VP, None, far=True)  # implies the context
+    assert far.layout(prog.sites[0])["far"] == slice(99, 99 + N_FAR)
+    assert far.n_features(prog.sites[1]) == 99 + N_FAR == 109 and far.context
     assert "context" not in lay
 
 

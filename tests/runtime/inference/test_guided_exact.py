@@ -16,7 +16,7 @@ from fixtures.tiny_programs import (
     discrete_program,
     gauss_program,
 )
-from ngpm_runtime.image.features import N_CONTEXT, FeatureMaker
+from ngpm_runtime.image.features import N_CONTEXT, N_FAR, FeatureMaker
 from ngpm_runtime.inference.distributions import prior_logpdf, proposal_logpdf
 from ngpm_runtime.inference.guide import Guide, ProposalSettings
 from ngpm_runtime.inference.smc import SMCOptions, TraceRecording, smc
@@ -26,6 +26,7 @@ from ngpm_compiler.learning.trace_data import SiteData, prior_arg_columns
 from ngpm_compiler.learning.train import TrainConfig, train_guide
 
 VIEWPORT = (-4.0, 4.0, -4.0, 4.0)
+UNREAD = N_CONTEXT + N_FAR  # the recorded rows' columns a guide of feature set "local" skips
 
 
 def with_viewport(program):
@@ -88,7 +89,7 @@ def site_data(program, traces):
     for job, trace in enumerate(traces):
         for s, f, v in trace:
             rows.setdefault(s, []).append((f, v, job))
-    fm = FeatureMaker(program, VIEWPORT, None, context=True)  # recorded rows carry context
+    fm = FeatureMaker(program, VIEWPORT, None, far=True)  # recorded rows carry context, far
     data = {}
     for s, items in rows.items():
         f = np.stack([r[0] for r in items]).astype(np.float32)
@@ -122,7 +123,7 @@ def log_q(guide, program, trace):
     for s, f, v in trace:
         site = program.sites[s]
         args = f[None, prior_arg_columns(site, guide_layout(program, site))].astype(float)
-        params = guide.params(s, f[None, :-N_CONTEXT])  # the guide reads no context
+        params = guide.params(s, f[None, :-UNREAD])  # the guide reads no context nor far
         total += float(proposal_logpdf(site, args, params, np.array([v]))[0])
     return total
 
@@ -241,7 +242,7 @@ def test_guided_smc_stays_exact_gaussian(tmp_path, K):
             -proposal_logpdf(
                 site,
                 np.repeat(args, len(xs), 0),
-                np.repeat(g.params(s, f[:, :-N_CONTEXT]), len(xs), 0),
+                np.repeat(g.params(s, f[:, :-UNREAD]), len(xs), 0),
                 xs,
             ).mean()
             for g in (untrained, guide)
