@@ -225,7 +225,7 @@ def run_own_job(
 def site_layouts(
     program: Program, target: Any = None, window: str | None = None
 ) -> dict[int, dict[str, slice]]:
-    """FeatureMaker.layout for every site (traces record the context and far groups too); a 3D
+    """FeatureMaker.layout for every site (2D traces record the context and far groups too); a 3D
     grammar's: FeatureMaker3D.layout on the target's grid with `window` (None: the
     default; its context group empty)."""
     from ngpm_runtime.image.features import FeatureMaker
@@ -236,8 +236,8 @@ def site_layouts(
 
         fm3 = FeatureMaker3D(program, VoxelGrid.of_target(target), window=window or DEFAULT_WINDOW)
         out = {s.index: fm3.layout(s) for s in program.sites}
-        for lay in out.values():  # every traces manifest has the groups: empty in 3D
-            lay["context"] = lay["far"] = slice(lay["partial"].stop, lay["partial"].stop)
+        for lay in out.values():  # every traces manifest has the group: empty in 3D
+            lay["context"] = slice(lay["partial"].stop, lay["partial"].stop)
         return out
     target_mask = target.mask if target is not None else None
 

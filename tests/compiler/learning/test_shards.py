@@ -99,7 +99,7 @@ SHARD_CASES = {
     "unknown array": (edited(lambda a: a.update(x_0=a["v_0"])), "unexpected array 'x_0'"),
     "wrong width": (
         replaced("f_0", lambda x: x[:, :-1]),
-        "'f_0' has 98 feature columns; site 0 has 99",
+        "'f_0' has 108 feature columns; site 0 has 109",
     ),
     "wrong dtype": (
         replaced("jobs", lambda x: x.astype(np.float64)),
@@ -272,7 +272,7 @@ def test_cli_train_and_resumed_traces_on_malformed_files(good, tmp_path, capsys)
     out = copy(src, tmp_path)
     replaced("f_0", lambda x: x[:, :-1])(out / SHARD)
     line = one_error_line(capsys, "train", str(out), "-o", str(tmp_path / "m.pt"))
-    assert f"unreadable {SHARD} ('f_0' has 98 feature columns; site 0 has 99)" in line
+    assert f"unreadable {SHARD} ('f_0' has 108 feature columns; site 0 has 109)" in line
     line = one_error_line(
         capsys,
         "traces",
@@ -291,8 +291,8 @@ def test_cli_train_and_resumed_traces_on_malformed_files(good, tmp_path, capsys)
         str(out),
     )
     assert line == (
-        f"ngpmc: error: {out / SHARD}: corrupt trace shard: 'f_0' has 98 "
-        "feature columns; site 0 has 99"
+        f"ngpmc: error: {out / SHARD}: corrupt trace shard: 'f_0' has 108 "
+        "feature columns; site 0 has 109"
     )
     (out / "manifest.json").write_text(json.dumps({"format": "ngpm-traces/1"}))
     line = one_error_line(capsys, "train", str(out), "-o", str(tmp_path / "m.pt"))

@@ -152,7 +152,7 @@ def test_record_trace_replays_best_particle(vines) -> None:
     r = run_vines(vines, n=40, seed=3, trace=TraceRecording.FULL)
     trace = r.best.trace
     assert trace and all(isinstance(f, np.ndarray) and f.dtype == np.float32 for _, f, _ in trace)
-    fm = features_module.FeatureMaker(vines, vines.viewport, disk_mask(), context=True)
+    fm = features_module.FeatureMaker(vines, vines.viewport, disk_mask(), context=True, far=True)
     for s, f, _ in trace:
         assert f.shape == (fm.n_features(vines.sites[s]),)
     assert trace[0][0] == 0  # the start angle comes first
