@@ -14,6 +14,7 @@ import numpy as np
 
 from ngpm_runtime.geometry.compiled import GROW
 from ngpm_runtime.geometry.derive import DONE, DRAWN, NEED
+from ngpm_runtime.kernel_cache import drop_stale_cache
 from ngpm_runtime.kernels import (
     LOG_2PI,
     _memo_width,
@@ -29,7 +30,6 @@ from ngpm_runtime.kernels import (
     take_rows,
 )
 from ngpm_runtime.native_call import call_native, generator_at
-from ngpm_runtime.warmup import drop_stale_cache
 
 
 @jit
@@ -1195,7 +1195,7 @@ def _live_after(log_w: np.ndarray, status: np.ndarray, live: np.ndarray) -> tupl
 
 
 # these kernels inline kernels.py's functions and other modules' constants, which numba's
-# disk cache does not check: drop it when those files change (warmup.drop_stale_cache)
+# disk cache does not check: drop it when those files change (kernel_cache.py)
 drop_stale_cache(
     __name__,
     ("kernels.py", "native_call.py", "geometry/compiled.py", "geometry/derive.py"),

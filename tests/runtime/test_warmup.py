@@ -52,7 +52,7 @@ def test_a_kernel_cache_is_dropped_when_a_file_it_inlines_changes(tmp_path: Path
     (tmp_path / "dep.py").write_text("A = 1\n")
     script = (
         f"import sys; sys.path.insert(0, {str(tmp_path)!r}); import stalemod; "
-        "from ngpm_runtime.warmup import drop_stale_cache; "
+        "from ngpm_runtime.kernel_cache import drop_stale_cache; "
         f"print(drop_stale_cache('stalemod', ('dep.py',), root={str(tmp_path)!r})); "
         "print(stalemod.f(1.0))"
     )
