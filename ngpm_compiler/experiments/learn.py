@@ -741,9 +741,9 @@ def train(
     between epochs, and early once fewer than `keep` seconds of it are left: the round's
     validation, tuning and the curve) and export it; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
-    from ngpm_compiler.learning.rounds import merge_traces
+    from ngpm_compiler.learning.rounds import merge_traces, train_config
     from ngpm_compiler.learning.trace_data import load_traces
-    from ngpm_compiler.learning.train import TrainConfig, save_model, train_guide
+    from ngpm_compiler.learning.train import save_model, train_guide
 
     ts = merge_traces([load_traces(d) for d in trace_dirs])
     if not ts.data:
@@ -754,13 +754,7 @@ def train(
         ts.sites,
         ts.layouts,
         ts.data,
-        TrainConfig(
-            feature_set=rc.feature_set,
-            K=rc.K,
-            epochs=rc.epochs,
-            patience=rc.patience,
-            seed=rc.seed,
-        ),
+        train_config(rc),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
         checkpoint=folder / "model.pt.ckpt",
@@ -904,8 +898,11 @@ def run_rounds(run: Run, p: Plan) -> bool:
                         f"round {r}: skipped: it would take about {_minutes(est)}, "
                         f"{_minutes(room)} are left before tuning"
                     )
-                    run.state.setdefault("notes", []).append(
-                        f"round {r} skipped: estimated {_minutes(est)}, "
+                    notes = run.state.setdefault("notes", [])
+                    said = f"round {r} skipped: "  # asked again (fill_rounds): said once
+                    notes[:] = [x for x in notes if not x.startswith(said)]
+                    notes.append(
+                        f"{said}estimated {_minutes(est)}, "
                         f"{_minutes(room)} left before tuning and the curve"
                     )
                     return False

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from ngpm_runtime.files import atomic_write
@@ -33,6 +33,9 @@ from ngpm_compiler.learning.trace_data import SiteData, TraceSet
 from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.progress import Log
+
+if TYPE_CHECKING:  # train.py imports torch: on use
+    from ngpm_compiler.learning.train import TrainConfig
 
 JOB_STRIDE = 10**8  # job ids of the k-th merged traces directory are offset by k * this
 
@@ -61,6 +64,19 @@ class RoundsConfig:
     workers: int = 2
     seed: int = 0
     likelihood: str = "shape"  # circuit: targets [""], validation heldout.CIRCUIT_SETS
+
+
+def train_config(cfg: RoundsConfig) -> TrainConfig:
+    """The TrainConfig of a round's training."""
+    from ngpm_compiler.learning.train import TrainConfig
+
+    return TrainConfig(
+        feature_set=cfg.feature_set,
+        K=cfg.K,
+        epochs=cfg.epochs,
+        patience=cfg.patience,
+        seed=cfg.seed,
+    )
 
 
 def merge_traces(sets: list[TraceSet]) -> TraceSet:
@@ -126,7 +142,7 @@ def train_round(
     """Train and export round r's guide on `trace_dirs`; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
     from ngpm_compiler.learning.trace_data import load_traces
-    from ngpm_compiler.learning.train import TrainConfig, load_model, save_model, train_guide
+    from ngpm_compiler.learning.train import load_model, save_model, train_guide
 
     ts = merge_traces([load_traces(d) for d in trace_dirs])
     folder = Path(cfg.out) / f"round_{r}"
@@ -141,13 +157,7 @@ def train_round(
         ts.sites,
         ts.layouts,
         ts.data,
-        TrainConfig(
-            feature_set=cfg.feature_set,
-            K=cfg.K,
-            epochs=cfg.epochs,
-            patience=cfg.patience,
-            seed=cfg.seed,
-        ),
+        train_config(cfg),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
     )
