@@ -22,11 +22,10 @@ import numpy as np
 from ngpm_runtime.grow import grow
 from ngpm_runtime.inference.guide import Guide, ProposalSettings
 from ngpm_runtime.program import Site
+from top_choice import DEPTH_COL  # experiments/, beside this
 
 from ngpm_compiler.language.compile import load_grammar
 from ngpm_compiler.learning.trace_jobs import own_sample
-
-DEPTH_COL = 6  # the local group's depth / derivation length (image/features.py)
 
 
 class FirstChoiceOracle:
