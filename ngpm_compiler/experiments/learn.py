@@ -810,6 +810,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         "traces": summary["traces"],
         "features": rc.feature_set,
         "patience": rc.patience,
+        "hidden_per_input": rc.hidden_per_input,
         "val_nll": round(float(summary["val_nll"]), 3),
         "validation": round(score, 4),
         "guide": path,

@@ -326,7 +326,8 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         "## Notes",
         "",
         *(f"- {n}" for n in state.get("notes", [])),
-        f"- features {_features(stages)}, 4 mixture components, early stopping (patience "
+        f"- features {_features(stages)}, hidden units {_width(stages)} per input, 4 mixture "
+        f"components, early stopping (patience "
         f"{_patience(stages)} epochs); traces whose best particle drew fewer than 10 "
         "primitives are kept as data",
     ]
@@ -353,6 +354,11 @@ def _features(stages: dict[str, Any]) -> str:
 def _patience(stages: dict[str, Any]) -> str:
     """The rounds' early-stopping patience (4 before they recorded it)."""
     return _of_rounds(stages, "patience") or "4"
+
+
+def _width(stages: dict[str, Any]) -> str:
+    """The site networks' hidden units per input (0.5 before the rounds recorded it)."""
+    return _of_rounds(stages, "hidden_per_input") or "0.5"
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:

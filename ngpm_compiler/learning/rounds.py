@@ -60,6 +60,9 @@ class RoundsConfig:
     feature_set: str = "all"
     epochs: int = 40
     patience: int = 4  # early stopping's, in epochs
+    batch_size: int = 256
+    lr: float = 0.005
+    hidden_per_input: float = 0.5  # hidden units per site network over its inputs
     K: int = 4
     workers: int = 2
     seed: int = 0
@@ -75,7 +78,11 @@ def train_config(cfg: RoundsConfig) -> TrainConfig:
         K=cfg.K,
         epochs=cfg.epochs,
         patience=cfg.patience,
+        batch_size=cfg.batch_size,
+        lr=cfg.lr,
+        hidden_per_input=cfg.hidden_per_input,
         seed=cfg.seed,
+        threads=cfg.workers,  # a round trains alone: on the cores its traces used
     )
 
 

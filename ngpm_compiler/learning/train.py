@@ -25,6 +25,7 @@ from ngpm_runtime.program import Site
 
 from ngpm_compiler.learning.nets import (
     FEATURE_SETS,
+    MIN_HIDDEN,
     GuideModel,
     NetSpec,
     SiteNet,
@@ -48,7 +49,8 @@ class TrainConfig:
     patience: int = 4
     seed: int = 0
     threads: int = 1
-    hidden: int = 0  # hidden units per site network; 0: half the inputs (at least 8)
+    hidden: int = 0  # hidden units per site network; 0: hidden_per_input of its inputs
+    hidden_per_input: float = 0.5  # (at least 8)
 
 
 @dataclass
@@ -124,7 +126,7 @@ def build_model(
             cols=cols,
             K=config.K,
             k=site.k,
-            hidden=config.hidden,
+            hidden=config.hidden or max(MIN_HIDDEN, int(len(cols) * config.hidden_per_input)),
         )
         nets[site.index] = SiteNet(
             spec, sel.mean(0), sel.std(0), prior_probs=site.probs, seed=config.seed + site.index
@@ -196,7 +198,7 @@ def train_guide(
     history: list[dict[str, Any]] = []
     best: dict[str, Any] | None = None
     key = {
-        "config": {k: v for k, v in asdict(config).items() if k != "epochs"},
+        "config": {k: v for k, v in asdict(config).items() if k not in ("epochs", "threads")},
         "data": fingerprint(data),
     }
     first_epoch, bad, stopped = 0, 0, ""

@@ -527,7 +527,8 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     report = Path(res["report"]).read_text()
     assert lines[0] in report and "validation envelopes (`val_envelopes`)" in report
     assert "recorded its own samples' ground-truth traces in place of these" in report
-    assert "features all+context+far, 4 mixture components, early stopping (patience 10" in report
+    assert "features all+context+far, hidden units 2.0 per input, 4 mixture" in report
+    assert "early stopping (patience 10" in report
     logs.clear()
     learn(cfg, log=logs.append)  # resumed: every stage done, the same targets
     assert stages(tmp_path / "out") == done
