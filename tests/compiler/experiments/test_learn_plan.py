@@ -52,8 +52,11 @@ def test_a_large_budget_gets_the_recipe():
     assert p.rounds >= 2 and p.traces >= MIN_TRACES
     assert (p.val_targets, p.val_repeats) == (12, 8)
     # the widest tune grid where it fits its share, else the next
-    assert (p.choice_temperatures, p.ess) == TUNE_CHOICES[1]
-    assert (plan(3 * 3600, VINES).choice_temperatures, p.ess) == TUNE_CHOICES[0]
+    assert (p.choice_temperatures, p.ess) == TUNE_CHOICES[2]
+    q = plan(3 * 3600, VINES)
+    assert (q.choice_temperatures, q.ess) == TUNE_CHOICES[1]
+    q = plan(5 * 3600, VINES)
+    assert (q.choice_temperatures, q.ess) == TUNE_CHOICES[0]
     assert p.curve_guided == CURVE_GUIDED
     assert planned_seconds(p, VINES) <= 2 * 3600
     assert "guided round(s) of" in p.reasons[1]
@@ -190,7 +193,7 @@ def test_extend_tunes_a_plan_that_had_no_grid():
     q = extend(p, 45 * 60, 44 * 60, VINES, 0, p.traces, 8.0)
     assert q.choice_temperatures and q.estimates["tune"] > 0
     kept = extend(finished(45), 2 * 3600, 80 * 60, VINES, 2, 1500, 8.0)
-    assert (kept.choice_temperatures, kept.ess) == TUNE_CHOICES[0]
+    assert (kept.choice_temperatures, kept.ess) == TUNE_CHOICES[1]
 
 
 def test_extend_counts_only_the_guided_curve_runs_when_the_curve_was_cached():
