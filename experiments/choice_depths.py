@@ -7,8 +7,8 @@ On the last `--shards` shards of a traces folder (ground-truth traces: the value
 samples' own), per derivation depth (the feature row's depth column: depth / derivation
 length): the rows, the guide's cross-entropy (its untempered probabilities), that of the
 values' own marginal at that depth, and the share of rows whose most probable value is the
-recorded one. A depth whose cross-entropy equals the marginal's is one the guide's
-features say nothing about.
+recorded one; then the cross-entropy over all rows. A depth whose cross-entropy equals the
+marginal's is one the guide's features say nothing about.
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ def main() -> None:
             f"depth {d:.3f}: {m.sum()} rows, cross-entropy {ce:.3f} (marginal {ce0:.3f}), "
             f"top value right {acc:.3f}"
         )
+    ce_all = -np.log(p[np.arange(len(v)), v] + 1e-12).sum()
+    print(f"all depths: {len(v)} rows, cross-entropy {ce_all / len(v):.4f} a row")
 
 
 if __name__ == "__main__":

@@ -741,7 +741,7 @@ def train(
     between epochs, and early once fewer than `keep` seconds of it are left: the round's
     validation, tuning and the curve) and export it; (onnx path, training summary)."""
     from ngpm_compiler.learning.export import write_onnx
-    from ngpm_compiler.learning.rounds import merge_traces, train_config
+    from ngpm_compiler.learning.rounds import merge_traces, train_config, warm_init
     from ngpm_compiler.learning.trace_data import load_traces
     from ngpm_compiler.learning.train import save_model, train_guide
 
@@ -761,6 +761,7 @@ def train(
         progress=run.cfg.progress,
         on_epoch=lambda _row: run.clock.check(where),
         stop=lambda: run.clock.left() < keep,
+        init=warm_init(rc, r),
     )
     save_model(model, folder / "model.pt")
     (folder / "model.pt.ckpt").unlink(missing_ok=True)
@@ -811,6 +812,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         "features": rc.feature_set,
         "patience": rc.patience,
         "hidden_per_input": rc.hidden_per_input,
+        "warm_start": bool(summary.get("warm_started")),
         "val_nll": round(float(summary["val_nll"]), 3),
         "validation": round(score, 4),
         "guide": path,

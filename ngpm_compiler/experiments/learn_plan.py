@@ -40,6 +40,7 @@ ENVELOPE_TRAINING: dict[str, Any] = {
     "epochs": 100,
     "patience": 10,
     "hidden_per_input": 2.0,
+    "warm_start": True,
 }
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)

@@ -328,8 +328,8 @@ def write_report(out: Path, state: dict[str, Any], stopped: str | None) -> Path:
         *(f"- {n}" for n in state.get("notes", [])),
         f"- features {_features(stages)}, hidden units {_width(stages)} per input, 4 mixture "
         f"components, early stopping (patience "
-        f"{_patience(stages)} epochs); traces whose best particle drew fewer than 10 "
-        "primitives are kept as data",
+        f"{_patience(stages)} epochs){_warm(stages)}; traces whose best particle drew fewer "
+        "than 10 primitives are kept as data",
     ]
     return atomic_write(out / "report.md", "\n".join(lines) + "\n")
 
@@ -359,6 +359,18 @@ def _patience(stages: dict[str, Any]) -> str:
 def _width(stages: dict[str, Any]) -> str:
     """The site networks' hidden units per input (0.5 before the rounds recorded it)."""
     return _of_rounds(stages, "hidden_per_input") or "0.5"
+
+
+def _warm(stages: dict[str, Any]) -> str:
+    """', each round's training warm-started from the last round's' when rounds were."""
+    warm = [
+        v["result"]["round"]
+        for k, v in sorted(stages.items())
+        if k.startswith("round_") and (v.get("result") or {}).get("warm_start")
+    ]
+    return (
+        f", rounds {', '.join(map(str, warm))} warm-started from the round before" if warm else ""
+    )
 
 
 def _stale_curve(name: str | None, stages: dict[str, Any]) -> list[str]:

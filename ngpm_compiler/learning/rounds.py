@@ -29,15 +29,14 @@ from ngpm_runtime.files import atomic_write
 from ngpm_runtime.inference.guide import ProposalSettings
 
 from ngpm_compiler.learning.shards import TraceError
-from ngpm_compiler.learning.trace_data import SiteData, TraceSet
+from ngpm_compiler.learning.trace_data import JOB_STRIDE, SiteData, TraceSet
 from ngpm_compiler.learning.trace_jobs import MIN_PRIMITIVES
 from ngpm_compiler.learning.traces import TraceConfig, generate_traces
 from ngpm_compiler.progress import Log
 
 if TYPE_CHECKING:  # train.py imports torch: on use
+    from ngpm_compiler.learning.nets import GuideModel
     from ngpm_compiler.learning.train import TrainConfig
-
-JOB_STRIDE = 10**8  # job ids of the k-th merged traces directory are offset by k * this
 
 
 @dataclass
@@ -63,6 +62,7 @@ class RoundsConfig:
     batch_size: int = 256
     lr: float = 0.005
     hidden_per_input: float = 0.5  # hidden units per site network over its inputs
+    warm_start: bool = False  # round r's training starts from round r - 1's weights
     K: int = 4
     workers: int = 2
     seed: int = 0
@@ -84,6 +84,17 @@ def train_config(cfg: RoundsConfig) -> TrainConfig:
         seed=cfg.seed,
         threads=cfg.workers,  # a round trains alone: on the cores its traces used
     )
+
+
+def warm_init(cfg: RoundsConfig, r: int) -> GuideModel | None:
+    """The model round r's training starts from: round r - 1's model.pt under
+    `cfg.warm_start` (None without it, for round 0 or 1 of a run without that file)."""
+    from ngpm_compiler.learning.train import load_model
+
+    prev = Path(cfg.out) / f"round_{r - 1}" / "model.pt"
+    if not cfg.warm_start or r < 1 or not prev.is_file():
+        return None
+    return load_model(prev)
 
 
 def merge_traces(sets: list[TraceSet]) -> TraceSet:
@@ -167,6 +178,7 @@ def train_round(
         train_config(cfg),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
+        init=warm_init(cfg, r),
     )
     save_model(model, folder / "model.pt")
     path = write_onnx(model, folder / "guide.onnx")

@@ -13,6 +13,8 @@ from ngpm_runtime.program import Site
 from ngpm_compiler.learning.shards import TraceError, layout_widths
 from ngpm_compiler.learning.trace_store import TRACE_FORMAT, TraceStore
 
+JOB_STRIDE = 10**8  # job ids of the k-th merged traces directory are offset by k * this
+
 
 @dataclass
 class SiteData:

@@ -32,7 +32,7 @@ from ngpm_compiler.learning.nets import (
     continuous_z,
     select_columns,
 )
-from ngpm_compiler.learning.trace_data import SiteData
+from ngpm_compiler.learning.trace_data import JOB_STRIDE, SiteData
 from ngpm_compiler.progress import Progress
 
 CHECKPOINT_FORMAT = "ngpm-train-checkpoint/1"
@@ -78,11 +78,46 @@ def load_model(path: str | Path) -> GuideModel:
 
 
 def split_jobs(jobs: np.ndarray, fraction: float, seed: int) -> np.ndarray:
-    """The held-out job ids: a seeded random `fraction` of the distinct jobs (none if < 2)."""
+    """The held-out job ids: a seeded random `fraction` of the distinct jobs (none if < 2),
+    drawn per merged traces directory (its block of JOB_STRIDE ids; block 0 seeded `seed`,
+    block k [seed, k]), so a directory's split stays when more directories join it and a
+    warm-started round never validates on traces its initial weights were trained on."""
     unique = np.unique(jobs)
+    blocks = unique // JOB_STRIDE
+    out = [
+        _split_block(unique[blocks == b], fraction, seed if b == 0 else [seed, int(b)])
+        for b in np.unique(blocks)
+    ]
+    return np.sort(np.concatenate(out)) if out else unique[:0]
+
+
+def _split_block(unique: np.ndarray, fraction: float, seed: int | list[int]) -> np.ndarray:
     n_val = int(round(fraction * len(unique))) if len(unique) >= 2 else 0
     n_val = min(max(n_val, 1 if fraction > 0 and len(unique) >= 2 else 0), len(unique) - 1)
-    return np.sort(np.random.default_rng(seed).permutation(unique)[:n_val])
+    return np.random.default_rng(seed).permutation(unique)[:n_val]
+
+
+def weights_hash(model: GuideModel) -> str:
+    """A short digest of a model's networks (specs and weights)."""
+    h = hashlib.sha256()
+    for _, net in sorted(model.nets.items()):
+        h.update(repr(net.spec.to_json()).encode())
+        for name, t in sorted(net.state_dict().items()):
+            h.update(name.encode())
+            h.update(t.detach().cpu().numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+def warm_start(model: GuideModel, init: GuideModel) -> list[int]:
+    """Copy `init`'s weights and input standardization into `model`'s networks of the same
+    shape (equal NetSpec); the sites so started."""
+    done = []
+    for i, net in model.nets.items():
+        old = init.nets.get(i)
+        if old is not None and old.spec == net.spec:
+            net.load_state_dict(old.state_dict())
+            done.append(i)
+    return done
 
 
 def fingerprint(data: dict[int, SiteData]) -> str:
@@ -174,10 +209,12 @@ def train_guide(
     progress: bool = False,
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
     stop: Callable[[], bool] | None = None,
+    init: GuideModel | None = None,
 ) -> GuideModel:
     """Fit one network per visited site; returns the best epoch's model with a summary.
     `stop` is asked after each epoch (once checkpointed): True ends the training there, as
-    early stopping does (a time limit: the summary's `stopped` says "stop").
+    early stopping does (a time limit: the summary's `stopped` says "stop"). `init` (an
+    earlier round's model) warm-starts the networks of the same shape (`warm_start`).
 
     Long because the epoch loop, early stopping and checkpoint resumption share the
     optimizer and best-epoch state."""
@@ -191,6 +228,7 @@ def train_guide(
         is_val = np.isin(d.jobs, val_jobs)
         train_rows[i], val_rows[i] = np.flatnonzero(~is_val), np.flatnonzero(is_val)
     model = build_model(sites, layouts, data, config, grammar, grammar_hash, train_rows)
+    warm = warm_start(model, init) if init is not None else []
     by_index = {s.index: s for s in sites}
     train = {i: _splits(by_index[i], data[i], train_rows[i]) for i in model.nets}
     val = {i: _splits(by_index[i], data[i], val_rows[i]) for i in model.nets}
@@ -200,6 +238,7 @@ def train_guide(
     key = {
         "config": {k: v for k, v in asdict(config).items() if k not in ("epochs", "threads")},
         "data": fingerprint(data),
+        "init": weights_hash(init) if init is not None else "",
     }
     first_epoch, bad, stopped = 0, 0, ""
     if checkpoint and Path(checkpoint).is_file():
@@ -276,6 +315,7 @@ def train_guide(
         "K": config.K,
         "rows": {str(i): int(len(d.values)) for i, d in sorted(data.items())},
         "sites_trained": sorted(model.nets),
+        "warm_started": sorted(warm),
         "epochs_run": len(history),
         "stopped": stopped,
         "best_epoch": best["epoch"] if best else 0,

@@ -21,6 +21,7 @@ from ngpm_compiler.learning.rounds import (
     RoundsConfig,
     expert_iteration,
     merge_traces,
+    warm_init,
 )
 from ngpm_compiler.learning.shards import TraceError
 from ngpm_compiler.learning.trace_data import load_traces
@@ -157,6 +158,11 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     ctx = expert_iteration(replace(cfg, feature_set="all+context"), log=logs.append)
     assert not any("reusing" in m for m in logs)
     assert all(Guide.load(r["guide"], vines).feature_context for r in ctx[1:])
+    # warm start: round 2 starts from round 1's weights, round 1 from none (round 0 is a file)
+    warm = replace(cfg, feature_set="all+context", warm_start=True)
+    assert warm_init(warm, 1) is None and warm_init(cfg, 2) is None
+    init = warm_init(warm, 2)
+    assert init is not None and init.feature_set == "all+context"  # ctx's round 1
 
 
 def test_cli_traces_with_a_guide(tmp_path, capsys):

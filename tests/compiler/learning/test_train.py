@@ -8,6 +8,7 @@ import torch
 from ngpm_runtime.program import Site
 from scipy.special import expit, softmax
 
+from ngpm_compiler.learning.trace_data import JOB_STRIDE
 from ngpm_compiler.learning.train import (
     SiteData,
     TrainConfig,
@@ -17,6 +18,7 @@ from ngpm_compiler.learning.train import (
     save_model,
     split_jobs,
     train_guide,
+    weights_hash,
 )
 
 SITES = [
@@ -128,6 +130,42 @@ def test_holdout_is_by_job():
     assert len(val) == 5 and len(np.unique(val)) == 5
     assert np.array_equal(val, split_jobs(jobs, 0.1, seed=0))
     assert len(split_jobs(np.zeros(9, int), 0.1, 0)) == 0
+
+
+def test_a_directorys_holdout_stays_when_more_directories_join():
+    one = np.repeat(np.arange(40), 3)
+    two = np.concatenate([one, np.repeat(np.arange(30) + JOB_STRIDE, 3)])
+    val1, val2 = split_jobs(one, 0.1, seed=7), split_jobs(two, 0.1, seed=7)
+    assert np.array_equal(val2[val2 < JOB_STRIDE], val1)
+    assert (val2 >= JOB_STRIDE).sum() == 3  # a tenth of the second directory's 30
+
+
+def test_warm_start_begins_where_the_earlier_model_ended():
+    data, _ = synthetic(n_jobs=30, per_job=20, seed=8)
+    cfg = dict(feature_set="local", K=2, batch_size=64, patience=100)
+    first = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=6, **cfg))
+    cold = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=1, **cfg))
+    warm = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=1, **cfg), init=first)
+    assert warm.summary["warm_started"] == sorted(first.nets)
+    assert cold.summary["warm_started"] == []
+    # one more epoch from the trained weights beats one epoch from scratch
+    assert warm.summary["val_nll"] < cold.summary["val_nll"] - 1.0
+    # a network of another shape is not copied
+    wide = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=1, hidden=24, **cfg), init=first)
+    assert wide.summary["warm_started"] == []
+
+
+def test_a_checkpoint_of_another_initial_model_is_not_resumed(tmp_path):
+    data, _ = synthetic(n_jobs=10, per_job=30, seed=2)
+    cfg = dict(feature_set="local", K=2, batch_size=64, patience=100)
+    a = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, seed=1, **cfg))
+    b = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, seed=2, **cfg))
+    assert weights_hash(a) != weights_hash(b)
+    ck = tmp_path / "m.pt.ckpt"
+    train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, **cfg), checkpoint=ck, init=a)
+    again = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, **cfg), checkpoint=ck, init=b)
+    fresh = train_guide(SITES, LAYOUTS, data, TrainConfig(epochs=2, **cfg), init=b)
+    assert_same_weights(again, fresh)
 
 
 def test_checkpoint_resume_gives_the_same_model(tmp_path):
