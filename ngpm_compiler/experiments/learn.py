@@ -750,18 +750,19 @@ def train(
         raise LearnError(f"round {r}: the traces hold no site visits to train on")
     folder = Path(rc.out) / f"round_{r}"
     where = f"round {r}'s training"
+    init = warm_init(rc, r)
     model = train_guide(
         ts.sites,
         ts.layouts,
         ts.data,
-        train_config(rc),
+        train_config(rc, warm=init is not None),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
         checkpoint=folder / "model.pt.ckpt",
         progress=run.cfg.progress,
         on_epoch=lambda _row: run.clock.check(where),
         stop=lambda: run.clock.left() < keep,
-        init=warm_init(rc, r),
+        init=init,
     )
     save_model(model, folder / "model.pt")
     (folder / "model.pt.ckpt").unlink(missing_ok=True)
@@ -810,7 +811,7 @@ def round_stage(run: Run, p: Plan, r: int) -> dict[str, Any]:
         else f"unguided N={rc.unguided_particles}",
         "traces": summary["traces"],
         "features": rc.feature_set,
-        "patience": rc.patience,
+        "patience": summary["config"]["patience"],
         "hidden_per_input": rc.hidden_per_input,
         "warm_start": bool(summary.get("warm_started")),
         "val_nll": round(float(summary["val_nll"]), 3),

@@ -34,13 +34,18 @@ FEATURES = {2: "all+context", 3: "all"}  # the guides' feature set (3D rows have
 # far_lookahead.md: held out 0.191 -> 0.225 at N = 10 with both, bush unchanged). And
 # networks 4 times as wide (hidden units twice the inputs, not half): 8000 such traces hold
 # some 800000 rows a site, which the default width underfits (stochastic_plant: validation
-# NLL 86.9 -> 85.8, 48 envelopes at N = 10 0.222 -> 0.246; notes/envelope_training.md)
+# NLL 86.9 -> 85.8, 48 envelopes at N = 10 0.222 -> 0.246; notes/envelope_training.md).
+# Data counts most (8000 -> 24000 traces: 85.3 -> 83.0, 0.241 -> 0.283 on 24 envelopes), so
+# each round after the first starts from the round before's weights, which is within 0.8 of
+# its best after one epoch, and stops after 4 epochs without a better one: rounds cost
+# about their traces' epochs, not a whole new training, and more of them fit
 ENVELOPE_TRAINING: dict[str, Any] = {
     "feature_set": "all+context+far",
     "epochs": 100,
     "patience": 10,
     "hidden_per_input": 2.0,
     "warm_start": True,
+    "warm_patience": 4,
 }
 UNGUIDED_PARTICLES = 600  # round 0's teacher (the paper's)
 GUIDED_PARTICLES = 200  # the guided rounds' teacher (expert iteration in the recipe)

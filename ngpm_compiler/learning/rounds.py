@@ -63,21 +63,23 @@ class RoundsConfig:
     lr: float = 0.005
     hidden_per_input: float = 0.5  # hidden units per site network over its inputs
     warm_start: bool = False  # round r's training starts from round r - 1's weights
+    warm_patience: int = 0  # a warm-started training's patience (0: `patience`)
     K: int = 4
     workers: int = 2
     seed: int = 0
     likelihood: str = "shape"  # circuit: targets [""], validation heldout.CIRCUIT_SETS
 
 
-def train_config(cfg: RoundsConfig) -> TrainConfig:
-    """The TrainConfig of a round's training."""
+def train_config(cfg: RoundsConfig, warm: bool = False) -> TrainConfig:
+    """The TrainConfig of a round's training (`warm`: one that starts from the round
+    before's weights, which stops sooner: `warm_patience`)."""
     from ngpm_compiler.learning.train import TrainConfig
 
     return TrainConfig(
         feature_set=cfg.feature_set,
         K=cfg.K,
         epochs=cfg.epochs,
-        patience=cfg.patience,
+        patience=cfg.warm_patience if warm and cfg.warm_patience else cfg.patience,
         batch_size=cfg.batch_size,
         lr=cfg.lr,
         hidden_per_input=cfg.hidden_per_input,
@@ -171,14 +173,15 @@ def train_round(
         if old.summary.get("traces") == len(ts.kept_jobs) and old.feature_set == cfg.feature_set:
             log(f"round {r}: reusing {onnx} ({len(ts.kept_jobs)} traces)")
             return str(onnx), old.summary
+    init = warm_init(cfg, r)
     model = train_guide(
         ts.sites,
         ts.layouts,
         ts.data,
-        train_config(cfg),
+        train_config(cfg, warm=init is not None),
         grammar=ts.manifest["key"]["grammar"],
         grammar_hash=ts.manifest["grammar_hash"],
-        init=warm_init(cfg, r),
+        init=init,
     )
     save_model(model, folder / "model.pt")
     path = write_onnx(model, folder / "guide.onnx")

@@ -511,9 +511,11 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     assert [x["teacher"] for x in rounds] == [learn_mod.OWN_TEACHER] * 2
     assert [x["traces"] for x in rounds] == [5, 10]
     # trained with the far look-ahead and patience 10 (learn_plan.ENVELOPE_TRAINING)
-    assert [(x["features"], x["patience"]) for x in rounds] == [("all+context+far", 10)] * 2
-    # round 1's training starts from round 0's weights
-    assert [x["warm_start"] for x in rounds] == [False, True]
+    # round 1's training starts from round 0's weights, with a shorter patience
+    assert [(x["features"], x["patience"], x["warm_start"]) for x in rounds] == [
+        ("all+context+far", 10, False),
+        ("all+context+far", 4, True),
+    ]
     meta = {p.key: p.value for p in onnx.load(res["guide"]).metadata_props}
     assert json.loads(meta["features"])["feature_set"] == "all+context+far"
     keys = []
@@ -530,7 +532,7 @@ def test_generic_targets_out_of_reach_switch_to_envelopes(tmp_path, monkeypatch,
     assert lines[0] in report and "validation envelopes (`val_envelopes`)" in report
     assert "recorded its own samples' ground-truth traces in place of these" in report
     assert "features all+context+far, hidden units 2.0 per input, 4 mixture" in report
-    assert "early stopping (patience 10 epochs), rounds 1 warm-started" in report
+    assert "early stopping (patience 10, 4 epochs), rounds 1 warm-started" in report
     logs.clear()
     learn(cfg, log=logs.append)  # resumed: every stage done, the same targets
     assert stages(tmp_path / "out") == done

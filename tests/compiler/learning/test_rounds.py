@@ -163,6 +163,9 @@ def test_round_loop_keeps_the_best_round(tmp_path, vines):
     assert warm_init(warm, 1) is None and warm_init(cfg, 2) is None
     init = warm_init(warm, 2)
     assert init is not None and init.feature_set == "all+context"  # ctx's round 1
+    short = replace(warm, warm_patience=2)
+    assert train_config(short, warm=True).patience == 2
+    assert train_config(short).patience == train_config(warm, warm=True).patience == cfg.patience
 
 
 def test_cli_traces_with_a_guide(tmp_path, capsys):
