@@ -21,6 +21,7 @@ from ngpm_compiler.learning.rounds import (
     RoundsConfig,
     expert_iteration,
     merge_traces,
+    train_config,
     warm_init,
 )
 from ngpm_compiler.learning.shards import TraceError
